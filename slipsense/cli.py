@@ -1,0 +1,166 @@
+"""The ``slipsense`` command line. Every command turns a bad input into one line and exit code 2."""
+from __future__ import annotations
+
+import functools
+import json
+import sys
+from pathlib import Path
+from typing import Any, List, Optional
+
+import typer
+
+from slipsense.errors import ConfigError, SlipsenseError
+
+app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
+                  help="Slip detection and prediction from vision-based tactile sensors.")
+
+
+def friendly(fn):
+    """Print SlipsenseErrors as ``error: <file>: <problem>`` and exit 2 instead of a traceback."""
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        try:
+            return fn(*args, **kwargs)
+        except SlipsenseError as exc:
+            typer.echo(f"error: {exc}", err=True)
+            raise typer.Exit(2)
+
+    return wrapper
+
+
+def _parse_size(size: Optional[str]) -> Optional[tuple[int, int]]:
+    if size is None:
+        return None
+    try:
+        h, w = (int(v) for v in size.lower().split("x"))
+    except ValueError:
+        raise ConfigError(f"--size must look like 240x320 (height x width), got {size!r}") from None
+    return (h, w)
+
+
+def _parse_sets(sets: Optional[List[str]]) -> dict[str, Any]:
+    """``--set key=value`` pairs; values are parsed as JSON where they can be (numbers, lists)."""
+    out: dict[str, Any] = {}
+    for item in sets or []:
+        if "=" not in item:
+            raise ConfigError(f"--set expects key=value, got {item!r}")
+        key, raw = item.split("=", 1)
+        try:
+            out[key.strip()] = json.loads(raw)
+        except json.JSONDecodeError:
+            out[key.strip()] = raw
+    return out
+
+
+def _default_recordings() -> Path:
+    from slipsense.config import gelsight_recordings
+
+    return gelsight_recordings()
+
+
+@app.command()
+@friendly
+def label(
+    recordings: Path = typer.Option(None, help="recordings folder (default: $SLIPSENSE_DATA/gelsight-slip)"),
+    csv: Path = typer.Option(..., help="output CSV, one row per video"),
+    overrides: Optional[Path] = typer.Option(None, help="CSV of hand labels that replace automatic ones"),
+    on_error: str = typer.Option("raise", help="raise: stop at a bad video; skip: warn and leave it out"),
+    progress: bool = typer.Option(True),
+):
+    """Find the moment of slip in every video and write it as CSV."""
+    from slipsense.recordings.folders import find_recordings, validate_recordings
+    from slipsense.recordings.labels import label_recordings, read_overrides_csv, write_labels_csv
+
+    root = recordings or _default_recordings()
+    recs = validate_recordings(find_recordings(root, on_error=on_error), on_error=on_error)
+    ov = read_overrides_csv(overrides) if overrides else None
+    labels = label_recordings(recs, overrides=ov, progress=progress)
+    write_labels_csv(labels, csv)
+    n_slip = sum(1 for l in labels.values() if l.moment_of_slip is not None)
+    typer.echo(f"{len(labels)} videos labelled ({n_slip} with a moment of slip) -> {csv}")
+
+
+@app.command()
+@friendly
+def train(
+    model: str = typer.Option("vivit", help="model name (see `slipsense models`)"),
+    recordings: Optional[Path] = typer.Option(None, help="GelSight recordings folder (video models)"),
+    markers: Optional[Path] = typer.Option(None, help="marker-sequence .npz (STNet/TemNet)"),
+    out: Path = typer.Option(Path("runs/latest"), help="run folder"),
+    preset: Optional[str] = typer.Option(None, help="named model configuration (e.g. paper, compact)"),
+    set_: Optional[List[str]] = typer.Option(None, "--set", help="model config key=value (repeatable)"),
+    frames: int = typer.Option(5, help="frames per clip (2..12)"),
+    horizon: int = typer.Option(0, help="slip clips end this many frames before the moment of slip"),
+    size: Optional[str] = typer.Option(None, help="clip size HxW (default 240x320)"),
+    wiggle_per_video: int = typer.Option(2, help="wiggle windows drawn from each non-slip video"),
+    split: str = typer.Option("objects", help="objects: leave objects out; clips: random 90/10 by clip"),
+    test_objects: Optional[str] = typer.Option(None, help="comma-separated held-out objects"),
+    fold: Optional[int] = typer.Option(None, help="hold out fold k of --folds object folds"),
+    folds: int = typer.Option(5),
+    test_fraction: float = typer.Option(0.1, help="for --split clips, or marker data: test share"),
+    augment: bool = typer.Option(True, help="append the paper's transformed copies to the training set"),
+    epochs: Optional[int] = typer.Option(None),
+    batch_size: Optional[int] = typer.Option(None, help="per process; under torchrun the global batch is world x this"),
+    lr: Optional[float] = typer.Option(None),
+    weight_decay: Optional[float] = typer.Option(None),
+    seed: int = typer.Option(0),
+    workers: int = typer.Option(0, help="DataLoader worker processes"),
+    device: str = typer.Option("auto"),
+    max_steps_per_epoch: Optional[int] = typer.Option(None, help="cap steps per epoch (smoke runs)"),
+    resume: bool = typer.Option(False, help="continue from OUT/resume.pt"),
+    on_error: str = typer.Option("raise"),
+    progress: bool = typer.Option(True),
+):
+    """Train a model on recordings or marker sequences (works under torchrun for DDP)."""
+    from slipsense.train import TrainRequest, run_training
+
+    req = TrainRequest(
+        model=model, recordings=recordings, markers=markers, out=out, preset=preset, model_overrides=_parse_sets(set_),
+        frames=frames, horizon=horizon, size=_parse_size(size), wiggle_per_video=wiggle_per_video, split=split,
+        test_objects=[o for o in (test_objects or "").split(",") if o], fold=fold, folds=folds,
+        test_fraction=test_fraction, augment=augment, seed=seed, on_error=on_error, progress=progress,
+        train_overrides={k: v for k, v in dict(epochs=epochs, batch_size=batch_size, lr=lr, weight_decay=weight_decay,
+                                               num_workers=workers, device=device,
+                                               max_steps_per_epoch=max_steps_per_epoch).items() if v is not None},
+    )
+    run_training(req, resume=resume)
+
+
+@app.command()
+@friendly
+def evaluate(
+    checkpoint: Path = typer.Option(..., help="a .safetensors checkpoint"),
+    recordings: Optional[Path] = typer.Option(None, help="evaluate on every clip of this recordings folder"),
+    split: Optional[Path] = typer.Option(None, help="a run's split.json: evaluate on its held-out part"),
+    markers: Optional[Path] = typer.Option(None, help="marker-sequence .npz: evaluate on all of it"),
+    json_out: Path = typer.Option(Path("evaluation.json"), "--json", help="metrics JSON"),
+    png: Optional[Path] = typer.Option(None, help="confusion-matrix picture (default: beside the JSON)"),
+    noise_std: float = typer.Option(0.0, help="add Gaussian noise of this std (0..255 scale) to clips"),
+    on_error: str = typer.Option("raise"),
+    progress: bool = typer.Option(True),
+):
+    """Evaluate a checkpoint: accuracy, precision, recall, F1 and a confusion matrix."""
+    from slipsense.evaluate import evaluate_checkpoint
+
+    m = evaluate_checkpoint(checkpoint, recordings=recordings, split=split, markers=markers, json_out=json_out,
+                            png=png, noise_std=noise_std, on_error=on_error, progress=progress)
+    typer.echo(json.dumps({k: m[k] for k in ("accuracy", "precision", "recall", "f1", "n_clips", "n_slip", "n_wiggle")}))
+
+
+@app.command()
+@friendly
+def models():
+    """List the registered models and their parameter counts at default settings."""
+    from slipsense.models import available, build, count_parameters
+
+    for name in available():
+        typer.echo(f"{name:12s} {count_parameters(build(name)):>12,d} parameters")
+
+
+def main() -> None:  # console-script entry point
+    app()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,82 @@
+"""From a folder or file a user names to the Datasets training and evaluation take.
+
+Two kinds of data, matching the models' ``input_kind``:
+
+* ``video``: a GelSight recordings folder (``<object>/exp_num_<N>/camera_*.avi``) -> labelled
+  clips (cached) -> :class:`~slipsense.datasets.ClipDataset`;
+* ``markers``: an ``.npz`` of marker-cloud sequences (``x`` (N, T, M, 3), ``y`` (N,), optional
+  ``groups`` (N,)) -> :class:`~slipsense.datasets.MarkerDataset`.
+"""
+from __future__ import annotations
+
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from slipsense.errors import ConfigError, InputError
+
+
+def gelsight_clips(recordings_dir: str | Path, spec, on_error: str = "raise", overrides: str | Path | None = None,
+                   progress: bool = True):
+    """Labelled clips of every video under ``recordings_dir`` (labels and clips are cached).
+
+    Returns ``(clipset, labels)``; ``spec`` is a :class:`~slipsense.recordings.clips.ClipSpec`.
+    """
+    from slipsense.recordings.clips import load_or_build_clips
+    from slipsense.recordings.folders import find_recordings, validate_recordings
+    from slipsense.recordings.labels import label_recordings, read_overrides_csv
+
+    recordings = find_recordings(recordings_dir, on_error=on_error)
+    recordings = validate_recordings(recordings, on_error=on_error)
+    if not recordings:
+        raise InputError(recordings_dir, "no usable recordings")
+    ov = read_overrides_csv(overrides) if overrides else None
+    labels = label_recordings(recordings, overrides=ov, progress=progress)
+    clips = load_or_build_clips(recordings, labels, spec, progress=progress)
+    if len(clips) == 0:
+        raise InputError(recordings_dir, "no clips could be made (no slip moments and no contact phases found)")
+    return clips, labels
+
+
+def clip_spec_from(info: dict[str, Any]):
+    """The ClipSpec stored in a checkpoint's or split's ``data`` section."""
+    from slipsense.recordings.clips import ClipSpec
+
+    d = dict(info["clip_spec"])
+    if "size" in d and d["size"] is not None:
+        d["size"] = tuple(d["size"])
+    return ClipSpec(**d)
+
+
+def spec_dict(spec) -> dict[str, Any]:
+    return asdict(spec)
+
+
+def load_markers(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(x (N,T,M,3) float32, y (N,) int64, groups (N,))`` from a marker ``.npz`` (validated)."""
+    from slipsense.sensors.simulator import load_marker_npz
+
+    ds = load_marker_npz(path)
+    groups = getattr(ds, "groups", None)
+    if groups is None:
+        groups = np.arange(len(ds.y))
+    return ds.x, ds.y, np.asarray(groups)
+
+
+def split_groups(groups: np.ndarray, test_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Split item indices so that no group (sequence, object) is on both sides.
+
+    Overlapping windows of one sequence share a group: splitting by window would leak test data
+    into training.
+    """
+    if not 0 < test_fraction < 1:
+        raise ConfigError("test fraction must be in (0, 1)")
+    uniq = np.unique(groups)
+    rng = np.random.default_rng(seed)
+    perm = rng.permutation(uniq)
+    n_test = max(1, int(round(len(uniq) * test_fraction)))
+    test_groups = set(perm[:n_test].tolist())
+    is_test = np.array([g in test_groups for g in groups.tolist()])
+    return np.flatnonzero(~is_test), np.flatnonzero(is_test)

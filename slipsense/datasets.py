@@ -1,0 +1,65 @@
+"""torch Datasets over prepared data: GelSight clips and marker-cloud sequences.
+
+Both yield ``(x, y)`` with ``x`` float32 in the layout the models take and ``y`` an int64 label
+(1 = slip / onset of slip, 0 = no slip / wiggle).
+"""
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch.utils.data import Dataset
+
+
+def clip_to_tensor(clip: np.ndarray) -> torch.Tensor:
+    """uint8 ``(T, H, W, 3)`` BGR -> float32 ``(T, 3, H, W)`` in [0, 1] (the video models' input)."""
+    return torch.from_numpy(np.ascontiguousarray(clip)).permute(0, 3, 1, 2).float().div_(255.0)
+
+
+class ClipDataset(Dataset):
+    """Clips of a :class:`~slipsense.recordings.clips.ClipSet`, optionally with the paper's
+    augmentation appended: indices ``N..2N-1`` are the transformed copies of ``0..N-1``.
+
+    A copy's random noise is seeded by ``(seed, index)``, so it is the same every epoch and on every
+    rank — a fixed augmented dataset as in the paper, without holding the copies in memory.
+    """
+
+    def __init__(self, clips, augment=None, seed: int = 0, noise_std: float = 0.0):
+        self.clips = clips
+        self.augment = augment if (augment is not None and augment.enabled) else None
+        self.seed = seed
+        self.noise_std = noise_std  # evaluation-time noise (robustness experiments)
+
+    def __len__(self) -> int:
+        n = len(self.clips)
+        return 2 * n if self.augment is not None else n
+
+    def label(self, index: int) -> int:
+        return int(self.clips.y[index % len(self.clips)])
+
+    def __getitem__(self, index: int):
+        from slipsense.recordings.augment import add_noise, transform_clip
+
+        n = len(self.clips)
+        clip = self.clips.x[index % n]
+        if index >= n:
+            clip = transform_clip(clip, self.augment, np.random.default_rng([self.seed, index]))
+        if self.noise_std > 0:
+            clip = add_noise(clip, self.noise_std, np.random.default_rng([self.seed, 1, index]))
+        return clip_to_tensor(clip), torch.tensor(int(self.clips.y[index % n]))
+
+
+class MarkerDataset(Dataset):
+    """Marker-cloud sequences: ``x`` float32 ``(N, T, M, 3)``, ``y`` int ``(N,)``."""
+
+    def __init__(self, x: np.ndarray, y: np.ndarray):
+        self.x = torch.from_numpy(np.ascontiguousarray(x, dtype=np.float32))
+        self.y = torch.from_numpy(np.asarray(y, dtype=np.int64))
+
+    def __len__(self) -> int:
+        return len(self.y)
+
+    def label(self, index: int) -> int:
+        return int(self.y[index])
+
+    def __getitem__(self, index: int):
+        return self.x[index], self.y[index]

@@ -1,0 +1,24 @@
+"""Errors that reach a user as one line: the file (or setting) and what is wrong with it."""
+from __future__ import annotations
+
+from pathlib import Path
+
+
+class SlipsenseError(Exception):
+    """Base class: anything slipsense reports to a user as a one-line error."""
+
+
+class InputError(SlipsenseError):
+    """A file or value a user gave cannot be used.
+
+    ``InputError(path, problem)`` renders as ``"<path>: <problem>"`` so the CLI can print it whole.
+    """
+
+    def __init__(self, path: str | Path | None, problem: str):
+        self.path = None if path is None else str(path)
+        self.problem = problem
+        super().__init__(problem if path is None else f"{path}: {problem}")
+
+
+class ConfigError(SlipsenseError):
+    """A configuration key is unknown or a value is out of range."""

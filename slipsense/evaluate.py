@@ -1,0 +1,92 @@
+"""Evaluation: a checkpoint against labelled data, to JSON and a confusion-matrix picture."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from slipsense.atomic import write_text
+from slipsense.errors import ConfigError, InputError
+
+
+def evaluate_model(model, data, json_out: str | Path | None = None, png: str | Path | None = None,
+                   extra: dict[str, Any] | None = None, batch_size: int = 32, progress: bool = False) -> dict[str, Any]:
+    """Metrics of ``model`` on a Dataset of ``(x, y)``: accuracy, precision, recall, F1, counts,
+    confusion matrix; optionally written to ``json_out`` and drawn to ``png``."""
+    from slipsense.plots import plot_confusion
+    from slipsense.train import metrics_from, predict
+
+    p, y = predict(model, data, batch_size=batch_size, progress=progress)
+    m = {**metrics_from(p, y), **(extra or {})}
+    if json_out is not None:
+        write_text(json_out, json.dumps(m, indent=2, default=str))
+        png = png or Path(json_out).with_suffix(".png")
+    if png is not None:
+        plot_confusion(m["confusion"], png, title=f"acc {m['accuracy']:.3f}  F1 {m['f1']:.3f}  n={m['n_clips']}")
+    return m
+
+
+def evaluate_checkpoint(checkpoint: str | Path, recordings=None, split=None, markers=None, json_out=None, png=None,
+                        noise_std: float = 0.0, on_error: str = "raise", progress: bool = True) -> dict[str, Any]:
+    """Run the whole pipeline a checkpoint needs on one data source and score it.
+
+    Exactly one of ``recordings`` (every clip of that folder: zero-shot on unseen objects),
+    ``split`` (a run's ``split.json``: its held-out part) or ``markers`` (an ``.npz``) is given.
+    Clips are made with the clip settings stored in the checkpoint.
+    """
+    from slipsense.checkpoint import load_model
+    from slipsense.data import clip_spec_from, gelsight_clips, load_markers
+    from slipsense.datasets import ClipDataset, MarkerDataset
+
+    sources = [s for s in (recordings, split, markers) if s is not None]
+    if len(sources) != 1:
+        raise ConfigError("give exactly one of --recordings, --split or --markers")
+    model, info = load_model(checkpoint)
+    kind = model.input_kind
+    extra: dict[str, Any] = {"checkpoint": str(checkpoint), "model": info["model"], "noise_std": noise_std}
+    if kind == "video":
+        if markers is not None:
+            raise InputError(checkpoint, "this checkpoint holds a video model; use --recordings or --split")
+        data_info = info.get("data", {})
+        if split is not None:
+            split_info = _read_split(split)
+            spec = clip_spec_from(split_info)
+            clips, _ = gelsight_clips(split_info["recordings"], spec, on_error=split_info.get("on_error", on_error),
+                                      progress=progress)
+            idx = split_info["test_indices"]
+            if idx and max(idx) >= len(clips):
+                raise InputError(split, "test indices do not fit the clips rebuilt from its recordings")
+            clips = clips.subset(idx)
+            extra.update(split=str(split), test_objects=split_info.get("test_objects"))
+        else:
+            if "clip_spec" not in data_info:
+                raise InputError(checkpoint, "checkpoint has no clip settings (data.clip_spec)")
+            clips, _ = gelsight_clips(recordings, clip_spec_from(data_info), on_error=on_error, progress=progress)
+            extra.update(recordings=str(recordings), objects=sorted(set(clips.objects)))
+        data = ClipDataset(clips, noise_std=noise_std, seed=0)
+    else:
+        if recordings is not None:
+            raise InputError(checkpoint, "this checkpoint holds a marker model; use --markers or --split")
+        if split is not None:
+            split_info = _read_split(split)
+            x, y, _ = load_markers(split_info["markers"])
+            idx = split_info["test_indices"]
+            x, y = x[idx], y[idx]
+        else:
+            x, y, _ = load_markers(markers)
+            extra["markers"] = str(markers)
+        data = MarkerDataset(x, y)
+    return evaluate_model(model, data, json_out, png, extra=extra, progress=progress)
+
+
+def _read_split(path) -> dict[str, Any]:
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(path, "split file not found")
+    try:
+        info = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(path, f"not a JSON split file ({exc})") from None
+    if "test_indices" not in info:
+        raise InputError(path, "split file lacks test_indices")
+    return info

@@ -1,0 +1,68 @@
+"""The model zoo: every network is built by name from a plain config dict.
+
+    >>> from slipsense.models import build, available
+    >>> model = build("vivit", frames=5)            # doctest: +SKIP
+
+Each model class declares
+
+* ``input_kind``: ``"video"`` — input ``(B, T, 3, H, W)`` float32 in [0, 1], BGR channel order as
+  OpenCV decodes — or ``"markers"`` — input ``(B, T, N, 3)`` float32 marker positions;
+* ``config()``: the keyword arguments that rebuild it (stored in every checkpoint);
+* ``forward(x) -> (B, 2)`` logits, class 1 = slip (onset of slip), class 0 = no slip (wiggle);
+* ``check_input(x)``: raises :class:`slipsense.errors.InputError` on a wrong shape or non-finite values.
+"""
+from __future__ import annotations
+
+import importlib
+from typing import Any, Callable
+
+import torch.nn as nn
+
+from slipsense.errors import ConfigError
+
+_REGISTRY: dict[str, Callable[..., nn.Module]] = {}
+# Modules that register models on import; imported lazily so `import slipsense` stays fast.
+_MODULES = ("slipsense.models.vivit", "slipsense.models.resnet3d", "slipsense.models.stnet")
+
+
+def register(name: str):
+    """Class decorator: make ``build(name, **config)`` construct this class."""
+
+    def deco(cls):
+        _REGISTRY[name] = cls
+        cls.model_name = name
+        return cls
+
+    return deco
+
+
+def _load_all() -> None:
+    for mod in _MODULES:
+        try:
+            importlib.import_module(mod)
+        except ModuleNotFoundError as exc:  # a model file not written yet must not break the others
+            if exc.name != mod:
+                raise
+
+
+def available() -> list[str]:
+    """Names of all registered models."""
+    _load_all()
+    return sorted(_REGISTRY)
+
+
+def build(name: str, **config: Any) -> nn.Module:
+    """Build model ``name`` with keyword ``config``; unknown names or keys raise ConfigError."""
+    _load_all()
+    if name not in _REGISTRY:
+        raise ConfigError(f"unknown model {name!r}; available: {', '.join(sorted(_REGISTRY))}")
+    cls = _REGISTRY[name]
+    try:
+        return cls(**config)
+    except TypeError as exc:
+        raise ConfigError(f"model {name!r}: {exc}") from None
+
+
+def count_parameters(model: nn.Module) -> int:
+    """Number of trainable parameters."""
+    return sum(p.numel() for p in model.parameters() if p.requires_grad)

@@ -1,0 +1,61 @@
+"""Pictures a person would rather look at than read: curves, confusion matrices, heat maps."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from slipsense.atomic import write_with
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def save_figure(fig, path: str | Path, dpi: int = 120) -> Path:
+    """Save ``fig`` atomically and close it."""
+    plt = _plt()
+    path = Path(path)
+    write_with(path, lambda tmp: fig.savefig(tmp, dpi=dpi, bbox_inches="tight"))
+    plt.close(fig)
+    return path
+
+
+def plot_curves(history: Sequence[dict[str, Any]], path: str | Path, title: str = "") -> Path:
+    """Loss and accuracy per epoch for train and validation from ``metrics.csv`` rows."""
+    plt = _plt()
+    epochs = [r["epoch"] for r in history]
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 3.6))
+    for key, ax in (("loss", a1), ("accuracy", a2)):
+        for split in ("train", "val"):
+            vals = [r.get(f"{split}_{key}") for r in history]
+            if any(v is not None for v in vals):
+                ax.plot(epochs, vals, marker=".", label=split)
+        ax.set_xlabel("epoch")
+        ax.set_ylabel(key)
+        ax.grid(alpha=0.3)
+        ax.legend()
+    fig.suptitle(title)
+    return save_figure(fig, path)
+
+
+def plot_confusion(cm, path: str | Path, labels=("wiggle", "slip"), title: str = "") -> Path:
+    """2x2 confusion matrix (rows: truth, columns: prediction) with counts in the cells."""
+    plt = _plt()
+    cm = np.asarray(cm)
+    fig, ax = plt.subplots(figsize=(3.6, 3.2))
+    ax.imshow(cm, cmap="Blues")
+    for i in range(2):
+        for j in range(2):
+            ax.text(j, i, str(cm[i, j]), ha="center", va="center",
+                    color="white" if cm[i, j] > cm.max() / 2 else "black", fontsize=13)
+    ax.set_xticks([0, 1], [f"pred {l}" for l in labels])
+    ax.set_yticks([0, 1], [f"true {l}" for l in labels])
+    ax.set_title(title)
+    return save_figure(fig, path)

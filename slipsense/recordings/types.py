@@ -1,0 +1,44 @@
+"""Plain records shared by the recordings pipeline: what a video is, and what we know about it."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+
+@dataclass(frozen=True)
+class Recording:
+    """One sensor video of one experiment: ``<root>/<object>/exp_num_<experiment>/<camera>.avi``."""
+
+    object: str
+    experiment: int
+    camera: str  # file stem, e.g. "camera_0"
+    path: Path
+    slipped: bool  # slip.txt present in the experiment folder
+
+    @property
+    def key(self) -> tuple[str, int, str]:
+        return (self.object, self.experiment, self.camera)
+
+
+@dataclass(frozen=True)
+class VideoLabel:
+    """What the labeller found in one video (frame indices into the decoded video, 0-based).
+
+    ``moment_of_slip``: the last frame before the object loses contact with either sensor
+    (``None`` when the run did not slip). ``contact_start``/``contact_end``: the first and last
+    frame of the contact phase (inclusive), used to draw wiggle windows from runs that did not slip.
+    """
+
+    object: str
+    experiment: int
+    camera: str
+    n_frames: int
+    slipped: bool
+    moment_of_slip: int | None
+    contact_start: int
+    contact_end: int
+    source: str = "auto"  # "auto" or "override"
+
+    @property
+    def key(self) -> tuple[str, int, str]:
+        return (self.object, self.experiment, self.camera)

@@ -1,0 +1,443 @@
+"""Training: one loop for every model, single-process or under ``torchrun`` (DDP).
+
+* seeded, with a progress bar, per-epoch metrics in ``metrics.csv`` and ``curves.png``;
+* ``best.safetensors`` / ``last.safetensors`` checkpoints (weights + full config);
+* ``resume.pt`` after every epoch so a killed run continues with ``resume=True`` and ends with the
+  same weights as an uninterrupted one (the sampler's order depends only on seed and epoch);
+* under ``torchrun`` the data is sharded by a ``DistributedSampler``, gradients are averaged by
+  DDP (gloo on CPU, NCCL on GPU), metrics are summed across ranks and only rank 0 writes files.
+  ``world_size x batch_size`` equals the single-process batch: launch 2 processes with
+  ``--batch-size 8`` to reproduce a 1-process ``--batch-size 16`` run.
+"""
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import os
+import random
+import time
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import torch.distributed as dist
+import torch.nn as nn
+import torch.nn.functional as F
+from torch.utils.data import DataLoader, Dataset, DistributedSampler, Subset
+
+from slipsense.atomic import write_text
+from slipsense.checkpoint import load_resume_state, save_checkpoint, save_resume_state
+from slipsense.errors import ConfigError
+from slipsense.metrics import confusion, scores
+
+
+@dataclass
+class TrainConfig:
+    """Optimisation settings (defaults: the ViViT paper's)."""
+
+    epochs: int = 75
+    batch_size: int = 16  # per process
+    lr: float = 3e-4
+    weight_decay: float = 1e-4
+    step_size: int = 30  # StepLR period, epochs
+    gamma: float = 0.1
+    seed: int = 0
+    num_workers: int = 0
+    device: str = "auto"  # "auto", "cpu", "cuda", "cuda:1"...
+    select_by: str = "accuracy"  # validation metric that picks best.safetensors
+    progress: bool = True
+    max_steps_per_epoch: int | None = None  # cap for smoke runs and tests
+
+    def __post_init__(self):
+        checks = [
+            (self.epochs >= 1, "epochs must be >= 1"),
+            (self.batch_size >= 1, "batch_size must be >= 1"),
+            (self.lr > 0 and math.isfinite(self.lr), "lr must be a positive number"),
+            (self.weight_decay >= 0, "weight_decay must be >= 0"),
+            (self.step_size >= 1, "step_size must be >= 1"),
+            (0 < self.gamma <= 1, "gamma must be in (0, 1]"),
+            (self.num_workers >= 0, "num_workers must be >= 0"),
+            (self.select_by in ("accuracy", "f1", "loss"), "select_by must be accuracy, f1 or loss"),
+            (self.max_steps_per_epoch is None or self.max_steps_per_epoch >= 1, "max_steps_per_epoch must be >= 1"),
+        ]
+        for ok, msg in checks:
+            if not ok:
+                raise ConfigError(f"train config: {msg}")
+
+    @classmethod
+    def from_dict(cls, values: dict[str, Any]) -> "TrainConfig":
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(values) - known)
+        if unknown:
+            raise ConfigError(f"train config: unknown keys {unknown}; known: {sorted(known)}")
+        return cls(**values)
+
+
+#: Paper training settings per model (ViViT paper III; STNet paper III).
+PAPER_SETTINGS: dict[str, dict[str, Any]] = {
+    "vivit": dict(epochs=75, batch_size=16, lr=3e-4, weight_decay=1e-4, step_size=30, gamma=0.1),
+    "resnet3d50": dict(epochs=10, batch_size=8, lr=1e-3, weight_decay=1e-4, step_size=30, gamma=0.1),
+    "stnet": dict(epochs=100, batch_size=64, lr=1e-5, weight_decay=0.0, step_size=1000, gamma=1.0),
+    "temnet": dict(epochs=100, batch_size=64, lr=1e-5, weight_decay=0.0, step_size=1000, gamma=1.0),
+}
+
+
+def seed_everything(seed: int) -> None:
+    random.seed(seed)
+    np.random.seed(seed % 2**32)
+    torch.manual_seed(seed)
+
+
+# --------------------------------------------------------------------------- distributed
+@dataclass
+class Dist:
+    rank: int = 0
+    world: int = 1
+    device: torch.device = field(default_factory=lambda: torch.device("cpu"))
+
+    @property
+    def main(self) -> bool:
+        return self.rank == 0
+
+
+def setup(device: str = "auto") -> Dist:
+    """Join the torchrun process group when launched by torchrun, else a 1-process world."""
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    if device == "auto":
+        device = "cuda" if torch.cuda.is_available() else "cpu"
+    if world > 1:
+        local = int(os.environ.get("LOCAL_RANK", "0"))
+        if device.startswith("cuda"):
+            torch.cuda.set_device(local)
+            device = f"cuda:{local}"
+        if not dist.is_initialized():
+            dist.init_process_group(backend="nccl" if device.startswith("cuda") else "gloo")
+        return Dist(dist.get_rank(), dist.get_world_size(), torch.device(device))
+    return Dist(0, 1, torch.device(device))
+
+
+def _all_sum(values: torch.Tensor, d: Dist) -> torch.Tensor:
+    if d.world > 1:
+        values = values.clone()
+        dist.all_reduce(values, op=dist.ReduceOp.SUM)
+    return values
+
+
+# --------------------------------------------------------------------------- evaluation
+@torch.inference_mode()
+def predict(model: nn.Module, data: Dataset, batch_size: int = 32, device="cpu", d: Dist | None = None,
+            progress: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Slip probabilities and labels for every item of ``data`` -> ``(p (N,), y (N,))``.
+
+    Under DDP each rank predicts a strided share and the shares are gathered, so no item is
+    counted twice (a DistributedSampler would pad).
+    """
+    d = d or Dist()
+    idx = list(range(d.rank, len(data), d.world))
+    loader = DataLoader(Subset(data, idx), batch_size=batch_size, shuffle=False)
+    model.eval()
+    probs, labels = [], []
+    for x, y in _bar(loader, progress and d.main, "predict"):
+        logits = model(x.to(device))
+        probs.append(torch.softmax(logits.float(), dim=-1)[:, 1].cpu())
+        labels.append(y)
+    p = torch.cat(probs) if probs else torch.zeros(0)
+    y = torch.cat(labels) if labels else torch.zeros(0, dtype=torch.long)
+    if d.world > 1:
+        gathered = [None] * d.world
+        dist.all_gather_object(gathered, (idx, p.numpy(), y.numpy()))
+        order = np.concatenate([g[0] for g in gathered]).astype(np.int64)
+        p_all = np.empty(len(data), np.float32)
+        y_all = np.empty(len(data), np.int64)
+        p_all[order] = np.concatenate([g[1] for g in gathered])
+        y_all[order] = np.concatenate([g[2] for g in gathered])
+        return p_all, y_all
+    return p.numpy(), y.numpy()
+
+
+def metrics_from(p: np.ndarray, y: np.ndarray, threshold: float = 0.5) -> dict[str, Any]:
+    """Scores, counts and the confusion matrix for probabilities ``p`` against labels ``y``."""
+    pred = (p >= threshold).astype(np.int64)
+    cm = confusion(y, pred)
+    eps = 1e-7
+    loss = float(-np.mean(np.where(y == 1, np.log(p + eps), np.log(1 - p + eps)))) if len(y) else 0.0
+    return {**scores(cm), "loss": loss, "n_clips": int(len(y)), "n_slip": int((y == 1).sum()),
+            "n_wiggle": int((y == 0).sum()), "confusion": cm.tolist(), "threshold": threshold}
+
+
+# --------------------------------------------------------------------------- training
+def _bar(it, enabled: bool, desc: str):
+    if not enabled:
+        return it
+    from tqdm.auto import tqdm
+
+    return tqdm(it, desc=desc, leave=False, dynamic_ncols=True)
+
+
+def _rng_state() -> dict[str, Any]:
+    return {"python": random.getstate(), "numpy": np.random.get_state(), "torch": torch.get_rng_state()}
+
+
+def _set_rng_state(s: dict[str, Any]) -> None:
+    random.setstate(s["python"])
+    np.random.set_state(s["numpy"])
+    torch.set_rng_state(s["torch"])
+
+
+def fit(model: nn.Module, train_data: Dataset, val_data: Dataset | None, cfg: TrainConfig,
+        out_dir: str | Path, info: dict[str, Any] | None = None, resume: bool = False) -> list[dict[str, Any]]:
+    """Train ``model`` on ``train_data``; validate on ``val_data`` after every epoch.
+
+    Args:
+        model: a registry model (``forward(x) -> (B, 2)`` logits), already built (seed first!).
+        train_data, val_data: Datasets of ``(x, y)``; ``val_data`` may be None.
+        cfg: optimisation settings.
+        out_dir: run folder; receives ``metrics.csv``, ``curves.png``, ``best.safetensors``,
+            ``last.safetensors``, ``resume.pt`` and ``run.json``.
+        info: extra config stored in every checkpoint (data settings, split...).
+        resume: continue from ``out_dir/resume.pt`` if it exists.
+
+    Returns:
+        The per-epoch metric rows (also written to ``metrics.csv``).
+    """
+    d = setup(cfg.device)
+    out = Path(out_dir)
+    if d.main:
+        out.mkdir(parents=True, exist_ok=True)
+    model.to(d.device)
+    net = nn.parallel.DistributedDataParallel(model) if d.world > 1 else model
+    optimizer = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    scheduler = torch.optim.lr_scheduler.StepLR(optimizer, step_size=cfg.step_size, gamma=cfg.gamma)
+    # One sampler for every world size: with 1 replica it is a seeded shuffle whose order the
+    # ranks of a larger world split between them, so 2 x 8 sees the batches 1 x 16 sees.
+    sampler = DistributedSampler(train_data, num_replicas=d.world, rank=d.rank, shuffle=True, seed=cfg.seed)
+    loader = DataLoader(train_data, batch_size=cfg.batch_size, sampler=sampler, num_workers=cfg.num_workers,
+                        persistent_workers=cfg.num_workers > 0, drop_last=False)
+    info = {**(info or {}), "train": asdict(cfg), "world_size": d.world}
+    history: list[dict[str, Any]] = []
+    best = -math.inf
+    start_epoch = 0
+    resume_path = out / "resume.pt"
+    if resume and resume_path.exists():
+        state = load_resume_state(resume_path)
+        model.load_state_dict(state["model"])
+        optimizer.load_state_dict(state["optimizer"])
+        scheduler.load_state_dict(state["scheduler"])
+        _set_rng_state(state["rng"])
+        history, best, start_epoch = state["history"], state["best"], state["epoch"] + 1
+        if d.main:
+            print(f"resuming {out} after epoch {state['epoch'] + 1}/{cfg.epochs}")
+    if d.main:
+        write_text(out / "run.json", json.dumps({**info, "model": model.model_name,
+                                                 "model_config": model.config()}, indent=2, default=str))
+    t_run = time.perf_counter()
+    for epoch in range(start_epoch, cfg.epochs):
+        t0 = time.perf_counter()
+        sampler.set_epoch(epoch)
+        net.train()
+        sums = torch.zeros(3, dtype=torch.float64)  # loss * n, correct, n
+        bar = _bar(loader, cfg.progress and d.main, f"epoch {epoch + 1}/{cfg.epochs}")
+        for step, (x, y) in enumerate(bar):
+            if cfg.max_steps_per_epoch is not None and step >= cfg.max_steps_per_epoch:
+                break
+            x, y = x.to(d.device, non_blocking=True), y.to(d.device, non_blocking=True)
+            logits = net(x)
+            loss = F.cross_entropy(logits, y)
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            optimizer.step()
+            n = len(y)
+            sums += torch.tensor([loss.item() * n, (logits.argmax(-1) == y).sum().item(), n], dtype=torch.float64)
+            if bar is not loader:
+                bar.set_postfix(loss=f"{sums[0].item() / sums[2].item():.4f}")
+        sums = _all_sum(sums, d)
+        row: dict[str, Any] = {"epoch": epoch + 1, "lr": optimizer.param_groups[0]["lr"],
+                               "train_loss": sums[0].item() / max(sums[2].item(), 1),
+                               "train_accuracy": sums[1].item() / max(sums[2].item(), 1)}
+        scheduler.step()
+        if val_data is not None and len(val_data):
+            p, y = predict(model, val_data, batch_size=max(cfg.batch_size, 32), device=d.device, d=d)
+            m = metrics_from(p, y)
+            row.update({f"val_{k}": m[k] for k in ("loss", "accuracy", "precision", "recall", "f1")})
+        row["seconds"] = time.perf_counter() - t0
+        history.append(row)
+        score = -row["val_loss"] if cfg.select_by == "loss" and "val_loss" in row else row.get(
+            f"val_{cfg.select_by}", row["train_accuracy"])
+        improved = score > best
+        best = max(best, score)
+        if d.main:
+            ck_info = {**info, "epoch": epoch + 1, "metrics": row}
+            save_checkpoint(out / "last.safetensors", model, ck_info)
+            if improved:
+                save_checkpoint(out / "best.safetensors", model, ck_info)
+            write_metrics_csv(out / "metrics.csv", history)
+            save_resume_state(resume_path, {
+                "model": model.state_dict(), "optimizer": optimizer.state_dict(),
+                "scheduler": scheduler.state_dict(), "rng": _rng_state(), "history": history,
+                "best": best, "epoch": epoch})
+            if cfg.progress:
+                shown = {k: (round(v, 4) if isinstance(v, float) else v) for k, v in row.items()}
+                print(json.dumps(shown))
+        if d.world > 1:
+            dist.barrier()  # nobody races ahead of rank 0's checkpoint
+    if d.main and history:
+        from slipsense.plots import plot_curves
+
+        plot_curves(history, out / "curves.png", title=f"{model.model_name}")
+        summary = {"train_seconds": time.perf_counter() - t_run, "epochs": len(history), "final": history[-1]}
+        write_text(out / "summary.json", json.dumps(summary, indent=2))
+    return history
+
+
+def write_metrics_csv(path: Path, rows: list[dict[str, Any]]) -> None:
+    keys: list[str] = []
+    for r in rows:
+        keys += [k for k in r if k not in keys]
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=keys)
+    w.writeheader()
+    w.writerows(rows)
+    write_text(path, buf.getvalue())
+
+
+# --------------------------------------------------------------------------- from a request to a run
+@dataclass
+class TrainRequest:
+    """Everything ``slipsense train`` was asked: model, data, split and optimisation overrides."""
+
+    model: str = "vivit"
+    recordings: Path | None = None
+    markers: Path | None = None
+    out: Path = Path("runs/latest")
+    preset: str | None = None
+    model_overrides: dict[str, Any] = field(default_factory=dict)
+    frames: int = 5
+    horizon: int = 0
+    size: tuple[int, int] | None = None
+    wiggle_per_video: int = 2
+    split: str = "objects"
+    test_objects: list[str] = field(default_factory=list)
+    fold: int | None = None
+    folds: int = 5
+    test_fraction: float = 0.1
+    augment: bool = True
+    seed: int = 0
+    on_error: str = "raise"
+    progress: bool = True
+    train_overrides: dict[str, Any] = field(default_factory=dict)
+
+
+def model_class(name: str):
+    from slipsense.models import _REGISTRY, available
+
+    if name not in available():
+        raise ConfigError(f"unknown model {name!r}; available: {', '.join(available())}")
+    return _REGISTRY[name]
+
+
+def build_model(name: str, preset: str | None, overrides: dict[str, Any], data_config: dict[str, Any]):
+    """Build a model: preset (if any) < data-implied sizes < explicit overrides."""
+    from slipsense.models import build
+
+    config: dict[str, Any] = {}
+    if preset is not None:
+        from slipsense.models import stnet
+
+        if name not in ("stnet", "temnet"):
+            raise ConfigError(f"--preset is defined for stnet/temnet, not {name!r}")
+        if preset not in stnet.PRESETS:
+            raise ConfigError(f"unknown preset {preset!r}; known: {sorted(stnet.PRESETS)}")
+        config.update(stnet.PRESETS[preset])
+    config.update(data_config)
+    config.update(overrides)
+    return build(name, **config)
+
+
+def prepare_data(req: TrainRequest, kind: str):
+    """Datasets and the split description for a request -> ``(train, test, split_info, data_config)``."""
+    from slipsense.datasets import ClipDataset, MarkerDataset
+
+    if kind == "video":
+        from slipsense.config import gelsight_recordings
+        from slipsense.data import gelsight_clips, spec_dict
+        from slipsense.recordings.augment import AugmentConfig
+        from slipsense.recordings.clips import ClipSpec, object_folds, split_by_clip, split_by_object
+
+        if req.markers is not None:
+            raise ConfigError(f"model {req.model!r} takes video clips: use --recordings, not --markers")
+        root = Path(req.recordings) if req.recordings else gelsight_recordings()
+        spec_kw = dict(frames=req.frames, horizon=req.horizon, wiggle_per_video=req.wiggle_per_video, seed=req.seed)
+        if req.size is not None:
+            spec_kw["size"] = req.size
+        spec = ClipSpec(**spec_kw)
+        clips, _ = gelsight_clips(root, spec, on_error=req.on_error, progress=req.progress)
+        if req.split == "clips":
+            tr, te = split_by_clip(clips, test_fraction=req.test_fraction, seed=req.seed)
+            test_objects: list[str] = []
+        elif req.split == "objects":
+            objects = sorted(set(clips.objects))
+            if req.test_objects:
+                unknown = sorted(set(req.test_objects) - set(objects))
+                if unknown:
+                    raise ConfigError(f"--test-objects not in {root}: {unknown}")
+                test_objects = sorted(req.test_objects)
+            else:
+                k = 0 if req.fold is None else req.fold
+                if not 0 <= k < req.folds:
+                    raise ConfigError(f"--fold must be in 0..{req.folds - 1}")
+                test_objects = sorted(object_folds(objects, n_folds=req.folds, seed=req.seed)[k])
+            tr, te = split_by_object(clips, test_objects)
+        else:
+            raise ConfigError(f"--split must be objects or clips, got {req.split!r}")
+        size = tuple(clips.x.shape[2:4])
+        split_info = {"kind": "video", "recordings": str(root), "clip_spec": spec_dict(spec), "split": req.split,
+                      "test_objects": test_objects, "test_indices": [int(i) for i in te],
+                      "on_error": req.on_error}
+        train = ClipDataset(clips.subset(tr), AugmentConfig(enabled=req.augment), seed=req.seed)
+        test = ClipDataset(clips.subset(te))
+        return train, test, split_info, {"frames": req.frames, "image_size": size}
+    if kind == "markers":
+        from slipsense.data import load_markers, split_groups
+
+        if req.markers is None:
+            raise ConfigError(f"model {req.model!r} takes marker sequences: give --markers FILE.npz")
+        x, y, groups = load_markers(req.markers)
+        tr, te = split_groups(groups, 0.2 if req.test_fraction == 0.1 else req.test_fraction, req.seed)
+        split_info = {"kind": "markers", "markers": str(req.markers), "test_indices": [int(i) for i in te]}
+        return (MarkerDataset(x[tr], y[tr]), MarkerDataset(x[te], y[te]), split_info,
+                {"frames": int(x.shape[1]), "markers": int(x.shape[2])})
+    raise ConfigError(f"model input kind {kind!r} is not supported")
+
+
+def run_training(req: TrainRequest, resume: bool = False) -> dict[str, Any]:
+    """Prepare data, build and train the model, then evaluate ``best.safetensors`` on the held-out
+    part; returns the evaluation metrics (rank 0) or ``{}`` (other ranks)."""
+    from slipsense.evaluate import evaluate_model
+
+    kind = model_class(req.model).input_kind
+    settings = {**PAPER_SETTINGS.get(req.model, {}), "seed": req.seed, "progress": req.progress, **req.train_overrides}
+    cfg = TrainConfig.from_dict(settings)
+    train_data, test_data, split_info, data_config = prepare_data(req, kind)
+    seed_everything(req.seed)
+    model = build_model(req.model, req.preset, req.model_overrides, data_config)
+    out = Path(req.out)
+    d = setup(cfg.device)
+    if d.main:
+        out.mkdir(parents=True, exist_ok=True)
+        write_text(out / "split.json", json.dumps(split_info, indent=1))
+    info = {"data": {k: v for k, v in split_info.items() if k != "test_indices"}, "preset": req.preset}
+    fit(model, train_data, test_data, cfg, out, info=info, resume=resume)
+    if not d.main:
+        return {}
+    from slipsense.checkpoint import load_model
+
+    best, _ = load_model(out / "best.safetensors")
+    metrics = evaluate_model(best, test_data, out / "evaluation.json", out / "confusion.png",
+                             extra={"checkpoint": str(out / "best.safetensors"), "split": split_info.get("split"),
+                                    "test_objects": split_info.get("test_objects")}, progress=req.progress)
+    print(json.dumps({k: metrics[k] for k in ("accuracy", "precision", "recall", "f1", "n_clips")}))
+    return metrics
