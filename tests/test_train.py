@@ -1,0 +1,104 @@
+"""Training loop: DDP equivalence, resume after SIGKILL, checkpoints and their errors."""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+from slipsense.checkpoint import load_model, read_info, save_checkpoint
+from slipsense.errors import ConfigError, InputError
+from slipsense.train import TrainConfig
+
+SCRIPT = Path(__file__).parent / "support" / "tiny_train.py"
+
+
+def _run(args, torchrun=False, check=True):
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).parent / "support"), "OMP_NUM_THREADS": "1"}
+    cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node=2"] if torchrun else [sys.executable]
+    proc = subprocess.run(cmd + [str(SCRIPT), *map(str, args)], env=env, capture_output=True, text=True, timeout=180)
+    if check and proc.returncode != 0:
+        raise AssertionError(f"{cmd} failed ({proc.returncode}):\n{proc.stdout}\n{proc.stderr}")
+    return proc
+
+
+def _weights(out):
+    return torch.load(Path(out) / "final.pt")
+
+
+def _assert_same(a, b, atol):
+    assert a.keys() == b.keys()
+    for k in a:
+        torch.testing.assert_close(a[k], b[k], atol=atol, rtol=0)
+
+
+def test_ddp_two_processes_match_one_process(tmp_path):
+    """2 ranks x batch 8 under torchrun (gloo) end with the weights of 1 process x batch 16."""
+    _run([tmp_path / "single", 16, 3])
+    _run([tmp_path / "ddp", 8, 3], torchrun=True)
+    _assert_same(_weights(tmp_path / "single"), _weights(tmp_path / "ddp"), atol=1e-5)
+    rows = (tmp_path / "ddp" / "metrics.csv").read_text().strip().splitlines()
+    assert len(rows) == 4  # header + 3 epochs, written once (rank 0 only)
+
+
+def test_resume_after_sigkill_matches_uninterrupted(tmp_path):
+    _run([tmp_path / "full", 16, 5])
+    # 64 items per epoch: dies in the middle of epoch 4, after the epoch-3 checkpoint.
+    killed = _run([tmp_path / "cut", 16, 5, 64 * 3 + 40], check=False)
+    assert killed.returncode != 0
+    assert (tmp_path / "cut" / "resume.pt").exists() and not (tmp_path / "cut" / "final.pt").exists()
+    assert len((tmp_path / "cut" / "metrics.csv").read_text().strip().splitlines()) == 4
+    _run([tmp_path / "cut", 16, 5, "--resume"])
+    _assert_same(_weights(tmp_path / "full"), _weights(tmp_path / "cut"), atol=0)
+    full = (tmp_path / "full" / "metrics.csv").read_text().splitlines()
+    cut = (tmp_path / "cut" / "metrics.csv").read_text().splitlines()
+    strip = lambda rows: [",".join(r.split(",")[:-1]) for r in rows]  # last column: seconds
+    assert strip(full) == strip(cut)
+
+
+def test_checkpoint_roundtrip_and_errors(tmp_path):
+    sys.path.insert(0, str(SCRIPT.parent))
+    from tiny_train import TinyNet
+
+    model = TinyNet(hidden=5)
+    path = save_checkpoint(tmp_path / "m.safetensors", model, {"data": {"note": "x"}})
+    info = read_info(path)
+    assert info["model"] == "test-tiny" and info["model_config"]["hidden"] == 5
+    loaded, _ = load_model(path)
+    _assert_same(model.state_dict(), loaded.state_dict(), atol=0)
+
+    with pytest.raises(InputError, match="expected 'vivit'"):
+        load_model(path, expect_model="vivit")
+    bad = tmp_path / "corrupt.safetensors"
+    bad.write_bytes(path.read_bytes()[:40])
+    with pytest.raises(InputError, match="corrupt.safetensors"):
+        load_model(bad)
+    trunc = tmp_path / "trunc.safetensors"
+    trunc.write_bytes(path.read_bytes()[:-8])
+    with pytest.raises(InputError, match="trunc.safetensors"):
+        load_model(trunc)
+    with pytest.raises(InputError, match="not found"):
+        load_model(tmp_path / "missing.safetensors")
+    # Same model name, other sizes: the weights do not fit the config the file claims.
+    from safetensors.torch import save_file
+
+    meta = {"slipsense": json.dumps({"model": "test-tiny", "model_config": {"hidden": 5}})}
+    save_file({k: v.contiguous() for k, v in TinyNet(hidden=7).state_dict().items()},
+              str(tmp_path / "misfit.safetensors"), metadata=meta)
+    with pytest.raises(InputError, match="misfit.safetensors: weight .* has shape"):
+        load_model(tmp_path / "misfit.safetensors")
+    save_file({"w": torch.zeros(2)}, str(tmp_path / "foreign.safetensors"))
+    with pytest.raises(InputError, match="not a slipsense checkpoint"):
+        load_model(tmp_path / "foreign.safetensors")
+
+
+def test_train_config_rejects_bad_values():
+    with pytest.raises(ConfigError, match="unknown keys"):
+        TrainConfig.from_dict({"epochz": 3})
+    for bad in ({"epochs": 0}, {"lr": -1.0}, {"gamma": 2.0}, {"batch_size": 0}, {"lr": float("nan")}):
+        with pytest.raises(ConfigError):
+            TrainConfig.from_dict(bad)
