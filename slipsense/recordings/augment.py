@@ -1,0 +1,138 @@
+"""Training-set augmentation as in the paper: one transformed copy per clip, appended.
+
+The copy is made in three fixed steps: (1) add Gaussian noise (std 15 on the 0..255 scale,
+rounded and clipped back to uint8), (2) swap the red and blue channels, (3) flip horizontally.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import ConfigError, InputError
+from .clips import ClipSet
+
+# Noise is generated in blocks of this many values so a whole clip set never needs a float copy
+# (a full-resolution set is ~0.5 GB of uint8, 2 GB as float32).
+_NOISE_BLOCK = 1 << 22
+
+
+@dataclass(frozen=True)
+class AugmentConfig:
+    """Which steps make the transformed copy.
+
+    Attributes:
+        noise_std: standard deviation of the added Gaussian noise, in 0..255 intensity units
+            (0 disables the step).
+        swap_red_blue: exchange the red and blue channels.
+        hflip: mirror each frame left-right.
+        enabled: False makes :func:`augment_clipset` return the originals only.
+    """
+
+    noise_std: float = 15.0
+    swap_red_blue: bool = True
+    hflip: bool = True
+    enabled: bool = True
+
+    def __post_init__(self) -> None:
+        std = self.noise_std
+        if isinstance(std, bool) or not isinstance(std, (int, float, np.integer, np.floating)) \
+                or not math.isfinite(std) or std < 0:
+            raise ConfigError(f"noise_std must be a finite number >= 0, got {std!r}")
+        for name in ("swap_red_blue", "hflip", "enabled"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise ConfigError(f"{name} must be true or false, got {getattr(self, name)!r}")
+        object.__setattr__(self, "noise_std", float(std))
+
+
+def add_noise(x: np.ndarray, std: float, rng: np.random.Generator) -> np.ndarray:
+    """Add zero-mean Gaussian noise to uint8 images.
+
+    Args:
+        x: uint8 array of any shape (pixel intensities 0..255).
+        std: noise standard deviation in intensity units (>= 0; 0 returns a copy).
+        rng: the noise source (the same generator state gives the same noise).
+
+    Returns:
+        uint8 array shaped like ``x``: ``clip(round(x + N(0, std^2)), 0, 255)``; ``x`` is untouched.
+    """
+    x = np.asarray(x)
+    if x.dtype != np.uint8:
+        raise InputError(None, f"add_noise needs uint8 images, got {x.dtype}")
+    if isinstance(std, bool) or not isinstance(std, (int, float, np.integer, np.floating)) \
+            or not math.isfinite(std) or std < 0:
+        raise InputError(None, f"noise std must be a finite number >= 0, got {std!r}")
+    out = np.array(x, copy=True, order="C")
+    if std == 0 or out.size == 0:
+        return out
+    flat = out.reshape(-1)
+    buf = np.empty(min(_NOISE_BLOCK, flat.size), dtype=np.float32)
+    for lo in range(0, flat.size, _NOISE_BLOCK):
+        hi = min(lo + _NOISE_BLOCK, flat.size)
+        b = buf[: hi - lo]
+        rng.standard_normal(out=b, dtype=np.float32)
+        b *= np.float32(std)
+        b += flat[lo:hi]
+        np.rint(b, out=b)
+        np.clip(b, 0, 255, out=b)
+        flat[lo:hi] = b
+    return out
+
+
+def _check_clip(x: np.ndarray) -> np.ndarray:
+    x = np.asarray(x)
+    if x.dtype != np.uint8 or x.ndim != 4 or x.shape[-1] != 3:
+        raise InputError(None, f"a clip must be uint8 (T, H, W, 3), got {x.dtype} {x.shape}")
+    return x
+
+
+def transform_clip(x: np.ndarray, cfg: AugmentConfig, rng: np.random.Generator) -> np.ndarray:
+    """The augmented copy of one clip.
+
+    Args:
+        x: uint8 ``(T, H, W, 3)`` BGR clip.
+        cfg: which steps to apply (noise, then red/blue swap, then horizontal flip).
+        rng: noise source.
+
+    Returns:
+        New uint8 ``(T, H, W, 3)`` array; ``x`` is untouched. With ``cfg.enabled`` False, a copy.
+    """
+    x = _check_clip(x)
+    if not cfg.enabled:
+        return x.copy()
+    out = add_noise(x, cfg.noise_std, rng) if cfg.noise_std > 0 else x
+    if cfg.swap_red_blue:
+        out = out[..., ::-1]  # BGR -> RGB order: blue and red exchange, green stays
+    if cfg.hflip:
+        out = out[:, :, ::-1]
+    return np.ascontiguousarray(out) if out is not x else x.copy()
+
+
+def augment_clipset(clips: ClipSet, cfg: AugmentConfig = AugmentConfig(), seed: int = 0) -> ClipSet:
+    """Originals followed by one transformed copy of each (same order), as in the paper.
+
+    Args:
+        clips: typically the training side of a split (augment after splitting, or use
+            :func:`~slipsense.recordings.clips.split_by_clip`, which keeps copies with originals).
+        cfg: the transform; with ``cfg.enabled`` False the originals are returned alone.
+        seed: seed of the noise.
+
+    Returns:
+        ClipSet of ``2 N`` clips: x uint8 ``(2N, T, H, W, 3)``, y repeated, and the copies' meta
+        equal to their originals' with ``augmented=True``.
+    """
+    if not cfg.enabled:
+        return clips.subset(np.arange(len(clips)))
+    n = len(clips)
+    x = np.empty((2 * n, *clips.x.shape[1:]), dtype=np.uint8)
+    x[:n] = clips.x
+    rng = np.random.default_rng(seed)
+    for i in range(n):
+        x[n + i] = transform_clip(clips.x[i], cfg, rng)
+    y = np.concatenate([clips.y, clips.y])
+    meta = [dict(m) for m in clips.meta] + [dict(m, augmented=True) for m in clips.meta]
+    return ClipSet(x, y, meta, clips.spec)
+
+
+__all__ = ["AugmentConfig", "add_noise", "augment_clipset", "transform_clip"]

@@ -1,0 +1,171 @@
+"""Find the recordings in a data folder laid out as ``<root>/<object>/exp_num_<N>/camera_*.avi``.
+
+:func:`find_recordings` only looks at the folder structure, so it is instant; decoding problems
+surface in :func:`validate_recordings` (a cheap probe of each video) or when the video is read.
+Both take ``on_error``: ``"raise"`` stops at the first problem with an
+:class:`~slipsense.errors.InputError`; ``"skip"`` emits a :class:`SkippedInputWarning` naming the
+file and the problem and carries on without it.
+"""
+from __future__ import annotations
+
+import re
+import warnings
+from pathlib import Path
+from typing import Iterable, Literal
+
+from ..errors import ConfigError, InputError
+from .types import Recording
+from .video import probe_video
+
+OnError = Literal["raise", "skip"]
+
+#: Experiment folders are named ``exp_num_<N>`` with N a non-negative integer.
+EXPERIMENT_RE = re.compile(r"^exp_num_(\d+)$")
+#: Camera videos are named ``camera_<anything>.avi``; the stem becomes ``Recording.camera``.
+CAMERA_GLOB = "camera_*.avi"
+#: File whose presence in an experiment folder marks a run in which the object slipped.
+SLIP_MARKER = "slip.txt"
+
+
+class SkippedInputWarning(UserWarning):
+    """A file or folder was left out because of the problem the message names (``on_error="skip"``)."""
+
+
+def check_on_error(on_error: str) -> None:
+    """Raise ConfigError unless ``on_error`` is ``"raise"`` or ``"skip"``."""
+    if on_error not in ("raise", "skip"):
+        raise ConfigError(f"on_error must be 'raise' or 'skip', got {on_error!r}")
+
+
+def report(path: Path | str | None, problem: str, on_error: str) -> None:
+    """Raise InputError(path, problem), or with ``on_error="skip"`` warn that ``path`` is skipped."""
+    if on_error == "raise":
+        raise InputError(path, problem)
+    warnings.warn(f"{path}: {problem}; skipped", SkippedInputWarning, stacklevel=3)
+
+
+def _visible_dirs(folder: Path) -> list[Path]:
+    # Hidden entries (.DS_Store, .git, editor folders) are never data.
+    return sorted(p for p in folder.iterdir() if p.is_dir() and not p.name.startswith("."))
+
+
+def find_recordings(root: str | Path, on_error: OnError = "raise") -> list[Recording]:
+    """List every camera video under ``root``, sorted by (object, experiment, camera).
+
+    Args:
+        root: folder holding one sub-folder per object, e.g. ``config.gelsight_recordings()``.
+        on_error: ``"raise"`` or ``"skip"`` for problems inside object folders: an experiment
+            folder whose name does not match ``exp_num_<N>``, one without ``camera_*.avi``
+            videos, an object folder without experiments, two folders naming the same experiment.
+
+    Returns:
+        One :class:`Recording` per video; ``slipped`` is True when the experiment folder holds
+        ``slip.txt``. Nothing is decoded here.
+
+    Raises:
+        InputError: ``root`` is missing or not a folder, holds no object folders, or (with either
+            ``on_error``) nothing usable was found; with ``on_error="raise"`` also any problem above.
+        ConfigError: ``on_error`` is neither value.
+    """
+    check_on_error(on_error)
+    root = Path(root)
+    if not root.exists():
+        raise InputError(root, "recordings folder does not exist")
+    if not root.is_dir():
+        raise InputError(root, "is not a folder (expected the recordings folder)")
+    try:
+        objects = _visible_dirs(root)
+    except PermissionError:
+        raise InputError(root, "recordings folder is not readable (permission denied)") from None
+    if not objects:
+        raise InputError(root, "no object folders (expected <object>/exp_num_<N>/camera_*.avi)")
+
+    found: list[Recording] = []
+    for obj_dir in objects:
+        found.extend(_object_recordings(obj_dir, on_error))
+    if not found:
+        raise InputError(root, "no usable recordings found")
+    found.sort(key=lambda r: r.key)
+    return found
+
+
+def _object_recordings(obj_dir: Path, on_error: str) -> list[Recording]:
+    try:
+        exp_dirs = _visible_dirs(obj_dir)
+    except PermissionError:
+        report(obj_dir, "object folder is not readable (permission denied)", on_error)
+        return []
+    if not exp_dirs:
+        report(obj_dir, "object folder holds no exp_num_<N> experiment folders", on_error)
+        return []
+    out: list[Recording] = []
+    seen: dict[int, Path] = {}
+    for exp_dir in exp_dirs:
+        m = EXPERIMENT_RE.match(exp_dir.name)
+        if m is None:
+            report(exp_dir, "folder name does not match exp_num_<N>", on_error)
+            continue
+        number = int(m.group(1))
+        if number in seen:
+            # exp_num_1 and exp_num_01 would give two recordings with one key.
+            report(exp_dir, f"experiment {number} also found as {seen[number].name}", on_error)
+            continue
+        try:
+            cameras = sorted(p for p in exp_dir.glob(CAMERA_GLOB) if p.is_file())
+        except PermissionError:
+            report(exp_dir, "experiment folder is not readable (permission denied)", on_error)
+            continue
+        if not cameras:
+            report(exp_dir, f"experiment folder holds no {CAMERA_GLOB} video", on_error)
+            continue
+        seen[number] = exp_dir
+        slipped = (exp_dir / SLIP_MARKER).exists()
+        out.extend(
+            Recording(object=obj_dir.name, experiment=number, camera=cam.stem, path=cam, slipped=slipped)
+            for cam in cameras
+        )
+    return out
+
+
+def validate_recordings(
+    recordings: Iterable[Recording],
+    on_error: OnError = "raise",
+    expected_size: tuple[int, int] | None = (240, 320),
+    min_frames: int = 2,
+) -> list[Recording]:
+    """Probe each video (:func:`~slipsense.recordings.video.probe_video`, a few ms each).
+
+    Args:
+        recordings: as returned by :func:`find_recordings`.
+        on_error: ``"raise"`` re-raises the first video's InputError; ``"skip"`` warns
+            (:class:`SkippedInputWarning`, naming the file and the problem) and drops it.
+        expected_size: required ``(height, width)`` in pixels, or None for any.
+        min_frames: fewest frames a video must state.
+
+    Returns:
+        The recordings whose videos passed, in the given order.
+    """
+    check_on_error(on_error)
+    good: list[Recording] = []
+    for rec in recordings:
+        try:
+            probe_video(rec.path, expected_size=expected_size, min_frames=min_frames)
+        except InputError as exc:
+            if on_error == "raise":
+                raise
+            warnings.warn(f"{exc}; skipped", SkippedInputWarning, stacklevel=2)
+            continue
+        good.append(rec)
+    return good
+
+
+__all__ = [
+    "CAMERA_GLOB",
+    "EXPERIMENT_RE",
+    "SLIP_MARKER",
+    "SkippedInputWarning",
+    "check_on_error",
+    "find_recordings",
+    "report",
+    "validate_recordings",
+]
