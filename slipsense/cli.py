@@ -158,6 +158,21 @@ def models():
         typer.echo(f"{name:12s} {count_parameters(build(name)):>12,d} parameters")
 
 
+def _register_extensions() -> None:
+    """Commands defined beside their subsystems (live detection, export, sensors, experiments)."""
+    import importlib
+
+    for mod in ("slipsense.cli_live", "slipsense.cli_sensors", "slipsense.cli_experiments"):
+        try:
+            importlib.import_module(mod).register(app)
+        except ModuleNotFoundError as exc:
+            if exc.name != mod:
+                raise
+
+
+_register_extensions()
+
+
 def main() -> None:  # console-script entry point
     app()
 
