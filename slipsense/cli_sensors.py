@@ -1,0 +1,55 @@
+"""Commands for the marker path: simulate a binocular sensor, turn real recordings into marker sequences."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+
+def register(app: typer.Typer) -> None:
+    from slipsense.cli import friendly
+
+    @app.command()
+    @friendly
+    def simulate(
+        out: Path = typer.Option(..., help="output .npz (x (N,12,552,3) mm, y, groups = sequence id)"),
+        sequences: int = typer.Option(4, help="sequences per (object, motion pattern)"),
+        seed: int = typer.Option(0),
+        figures: Optional[Path] = typer.Option(None, help="also draw each motion pattern's displacement field here"),
+        progress: bool = typer.Option(True),
+    ):
+        """Simulate the binocular marker sensor: 6 objects x 4 motion patterns, 12-frame windows."""
+        from slipsense.sensors.simulator import SimConfig, make_dataset, plot_patterns, save_dataset
+
+        cfg = SimConfig(seed=seed, n_sequences=sequences)
+        ds = make_dataset(cfg, progress=progress)
+        save_dataset(ds, out)
+        typer.echo(f"{len(ds)} windows ({int(ds.y.sum())} slip) from {len(set(ds.groups.tolist()))} sequences -> {out}")
+        if figures is not None:
+            for p in plot_patterns(cfg, figures):
+                typer.echo(f"figure {p}")
+
+    @app.command("markers")
+    @friendly
+    def markers_cmd(
+        out: Path = typer.Option(..., help="output .npz (x (N,T,M,3), y, groups = object)"),
+        recordings: Optional[Path] = typer.Option(None, help="recordings folder (default: the shared recordings)"),
+        frames: int = typer.Option(12),
+        n_markers: int = typer.Option(32, help="markers kept per sensor (closest to the centre)"),
+        horizon: int = typer.Option(0),
+        wiggle_per_video: int = typer.Option(2),
+        seed: int = typer.Option(0),
+        on_error: str = typer.Option("raise"),
+        progress: bool = typer.Option(True),
+    ):
+        """Track the gel markers of real GelSight recordings (KLT) into labelled marker sequences."""
+        from slipsense.config import gelsight_recordings
+        from slipsense.sensors.real import real_marker_dataset, save_marker_npz
+
+        arrays = real_marker_dataset(recordings or gelsight_recordings(), frames=frames, n_markers=n_markers,
+                                     horizon=horizon, wiggle_per_video=wiggle_per_video, seed=seed,
+                                     on_error=on_error, progress=progress)
+        save_marker_npz(arrays, out)
+        typer.echo(f"{len(arrays['y'])} windows ({int(arrays['y'].sum())} slip) from "
+                   f"{len(set(arrays['groups'].tolist()))} objects -> {out}")

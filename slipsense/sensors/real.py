@@ -1,0 +1,63 @@
+"""Real marker sequences from GelSight recordings, for the point-cloud models (STNet, TemNet).
+
+Each video's markers are tracked (pyramidal Lucas-Kanade, :mod:`slipsense.sensors.markers`),
+reduced to a fixed count per sensor and cut into the same windows as the video clips
+(:func:`slipsense.recordings.clips.plan_windows`): slip windows end right before the moment of
+slip, wiggle windows come from the contact phase of runs that did not slip. ``groups`` is the
+object name, so a grouped split leaves whole objects out.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from slipsense.atomic import write_with
+from slipsense.errors import InputError
+
+
+def real_marker_dataset(recordings_dir: str | Path, frames: int = 12, n_markers: int = 32, horizon: int = 0,
+                        wiggle_per_video: int = 2, seed: int = 0, on_error: str = "raise",
+                        progress: bool = True) -> dict[str, np.ndarray]:
+    """Marker windows of every video under ``recordings_dir``.
+
+    Returns arrays ``x`` float32 ``(N, frames, n_markers, 3)`` — per marker x, y in mm from the
+    image centre and the unitless intensity depth proxy —, ``y`` int64 ``(N,)`` (1 = onset of
+    slip), ``groups`` str ``(N,)`` object names, ``experiment`` int, ``camera`` str, ``start`` int
+    (first frame of the window).
+    """
+    from slipsense.recordings.clips import ClipSpec, plan_windows
+    from slipsense.recordings.folders import find_recordings, validate_recordings
+    from slipsense.recordings.labels import label_recordings
+    from slipsense.sensors.markers import marker_sequences, track_recordings
+
+    spec = ClipSpec(frames=frames, horizon=horizon, wiggle_per_video=wiggle_per_video, seed=seed)
+    recs = validate_recordings(find_recordings(recordings_dir, on_error=on_error), on_error=on_error)
+    labels = label_recordings(recs, progress=progress)
+    tracks = track_recordings(recs, progress=progress)
+    xs, ys, groups, exps, cams, starts = [], [], [], [], [], []
+    for rec, track in zip(recs, tracks):
+        windows = plan_windows(labels[rec.key], spec)
+        if not windows:
+            continue
+        cloud = marker_sequences(track, n_markers, normalise=False)  # (T, n_markers, 3)
+        for w in windows:
+            xs.append(cloud[w.start:w.end + 1])
+            ys.append(w.y)
+            groups.append(rec.object)
+            exps.append(rec.experiment)
+            cams.append(rec.camera)
+            starts.append(w.start)
+    if not xs:
+        raise InputError(recordings_dir, "no marker windows could be made")
+    return {"x": np.stack(xs).astype(np.float32), "y": np.asarray(ys, np.int64), "groups": np.asarray(groups),
+            "experiment": np.asarray(exps, np.int64), "camera": np.asarray(cams), "start": np.asarray(starts, np.int64)}
+
+
+def save_marker_npz(arrays: dict[str, np.ndarray], path: str | Path) -> Path:
+    """Write a marker dataset atomically in the documented ``.npz`` format."""
+    path = Path(path)
+    if path.suffix != ".npz":
+        raise InputError(path, "marker datasets are saved as .npz; give a path ending in .npz")
+    write_with(path, lambda tmp: np.savez(tmp, **arrays))
+    return path
