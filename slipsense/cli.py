@@ -110,6 +110,7 @@ def train(
     max_steps_per_epoch: Optional[int] = typer.Option(None, help="cap steps per epoch (smoke runs)"),
     resume: bool = typer.Option(False, help="continue from OUT/resume.pt"),
     on_error: str = typer.Option("raise"),
+    overrides: Optional[Path] = typer.Option(None, help="CSV of hand labels replacing automatic moments of slip"),
     progress: bool = typer.Option(True),
 ):
     """Train a model on recordings or marker sequences (works under torchrun for DDP)."""
@@ -119,7 +120,8 @@ def train(
         model=model, recordings=recordings, markers=markers, out=out, preset=preset, model_overrides=_parse_sets(set_),
         frames=frames, horizon=horizon, size=_parse_size(size), wiggle_per_video=wiggle_per_video, split=split,
         test_objects=[o for o in (test_objects or "").split(",") if o], fold=fold, folds=folds,
-        test_fraction=test_fraction, augment=augment, seed=seed, on_error=on_error, progress=progress,
+        test_fraction=test_fraction, augment=augment, seed=seed, on_error=on_error, overrides=overrides,
+        progress=progress,
         train_overrides={k: v for k, v in dict(epochs=epochs, batch_size=batch_size, lr=lr, weight_decay=weight_decay,
                                                num_workers=workers, device=device,
                                                max_steps_per_epoch=max_steps_per_epoch).items() if v is not None},
@@ -138,13 +140,15 @@ def evaluate(
     png: Optional[Path] = typer.Option(None, help="confusion-matrix picture (default: beside the JSON)"),
     noise_std: float = typer.Option(0.0, help="add Gaussian noise of this std (0..255 scale) to clips"),
     on_error: str = typer.Option("raise"),
+    overrides: Optional[Path] = typer.Option(None, help="CSV of hand labels for --recordings"),
     progress: bool = typer.Option(True),
 ):
     """Evaluate a checkpoint: accuracy, precision, recall, F1 and a confusion matrix."""
     from slipsense.evaluate import evaluate_checkpoint
 
     m = evaluate_checkpoint(checkpoint, recordings=recordings, split=split, markers=markers, json_out=json_out,
-                            png=png, noise_std=noise_std, on_error=on_error, progress=progress)
+                            png=png, noise_std=noise_std, on_error=on_error, overrides=overrides,
+                            progress=progress)
     typer.echo(json.dumps({k: m[k] for k in ("accuracy", "precision", "recall", "f1", "n_clips", "n_slip", "n_wiggle")}))
 
 

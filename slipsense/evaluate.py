@@ -27,7 +27,7 @@ def evaluate_model(model, data, json_out: str | Path | None = None, png: str | P
 
 
 def evaluate_checkpoint(checkpoint: str | Path, recordings=None, split=None, markers=None, json_out=None, png=None,
-                        noise_std: float = 0.0, on_error: str = "raise", progress: bool = True) -> dict[str, Any]:
+                        noise_std: float = 0.0, on_error: str = "raise", overrides=None, progress: bool = True) -> dict[str, Any]:
     """Run the whole pipeline a checkpoint needs on one data source and score it.
 
     Exactly one of ``recordings`` (every clip of that folder: zero-shot on unseen objects),
@@ -52,7 +52,7 @@ def evaluate_checkpoint(checkpoint: str | Path, recordings=None, split=None, mar
             split_info = _read_split(split)
             spec = clip_spec_from(split_info)
             clips, _ = gelsight_clips(split_info["recordings"], spec, on_error=split_info.get("on_error", on_error),
-                                      progress=progress)
+                                      overrides=split_info.get("overrides"), progress=progress)
             idx = split_info["test_indices"]
             if idx and max(idx) >= len(clips):
                 raise InputError(split, "test indices do not fit the clips rebuilt from its recordings")
@@ -61,7 +61,8 @@ def evaluate_checkpoint(checkpoint: str | Path, recordings=None, split=None, mar
         else:
             if "clip_spec" not in data_info:
                 raise InputError(checkpoint, "checkpoint has no clip settings (data.clip_spec)")
-            clips, _ = gelsight_clips(recordings, clip_spec_from(data_info), on_error=on_error, progress=progress)
+            clips, _ = gelsight_clips(recordings, clip_spec_from(data_info), on_error=on_error, overrides=overrides,
+                                      progress=progress)
             extra.update(recordings=str(recordings), objects=sorted(set(clips.objects)))
         data = ClipDataset(clips, noise_std=noise_std, seed=0)
     else:

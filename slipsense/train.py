@@ -327,6 +327,7 @@ class TrainRequest:
     augment: bool = True
     seed: int = 0
     on_error: str = "raise"
+    overrides: Path | None = None  # CSV of hand labels replacing automatic moments of slip
     progress: bool = True
     train_overrides: dict[str, Any] = field(default_factory=dict)
 
@@ -374,7 +375,7 @@ def prepare_data(req: TrainRequest, kind: str):
         if req.size is not None:
             spec_kw["size"] = req.size
         spec = ClipSpec(**spec_kw)
-        clips, _ = gelsight_clips(root, spec, on_error=req.on_error, progress=req.progress)
+        clips, _ = gelsight_clips(root, spec, on_error=req.on_error, overrides=req.overrides, progress=req.progress)
         if req.split == "clips":
             tr, te = split_by_clip(clips, test_fraction=req.test_fraction, seed=req.seed)
             test_objects: list[str] = []
@@ -396,7 +397,7 @@ def prepare_data(req: TrainRequest, kind: str):
         size = tuple(clips.x.shape[2:4])
         split_info = {"kind": "video", "recordings": str(root), "clip_spec": spec_dict(spec), "split": req.split,
                       "test_objects": test_objects, "test_indices": [int(i) for i in te],
-                      "on_error": req.on_error}
+                      "on_error": req.on_error, "overrides": str(req.overrides) if req.overrides else None}
         train = ClipDataset(clips.subset(tr), AugmentConfig(enabled=req.augment), seed=req.seed)
         test = ClipDataset(clips.subset(te))
         return train, test, split_info, {"frames": req.frames, "image_size": size}

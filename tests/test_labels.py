@@ -458,3 +458,16 @@ def test_label_run_on_real_recordings():
     assert [l.moment_of_slip for l in labels] == [labels[0].contact_end] * 2
     assert abs(labels[0].moment_of_slip - 105) <= TOLERANCE
     assert all(15 <= l.contact_start <= 30 for l in labels)  # grasp at ~23, after the transient
+
+
+def test_exclude_override_leaves_the_video_without_clips(tmp_path):
+    from slipsense.recordings.clips import ClipSpec, plan_windows
+    from slipsense.recordings.types import VideoLabel
+
+    path = _csv(tmp_path, "object,experiment,camera,moment_of_slip\nball,1,,exclude\n")
+    ov = L.read_overrides_csv(path, known=KNOWN)
+    assert ov == {("ball", 1, None): L.EXCLUDE}
+    label = VideoLabel("ball", 1, "camera_0", 100, True, 60, 20, 60)
+    out = L.apply_overrides({label.key: label}, ov)[label.key]
+    assert out.slipped and out.moment_of_slip is None and out.source == "override"
+    assert plan_windows(out, ClipSpec()) == []

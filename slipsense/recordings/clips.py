@@ -281,7 +281,8 @@ def build_clips(
         label = labels.get(rec.key)
         if label is None:
             raise InputError(rec.path, "no label for this video")
-        if label.slipped != rec.slipped:
+        # A hand label (override) is the user's truth and may contradict slip.txt; an automatic one may not.
+        if label.slipped != rec.slipped and label.source != "override":
             raise InputError(
                 rec.path,
                 f"label says slipped={label.slipped} but slip.txt is {'present' if rec.slipped else 'absent'}",

@@ -54,6 +54,9 @@ from .. import atomic, config
 from ..errors import InputError
 from .types import Recording, VideoLabel
 
+#: Override value that leaves a video out of the clips altogether.
+EXCLUDE = "exclude"
+
 #: Bump whenever the labels this module produces could change; it keys the label cache.
 ALGORITHM_VERSION = "labels-1"
 
@@ -578,7 +581,9 @@ def apply_overrides(
 
     A camera-specific override wins over a whole-run one (camera None). A moment sets
     ``slipped=True`` and ``contact_end`` to it (``contact_start`` is moved back to it when it was
-    later); None sets ``slipped=False`` and keeps the automatic contact phase.
+    later); None sets ``slipped=False`` and keeps the automatic contact phase; :data:`EXCLUDE`
+    keeps ``slipped`` and leaves the video without a moment and with an empty contact phase, so it
+    gives no clip.
 
     Raises:
         InputError: an override names a run or camera without a label, or a moment outside
@@ -600,6 +605,9 @@ def apply_overrides(
                 raise InputError(None, f"override for {obj} experiment {exp}: no camera {cam!r} in that run")
         for key in keys:
             label = out[key]
+            if moment == EXCLUDE:
+                out[key] = replace(label, moment_of_slip=None, contact_end=label.contact_start, source="override")
+                continue
             if moment is None:
                 out[key] = replace(label, slipped=False, moment_of_slip=None, source="override")
                 continue
@@ -692,7 +700,8 @@ def read_overrides_csv(
     """Read hand-made moment-of-slip overrides.
 
     The CSV needs the columns ``object``, ``experiment`` (an integer, or ``exp_num_<N>``) and
-    ``moment_of_slip`` (a frame index; blank = the run did not slip); ``camera`` is optional
+    ``moment_of_slip`` (a frame index; blank = the run did not slip; ``exclude`` = the video gives
+    no clip at all, e.g. a slip run whose object was never really held); ``camera`` is optional
     (missing or blank: the row applies to every camera of the run). Other columns are ignored,
     so a file written by :func:`write_labels_csv` can be edited and read back.
 
@@ -727,7 +736,10 @@ def read_overrides_csv(
         exp = int(m.group(1))
         cam = row.get("camera", "") or None
         value = row["moment_of_slip"]
-        moment = None if value == "" else _parse_int(path, line, "moment_of_slip", value)
+        if value.strip().lower() == EXCLUDE:
+            moment: int | str | None = EXCLUDE
+        else:
+            moment = None if value == "" else _parse_int(path, line, "moment_of_slip", value)
         if known is not None:
             if obj not in objects:
                 raise InputError(path, f"line {line}: unknown object {obj!r}")
