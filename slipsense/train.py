@@ -189,7 +189,8 @@ def _set_rng_state(s: dict[str, Any]) -> None:
 
 
 def fit(model: nn.Module, train_data: Dataset, val_data: Dataset | None, cfg: TrainConfig,
-        out_dir: str | Path, info: dict[str, Any] | None = None, resume: bool = False) -> list[dict[str, Any]]:
+        out_dir: str | Path, info: dict[str, Any] | None = None, resume: bool = False,
+        extra_eval: dict[str, Dataset] | None = None) -> list[dict[str, Any]]:
     """Train ``model`` on ``train_data``; validate on ``val_data`` after every epoch.
 
     Args:
@@ -200,6 +201,8 @@ def fit(model: nn.Module, train_data: Dataset, val_data: Dataset | None, cfg: Tr
             ``last.safetensors``, ``resume.pt`` and ``run.json``.
         info: extra config stored in every checkpoint (data settings, split...).
         resume: continue from ``out_dir/resume.pt`` if it exists.
+        extra_eval: more labelled sets scored after every epoch (columns ``<name>_accuracy``...),
+            e.g. held-out objects beside a clip-level test split; they do not pick the best epoch.
 
     Returns:
         The per-epoch metric rows (also written to ``metrics.csv``).
@@ -263,6 +266,10 @@ def fit(model: nn.Module, train_data: Dataset, val_data: Dataset | None, cfg: Tr
             p, y = predict(model, val_data, batch_size=max(cfg.batch_size, 32), device=d.device, d=d)
             m = metrics_from(p, y)
             row.update({f"val_{k}": m[k] for k in ("loss", "accuracy", "precision", "recall", "f1")})
+        for name, extra in (extra_eval or {}).items():
+            p, y = predict(model, extra, batch_size=max(cfg.batch_size, 32), device=d.device, d=d)
+            m = metrics_from(p, y)
+            row.update({f"{name}_{k}": m[k] for k in ("loss", "accuracy", "precision", "recall", "f1")})
         row["seconds"] = time.perf_counter() - t0
         history.append(row)
         score = -row["val_loss"] if cfg.select_by == "loss" and "val_loss" in row else row.get(
