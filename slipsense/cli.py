@@ -4,6 +4,7 @@ from __future__ import annotations
 import functools
 import json
 import sys
+import warnings
 from pathlib import Path
 from typing import Any, List, Optional
 
@@ -13,6 +14,14 @@ from slipsense.errors import ConfigError, SlipsenseError
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
                   help="Slip detection and prediction from vision-based tactile sensors.")
+
+
+def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> str:
+    return f"warning: {message}\n"
+
+
+# Skipped videos and cache rebuilds are reported to users as one line each, not with source lines.
+warnings.formatwarning = _one_line_warning
 
 
 def friendly(fn):

@@ -286,9 +286,8 @@ def fit(model: nn.Module, train_data: Dataset, val_data: Dataset | None, cfg: Tr
                 "model": model.state_dict(), "optimizer": optimizer.state_dict(),
                 "scheduler": scheduler.state_dict(), "rng": _rng_state(), "history": history,
                 "best": best, "epoch": epoch})
-            if cfg.progress:
-                shown = {k: (round(v, 4) if isinstance(v, float) else v) for k, v in row.items()}
-                print(json.dumps(shown))
+            shown = {k: (round(v, 4) if isinstance(v, float) else v) for k, v in row.items()}
+            print(json.dumps(shown), flush=True)
         if d.world > 1:
             dist.barrier()  # nobody races ahead of rank 0's checkpoint
     if d.main and history:
