@@ -1,0 +1,194 @@
+"""Benchmark slipsense's ViViT against vit-pytorch's ViViT on the CPU, at the paper's configuration.
+
+    .venv/bin/python bench/bench_vivit.py                      # Markdown table on stdout
+    .venv/bin/python bench/bench_vivit.py --out bench.md --json bench.json --profile
+
+Models (all: 240 x 320 input, 40 x 40 patches, 5 frames, dim 8, 2 + 2 layers, 2 heads, dim_head 64,
+mlp_dim 8, 2 classes; eval mode, ``torch.inference_mode``):
+
+* ours       — ``slipsense.models.vivit.ViViT``, one token sequence per frame, loaded with the weights
+               of the per-frame reference (so the benchmark also checks the two agree);
+* ref-frame  — vit-pytorch ``ViViT(frame_patch_size=1)``: the same network as ours (case a);
+* ref-tubelet — vit-pytorch ``ViViT(frame_patch_size=5)``: what the study's code ran (``frame_patch_size =
+               frames``): one 5-frame tubelet per patch position, a different (smaller-compute,
+               more-parameter) network. Case (b) compares *our per-frame model* with it: the speed of
+               what we ship against the speed of what the study shipped, not the same function.
+
+The reference gets its clips already in its own ``(B, C, T, H, W)`` layout (contiguous), ours in
+``(B, T, C, H, W)``. Timing: warm-up, then rounds that run each model in turn (interleaved, so load
+from other processes hits all alike); each round runs a model for at least ``--round-time`` seconds;
+the table shows the median over rounds. With one thread the clock is the thread's CPU time
+(``time.thread_time``), so on a shared machine time slices lost to other processes do not count;
+cache and memory-bandwidth contention still do. vit-pytorch is loaded from its ``vivit.py`` file (the
+package ``__init__`` imports torchvision).
+"""
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import os
+import platform
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+from slipsense.models import count_parameters  # noqa: E402
+from slipsense.models.vivit import ViViT  # noqa: E402
+
+PAPER = dict(image_size=(240, 320), image_patch_size=(40, 40), frames=5, num_classes=2, dim=8, spatial_depth=2,
+             temporal_depth=2, heads=2, mlp_dim=8)
+
+
+def load_reference_class():
+    spec = importlib.util.find_spec("vit_pytorch")
+    if spec is None or not spec.submodule_search_locations:
+        sys.exit("vit-pytorch is not installed (pip install --no-deps vit-pytorch)")
+    path = Path(list(spec.submodule_search_locations)[0]) / "vivit.py"
+    mod_spec = importlib.util.spec_from_file_location("_vit_pytorch_vivit", path)
+    module = importlib.util.module_from_spec(mod_spec)
+    mod_spec.loader.exec_module(module)
+    return module.ViViT
+
+
+def cpu_name() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown CPU"
+
+
+def time_models(fns: dict, rounds: int, round_time: float, warmup: int, clock) -> dict[str, list[float]]:
+    """Seconds per call of each function by ``clock``: ``rounds`` interleaved rounds of >= ``round_time`` each."""
+    for fn in fns.values():
+        for _ in range(warmup):
+            fn()
+    iters = {}
+    for name, fn in fns.items():  # calibrate the iterations per round
+        t0 = clock()
+        fn()
+        iters[name] = max(1, int(round_time / max(clock() - t0, 1e-6)))
+    times: dict[str, list[float]] = {name: [] for name in fns}
+    for _ in range(rounds):
+        for name, fn in fns.items():
+            t0 = clock()
+            for _ in range(iters[name]):
+                fn()
+            times[name].append((clock() - t0) / iters[name])
+    return times
+
+
+def profile_table(fn, rows: int = 12, iters: int = 10) -> str:
+    from torch.profiler import ProfilerActivity, profile
+
+    fn()
+    with profile(activities=[ProfilerActivity.CPU]) as prof:
+        for _ in range(iters):
+            fn()
+    return prof.key_averages().table(sort_by="self_cpu_time_total", row_limit=rows)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--batches", type=int, nargs="+", default=[1, 16])
+    parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1)")
+    parser.add_argument("--rounds", type=int, default=15)
+    parser.add_argument("--round-time", type=float, default=0.1, help="seconds per model per round")
+    parser.add_argument("--clock", choices=("cpu", "wall"), default=None,
+                        help="cpu: this thread's CPU time (default with 1 thread: immune to time slices lost "
+                             "to other processes); wall: elapsed time (default with more threads)")
+    parser.add_argument("--warmup", type=int, default=3)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", type=Path, help="also write the Markdown report here")
+    parser.add_argument("--json", type=Path, help="also write the numbers as JSON here")
+    parser.add_argument("--profile", action="store_true", help="print torch.profiler top ops at batch 1")
+    args = parser.parse_args(argv)
+
+    torch.set_num_threads(args.threads)
+    clock_name = args.clock or ("cpu" if args.threads == 1 else "wall")
+    clock = time.thread_time if clock_name == "cpu" else time.perf_counter
+    torch.manual_seed(args.seed)
+    RefViViT = load_reference_class()
+    ref_frame = RefViViT(frame_patch_size=1, **PAPER).eval()
+    ref_tubelet = RefViViT(frame_patch_size=PAPER["frames"], **PAPER).eval()
+    ours = ViViT.from_vit_pytorch(ref_frame).eval()
+
+    gen = torch.Generator().manual_seed(args.seed)
+    load_before = os.getloadavg()
+    results = []
+    with torch.inference_mode():
+        check = torch.rand(2, 5, 3, 240, 320, generator=gen)
+        max_diff = (ours(check) - ref_frame(check.permute(0, 2, 1, 3, 4))).abs().max().item()
+        for batch in args.batches:
+            x = torch.rand(batch, 5, 3, 240, 320, generator=gen)
+            x_ref = x.permute(0, 2, 1, 3, 4).contiguous()
+            fns = {"ours": lambda: ours(x), "ref-frame": lambda: ref_frame(x_ref),
+                   "ref-tubelet": lambda: ref_tubelet(x_ref)}
+            times = time_models(fns, args.rounds, args.round_time, args.warmup, clock)
+            med = {k: statistics.median(v) for k, v in times.items()}
+            best = {k: min(v) for k, v in times.items()}
+            for ref in ("ref-frame", "ref-tubelet"):
+                results.append(dict(
+                    case="a" if ref == "ref-frame" else "b", reference=ref, batch=batch,
+                    ours_clips_s=batch / med["ours"], ref_clips_s=batch / med[ref], ratio=med[ref] / med["ours"],
+                    ours_ms=med["ours"] * 1e3, ref_ms=med[ref] * 1e3, best_ratio=best[ref] / best["ours"],
+                ))
+        profiles = {}
+        if args.profile:
+            x1 = torch.rand(1, 5, 3, 240, 320, generator=gen)
+            x1_ref = x1.permute(0, 2, 1, 3, 4).contiguous()
+            profiles["ref-frame"] = profile_table(lambda: ref_frame(x1_ref))
+            profiles["ours"] = profile_table(lambda: ours(x1))
+    load_after = os.getloadavg()
+
+    env = dict(torch=torch.__version__, threads=args.threads, cpu=cpu_name(), cores=os.cpu_count(),
+               load_before=[round(v, 2) for v in load_before], load_after=[round(v, 2) for v in load_after],
+               rounds=args.rounds, round_time=args.round_time, clock=clock_name)
+    params = {"ours": count_parameters(ours), "ref-frame": count_parameters(ref_frame),
+              "ref-tubelet": count_parameters(ref_tubelet)}
+    lines = [
+        "# ViViT CPU inference: slipsense vs vit-pytorch",
+        "",
+        f"Paper configuration, eval mode, `torch.inference_mode`, {args.threads} thread(s), torch {torch.__version__}, "
+        f"{env['cpu']} ({env['cores']} cores; load average {load_before[0]:.2f} before, {load_after[0]:.2f} after).",
+        f"Median of {args.rounds} interleaved rounds of >= {args.round_time:g} s per model, timed by "
+        + ("this thread's CPU time (time lost to other processes not counted)." if clock_name == "cpu"
+           else "wall-clock time."),
+        "",
+        f"Parameters: ours {params['ours']:,}; vit-pytorch per-frame {params['ref-frame']:,}; "
+        f"vit-pytorch tubelet {params['ref-tubelet']:,}.",
+        f"Ours vs vit-pytorch per-frame, same weights: max |logit difference| = {max_diff:.2e}.",
+        "",
+        "| case | ours | reference | batch | ours clips/s | reference clips/s | ours / reference "
+        "| (best-round ratio) |",
+        "|---|---|---|---:|---:|---:|---:|---:|",
+    ]
+    for r in results:
+        desc = ("(a) same network" if r["case"] == "a" else "(b) study's setting")
+        ref_desc = ("vit-pytorch, frame_patch_size=1" if r["case"] == "a"
+                    else "vit-pytorch, frame_patch_size=5 (tubelet)")
+        lines.append(f"| {desc} | per-frame | {ref_desc} | {r['batch']} | {r['ours_clips_s']:.1f} | "
+                     f"{r['ref_clips_s']:.1f} | {r['ratio']:.1f}x | {r['best_ratio']:.1f}x |")
+    lines += ["", "(b) compares our per-frame model with the study's tubelet model: different networks "
+                  "(the tubelet one sees each 40 x 40 x 5 block as one token)."]
+    for name, table in profiles.items():
+        lines += ["", f"## torch.profiler, {name}, batch 1 (10 calls)", "", "```", table.rstrip(), "```"]
+    report = "\n".join(lines) + "\n"
+    print(report)
+    if args.out:
+        args.out.write_text(report)
+    if args.json:
+        args.json.write_text(json.dumps(dict(env=env, parameters=params, max_abs_diff=max_diff, results=results),
+                                        indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

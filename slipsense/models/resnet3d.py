@@ -1,0 +1,304 @@
+"""3D ResNet-50 ("VideoResNet50" of the GelSight incipient-slip study), the study's baseline.
+
+The study built it with ``pytorchvideo.models.resnet.create_resnet(input_channel=3, model_depth=50,
+model_num_class=2, norm=BatchNorm3d, activation=ReLU)`` and reports 31,657,410 parameters. That is the
+layout written here with the defaults (and exactly that count)::
+
+    video (B, T, 3, H, W) BGR [0, 1] -> RGB, (x - mean) / std -> (B, 3, T, H, W)
+    stem:  Conv3d 3->64, kernel 3x7x7, stride 1x2x2, BN, ReLU, MaxPool 1x3x3 stride 1x2x2   (B, 64, T, H/4, W/4)
+    4 stages of bottleneck blocks, [3, 4, 6, 3] blocks, inner width 64 * 2^i, output 4x inner:
+        conv_a  kernel kt x1x1 (kt = 1, 1, 3, 3 for the four stages), BN, ReLU
+        conv_b  kernel 1x3x3, stride 1x2x2 in the first block of stages 2-4, BN, ReLU
+        conv_c  kernel 1x1x1, BN;  + shortcut (1x1x1 conv + BN where the shape changes);  ReLU
+                                                                                            (B, 2048, T, H/32, W/32)
+    head:  global average pool -> dropout 0.5 -> Linear(2048, 2)                            (B, 2)
+
+Temporal stride is 1 everywhere, so any number of frames works. (This is the "Slow" pathway
+design: temporal kernels only in the last two stages; pytorchvideo's hub ``slow_r50`` is the same
+with a 1x7x7 stem, 31,638,594 parameters for 2 classes.) One difference from pytorchvideo's head:
+pytorchvideo averages 4x7x7 windows, projects, then averages the projections; here the features are
+averaged over the whole clip before the Linear — the same for inputs whose final map is 4x7x7
+(8 x 224 x 224 clips), a plain global average otherwise.
+
+``width`` scales every channel count (``width=8`` gives a tiny model for tests); ``stem_kernel`` and
+``temporal_kernels`` pick the other layouts above.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Sequence
+
+import torch
+import torch.nn.functional as F
+from einops import rearrange
+from torch import Tensor, nn
+
+from slipsense.errors import ConfigError, InputError
+from slipsense.models import register
+
+#: Parameter count the study reports for its VideoResNet50 with 2 classes (the default config here).
+PAPER_PARAMETERS = 31_657_410
+
+
+class Bottleneck(nn.Module):
+    """conv_a (kt x 1 x 1) -> conv_b (1 x 3 x 3, spatial stride) -> conv_c (1 x 1 x 1), each with BN; + shortcut.
+
+    (B, dim_in, T, H, W) -> (B, dim_out, T, H / stride, W / stride)
+    """
+
+    def __init__(self, dim_in: int, dim_inner: int, dim_out: int, temporal_kernel: int, stride: int):
+        super().__init__()
+        kt = temporal_kernel
+        self.conv_a = nn.Conv3d(dim_in, dim_inner, (kt, 1, 1), padding=(kt // 2, 0, 0), bias=False)
+        self.bn_a = nn.BatchNorm3d(dim_inner)
+        self.conv_b = nn.Conv3d(dim_inner, dim_inner, (1, 3, 3), stride=(1, stride, stride), padding=(0, 1, 1),
+                                bias=False)
+        self.bn_b = nn.BatchNorm3d(dim_inner)
+        self.conv_c = nn.Conv3d(dim_inner, dim_out, 1, bias=False)
+        self.bn_c = nn.BatchNorm3d(dim_out)
+        if dim_in != dim_out or stride != 1:
+            self.shortcut_conv = nn.Conv3d(dim_in, dim_out, 1, stride=(1, stride, stride), bias=False)
+            self.shortcut_bn = nn.BatchNorm3d(dim_out)
+        else:
+            self.shortcut_conv = self.shortcut_bn = None
+
+    def forward(self, x: Tensor) -> Tensor:
+        shortcut = x if self.shortcut_conv is None else self.shortcut_bn(self.shortcut_conv(x))
+        y = F.relu(self.bn_a(self.conv_a(x)))
+        y = F.relu(self.bn_b(self.conv_b(y)))
+        y = self.bn_c(self.conv_c(y))
+        return F.relu(y + shortcut)
+
+
+def _triple(value: int | Sequence[int], name: str) -> tuple[int, int, int]:
+    if isinstance(value, int):
+        value = (value, value, value)
+    value = tuple(int(v) for v in value)
+    if len(value) != 3 or any(v < 1 or v % 2 == 0 for v in value):
+        raise ConfigError(f"resnet3d50: {name} must be 3 odd positive integers (t, h, w), got {value!r}")
+    return value
+
+
+@register("resnet3d50")
+class ResNet3D50(nn.Module):
+    """Bottleneck 3D ResNet for ``(B, T, 3, H, W)`` BGR clips in [0, 1]; logits ``(B, num_classes)``, class 1 = slip.
+
+    Keyword config: ``layers=(3, 4, 6, 3)``, ``width=64``, ``stem_kernel=(3, 7, 7)``,
+    ``temporal_kernels=(1, 1, 3, 3)`` (conv_a's temporal size per stage), ``num_classes=2``,
+    ``dropout=0.5``, ``channels=3``, ``frames=None`` (any; an int makes :meth:`check_input` insist),
+    ``bgr_to_rgb=True`` and ``mean=(0.45,)*3``, ``std=(0.225,)*3`` (the Kinetics normalisation that
+    pytorchvideo's pretrained weights expect, applied inside the model).
+    """
+
+    input_kind = "video"
+
+    def __init__(
+        self,
+        *,
+        layers: Sequence[int] = (3, 4, 6, 3),
+        width: int = 64,
+        stem_kernel: int | Sequence[int] = (3, 7, 7),
+        temporal_kernels: Sequence[int] = (1, 1, 3, 3),
+        num_classes: int = 2,
+        dropout: float = 0.5,
+        channels: int = 3,
+        frames: int | None = None,
+        bgr_to_rgb: bool = True,
+        mean: Sequence[float] = (0.45, 0.45, 0.45),
+        std: Sequence[float] = (0.225, 0.225, 0.225),
+    ):
+        super().__init__()
+        layers = [int(n) for n in layers]
+        temporal_kernels = [int(k) for k in temporal_kernels]
+        stem_kernel = _triple(stem_kernel, "stem_kernel")
+        if not layers or any(n < 1 for n in layers):
+            raise ConfigError(f"resnet3d50: layers must be positive block counts, got {layers!r}")
+        if len(temporal_kernels) != len(layers) or any(k < 1 or k % 2 == 0 for k in temporal_kernels):
+            raise ConfigError(f"resnet3d50: temporal_kernels must be {len(layers)} odd positive integers, "
+                              f"got {temporal_kernels!r}")
+        for key, value in dict(width=width, num_classes=num_classes, channels=channels).items():
+            if not isinstance(value, int) or value < 1:
+                raise ConfigError(f"resnet3d50: {key} must be a positive integer, got {value!r}")
+        if frames is not None and (not isinstance(frames, int) or frames < 1):
+            raise ConfigError(f"resnet3d50: frames must be None or a positive integer, got {frames!r}")
+        if not 0.0 <= float(dropout) < 1.0:
+            raise ConfigError(f"resnet3d50: dropout must be in [0, 1), got {dropout!r}")
+        mean, std = [float(m) for m in mean], [float(s) for s in std]
+        if len(mean) != channels or len(std) != channels or any(s <= 0 for s in std):
+            raise ConfigError(f"resnet3d50: mean and std need {channels} values (std > 0)")
+        if bgr_to_rgb and channels != 3:
+            raise ConfigError("resnet3d50: bgr_to_rgb needs channels=3")
+
+        self.channels, self.frames, self.bgr_to_rgb = channels, frames, bool(bgr_to_rgb)
+        self._config = dict(layers=layers, width=width, stem_kernel=list(stem_kernel),
+                            temporal_kernels=temporal_kernels, num_classes=num_classes, dropout=float(dropout),
+                            channels=channels, frames=frames, bgr_to_rgb=bool(bgr_to_rgb), mean=mean, std=std)
+        self.register_buffer("mean", torch.tensor(mean).view(1, channels, 1, 1, 1), persistent=False)
+        self.register_buffer("std", torch.tensor(std).view(1, channels, 1, 1, 1), persistent=False)
+
+        kt, kh, kw = stem_kernel
+        self.stem = nn.Sequential()
+        self.stem.add_module("conv", nn.Conv3d(channels, width, stem_kernel, stride=(1, 2, 2),
+                                               padding=(kt // 2, kh // 2, kw // 2), bias=False))
+        self.stem.add_module("bn", nn.BatchNorm3d(width))
+        self.stem.add_module("relu", nn.ReLU(inplace=True))
+        self.stem.add_module("pool", nn.MaxPool3d((1, 3, 3), stride=(1, 2, 2), padding=(0, 1, 1)))
+
+        stages = []
+        dim_in = width
+        for i, (blocks, kt) in enumerate(zip(layers, temporal_kernels)):
+            dim_inner = width * 2**i
+            dim_out = 4 * dim_inner
+            stride = 1 if i == 0 else 2
+            stage = nn.Sequential(*(
+                Bottleneck(dim_in if j == 0 else dim_out, dim_inner, dim_out, kt, stride if j == 0 else 1)
+                for j in range(blocks)
+            ))
+            stages.append(stage)
+            dim_in = dim_out
+        self.stages = nn.Sequential(*stages)
+        self.dropout = nn.Dropout(dropout)
+        self.fc = nn.Linear(dim_in, num_classes)
+        self._init_weights()
+
+    def _init_weights(self) -> None:
+        """Kaiming-normal convs, BN 1/0 (0 for each block's last BN, so blocks start as identities), fc N(0, 0.01)."""
+        for m in self.modules():
+            if isinstance(m, nn.Conv3d):
+                nn.init.kaiming_normal_(m.weight, mode="fan_out", nonlinearity="relu")
+            elif isinstance(m, nn.BatchNorm3d):
+                nn.init.ones_(m.weight)
+                nn.init.zeros_(m.bias)
+        for m in self.modules():
+            if isinstance(m, Bottleneck):
+                nn.init.zeros_(m.bn_c.weight)
+        nn.init.normal_(self.fc.weight, std=0.01)
+        nn.init.zeros_(self.fc.bias)
+
+    def config(self) -> dict[str, Any]:
+        """The keyword arguments that rebuild this model (JSON-friendly)."""
+        return {k: list(v) if isinstance(v, list) else v for k, v in self._config.items()}
+
+    # input checks
+
+    def check_input(self, x: Any) -> None:
+        """Raise :class:`InputError` unless ``x`` is a finite float tensor ``(B, T, channels, H, W)``."""
+        self._check_shape(x)
+        if not x.dtype.is_floating_point:
+            raise InputError(None, f"video must be a float tensor in [0, 1], got dtype {x.dtype}")
+        if not bool(torch.isfinite(x).all()):
+            raise InputError(None, "video contains NaN or infinite values")
+
+    def _check_shape(self, x: Any) -> None:
+        if not isinstance(x, Tensor):
+            raise InputError(None, f"video must be a torch.Tensor, got {type(x).__name__}")
+        t = "T" if self.frames is None else str(self.frames)
+        ok = x.dim() == 5 and min(x.shape) >= 1 and x.shape[2] == self.channels
+        if ok and self.frames is not None:
+            ok = x.shape[1] == self.frames
+        if not ok:
+            raise InputError(None, f"video must have shape (B, {t}, {self.channels}, H, W) "
+                                   f"(batch, frames, channels, height, width), got {tuple(x.shape)}")
+
+    # network
+
+    def features(self, x: Tensor) -> Tensor:
+        """(B, T, C, H, W) -> (B, 2048 * width / 64) clip features (before dropout and the Linear)."""
+        x = rearrange(x, "b t c h w -> b c t h w")
+        if self.bgr_to_rgb:
+            x = x.flip(1)
+        x = (x - self.mean) / self.std
+        x = self.stages(self.stem(x))
+        return x.mean(dim=(2, 3, 4))
+
+    def forward(self, x: Tensor) -> Tensor:
+        """(B, T, C, H, W) in [0, 1], BGR -> logits (B, num_classes). Checks the shape only."""
+        self._check_shape(x)
+        return self.fc(self.dropout(self.features(x)))
+
+    # weights
+
+    def load_weights(self, path: str | Path, skip_head: bool = False) -> None:
+        """Load user-supplied weights: a ``.safetensors`` file or a torch ``.pt``/``.pth`` state dict.
+
+        Accepts this model's parameter names, pytorchvideo ``create_resnet`` names (``blocks.0.conv``,
+        ``blocks.1.res_blocks.0.branch2.conv_a``, ..., ``blocks.5.proj``) and a dict wrapping the state
+        dict under ``"state_dict"`` or ``"model"``. ``skip_head=True`` keeps this model's ``fc`` (to
+        fine-tune Kinetics-400 weights for 2 classes). Raises :class:`InputError` naming the file on an
+        unreadable file or when names or shapes do not fit.
+        """
+        path = Path(path)
+        sd = _read_state_dict(path)
+        sd = {_rename_pytorchvideo_key(k): v for k, v in sd.items()}
+        sd = {k: v for k, v in sd.items() if not k.endswith("num_batches_tracked")}
+        own = {k: v for k, v in self.state_dict().items() if not k.endswith("num_batches_tracked")}
+        if skip_head:
+            sd = {k: v for k, v in sd.items() if not k.startswith("fc.")}
+            own = {k: v for k, v in own.items() if not k.startswith("fc.")}
+        missing = sorted(set(own) - set(sd))
+        unexpected = sorted(set(sd) - set(own))
+        wrong = [f"{k} {tuple(sd[k].shape)} != {tuple(own[k].shape)}"
+                 for k in own if k in sd and sd[k].shape != own[k].shape]
+        problems = []
+        if missing:
+            problems.append(f"{len(missing)} missing (e.g. {', '.join(missing[:3])})")
+        if unexpected:
+            problems.append(f"{len(unexpected)} unexpected (e.g. {', '.join(unexpected[:3])})")
+        if wrong:
+            problems.append(f"{len(wrong)} of the wrong shape (e.g. {'; '.join(wrong[:2])})")
+        if problems:
+            raise InputError(path, f"weights do not fit resnet3d50 {self._short_config()}: " + ", ".join(problems))
+        self.load_state_dict(sd, strict=not skip_head)
+
+    def _short_config(self) -> str:
+        c = self._config
+        return (f"(layers={c['layers']}, width={c['width']}, stem_kernel={c['stem_kernel']}, "
+                f"temporal_kernels={c['temporal_kernels']}, num_classes={c['num_classes']})")
+
+
+def _read_state_dict(path: Path) -> dict[str, Tensor]:
+    if not path.is_file():
+        raise InputError(path, "no such weights file")
+    try:
+        if path.suffix == ".safetensors":
+            from safetensors.torch import load_file
+
+            sd = load_file(str(path))
+        else:
+            sd = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # any reader failure is a bad file for the user
+        first_line = str(exc).splitlines()[0] if str(exc) else ""
+        raise InputError(path, f"cannot read weights ({type(exc).__name__}: {first_line})") from None
+    for wrapper in ("state_dict", "model"):
+        if isinstance(sd, dict) and isinstance(sd.get(wrapper), dict):
+            sd = sd[wrapper]
+    if not isinstance(sd, dict) or not all(isinstance(k, str) and isinstance(v, Tensor) for k, v in sd.items()):
+        raise InputError(path, "not a state dict (a mapping of parameter names to tensors)")
+    return sd
+
+
+_PTV_BLOCK = {"conv_a": "conv_a", "norm_a": "bn_a", "conv_b": "conv_b", "norm_b": "bn_b",
+              "conv_c": "conv_c", "norm_c": "bn_c"}
+
+
+def _rename_pytorchvideo_key(key: str) -> str:
+    """pytorchvideo ``create_resnet`` state-dict names -> this file's (other names pass unchanged)."""
+    parts = key.split(".")
+    if parts[0] != "blocks" or len(parts) < 3:
+        return key
+    if parts[1] == "0" and parts[2] in ("conv", "norm"):  # stem
+        return ".".join(["stem", "conv" if parts[2] == "conv" else "bn", *parts[3:]])
+    if parts[2] == "proj":  # head
+        return ".".join(["fc", *parts[3:]])
+    if parts[2] == "res_blocks" and len(parts) >= 6:
+        stage, block, name = int(parts[1]) - 1, parts[3], parts[4]
+        if name == "branch1_conv":
+            new, rest = "shortcut_conv", parts[5:]
+        elif name == "branch1_norm":
+            new, rest = "shortcut_bn", parts[5:]
+        elif name == "branch2" and parts[5] in _PTV_BLOCK:
+            new, rest = _PTV_BLOCK[parts[5]], parts[6:]
+        else:
+            return key
+        return ".".join(["stages", str(stage), block, new, *rest])
+    return key

@@ -1,0 +1,567 @@
+"""ViViT, factorised encoder: a spatial transformer per frame, then a temporal transformer.
+
+The network of the GelSight incipient-slip study (Parag, Adelson, Misimi): the study built it with
+vit-pytorch's ``ViViT`` at 240 x 320 input, 40 x 40 patches, ``dim=8``, 2 spatial + 2 temporal layers,
+2 heads, ``mlp_dim=8`` ("8 neurons in the hidden layers"; the study's ``train.py`` passes
+``mlp_dim=8``), the vit-pytorch defaults ``dim_head=64``, ``pool="cls"``, no dropout, 2 classes.
+This file computes the same function as vit-pytorch 1.26's ``ViViT(variant="factorized_encoder",
+frame_patch_size=1)`` (uniform frame sampling: one token sequence per frame), written for speed on a
+CPU at batch 1::
+
+    video (B, T, 3, H, W)
+      -> patches of every frame               (B*T, P, 3*ph*pw)          P = (H/ph) * (W/pw)
+      -> LayerNorm(3*ph*pw) -> Linear -> LayerNorm(dim)                  (B*T, P, dim)
+      -> + pos_embedding[t]                   per frame slot t and patch
+      -> [spatial CLS] + tokens -> spatial transformer -> CLS (or mean)  (B, T, dim)    encode_frames
+      -> [temporal CLS] + frames -> temporal transformer -> CLS (or mean)
+      -> Linear(dim, num_classes)                                        (B, num_classes) classify_frames
+
+Speed (CPU inference). vit-pytorch cuts the patches out with a rearrange that gathers every
+channel-last ``(p1 p2 c)`` value one float at a time, then runs LayerNorm over 4800-value rows and a
+Linear: about 80 % of its time at the paper size.
+Here (:meth:`ViViT._embed_fused`) the patches are copied in ``(c p1 p2)`` order (runs of 40
+contiguous floats), centred in place, and projected by one matrix product whose kernel has the
+patch LayerNorm's affine folded in (``W diag(gamma)``, ``W beta + b``); an extra all-``1/n`` kernel
+row gives the residual mean that makes this the corrected two-pass algorithm — as accurate as
+``F.layer_norm`` (measured: closer to a float64 reference than vit-pytorch's own float32 path).
+In eval mode without autograd the attention folds ``dim_head`` away (see :class:`Attention`) and
+the last layer of each transformer computes only the CLS row; training runs vit-pytorch's attention.
+The parameters stay an ordinary ``LayerNorm`` + ``Linear`` (same shapes and ``(p1 p2 c)`` layout as
+vit-pytorch), so training, weight decay and checkpoints are normal; ``fused=False`` runs the
+straightforward patch embedding instead.
+``bench/bench_vivit.py`` measures both against vit-pytorch. ONNX export (legacy and dynamo) works:
+caches and scratch buffers are used only in eager inference.
+
+Differences from vit-pytorch (all outside the paper configuration's inference path): attention
+dropout is applied only in training mode (vit-pytorch passes it to ``scaled_dot_product_attention``
+even in eval); no tubelets (``frame_patch_size`` is always 1); no temporal mask; the clip must have
+exactly ``frames`` frames of exactly ``image_size``. Input is ``(B, T, C, H, W)``, vit-pytorch's is
+``(B, C, T, H, W)``.
+
+Streaming. The position embedding depends on the frame's *slot* in the clip, so a frame's
+``encode_frames`` token is only reusable while the frame stays in the same slot. What can be cached
+per frame regardless of slot is :meth:`ViViT.embed_patches` (the patch tokens before the position
+embedding: nearly all of the cost); :meth:`ViViT.encode_patches` then finishes a clip cheaply.
+"""
+from __future__ import annotations
+
+import threading
+from typing import Any, Sequence
+
+import torch
+import torch.nn.functional as F
+from einops import rearrange, repeat
+from torch import Tensor, nn
+
+from slipsense.errors import ConfigError, InputError
+from slipsense.models import register
+
+
+def pair(value: int | Sequence[int]) -> tuple[int, int]:
+    """``8 -> (8, 8)``; ``(240, 320) -> (240, 320)`` (lists too, as configs come back from JSON)."""
+    if isinstance(value, int):
+        return (value, value)
+    a, b = value
+    return (int(a), int(b))
+
+
+# building blocks (vit-pytorch's, pre-norm)
+
+
+class FeedForward(nn.Module):
+    """``x -> Linear(GELU(Linear(LayerNorm(x))))``: (N, n, dim) -> (N, n, dim)."""
+
+    def __init__(self, dim: int, hidden_dim: int, dropout: float = 0.0):
+        super().__init__()
+        self.norm = nn.LayerNorm(dim)
+        self.fc1 = nn.Linear(dim, hidden_dim)
+        self.fc2 = nn.Linear(hidden_dim, dim)
+        self.dropout = nn.Dropout(dropout)
+
+    def forward(self, x: Tensor) -> Tensor:
+        x = F.gelu(self.fc1(self.norm(x)))
+        if self.training and self.dropout.p > 0:
+            return self.dropout(self.fc2(self.dropout(x)))
+        return self.fc2(x)
+
+
+def _eager_inference() -> bool:
+    """True in plain eager inference: no autograd, no tracing (jit / legacy ONNX export) or compiling
+    (torch.compile / torch.export / dynamo ONNX export). Only then are caches and scratch buffers safe."""
+    return not (torch.is_grad_enabled() or torch.jit.is_tracing() or torch.compiler.is_compiling())
+
+
+def _version_key(*tensors: Tensor) -> tuple | None:
+    """Identifies the current values of ``tensors`` (storage, shape, in-place version); None if untracked."""
+    try:
+        return tuple((t.data_ptr(), t._version, t.shape, t.dtype, t.device) for t in tensors)
+    except RuntimeError:  # inference tensors carry no version counter: do not cache
+        return None
+
+
+class Attention(nn.Module):
+    """Pre-norm multi-head self-attention: (N, n, dim) -> (N, n, dim).
+
+    ``attn_store``: a list to append the attention weights ``(N, heads, n, n)`` to; then the
+    weights are computed explicitly (softmax of scaled dot products) instead of by the fused
+    ``scaled_dot_product_attention`` kernel — the same numbers to float rounding.
+
+    Inference (eval mode, no autograd) takes a folded path: with ``dim_head`` (64) far above ``dim``
+    (8), the per-head products ``scale * Wq_h^T Wk_h`` and ``Wv_h^T Wo_h^T`` are ``dim x dim``
+    matrices, so scores ``y A_h y^T`` and outputs ``sum_h P_h (y M_h) + b_o`` need 8-wide instead of
+    64-wide matmuls. Exactly the same function (matrix products regrouped); the folded matrices are
+    cached until a weight changes.
+    """
+
+    def __init__(self, dim: int, heads: int, dim_head: int, dropout: float = 0.0):
+        super().__init__()
+        inner_dim = heads * dim_head
+        self.heads = heads
+        self.scale = dim_head**-0.5
+        self.dropout_p = dropout
+        self.norm = nn.LayerNorm(dim)
+        self.to_qkv = nn.Linear(dim, inner_dim * 3, bias=False)
+        project_out = not (heads == 1 and dim_head == dim)  # as vit-pytorch: no projection then
+        self.to_out = nn.Linear(inner_dim, dim) if project_out else nn.Identity()
+        self.dropout = nn.Dropout(dropout)
+        self._folded: tuple | None = None
+
+    def forward(self, x: Tensor, attn_store: list[Tensor] | None = None, first_only: bool = False) -> Tensor:
+        """``first_only``: return only token 0's output, (N, 1, dim)."""
+        y = self.norm(x)
+        if not self.training and not torch.is_grad_enabled():
+            return self._forward_folded(y, attn_store, first_only)
+        q, k, v = rearrange(self.to_qkv(y), "b n (qkv h d) -> qkv b h n d", qkv=3, h=self.heads)
+        dropout_p = self.dropout_p if self.training else 0.0
+        if attn_store is None:
+            out = F.scaled_dot_product_attention(q, k, v, dropout_p=dropout_p, scale=self.scale)
+        else:
+            attn = (q @ k.transpose(-1, -2) * self.scale).softmax(dim=-1)  # (b, h, n, n)
+            attn_store.append(attn)
+            out = F.dropout(attn, dropout_p, self.training) @ v
+        out = rearrange(out[:, :, :1] if first_only else out, "b h n d -> b n (h d)")
+        return self.dropout(self.to_out(out))
+
+    def folded_weights(self) -> tuple[Tensor, Tensor, Tensor]:
+        """``(A, M, b_o)``: A = [A_1 .. A_h], M = [M_1 .. M_h] as (dim, heads * dim) and the output bias (dim,)."""
+        wq, wk, wv = rearrange(self.to_qkv.weight, "(qkv h d) c -> qkv h d c", qkv=3, h=self.heads)
+        dim = wq.shape[-1]
+        if isinstance(self.to_out, nn.Linear):
+            wo, bias = rearrange(self.to_out.weight, "c (h d) -> h c d", h=self.heads), self.to_out.bias
+        else:  # heads == 1 and dim_head == dim: no output projection
+            wo, bias = torch.eye(dim, dtype=wq.dtype, device=wq.device)[None], wq.new_zeros(dim)
+        a = torch.einsum("hdi,hdj->ihj", wq, wk) * self.scale  # A_h[i, j] = scale sum_d Wq_h[d, i] Wk_h[d, j]
+        m = torch.einsum("hdi,hcd->ihc", wv, wo)  # M_h[i, c] = sum_d Wv_h[d, i] Wo_h[c, d]
+        return a.reshape(dim, -1), m.reshape(dim, -1), bias
+
+    def _forward_folded(self, y: Tensor, attn_store: list[Tensor] | None, first_only: bool) -> Tensor:
+        if _eager_inference():  # cache the folded weights until a weight changes
+            key = _version_key(self.to_qkv.weight, *self.to_out.parameters())
+            if key is None or self._folded is None or self._folded[0] != key:
+                self._folded = (key, *self.folded_weights())
+            _, a, m, bias = self._folded
+        else:
+            a, m, bias = self.folded_weights()
+        b, n, dim = y.shape
+        h = self.heads
+        queries = y[:, :1] if first_only else y  # (b, q, dim)
+        q = queries.shape[1]
+        scores = torch.bmm((queries @ a).view(b, q * h, dim), y.transpose(1, 2))  # rows (query, head): (b, q h, n)
+        attn = scores.softmax(dim=-1).view(b, q, h * n)
+        if attn_store is not None:
+            attn_store.append(rearrange(attn, "b q (h n) -> b h q n", h=h))
+        values = rearrange(y @ m, "b n (h c) -> b (h n) c", h=h)  # y M_h for every head: (b, h n, dim)
+        return torch.baddbmm(bias, attn, values)  # sum over heads and keys: (b, q, dim)
+
+
+class Transformer(nn.Module):
+    """``depth`` pre-norm residual layers (attention, feed-forward), then a LayerNorm."""
+
+    def __init__(self, dim: int, depth: int, heads: int, dim_head: int, mlp_dim: int, dropout: float):
+        super().__init__()
+        self.layers = nn.ModuleList(
+            nn.ModuleList([Attention(dim, heads, dim_head, dropout), FeedForward(dim, mlp_dim, dropout)])
+            for _ in range(depth)
+        )
+        self.norm = nn.LayerNorm(dim)
+
+    def forward(self, x: Tensor, attn_store: list[Tensor] | None = None, first_only: bool = False) -> Tensor:
+        """(N, n, dim) -> (N, n, dim); appends each layer's ``(N, heads, n, n)`` to ``attn_store``.
+
+        ``first_only``: return only token 0 (the CLS token), (N, 1, dim); the last layer then
+        computes only that token's row (the others cannot reach it any more).
+        """
+        if first_only and not self.layers:
+            x = x[:, :1]
+        for i, (attn, ff) in enumerate(self.layers):
+            if first_only and i == len(self.layers) - 1:
+                x = attn(x, attn_store, first_only=True) + x[:, :1]
+            else:
+                x = attn(x, attn_store) + x
+            x = ff(x) + x
+        return self.norm(x)
+
+
+# the model
+
+
+@register("vivit")
+class ViViT(nn.Module):
+    """Factorised-encoder ViViT for ``(B, T, 3, H, W)`` clips; logits ``(B, num_classes)``, class 1 = slip.
+
+    Keyword config (defaults: the paper's model): ``image_size=(240, 320)``, ``patch_size=(40, 40)``,
+    ``frames=5``, ``dim=8``, ``spatial_depth=2``, ``temporal_depth=2``, ``heads=2``, ``dim_head=64``,
+    ``mlp_dim=8``, ``pool="cls"`` (or ``"mean"``), ``dropout=0.0``, ``emb_dropout=0.0``,
+    ``channels=3``, ``num_classes=2``.
+
+    ``fused`` (attribute, not config): True (default) embeds patches with the folded fast path;
+    False with the straightforward rearrange + LayerNorm + Linear.
+    """
+
+    input_kind = "video"
+
+    def __init__(
+        self,
+        *,
+        image_size: int | Sequence[int] = (240, 320),
+        patch_size: int | Sequence[int] = (40, 40),
+        frames: int = 5,
+        dim: int = 8,
+        spatial_depth: int = 2,
+        temporal_depth: int = 2,
+        heads: int = 2,
+        dim_head: int = 64,
+        mlp_dim: int = 8,
+        pool: str = "cls",
+        dropout: float = 0.0,
+        emb_dropout: float = 0.0,
+        channels: int = 3,
+        num_classes: int = 2,
+    ):
+        super().__init__()
+        image_h, image_w = pair(image_size)
+        patch_h, patch_w = pair(patch_size)
+        ints = dict(image_h=image_h, image_w=image_w, patch_h=patch_h, patch_w=patch_w, frames=frames,
+                    dim=dim, heads=heads, dim_head=dim_head, mlp_dim=mlp_dim, channels=channels,
+                    num_classes=num_classes)
+        for key, value in ints.items():
+            if not isinstance(value, int) or value < 1:
+                raise ConfigError(f"vivit: {key} must be a positive integer, got {value!r}")
+        for key, value in dict(spatial_depth=spatial_depth, temporal_depth=temporal_depth).items():
+            if not isinstance(value, int) or value < 0:
+                raise ConfigError(f"vivit: {key} must be a non-negative integer, got {value!r}")
+        if image_h % patch_h or image_w % patch_w:
+            raise ConfigError(f"vivit: image_size {(image_h, image_w)} is not divisible by "
+                              f"patch_size {(patch_h, patch_w)}")
+        if pool not in ("cls", "mean"):
+            raise ConfigError(f"vivit: pool must be 'cls' or 'mean', got {pool!r}")
+        for key, value in dict(dropout=dropout, emb_dropout=emb_dropout).items():
+            if not 0.0 <= float(value) < 1.0:
+                raise ConfigError(f"vivit: {key} must be in [0, 1), got {value!r}")
+
+        self.image_size = (image_h, image_w)
+        self.patch_size = (patch_h, patch_w)
+        self.grid = (image_h // patch_h, image_w // patch_w)  # (Hp, Wp)
+        self.frames, self.channels, self.pool = frames, channels, pool
+        self._config = dict(image_size=[image_h, image_w], patch_size=[patch_h, patch_w], frames=frames,
+                            dim=dim, spatial_depth=spatial_depth, temporal_depth=temporal_depth, heads=heads,
+                            dim_head=dim_head, mlp_dim=mlp_dim, pool=pool, dropout=float(dropout),
+                            emb_dropout=float(emb_dropout), channels=channels, num_classes=num_classes)
+        self.fused = True
+        self.embed_chunk = 5  # frames per fused patch-embedding step (cache-sized working set)
+        self._fused_cache: tuple | None = None
+        self._scratch: dict[tuple, Tensor] = {}  # per-thread patch buffers for inference, see _cut_patches
+
+        num_patches = self.grid[0] * self.grid[1]
+        patch_dim = channels * patch_h * patch_w
+
+        # patch embedding: LayerNorm over each (p1 p2 c)-ordered patch, Linear, LayerNorm (vit-pytorch's layout)
+        self.patch_norm = nn.LayerNorm(patch_dim)
+        self.patch_to_dim = nn.Linear(patch_dim, dim)
+        self.dim_norm = nn.LayerNorm(dim)
+
+        self.pos_embedding = nn.Parameter(torch.randn(1, frames, num_patches, dim))  # per frame slot and patch
+        self.emb_dropout = nn.Dropout(emb_dropout)
+        if pool == "cls":
+            self.spatial_cls = nn.Parameter(torch.randn(1, 1, dim))
+            self.temporal_cls = nn.Parameter(torch.randn(1, 1, dim))
+        else:
+            self.register_parameter("spatial_cls", None)
+            self.register_parameter("temporal_cls", None)
+
+        self.spatial_transformer = Transformer(dim, spatial_depth, heads, dim_head, mlp_dim, dropout)
+        self.temporal_transformer = Transformer(dim, temporal_depth, heads, dim_head, mlp_dim, dropout)
+        self.head = nn.Linear(dim, num_classes)
+
+    def config(self) -> dict[str, Any]:
+        """The keyword arguments that rebuild this model (JSON-friendly: lists, not tuples)."""
+        return {k: list(v) if isinstance(v, list) else v for k, v in self._config.items()}
+
+    # input checks
+
+    def expected_shape(self) -> tuple[str, int, int, int, int]:
+        return ("B", self.frames, self.channels, *self.image_size)
+
+    def check_input(self, x: Any) -> None:
+        """Raise :class:`InputError` unless ``x`` is a finite float tensor ``(B, frames, channels, H, W)``."""
+        self._check_shape(x)
+        if not x.dtype.is_floating_point:
+            raise InputError(None, f"video must be a float tensor in [0, 1], got dtype {x.dtype}")
+        if not bool(torch.isfinite(x).all()):
+            raise InputError(None, "video contains NaN or infinite values")
+
+    def _check_shape(self, x: Any) -> None:
+        if not isinstance(x, Tensor):
+            raise InputError(None, f"video must be a torch.Tensor, got {type(x).__name__}")
+        expected = self.expected_shape()
+        shown = "(" + ", ".join(map(str, expected)) + ")"
+        if x.dim() != 5 or x.shape[0] < 1 or tuple(x.shape[1:]) != expected[1:]:
+            raise InputError(None, f"video must have shape {shown} (batch, frames, channels, height, width), "
+                                   f"got {tuple(x.shape)}")
+
+    # patch embedding
+
+    def embed_patches(self, frames: Tensor) -> Tensor:
+        """Patch tokens of single frames, before the position embedding: (N, C, H, W) -> (N, P, dim).
+
+        Independent of the frame's slot in a clip, so a streaming detector can cache it per frame.
+        The fused path runs ``embed_chunk`` frames at a time so that its working set stays in the
+        CPU cache (it is memory-bound: at batch 16 whole-batch passes run at DRAM speed).
+        """
+        if not self.fused:
+            return self._embed_plain(frames)
+        if frames.shape[0] <= self.embed_chunk:
+            return self._embed_fused(frames)
+        return torch.cat([self._embed_fused(chunk) for chunk in frames.split(self.embed_chunk)])
+
+    def _embed_plain(self, frames: Tensor) -> Tensor:
+        """vit-pytorch's way: copy patches into (p1 p2 c) rows, LayerNorm(patch_dim), Linear, LayerNorm."""
+        ph, pw = self.patch_size
+        patches = rearrange(frames, "n c (h p1) (w p2) -> n (h w) (p1 p2 c)", p1=ph, p2=pw)
+        return self.dim_norm(self.patch_to_dim(self.patch_norm(patches)))
+
+    def fused_patch_weights(self) -> tuple[Tensor, Tensor, Tensor]:
+        """The patch LayerNorm's affine folded into the projection, for patches in ``(c p1 p2)`` order.
+
+        Returns ``kernel`` (dim + 1, patch_dim) = ``[W diag(gamma); 1/patch_dim]``, ``row_sum``
+        (dim,) = ``W diag(gamma) 1`` and ``bias`` (dim,) = ``W beta + b``.
+        """
+        ph, pw = self.patch_size
+        norm, proj = self.patch_norm, self.patch_to_dim
+        patch_dim = norm.normalized_shape[0]
+        kernel = rearrange(proj.weight * norm.weight, "d (p1 p2 c) -> d (c p1 p2)", p1=ph, p2=pw)
+        row_sum = kernel.sum(dim=1)
+        kernel = torch.cat((kernel, kernel.new_full((1, patch_dim), 1.0 / patch_dim)))
+        return kernel, row_sum, proj.weight @ norm.bias + proj.bias
+
+    def _cut_patches(self, frames: Tensor) -> Tensor:
+        """(n, C, H, W) -> a new (n P, C ph pw) tensor of patches in ``(c p1 p2)`` order.
+
+        Under eager inference (no autograd, no tracing) it is written into a scratch buffer kept per
+        thread, dtype and device: a fresh 4.6 MB allocation per clip costs more in page faults than the copy.
+        """
+        ph, pw = self.patch_size
+        hp, wp = self.grid
+        n, c = frames.shape[:2]
+        patches = frames.reshape(n, c, hp, ph, wp, pw).permute(0, 2, 4, 1, 3, 5)  # a view: (n, hp, wp, c, ph, pw)
+        if not _eager_inference():
+            return patches.reshape(n * hp * wp, c * ph * pw)
+        key = (threading.get_ident(), frames.dtype, frames.device)
+        buffer = self._scratch.get(key)
+        if buffer is None or buffer.shape[0] < n * hp * wp:
+            buffer = self._scratch[key] = frames.new_empty(n * hp * wp, c * ph * pw)
+        rows = buffer[: n * hp * wp]
+        rows.view(n, hp, wp, c, ph, pw).copy_(patches)
+        return rows
+
+    def __getstate__(self) -> dict[str, Any]:  # pickling / deepcopy: leave the scratch buffers and caches behind
+        state = self.__dict__.copy()
+        state["_scratch"], state["_fused_cache"] = {}, None
+        return state
+
+    def _embed_fused(self, frames: Tensor) -> Tensor:
+        """Same function as :meth:`_embed_plain`, several times faster on a CPU: (n, C, H, W) -> (n, P, dim).
+
+        ``Linear(LayerNorm(p)) = (W diag(gamma)) (p - mu) / sqrt(var + eps) + (W beta + b)`` for a
+        patch ``p`` with mean ``mu`` and variance ``var``. The patches are cut out in ``(c p1 p2)``
+        order — runs of ``pw`` contiguous pixels, a cheap copy unlike vit-pytorch's channel-last
+        ``(p1 p2 c)`` gather — centred in place and projected by one matrix product. Numerics: the
+        corrected two-pass algorithm — the extra all-``1/n`` row of the kernel gives the residual
+        mean ``r`` of the centred patches, removed from both the projection and the variance — as
+        accurate as ``F.layer_norm``.
+        """
+        ph, pw = self.patch_size
+        if _eager_inference():  # cache the folded weights until a weight changes
+            params = (self.patch_norm.weight, self.patch_norm.bias, self.patch_to_dim.weight, self.patch_to_dim.bias)
+            key = _version_key(*params)
+            if key is None or self._fused_cache is None or self._fused_cache[0] != key:
+                self._fused_cache = (key, *self.fused_patch_weights())
+            _, kernel, row_sum, bias = self._fused_cache
+        else:
+            kernel, row_sum, bias = self.fused_patch_weights()
+
+        rows = self._cut_patches(frames)  # (n P, patch_dim)
+        mean = rows.mean(dim=1, keepdim=True)
+        centred = rows.sub_(mean) if _eager_inference() else rows - mean  # in place: the scratch buffer
+        sum_sq = torch.linalg.vector_norm(centred, dim=1).square()  # (n P,)
+        z = kernel @ centred.t()  # (dim + 1, n P)
+        z, resid = z[:-1], z[-1]
+        var = sum_sq / self.patch_norm.normalized_shape[0] - resid * resid
+        z = torch.addcmul(bias[:, None], z - resid * row_sum[:, None], torch.rsqrt(var + self.patch_norm.eps))
+        tokens = rearrange(z, "d (n p) -> n p d", p=self.grid[0] * self.grid[1])
+        return F.layer_norm(tokens, self.dim_norm.normalized_shape, self.dim_norm.weight, self.dim_norm.bias,
+                            self.dim_norm.eps)
+
+    # the two halves of the network
+
+    def encode_patches(self, tokens: Tensor, attn_store: list[Tensor] | None = None) -> Tensor:
+        """Spatial transformer over each frame's patch tokens: (B, T, P, dim) -> (B, T, dim).
+
+        Frame slot ``t`` gets ``pos_embedding[t]``; T may be less than ``frames`` (first slots).
+        """
+        b, t = tokens.shape[:2]
+        x = tokens + self.pos_embedding[:, :t]
+        if self.spatial_cls is not None:
+            x = torch.cat((repeat(self.spatial_cls, "1 1 d -> b t 1 d", b=b, t=t), x), dim=2)  # (B, T, 1+P, dim)
+        x = self.emb_dropout(x)
+        cls_only = self.spatial_cls is not None and attn_store is None
+        x = self.spatial_transformer(rearrange(x, "b t n d -> (b t) n d"), attn_store, first_only=cls_only)
+        x = x[:, 0] if self.spatial_cls is not None else x.mean(dim=1)  # (B*T, dim)
+        return rearrange(x, "(b t) d -> b t d", b=b)
+
+    def encode_frames(self, x: Tensor, attn_store: list[Tensor] | None = None) -> Tensor:
+        """Per-frame tokens: (B, T, C, H, W) -> (B, T, dim); frames are independent given their slot."""
+        b = x.shape[0]
+        tokens = self.embed_patches(rearrange(x, "b t c h w -> (b t) c h w"))
+        return self.encode_patches(rearrange(tokens, "(b t) p d -> b t p d", b=b), attn_store)
+
+    def classify_frames(self, tokens: Tensor, attn_store: list[Tensor] | None = None) -> Tensor:
+        """Temporal transformer and head: (B, T, dim) -> (B, num_classes) logits."""
+        x = tokens
+        if self.temporal_cls is not None:
+            x = torch.cat((repeat(self.temporal_cls, "1 1 d -> b 1 d", b=x.shape[0]), x), dim=1)  # (B, 1+T, dim)
+        cls_only = self.temporal_cls is not None and attn_store is None
+        x = self.temporal_transformer(x, attn_store, first_only=cls_only)
+        x = x[:, 0] if self.temporal_cls is not None else x.mean(dim=1)
+        return self.head(x)
+
+    def forward(self, x: Tensor, return_attention: bool = False):
+        """(B, T, C, H, W) in [0, 1] -> logits (B, num_classes).
+
+        Checks the shape only (cheap); call :meth:`check_input` for dtype and finiteness.
+        ``return_attention=True`` returns ``(logits, attention)`` with ``attention`` as in
+        :meth:`attention_maps`.
+        """
+        self._check_shape(x)
+        if not return_attention:
+            return self.classify_frames(self.encode_frames(x))
+        spatial: list[Tensor] = []
+        temporal: list[Tensor] = []
+        logits = self.classify_frames(self.encode_frames(x, spatial), temporal)
+        b, t = x.shape[:2]
+        attention = {
+            "spatial": rearrange(torch.stack(spatial, 1), "(b t) l h i j -> b t l h i j", b=b, t=t)
+            if spatial else x.new_zeros(b, t, 0, 0, 0, 0),
+            "temporal": torch.stack(temporal, 1) if temporal else x.new_zeros(b, 0, 0, 0, 0),
+        }
+        return logits, attention
+
+    # attention for heat maps
+
+    @torch.no_grad()
+    def attention_maps(self, x: Tensor) -> dict[str, Tensor]:
+        """All attention weights (rows = queries, columns = keys, token 0 = CLS when ``pool="cls"``).
+
+        ``spatial``: (B, T, spatial_depth, heads, n, n) with n = 1 + P (P = Hp * Wp patches, row-major);
+        ``temporal``: (B, temporal_depth, heads, m, m) with m = 1 + T. Without CLS tokens n = P, m = T.
+        """
+        return self(x, return_attention=True)[1]
+
+    @torch.no_grad()
+    def cls_attention_map(self, x: Tensor, mode: str = "rollout") -> Tensor:
+        """Per-frame spatial attention on the patch grid, for heat maps: (B, T, Hp, Wp), each map sums to 1.
+
+        ``mode="last"``: the last spatial layer's CLS-to-patch attention, averaged over heads.
+        ``mode="rollout"``: attention rollout (Abnar & Zuidema 2020) through all spatial layers:
+        each layer's head-averaged attention plus the identity (the residual), rows renormalised,
+        multiplied from the first layer to the last; the CLS row. With ``pool="mean"`` (no CLS) the
+        attention each patch receives is averaged over all query tokens instead of the CLS row.
+        """
+        if mode not in ("last", "rollout"):
+            raise ConfigError(f"cls_attention_map: mode must be 'last' or 'rollout', got {mode!r}")
+        spatial = self.attention_maps(x)["spatial"].mean(dim=3)  # (B, T, L, n, n)
+        if spatial.shape[2] == 0:
+            raise ConfigError("cls_attention_map: the model has no spatial layers")
+        if mode == "last":
+            joint = spatial[:, :, -1]
+        else:
+            eye = torch.eye(spatial.shape[-1], dtype=spatial.dtype, device=spatial.device)
+            joint = eye.expand_as(spatial[:, :, 0])
+            for layer in spatial.unbind(dim=2):
+                a = layer + eye
+                joint = (a / a.sum(dim=-1, keepdim=True)) @ joint
+        has_cls = self.spatial_cls is not None
+        received = joint[..., 0, 1:] if has_cls else joint.mean(dim=-2)  # (B, T, P)
+        received = received / received.sum(dim=-1, keepdim=True)
+        return rearrange(received, "b t (hp wp) -> b t hp wp", hp=self.grid[0], wp=self.grid[1])
+
+    # vit-pytorch interoperability
+
+    @classmethod
+    def from_vit_pytorch(cls, ref: nn.Module, image_size: int | Sequence[int] = (240, 320)) -> "ViViT":
+        """A ViViT with the weights of a vit-pytorch ``ViViT(frame_patch_size=1, variant="factorized_encoder")``.
+
+        vit-pytorch does not store its image size: pass the one ``ref`` was built with (default: the
+        paper's). The two models compute the same logits (vit-pytorch takes the clip as ``(B, C, T, H, W)``).
+        """
+        if getattr(ref, "frame_patch_size", 1) != 1:
+            raise ConfigError("from_vit_pytorch: only frame_patch_size=1 (one token sequence per frame) is supported")
+        if getattr(ref, "variant", "factorized_encoder") != "factorized_encoder":
+            raise ConfigError("from_vit_pytorch: only variant='factorized_encoder' is supported")
+        _, frames, num_patches, dim = ref.pos_embedding.shape
+        ph, pw = ref.patch_size
+        image_h, image_w = pair(image_size)
+        if (image_h // ph) * (image_w // pw) != num_patches:
+            raise ConfigError(f"from_vit_pytorch: image_size {(image_h, image_w)} with {ph} x {pw} patches does not "
+                              f"give the reference's {num_patches} patches")
+        attn, ff = (ref.spatial_transformer.layers or ref.temporal_transformer.layers)[0]
+        model = cls(
+            image_size=(image_h, image_w), patch_size=(ph, pw), frames=frames, dim=dim,
+            spatial_depth=len(ref.spatial_transformer.layers), temporal_depth=len(ref.temporal_transformer.layers),
+            heads=attn.heads, dim_head=attn.to_qkv.out_features // (3 * attn.heads), mlp_dim=ff.net[1].out_features,
+            pool=ref.pool, dropout=float(attn.dropout_p), emb_dropout=float(ref.dropout.p),
+            channels=ref.to_patch_embedding[1].normalized_shape[0] // (ph * pw), num_classes=ref.mlp_head.out_features,
+        )
+        model.load_reference_state_dict(ref.state_dict())
+        return model
+
+    def load_reference_state_dict(self, sd: dict[str, Tensor]) -> None:
+        """Load a vit-pytorch ViViT (``frame_patch_size=1``) state dict, renaming its keys to this file's."""
+        self.load_state_dict({_rename_reference_key(k): v for k, v in sd.items()}, strict=True)
+
+
+_REFERENCE_RENAMES = (
+    ("to_patch_embedding.1.", "patch_norm."),
+    ("to_patch_embedding.2.", "patch_to_dim."),
+    ("to_patch_embedding.3.", "dim_norm."),
+    ("spatial_cls_token", "spatial_cls"),
+    ("temporal_cls_token", "temporal_cls"),
+    ("mlp_head.", "head."),
+)
+
+
+def _rename_reference_key(key: str) -> str:
+    for old, new in _REFERENCE_RENAMES:
+        if key.startswith(old):
+            return new + key[len(old):]
+    parts = key.split(".")
+    # {spatial,temporal}_transformer.layers.{i}.{0: attention, 1: feed-forward}.<...>
+    if len(parts) >= 5 and parts[0].endswith("_transformer") and parts[1] == "layers":
+        rest = ".".join(parts[4:])
+        if parts[3] == "0":
+            rest = rest.replace("to_out.0.", "to_out.")
+        elif parts[3] == "1":
+            rest = {"net.0.weight": "norm.weight", "net.0.bias": "norm.bias", "net.1.weight": "fc1.weight",
+                    "net.1.bias": "fc1.bias", "net.4.weight": "fc2.weight", "net.4.bias": "fc2.bias"}.get(rest, rest)
+        return ".".join(parts[:4] + [rest])
+    return key
