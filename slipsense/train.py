@@ -359,7 +359,11 @@ def build_model(name: str, preset: str | None, overrides: dict[str, Any], data_c
         if preset not in stnet.PRESETS:
             raise ConfigError(f"unknown preset {preset!r}; known: {sorted(stnet.PRESETS)}")
         config.update(stnet.PRESETS[preset])
-    config.update(data_config)
+    # Data-implied sizes only where the network has such a setting (a 3D ResNet takes any T, H, W).
+    import inspect
+
+    accepted = inspect.signature(model_class(name).__init__).parameters
+    config.update({k: v for k, v in data_config.items() if k in accepted})
     config.update(overrides)
     return build(name, **config)
 
