@@ -103,7 +103,7 @@ def train(
     horizon: int = typer.Option(0, help="slip clips end this many frames before the moment of slip"),
     size: Optional[str] = typer.Option(None, help="clip size HxW (default 240x320)"),
     wiggle_per_video: int = typer.Option(2, help="wiggle windows drawn from each non-slip video"),
-    split: str = typer.Option("objects", help="objects: leave objects out; clips: random 90/10 by clip"),
+    split: str = typer.Option("objects", help="objects: leave objects out; clips: random 90/10 by clip; all: train on everything"),
     test_objects: Optional[str] = typer.Option(None, help="comma-separated held-out objects"),
     fold: Optional[int] = typer.Option(None, help="hold out fold k of --folds object folds"),
     folds: int = typer.Option(5),

@@ -386,7 +386,10 @@ def prepare_data(req: TrainRequest, kind: str):
             spec_kw["size"] = req.size
         spec = ClipSpec(**spec_kw)
         clips, _ = gelsight_clips(root, spec, on_error=req.on_error, overrides=req.overrides, progress=req.progress)
-        if req.split == "clips":
+        if req.split == "all":  # a model to ship: every clip trains, nothing is held out
+            tr, te = np.arange(len(clips)), np.zeros(0, np.int64)
+            test_objects = []
+        elif req.split == "clips":
             tr, te = split_by_clip(clips, test_fraction=req.test_fraction, seed=req.seed)
             test_objects: list[str] = []
         elif req.split == "objects":
@@ -403,7 +406,7 @@ def prepare_data(req: TrainRequest, kind: str):
                 test_objects = sorted(object_folds(objects, n_folds=req.folds, seed=req.seed)[k])
             tr, te = split_by_object(clips, test_objects)
         else:
-            raise ConfigError(f"--split must be objects or clips, got {req.split!r}")
+            raise ConfigError(f"--split must be objects, clips or all, got {req.split!r}")
         size = tuple(clips.x.shape[2:4])
         split_info = {"kind": "video", "recordings": str(root), "clip_spec": spec_dict(spec), "split": req.split,
                       "test_objects": test_objects, "test_indices": [int(i) for i in te],
@@ -442,7 +445,7 @@ def run_training(req: TrainRequest, resume: bool = False) -> dict[str, Any]:
         write_text(out / "split.json", json.dumps(split_info, indent=1))
     info = {"data": {k: v for k, v in split_info.items() if k != "test_indices"}, "preset": req.preset}
     fit(model, train_data, test_data, cfg, out, info=info, resume=resume)
-    if not d.main:
+    if not d.main or len(test_data) == 0:
         return {}
     from slipsense.checkpoint import load_model
 
