@@ -1,0 +1,325 @@
+"""Commands for live detection: ``watch``, ``early-warning`` and ``export`` (registered by slipsense.cli)."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Iterator, Optional, Sequence
+
+import numpy as np
+import typer
+
+from slipsense.errors import ConfigError, InputError
+
+#: Default alarm thresholds of ``early-warning``.
+DEFAULT_THRESHOLDS = "0.1,0.2,0.3,0.4,0.5,0.6,0.7,0.8,0.9"
+
+
+def parse_thresholds(text: str) -> list[float]:
+    """``"0.1,0.5,0.9"`` -> ``[0.1, 0.5, 0.9]``; each in [0, 1], sorted, duplicates removed."""
+    try:
+        values = sorted({float(v) for v in text.split(",") if v.strip()})
+    except ValueError:
+        raise ConfigError(f"--thresholds must be comma-separated numbers in [0, 1], got {text!r}") from None
+    if not values or any(not 0.0 <= v <= 1.0 for v in values):
+        raise ConfigError(f"--thresholds must be comma-separated numbers in [0, 1], got {text!r}")
+    return values
+
+
+THREADS_HELP = ("intra-op threads for torch and ONNX Runtime (default: torch's). Use 1 on a busy machine: the "
+                "small per-frame operations then wait for no descheduled worker thread")
+
+
+def _set_threads(threads: Optional[int]) -> None:
+    if threads is None:
+        return
+    if threads < 1:
+        raise ConfigError(f"--threads must be a positive integer, got {threads}")
+    import torch
+
+    torch.set_num_threads(threads)
+
+
+def _checkpoint(path: Optional[Path]) -> Path:
+    from slipsense.live import DEFAULT_CHECKPOINT
+
+    path = path or DEFAULT_CHECKPOINT
+    if not Path(path).is_file():
+        raise InputError(path, "checkpoint not found (pass --checkpoint CKPT)")
+    return Path(path)
+
+
+# ---------------------------------------------------------------------------------------------
+# watch: sources
+# ---------------------------------------------------------------------------------------------
+
+
+class Source:
+    """Frames to stream: per step, the pictures to show and the model inputs, one per sensor.
+
+    ``sensors``: number of streams; ``name``: for messages; ``frames()`` yields
+    ``(display, inputs)`` with ``display`` a list of BGR images (or None per sensor) and ``inputs``
+    what :meth:`SlipDetector.push` takes.
+    """
+
+    def __init__(self, name: str, sensors: int, steps: Iterator[tuple[list, list]], close=None):
+        self.name, self.sensors, self._steps, self._close = name, sensors, steps, close
+
+    def frames(self) -> Iterator[tuple[list, list]]:
+        return self._steps
+
+    def close(self) -> None:
+        if self._close is not None:
+            self._close()
+
+
+def open_source(source: str, kind: str, markers: int | None = None) -> Source:
+    """A video file, a recordings experiment folder (its ``camera_*.avi`` videos as sensors), a
+    marker ``.npy`` (``(T, M, 3)`` or ``(S, T, M, 3)`` mm) or a camera index (``0``, ``1``, ...).
+
+    ``kind`` is the model's input kind: video models need pictures; marker models take a ``.npy``
+    or track the markers of video files (:mod:`slipsense.sensors.markers`) first.
+    """
+    from slipsense.recordings.folders import CAMERA_GLOB
+    from slipsense.recordings.video import read_video
+
+    path = Path(source)
+    if path.is_dir():
+        cams = sorted(p for p in path.glob(CAMERA_GLOB) if p.is_file())
+        if not cams:
+            raise InputError(path, f"folder holds no {CAMERA_GLOB} videos (expected a recordings experiment folder)")
+        videos = [read_video(p, expected_size=None, min_frames=1) for p in cams]
+        if len({len(v) for v in videos}) != 1:
+            raise InputError(path, f"the camera videos differ in frame count: {[len(v) for v in videos]}")
+        return _array_source(str(path), videos, cams, kind, markers)
+    if path.is_file():
+        if path.suffix.lower() == ".npy":
+            if kind != "markers":
+                raise InputError(path, "a marker .npy needs a marker model (stnet, temnet); this checkpoint takes video")
+            return _npy_source(path, markers)
+        return _array_source(str(path), [read_video(path, expected_size=None, min_frames=1)], [path], kind, markers)
+    if source.strip().isdigit():
+        if kind != "video":
+            raise InputError(None, f"camera {source}: live cameras need a video model; marker models take a "
+                                   f"video file or a marker .npy")
+        return _camera_source(int(source))
+    raise InputError(path, "no such file or folder (nor a camera index)")
+
+
+def _array_source(name: str, videos: list[np.ndarray], paths: list[Path], kind: str, markers: int | None) -> Source:
+    if kind == "video":
+        steps = ((list(fr), list(fr)) for fr in zip(*videos))
+        return Source(name, len(videos), steps)
+    from slipsense.sensors.markers import marker_sequences, track_markers
+
+    clouds = [marker_sequences(track_markers(v, source=p), markers) for v, p in zip(videos, paths)]
+    steps = ((list(fr), list(cl)) for fr, cl in zip(zip(*videos), zip(*clouds)))
+    return Source(name, len(videos), steps)
+
+
+def _npy_source(path: Path, markers: int | None) -> Source:
+    try:
+        x = np.load(path, allow_pickle=False)
+    except Exception as exc:
+        raise InputError(path, f"not a readable .npy file ({type(exc).__name__}: {exc})") from None
+    if x.ndim == 3:
+        x = x[None]
+    if x.ndim != 4 or x.shape[-1] != 3:
+        raise InputError(path, f"expected a marker stream (T, M, 3) or (sensors, T, M, 3), got shape {x.shape}")
+    steps = (([None] * len(x), [x[s, t] for s in range(len(x))]) for t in range(x.shape[1]))
+    return Source(str(path), len(x), steps)
+
+
+def _camera_source(index: int) -> Source:
+    import cv2
+
+    cap = cv2.VideoCapture(index)
+    if not cap.isOpened():
+        raise InputError(None, f"camera {index}: cannot be opened")
+
+    def steps():
+        while True:
+            ok, frame = cap.read()
+            if not ok or frame is None:
+                return
+            yield [frame], [frame]
+
+    return Source(f"camera {index}", 1, steps(), close=cap.release)
+
+
+# ---------------------------------------------------------------------------------------------
+# commands
+# ---------------------------------------------------------------------------------------------
+
+
+def watch_source(source: str, checkpoint: Optional[Path], threshold: float = 0.5, out: Optional[Path] = None,
+                 combine: str = "max", backend: str = "torch", max_frames: Optional[int] = None,
+                 heatmap: bool = True, echo=typer.echo, quiet: bool = False, precision: str = "fp32") -> dict[str, Any]:
+    """Stream ``source`` through the detector; print a line per frame; optionally write an annotated
+    GIF/video. Returns ``{"frames", "alarm_onsets", "first_alarm", "out"}``."""
+    from slipsense.checkpoint import load_model
+    from slipsense.live import Annotator, AnnotatedWriter, SlipDetector, onnx_cache_dir
+
+    ckpt = _checkpoint(checkpoint)
+    if out is not None:
+        AnnotatedWriter(out)  # refuse a wrong suffix before any work
+    model, info = load_model(ckpt)
+    src = open_source(source, model.input_kind, getattr(model, "markers", None))
+    det = SlipDetector(model, threshold=threshold, sensors=src.sensors, combine=combine, backend=backend, info=info,
+                       onnx_dir=onnx_cache_dir(ckpt) if backend == "onnx" else None, precision=precision)
+    annot = Annotator(det.threshold, det.sensors) if out is not None else None
+    writer = AnnotatedWriter(out) if out is not None else None
+    onsets: list[int] = []
+    previous = False
+    n = 0
+    try:
+        for display, inputs in src.frames():
+            if max_frames is not None and n >= max_frames:
+                break
+            r = det.push(*inputs)
+            n += 1
+            if r.alarm and not previous:
+                onsets.append(r.index)
+            previous = r.alarm
+            if not quiet or (r.alarm and onsets and onsets[-1] == r.index):
+                echo(_reading_line(r))
+            if writer is not None:
+                heat = [det.heatmap(s) for s in range(det.sensors)] if heatmap else []
+                clouds = list(inputs) if det.kind == "markers" else []
+                writer.add(annot.draw(display, r, heat, clouds))
+    except KeyboardInterrupt:  # a live camera is stopped with Ctrl-C: still write what was seen
+        pass
+    except BaseException:
+        if writer is not None:
+            writer.abort()
+        raise
+    finally:
+        src.close()
+        det.close()
+    written = writer.close() if writer is not None else None
+    summary = {"frames": n, "alarm_onsets": onsets, "first_alarm": onsets[0] if onsets else None,
+               "out": None if written is None else str(written)}
+    echo(f"{n} frames, {len(onsets)} alarm onset(s)" + (f", first at frame {onsets[0]}" if onsets else "")
+         + (f" -> {written}" if written else ""))
+    return summary
+
+
+def _reading_line(r) -> str:
+    if r.probability is None:
+        return f"frame {r.index:5d}  p=  -    (filling window)"
+    sensors = " ".join(f"{p:.3f}" for p in r.per_sensor)
+    return f"frame {r.index:5d}  p={r.probability:.3f}  [{sensors}]" + ("  ALARM" if r.alarm else "")
+
+
+def register(app: typer.Typer) -> None:
+    """Add ``watch``, ``early-warning`` and ``export`` to the slipsense app."""
+    from slipsense.cli import friendly
+
+    @app.command()
+    @friendly
+    def watch(
+        source: str = typer.Argument(..., help="video file, recordings experiment folder (camera_*.avi as sensors), "
+                                               "marker .npy, or camera index (0, 1, ...)"),
+        checkpoint: Optional[Path] = typer.Option(None, help="checkpoint (default: models/vivit-gelsight.safetensors)"),
+        threshold: float = typer.Option(0.5, help="alarm when the slip probability is >= this"),
+        out: Optional[Path] = typer.Option(None, help="annotated output: .gif, .mp4 or .avi"),
+        combine: str = typer.Option("max", help="two sensors: max or mean of their probabilities"),
+        backend: str = typer.Option("torch", help="torch or onnx (ONNX Runtime)"),
+        precision: str = typer.Option("fp32", help="fp32, or int8 with --backend onnx (quantized products)"),
+        max_frames: Optional[int] = typer.Option(None, help="stop after this many frames"),
+        heatmap: bool = typer.Option(True, help="draw the attention / saliency heat map in --out"),
+        quiet: bool = typer.Option(False, help="print only alarm onsets and the summary"),
+        threads: Optional[int] = typer.Option(None, help=THREADS_HELP),
+    ):
+        """Stream a video, an experiment folder or a camera through a slip detector."""
+        _set_threads(threads)
+        watch_source(source, checkpoint, threshold, out, combine, backend, max_frames, heatmap, quiet=quiet,
+                     precision=precision)
+
+    @app.command("early-warning")
+    @friendly
+    def early_warning(
+        checkpoint: Optional[Path] = typer.Option(None, help="video-model checkpoint (default: the shipped ViViT)"),
+        recordings: Optional[Path] = typer.Option(None, help="recordings folder (default: $SLIPSENSE_DATA/gelsight-slip)"),
+        out: Path = typer.Option(..., help="output folder for CSV, JSON and PNGs"),
+        thresholds: str = typer.Option(DEFAULT_THRESHOLDS, help="comma-separated alarm thresholds"),
+        labels: Optional[Path] = typer.Option(None, help="labels CSV (slipsense label) instead of automatic labels"),
+        combine: str = typer.Option("max", help="max or mean of the two cameras' probabilities"),
+        backend: str = typer.Option("torch", help="torch or onnx"),
+        precision: str = typer.Option("fp32", help="fp32, or int8 with --backend onnx"),
+        limit: Optional[int] = typer.Option(None, help="replay only the first N runs"),
+        fps: float = typer.Option(25.0, help="frame rate, for lead times in ms"),
+        on_error: str = typer.Option("raise", help="raise or skip bad recordings folders"),
+        progress: bool = typer.Option(True),
+        threads: Optional[int] = typer.Option(None, help=THREADS_HELP),
+    ):
+        """Lead time before slip and false alarms per minute, per alarm threshold."""
+        _set_threads(threads)
+        summary = run_early_warning(checkpoint, recordings, out, thresholds, labels, combine, backend, limit, fps,
+                                    on_error, progress, precision)
+        typer.echo(summary)
+
+    @app.command("export")
+    @friendly
+    def export(
+        checkpoint: Optional[Path] = typer.Option(None, help="checkpoint (default: the shipped ViViT)"),
+        out: Path = typer.Option(..., help="output .onnx file (streaming parts go beside it)"),
+        batch: Optional[int] = typer.Option(None, help="fixed batch size (default: dynamic)"),
+        streaming: bool = typer.Option(True, help="also write <stem>.frame.onnx / <stem>.window.onnx"),
+        verify: bool = typer.Option(True, help="compare ONNX Runtime with PyTorch on a random input"),
+    ):
+        """Export a checkpoint to ONNX (and the live detector's streaming parts)."""
+        from slipsense.export import export_onnx
+
+        result = export_onnx(_checkpoint(checkpoint), out, batch=batch, streaming=streaming, verify=verify)
+        for key, path in result.paths.items():
+            diff = result.max_abs_diff.get(key)
+            typer.echo(f"{key:6s} {path}  ({result.exporter[key]} exporter"
+                       + ("" if diff is None else f", max |onnx - torch| = {diff:.2e}") + ")")
+
+
+def run_early_warning(checkpoint: Optional[Path], recordings: Optional[Path], out: Path,
+                      thresholds: str | Sequence[float] = DEFAULT_THRESHOLDS, labels: Optional[Path] = None,
+                      combine: str = "max", backend: str = "torch", limit: Optional[int] = None, fps: float = 25.0,
+                      on_error: str = "raise", progress: bool = True, precision: str = "fp32") -> str:
+    """The ``early-warning`` command as a function; returns the summary text it prints."""
+    from slipsense.config import gelsight_recordings
+    from slipsense.live import SlipDetector, early_warning_table, replay_recordings, write_early_warning
+    from slipsense.recordings.folders import find_recordings
+    from slipsense.recordings.labels import read_labels_csv
+
+    ths = parse_thresholds(thresholds) if isinstance(thresholds, str) else [float(t) for t in thresholds]
+    if limit is not None and limit < 1:
+        raise ConfigError(f"--limit must be a positive integer, got {limit}")
+    if not fps > 0:
+        raise ConfigError(f"--fps must be positive, got {fps}")
+    ckpt = _checkpoint(checkpoint)
+    root = Path(recordings) if recordings else gelsight_recordings()
+    recs = find_recordings(root, on_error=on_error)
+    per_run: dict[tuple[str, int], int] = {}
+    for r in recs:
+        per_run[(r.object, r.experiment)] = per_run.get((r.object, r.experiment), 0) + 1
+    counts = sorted(set(per_run.values()))
+    if len(counts) != 1:
+        raise InputError(root, f"runs hold different numbers of camera videos ({counts}); early warning needs the same")
+    lab = read_labels_csv(labels) if labels is not None else None
+    det = SlipDetector.from_checkpoint(ckpt, threshold=0.5, sensors=counts[0], combine=combine, backend=backend,
+                                       precision=precision)
+    try:
+        runs = replay_recordings(det, recs, lab, progress=progress, limit=limit)
+    finally:
+        det.close()
+    meta = {"checkpoint": str(ckpt), "model": det.model_name, "recordings": str(root), "combine": combine,
+            "backend": backend, "precision": precision, "window_frames": det.frames, "sensors": det.sensors}
+    paths = write_early_warning(runs, ths, out, fps=fps, meta=meta)
+    rows = early_warning_table(runs, ths, fps)
+    lines = [f"{sum(r.slipped for r in runs)} slip runs, {sum(not r.slipped for r in runs)} non-slip runs "
+             f"({rows[0]['contact_minutes']:.2f} min of contact)" if rows else "no runs",
+             "threshold  detected  median lead (ms)  false alarms/min"]
+    for row in rows:
+        lines.append(f"{row['threshold']:9.2f}  {row['detection_rate']:8.0%}  {row['median_lead_ms']:16.0f}  "
+                     f"{row['false_alarms_per_min']:16.2f}")
+    lines.append("-> " + ", ".join(str(p) for p in paths.values()))
+    return "\n".join(lines)
+
+
+__all__ = ["DEFAULT_THRESHOLDS", "Source", "open_source", "parse_thresholds", "register", "run_early_warning",
+           "watch_source"]

@@ -1,0 +1,979 @@
+"""Live slip detection: push one frame per sensor, get a slip probability once a window is full.
+
+    >>> det = SlipDetector.from_checkpoint("models/vivit-gelsight.safetensors", sensors=2)  # doctest: +SKIP
+    >>> for left, right in camera_pairs:          # uint8 (H, W, 3) BGR images at 25 frames/s
+    ...     reading = det.push(left, right)       # Reading(index, probability, per_sensor, alarm)
+
+A model classifies a window of its ``frames`` (T) latest frames. The detector keeps that window
+(a deque) and splits each network into two parts so that no work is repeated as the window slides:
+
+* a **frame part**, run once on each new frame (all sensors in one batch), whose output stays valid
+  for every window the frame will be part of;
+* a **window part**, run on each push over the T cached frame outputs.
+
+ViViT. Its position embedding belongs to a frame's *slot* in the window (0 = oldest), so the
+spatial transformer's token of a frame changes as the frame slides back: a frame's
+``encode_frames`` token cannot simply be cached. The frame part therefore encodes a new frame at
+*every* slot at once: the patch embedding once (:meth:`ViViT.embed_patches`, nearly all of the
+cost), then the spatial transformer on T copies of the patch tokens, each with its slot's position
+embedding: ``(3, H, W) -> (T, dim)``. A frame sits in slot T-1 when it arrives, T-2 on the next
+push, ..., so the window part reads the diagonal (frame ``i - T + 1 + s`` at slot ``s``) and runs
+only :meth:`ViViT.classify_frames` (temporal transformer + head). Per push that is one patch
+embedding, T spatial-transformer sequences and one temporal one; a full forward would embed T
+frames. The numbers equal ``model(window)`` to float rounding (tests check < 1e-5).
+
+STNet / TemNet. The S codecs and the fusion layer act on each frame alone: that is the frame part
+``(M, 3) -> (d_model,)``. The window part adds the frame embedding and runs the MSA blocks and the
+head. (Those blocks mix all frames and stream all weights once per window: at the paper size they
+are nearly all of the cost.)
+
+3D ResNet-50. Convolutions over time, zero-padded at the window's edges: nothing carries from one
+window to the next. The frame part is preprocessing only and the window part is the network.
+
+Backends: ``"torch"`` runs the two parts as PyTorch modules; ``"onnx"`` exports them once
+(:mod:`slipsense.export`, cached under ``<cache_root>/onnx``) and runs them on ONNX Runtime.
+Heat maps (:meth:`SlipDetector.heatmap`) always use the PyTorch model.
+
+:meth:`SlipDetector.replay` computes the same probabilities for whole recordings at once (frame
+part over all frames in batches, then every window): what :func:`early_warning` uses.
+"""
+from __future__ import annotations
+
+import collections
+import csv
+import hashlib
+import io
+import json
+import math
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterable, Mapping, Sequence
+
+import cv2
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+from slipsense.errors import ConfigError, InputError
+
+#: Frame rate of the GelSight recordings (frames per second): converts frames to milliseconds.
+FPS = 25.0
+#: The shipped model, relative to the checkout (the lead engineer adds the file).
+DEFAULT_CHECKPOINT = Path(__file__).resolve().parent.parent / "models" / "vivit-gelsight.safetensors"
+#: Window length used for a 3D ResNet whose checkpoint states none (the study's 5-frame clips).
+DEFAULT_FRAMES = 5
+#: Frame size used for a video model whose checkpoint states none (GelSight Mini recordings).
+DEFAULT_IMAGE_SIZE = (240, 320)
+#: Frames per batch when replaying a recording (bounds memory: 64 frames of 240 x 320 = 59 MB float).
+REPLAY_CHUNK = 64
+COMBINE = ("max", "mean")
+BACKENDS = ("torch", "onnx")
+PRECISIONS = ("fp32", "int8")
+
+
+# ---------------------------------------------------------------------------------------------
+# The two streaming parts of each model (PyTorch modules; slipsense.export writes them as ONNX)
+# ---------------------------------------------------------------------------------------------
+
+
+class ViViTFramePart(nn.Module):
+    """One frame at every window slot: ``(N, 3, H, W)`` in [0, 1] -> ``(N, T, dim)`` spatial tokens.
+
+    Row ``t`` of the output is the frame's ``encode_frames`` token when it sits in slot ``t``.
+    """
+
+    def __init__(self, model: nn.Module):
+        super().__init__()
+        self.model = model
+
+    def forward(self, frames: Tensor) -> Tensor:
+        tokens = self.model.embed_patches(frames)  # (N, P, dim), independent of the slot
+        slots = tokens.unsqueeze(1).expand(-1, self.model.frames, -1, -1)  # (N, T, P, dim), a view
+        return self.model.encode_patches(slots)  # slot t gets pos_embedding[t]
+
+
+class ViViTWindowPart(nn.Module):
+    """Temporal transformer and head: ``(B, T, dim)`` (frame of slot t at row t) -> ``(B, classes)`` logits."""
+
+    def __init__(self, model: nn.Module):
+        super().__init__()
+        self.model = model
+
+    def forward(self, tokens: Tensor) -> Tensor:
+        return self.model.classify_frames(tokens)
+
+
+class MarkerFramePart(nn.Module):
+    """STNet/TemNet per-frame layers (S codecs, fusion): ``(N, M, 3)`` mm -> ``(N, d_model)``."""
+
+    def __init__(self, model: nn.Module):
+        super().__init__()
+        self.model = model
+
+    def forward(self, clouds: Tensor) -> Tensor:
+        m = self.model
+        x = clouds.to(m.pos_embedding.dtype).reshape(-1, 1, 3 * m.markers)  # (N, 1, 3M): each frame alone
+        if m.codecs is not None:
+            x = torch.cat((m.codecs(x), x), dim=-1)  # eq. 5 of the paper, as STNet._tokens
+        return m.fuse(x)[:, 0]
+
+
+class MarkerWindowPart(nn.Module):
+    """Frame embedding, MSA blocks and head: ``(B, T, d_model)`` -> ``(B, classes)`` logits."""
+
+    def __init__(self, model: nn.Module):
+        super().__init__()
+        self.model = model
+
+    def forward(self, tokens: Tensor) -> Tensor:
+        x = tokens + self.model.pos_embedding
+        for block in self.model.blocks:
+            x, _ = block(x)
+        return self.model._head(x)
+
+
+def streaming_parts(model: nn.Module) -> tuple[nn.Module | None, nn.Module]:
+    """``(frame_part, window_part)`` of a model; ``frame_part`` is None when nothing can be cached (3D ResNet)."""
+    name = getattr(model, "model_name", type(model).__name__)
+    if name == "vivit":
+        return ViViTFramePart(model), ViViTWindowPart(model)
+    if name in ("stnet", "temnet"):
+        return MarkerFramePart(model), MarkerWindowPart(model)
+    if getattr(model, "input_kind", None) == "video":
+        return None, model
+    raise ConfigError(f"no streaming split for model {name!r}")
+
+
+def window_geometry(model: nn.Module, info: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """What one pushed frame must look like: ``{"kind", "frames", "image_size" | "markers"}``.
+
+    ``frames`` and ``image_size`` come from the model where it fixes them (ViViT, STNet), else from
+    the checkpoint's training clip spec (``info["data"]["clip_spec"]``), else the defaults
+    :data:`DEFAULT_FRAMES` / :data:`DEFAULT_IMAGE_SIZE`.
+    """
+    kind = getattr(model, "input_kind", None)
+    spec = ((info or {}).get("data") or {}).get("clip_spec") or {}
+    frames = getattr(model, "frames", None) or spec.get("frames") or DEFAULT_FRAMES
+    if kind == "video":
+        size = getattr(model, "image_size", None) or spec.get("size") or DEFAULT_IMAGE_SIZE
+        return {"kind": kind, "frames": int(frames), "image_size": (int(size[0]), int(size[1]))}
+    if kind == "markers":
+        return {"kind": kind, "frames": int(frames), "markers": int(model.markers)}
+    raise ConfigError(f"model {getattr(model, 'model_name', type(model).__name__)!r} has no known input kind")
+
+
+# ---------------------------------------------------------------------------------------------
+# Runners: the same two parts on PyTorch or ONNX Runtime, numpy in and out
+# ---------------------------------------------------------------------------------------------
+
+
+class _TorchRunner:
+    # no_grad, not inference_mode: tensors a model caches during an inference-mode call (ViViT keeps
+    # scratch buffers) could not be updated in place by a later ordinary call on the same model.
+    def __init__(self, frame_part: nn.Module | None, window_part: nn.Module):
+        self.frame_part, self.window_part = frame_part, window_part
+
+    def frame(self, x: np.ndarray) -> np.ndarray:
+        with torch.no_grad():
+            return self.frame_part(torch.from_numpy(x)).numpy()
+
+    def window(self, x: np.ndarray) -> np.ndarray:
+        with torch.no_grad():
+            return self.window_part(torch.from_numpy(x)).float().numpy()
+
+
+class _OnnxRunner:
+    def __init__(self, frame_path: Path | None, window_path: Path):
+        from slipsense.export import onnx_session
+
+        self.frame_sess = None if frame_path is None else onnx_session(frame_path)
+        self.window_sess = onnx_session(window_path)
+        self._frame_in = None if self.frame_sess is None else self.frame_sess.get_inputs()[0].name
+        self._window_in = self.window_sess.get_inputs()[0].name
+
+    def frame(self, x: np.ndarray) -> np.ndarray:
+        return self.frame_sess.run(None, {self._frame_in: x})[0]
+
+    def window(self, x: np.ndarray) -> np.ndarray:
+        return self.window_sess.run(None, {self._window_in: x})[0]
+
+
+def slip_probability(logits: np.ndarray) -> np.ndarray:
+    """Softmax probability of class 1 (slip): ``(B, classes)`` logits -> ``(B,)`` float64."""
+    z = np.asarray(logits, dtype=np.float64)
+    z = z - z.max(axis=1, keepdims=True)
+    e = np.exp(z)
+    return e[:, 1] / e.sum(axis=1)
+
+
+# ---------------------------------------------------------------------------------------------
+# The detector
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Reading:
+    """The detector's answer to one push.
+
+    ``index``: 0-based frame number since the start (or :meth:`SlipDetector.reset`);
+    ``probability``: combined slip probability in [0, 1], None until the window is full;
+    ``per_sensor``: one probability per sensor (None until the window is full);
+    ``alarm``: ``probability >= threshold`` (False while None).
+    """
+
+    index: int
+    probability: float | None
+    per_sensor: tuple[float, ...] | None
+    alarm: bool
+
+
+@dataclass
+class Trace:
+    """Probabilities of a whole replayed recording, frame by frame (what pushing every frame gives).
+
+    ``probability``: ``(N,)`` combined, NaN for the first ``frames - 1`` frames (window not full);
+    ``per_sensor``: ``(N, S)``; ``threshold`` the detector's.
+    """
+
+    probability: np.ndarray
+    per_sensor: np.ndarray
+    threshold: float
+
+    @property
+    def alarm(self) -> np.ndarray:
+        """``(N,)`` bool: probability >= threshold (False where the probability is NaN)."""
+        return alarm_at(self.probability, self.threshold)
+
+
+def alarm_at(probability: np.ndarray, threshold: float) -> np.ndarray:
+    """``(N,)`` bool alarm state of a probability trace at ``threshold``; NaN counts as no alarm."""
+    p = np.asarray(probability, dtype=np.float64)
+    return np.nan_to_num(p, nan=-1.0) >= threshold
+
+
+def combine_probabilities(per_sensor: np.ndarray, combine: str) -> np.ndarray:
+    """``(..., S)`` -> ``(...)``: the largest (``"max"``) or the mean (``"mean"``) over sensors."""
+    if combine == "max":
+        return per_sensor.max(axis=-1)
+    if combine == "mean":
+        return per_sensor.mean(axis=-1)
+    raise ConfigError(f"combine must be one of {COMBINE}, got {combine!r}")
+
+
+class SlipDetector:
+    """Streaming slip detector over any slipsense checkpoint (ViViT, 3D ResNet-50, STNet, TemNet).
+
+    Args:
+        model: a slipsense model (eval mode is set here).
+        threshold: alarm when the combined probability is >= this, in [0, 1].
+        sensors: frames per push (1, or 2 for both fingers).
+        combine: ``"max"`` (default: alarm when either sensor sees slip) or ``"mean"``.
+        backend: ``"torch"`` or ``"onnx"`` (ONNX Runtime; the parts are exported on first use).
+        precision: ``"fp32"`` (default) or, with ``backend="onnx"``, ``"int8"``: the exported parts'
+            matrix products dynamically quantized to int8 weights (``onnxruntime.quantization``).
+            A quarter of the weight bytes: what makes the paper-size STNet fast on a CPU, at the cost
+            of probabilities that differ slightly from the float model's.
+        info: the checkpoint's config (window length / frame size of models that do not fix them).
+        onnx_dir: where the ONNX parts are written for ``backend="onnx"`` (default: a temporary folder).
+            Parts already there are reused, so give each model its own folder.
+
+    Attributes: ``frames`` (window length T), ``kind`` (``"video"`` or ``"markers"``),
+    ``image_size`` ``(H, W)`` (video) or ``markers`` M (markers).
+    """
+
+    def __init__(self, model: nn.Module, *, threshold: float = 0.5, sensors: int = 1, combine: str = "max",
+                 backend: str = "torch", info: Mapping[str, Any] | None = None, onnx_dir: str | Path | None = None,
+                 precision: str = "fp32"):
+        _check_settings(threshold, sensors, combine, backend, precision)
+        self.precision = precision
+        self.model = model.eval()
+        self.model_name = getattr(model, "model_name", type(model).__name__)
+        self.threshold, self.sensors, self.combine, self.backend = float(threshold), int(sensors), combine, backend
+        geo = window_geometry(model, info)
+        self.kind: str = geo["kind"]
+        self.frames: int = geo["frames"]
+        self.image_size: tuple[int, int] | None = geo.get("image_size")
+        self.markers: int | None = geo.get("markers")
+        self._tmpdir = None
+        if backend == "torch":
+            self._runner = _TorchRunner(*streaming_parts(model))
+        else:
+            if onnx_dir is None:
+                self._tmpdir = tempfile.TemporaryDirectory(prefix="slipsense-onnx-")
+                onnx_dir = self._tmpdir.name
+            self._runner = _OnnxRunner(*_exported_parts(model, self.geometry, Path(onnx_dir), precision))
+        self._has_frame_part = streaming_parts(model)[0] is not None
+        self.reset()
+
+    @classmethod
+    def from_checkpoint(cls, path: str | Path, threshold: float = 0.5, sensors: int = 1, combine: str = "max",
+                        backend: str = "torch", onnx_dir: str | Path | None = None,
+                        precision: str = "fp32") -> "SlipDetector":
+        """Load a checkpoint (:func:`slipsense.checkpoint.load_model`) into a detector.
+
+        With ``backend="onnx"`` the ONNX parts are cached under ``onnx_dir`` (default
+        ``<cache_root>/onnx/<hash of the checkpoint file>``), so only the first use pays the export.
+        """
+        from slipsense.checkpoint import load_model
+
+        _check_settings(threshold, sensors, combine, backend, precision)
+        model, info = load_model(path)
+        if backend == "onnx" and onnx_dir is None:
+            onnx_dir = onnx_cache_dir(Path(path))
+        return cls(model, threshold=threshold, sensors=sensors, combine=combine, backend=backend, info=info,
+                   onnx_dir=onnx_dir, precision=precision)
+
+    @property
+    def geometry(self) -> dict[str, Any]:
+        g = {"kind": self.kind, "frames": self.frames}
+        g.update({"image_size": self.image_size} if self.kind == "video" else {"markers": self.markers})
+        return g
+
+    def reset(self) -> None:
+        """Forget the window and restart frame numbering at 0."""
+        self._index = 0
+        self._cache: collections.deque[np.ndarray] = collections.deque(maxlen=self.frames)  # frame-part outputs (S, ...)
+        self._inputs: collections.deque[np.ndarray] = collections.deque(maxlen=self.frames)  # model inputs (S, ...)
+
+    @property
+    def window_full(self) -> bool:
+        return len(self._cache) == self.frames
+
+    # pushing frames
+
+    def push(self, *frames: np.ndarray) -> Reading:
+        """Add one frame per sensor and classify the window ending with them.
+
+        Video models take uint8 ``(H, W, 3)`` BGR images (resized to ``image_size`` when their size
+        differs); marker models take float ``(M, 3)`` marker positions in mm. Raises
+        :class:`InputError` (naming the frame and sensor) for a wrong count, type, shape, dtype or
+        a non-finite value; the window is left unchanged then.
+        """
+        if len(frames) != self.sensors:
+            raise InputError(None, f"frame {self._index}: push takes {self.sensors} frame(s), one per sensor, "
+                                   f"got {len(frames)}")
+        x = np.stack([self._prepare(f, s, self._index) for s, f in enumerate(frames)])  # (S, ...) float32
+        index = self._index
+        self._cache.append(self._runner.frame(x) if self._has_frame_part else x)
+        self._inputs.append(x)
+        self._index += 1
+        if not self.window_full:
+            return Reading(index, None, None, False)
+        per_sensor = slip_probability(self._runner.window(self._window()))
+        p = float(combine_probabilities(per_sensor, self.combine))
+        return Reading(index, p, tuple(float(v) for v in per_sensor), p >= self.threshold)
+
+    def _window(self) -> np.ndarray:
+        """The window part's input from the cache: ``(S, T, ...)``."""
+        if self.model_name == "vivit":
+            # frame k of the window (k = 0 oldest) sits in slot k: its token row k
+            return np.stack([tokens[:, k] for k, tokens in enumerate(self._cache)], axis=1)
+        return np.stack(self._cache, axis=1)
+
+    def _prepare(self, frame: Any, sensor: int, index: int) -> np.ndarray:
+        """Check one frame and turn it into the model's per-frame input (float32)."""
+        where = f"frame {index}, sensor {sensor}"
+        if self.kind == "video":
+            return _video_input(_check_image(frame, where, self.image_size))
+        return _check_cloud(frame, where, self.markers)
+
+    # replay of whole recordings
+
+    def replay(self, *streams: np.ndarray) -> Trace:
+        """Probabilities for whole recordings at once: the numbers pushing every frame would give.
+
+        Args:
+            streams: one per sensor, all N frames long: uint8 ``(N, H, W, 3)`` BGR videos (video
+                models) or float ``(N, M, 3)`` marker clouds (marker models).
+
+        Returns:
+            :class:`Trace`. Does not touch the streaming window.
+        """
+        if len(streams) != self.sensors:
+            raise InputError(None, f"replay takes {self.sensors} stream(s), one per sensor, got {len(streams)}")
+        streams = [self._check_stream(s, i) for i, s in enumerate(streams)]
+        n = len(streams[0])
+        if any(len(s) != n for s in streams):
+            raise InputError(None, f"replay streams differ in length: {[len(s) for s in streams]}")
+        t, s_count = self.frames, self.sensors
+        per_sensor = np.full((n, s_count), np.nan)
+        if n >= t:
+            feats = self._replay_features(streams)  # (S, N, ...)
+            starts = np.arange(n - t + 1)
+            probs = []
+            # a 3D ResNet's windows are raw frames (T x 3 x H x W floats each): fewer per batch
+            chunk = REPLAY_CHUNK if self._has_frame_part else max(1, REPLAY_CHUNK // (4 * t))
+            for a in range(0, len(starts), chunk):
+                rows = starts[a : a + chunk, None] + np.arange(t)[None]  # (W, T) frame indices
+                if self.model_name == "vivit":
+                    win = feats[:, rows, np.arange(t)[None]]  # (S, W, T, dim): frame rows[w, k] at slot k
+                else:
+                    win = feats[:, rows]  # (S, W, T, ...)
+                if not self._has_frame_part:
+                    win = win.astype(np.float32) / 255.0  # uint8 (S, W, T, H, W, 3) -> model layout
+                    win = np.ascontiguousarray(win.transpose(0, 1, 2, 5, 3, 4))
+                w = win.shape[1]
+                logits = self._runner.window(np.ascontiguousarray(win.reshape(s_count * w, *win.shape[2:])))
+                probs.append(slip_probability(logits).reshape(s_count, w))
+            per_sensor[t - 1 :] = np.concatenate(probs, axis=1).T
+        combined = combine_probabilities(per_sensor, self.combine)
+        return Trace(combined, per_sensor, self.threshold)
+
+    def _check_stream(self, stream: Any, sensor: int) -> np.ndarray:
+        where = f"sensor {sensor}"
+        if not isinstance(stream, np.ndarray):
+            raise InputError(None, f"{where}: replay takes numpy arrays, got {type(stream).__name__}")
+        if self.kind == "video":
+            if stream.dtype != np.uint8 or stream.ndim != 4 or stream.shape[-1] != 3:
+                raise InputError(None, f"{where}: expected a uint8 (N, H, W, 3) BGR video, got {stream.dtype} "
+                                       f"{stream.shape}")
+            return stream
+        if stream.ndim != 3 or stream.shape[1:] != (self.markers, 3):
+            raise InputError(None, f"{where}: expected marker clouds (N, {self.markers}, 3), got {stream.shape}")
+        if not (np.issubdtype(stream.dtype, np.floating) or np.issubdtype(stream.dtype, np.integer)):
+            raise InputError(None, f"{where}: expected float marker positions (mm), got dtype {stream.dtype}")
+        if not np.isfinite(stream).all():
+            i = int(np.argwhere(~np.isfinite(stream))[0][0])
+            _check_cloud(stream[i], f"frame {i}, {where}", self.markers)  # raises, naming the marker
+        return stream.astype(np.float32, copy=False)
+
+    def _replay_features(self, streams: list[np.ndarray]) -> np.ndarray:
+        """Frame-part outputs of every frame of every stream, ``(S, N, ...)`` (uint8 frames for a 3D ResNet)."""
+        out = []
+        for stream in streams:
+            chunks = []
+            for a in range(0, len(stream), REPLAY_CHUNK):
+                part = stream[a : a + REPLAY_CHUNK]
+                if self.kind == "video":
+                    part = np.stack([_resize(f, self.image_size) for f in part])
+                    if self._has_frame_part:
+                        part = _video_input(part)
+                chunks.append(self._runner.frame(np.ascontiguousarray(part)) if self._has_frame_part else part)
+            out.append(np.concatenate(chunks))
+        return np.stack(out)
+
+    # heat maps
+
+    def heatmap(self, sensor: int = 0) -> np.ndarray | None:
+        """Where the model looks in the latest window of ``sensor`` (None until the window is full).
+
+        ViViT: attention rollout of the latest frame (:meth:`ViViT.cls_attention_map`),
+        ``(Hp, Wp)`` on the patch grid, sums to 1. STNet/TemNet: marker saliency
+        (:meth:`STNet.marker_saliency`) ``(M,)``, max 1. 3D ResNet: None (no attention to show).
+        """
+        if not self.window_full or not 0 <= sensor < self.sensors:
+            return None
+        window = torch.from_numpy(np.stack([x[sensor] for x in self._inputs])[None])  # (1, T, ...)
+        if self.model_name == "vivit":
+            return self.model.cls_attention_map(window)[0, -1].numpy()
+        if self.model_name in ("stnet", "temnet"):
+            return self.model.marker_saliency(window)[0].detach().numpy()
+        return None
+
+    def close(self) -> None:
+        if self._tmpdir is not None:
+            self._tmpdir.cleanup()
+            self._tmpdir = None
+
+
+def _check_settings(threshold: Any, sensors: Any, combine: str, backend: str, precision: str = "fp32") -> None:
+    try:
+        ok = 0.0 <= float(threshold) <= 1.0
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise ConfigError(f"threshold must be a number in [0, 1], got {threshold!r}")
+    if isinstance(sensors, bool) or not isinstance(sensors, (int, np.integer)) or sensors < 1:
+        raise ConfigError(f"sensors must be a positive integer, got {sensors!r}")
+    if combine not in COMBINE:
+        raise ConfigError(f"combine must be one of {COMBINE}, got {combine!r}")
+    if backend not in BACKENDS:
+        raise ConfigError(f"backend must be one of {BACKENDS}, got {backend!r}")
+    if precision not in PRECISIONS:
+        raise ConfigError(f"precision must be one of {PRECISIONS}, got {precision!r}")
+    if precision == "int8" and backend != "onnx":
+        raise ConfigError("precision 'int8' needs backend 'onnx' (ONNX Runtime dynamic quantization)")
+
+
+def _check_image(frame: Any, where: str, size: tuple[int, int]) -> np.ndarray:
+    """A uint8 (H, W, 3) BGR image resized to ``size``, or InputError."""
+    if not isinstance(frame, np.ndarray):
+        raise InputError(None, f"{where}: expected a uint8 (H, W, 3) BGR image as a numpy array, "
+                               f"got {type(frame).__name__}")
+    if frame.dtype != np.uint8:
+        raise InputError(None, f"{where}: expected a uint8 (H, W, 3) BGR image, got dtype {frame.dtype}")
+    if frame.ndim != 3 or frame.shape[2] != 3 or min(frame.shape[:2]) < 1:
+        raise InputError(None, f"{where}: expected a (H, W, 3) BGR image, got shape {frame.shape}")
+    return _resize(frame, size)
+
+
+def _resize(frame: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Resize like the training clips do (area filter when shrinking, bilinear when enlarging)."""
+    h, w = size
+    if frame.shape[:2] == (h, w):
+        return frame
+    shrink = frame.shape[0] >= h and frame.shape[1] >= w
+    return cv2.resize(np.ascontiguousarray(frame), (w, h), interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
+
+
+def _video_input(frames: np.ndarray) -> np.ndarray:
+    """uint8 ``(..., H, W, 3)`` BGR -> float32 ``(..., 3, H, W)`` in [0, 1] (as ``datasets.clip_to_tensor``)."""
+    return np.ascontiguousarray(np.moveaxis(frames, -1, -3), dtype=np.float32) / np.float32(255.0)
+
+
+def _check_cloud(cloud: Any, where: str, markers: int) -> np.ndarray:
+    """A finite float32 (M, 3) marker cloud, or InputError."""
+    if not isinstance(cloud, np.ndarray):
+        raise InputError(None, f"{where}: expected a float (M, 3) marker cloud as a numpy array, got {type(cloud).__name__}")
+    if not (np.issubdtype(cloud.dtype, np.floating) or np.issubdtype(cloud.dtype, np.integer)):
+        raise InputError(None, f"{where}: expected float marker positions (mm), got dtype {cloud.dtype}")
+    if cloud.shape != (markers, 3):
+        raise InputError(None, f"{where}: expected a marker cloud of shape ({markers}, 3), got {cloud.shape}")
+    finite = np.isfinite(cloud)
+    if not finite.all():
+        m = int(np.argwhere(~finite)[0][0])
+        raise InputError(None, f"{where}: marker {m} has a non-finite position {cloud[m].tolist()}")
+    return cloud.astype(np.float32, copy=False)
+
+
+def onnx_cache_dir(checkpoint: Path) -> Path:
+    """``<cache_root>/onnx/<hash>``: keyed by the checkpoint's bytes and the library versions."""
+    from slipsense import __version__
+    from slipsense.config import cache_root
+
+    h = hashlib.sha256()
+    with open(checkpoint, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    h.update(f"{__version__} {torch.__version__} parts-1".encode())
+    return cache_root() / "onnx" / h.hexdigest()[:24]
+
+
+def _exported_parts(model: nn.Module, geometry: Mapping[str, Any], folder: Path,
+                    precision: str = "fp32") -> tuple[Path | None, Path]:
+    """The model's streaming parts as ONNX files in ``folder`` (exported unless already there);
+    ``precision="int8"``: their dynamically quantized copies (``*.int8.onnx``)."""
+    from slipsense.export import export_streaming_parts, quantize_int8
+
+    has_frame = streaming_parts(model)[0] is not None
+    frame, window = folder / "frame.onnx", folder / "window.onnx"
+    if not (window.is_file() and (frame.is_file() or not has_frame)):
+        export_streaming_parts(model, folder, geometry=geometry, verify=False)
+    if precision == "int8":
+        q_frame, q_window = folder / "frame.int8.onnx", folder / "window.int8.onnx"
+        for src, dst in ((frame, q_frame), (window, q_window)):
+            if src.is_file() and not dst.is_file():
+                quantize_int8(src, dst)
+        frame, window = q_frame, q_window
+    return (frame if has_frame else None), window
+
+
+# ---------------------------------------------------------------------------------------------
+# Early warning: lead time before the moment of slip, false alarms during contact
+# ---------------------------------------------------------------------------------------------
+
+
+def alarm_onsets(alarm: np.ndarray, start: int, end: int) -> np.ndarray:
+    """Frames in ``start..end`` (inclusive) where an alarm begins: on, and off the frame before.
+
+    An alarm already on at ``start`` counts as an onset at ``start`` (it is an alarm raised during
+    the phase as far as the phase can tell).
+    """
+    a = np.asarray(alarm, dtype=bool)[start : end + 1]
+    if a.size == 0:
+        return np.empty(0, dtype=int)
+    prev = np.concatenate([[False], a[:-1]])
+    return start + np.flatnonzero(a & ~prev)
+
+
+@dataclass
+class RunTrace:
+    """One replayed run: its labels and its probability trace."""
+
+    object: str
+    experiment: int
+    slipped: bool
+    moment_of_slip: int | None  # last frame before the object loses contact (slip runs)
+    contact_start: int  # first contact frame (earliest over the run's cameras)
+    contact_end: int  # last contact frame (latest over the cameras; the moment for slip runs)
+    n_frames: int
+    probability: np.ndarray  # (N,) combined, NaN until the window is full
+    per_sensor: np.ndarray = field(repr=False, default_factory=lambda: np.empty((0, 0)))
+
+    def first_alarm(self, threshold: float) -> int | None:
+        """First alarm frame in ``contact_start..moment_of_slip`` (slip runs), else None."""
+        if self.moment_of_slip is None:
+            return None
+        on = np.flatnonzero(alarm_at(self.probability, threshold)[self.contact_start : self.moment_of_slip + 1])
+        return None if on.size == 0 else self.contact_start + int(on[0])
+
+    def false_alarms(self, threshold: float) -> int:
+        """Alarm onsets during the contact phase (non-slip runs)."""
+        return int(alarm_onsets(alarm_at(self.probability, threshold), self.contact_start, self.contact_end).size)
+
+
+#: Columns of the early-warning CSV, in order.
+EARLY_WARNING_COLUMNS = (
+    "threshold", "slip_runs", "detected", "missed", "detection_rate", "median_lead_frames", "mean_lead_frames",
+    "median_lead_ms", "mean_lead_ms", "nonslip_runs", "contact_minutes", "false_alarms", "false_alarms_per_min",
+)
+
+
+def early_warning_table(runs: Sequence[RunTrace], thresholds: Sequence[float], fps: float = FPS) -> list[dict[str, Any]]:
+    """One row per threshold (columns :data:`EARLY_WARNING_COLUMNS`).
+
+    Slip runs: the lead time is ``moment_of_slip - first alarm`` in frames (and ms at ``fps``), the
+    first alarm sought from ``contact_start`` to the moment itself (an alarm on the moment's frame
+    leads by 0 frames); a run without one is missed. Non-slip runs: alarm onsets (rising edges)
+    within ``contact_start..contact_end``, per minute of contact in all those runs. Statistics
+    over no runs are NaN.
+    """
+    slip = [r for r in runs if r.slipped and r.moment_of_slip is not None]
+    calm = [r for r in runs if not r.slipped]
+    minutes = sum(r.contact_end - r.contact_start + 1 for r in calm) / fps / 60.0
+    rows = []
+    for th in thresholds:
+        firsts = [r.first_alarm(th) for r in slip]
+        leads = np.array([r.moment_of_slip - a for r, a in zip(slip, firsts) if a is not None], dtype=float)
+        false = sum(r.false_alarms(th) for r in calm)
+        med = float(np.median(leads)) if leads.size else math.nan
+        mean = float(leads.mean()) if leads.size else math.nan
+        rows.append({
+            "threshold": float(th), "slip_runs": len(slip), "detected": int(leads.size),
+            "missed": len(slip) - int(leads.size),
+            "detection_rate": leads.size / len(slip) if slip else math.nan,
+            "median_lead_frames": med, "mean_lead_frames": mean,
+            "median_lead_ms": med * 1000.0 / fps, "mean_lead_ms": mean * 1000.0 / fps,
+            "nonslip_runs": len(calm), "contact_minutes": minutes, "false_alarms": int(false),
+            "false_alarms_per_min": false / minutes if minutes > 0 else math.nan,
+        })
+    return rows
+
+
+def replay_recordings(detector: SlipDetector, recordings: Iterable[Any], labels: Mapping[tuple, Any] | None = None,
+                      progress: bool = True, limit: int | None = None) -> list[RunTrace]:
+    """Replay every run (all cameras of an experiment as the detector's sensors) through ``detector``.
+
+    Args:
+        detector: a video-model detector; its ``sensors`` must equal the cameras per run.
+        recordings: :class:`~slipsense.recordings.types.Recording` s (``find_recordings``).
+        labels: ``{(object, experiment, camera): VideoLabel}``; default: ``label_recordings``.
+        limit: replay at most this many runs (in sorted order).
+
+    Each video is decoded once; the whole recording goes through :meth:`SlipDetector.replay`.
+    Slipped runs without a moment of slip are left out (nothing to lead).
+    """
+    from slipsense.recordings.labels import label_recordings
+    from slipsense.recordings.video import read_video
+
+    if detector.kind != "video":
+        raise ConfigError("early warning replays GelSight videos: it needs a video model (vivit, resnet3d50)")
+    recs = list(recordings)
+    runs: dict[tuple[str, int], list[Any]] = {}
+    for r in recs:
+        runs.setdefault((r.object, r.experiment), []).append(r)
+    keys = sorted(runs)[:limit] if limit is not None else sorted(runs)
+    if labels is None:
+        labels = label_recordings([r for k in keys for r in runs[k]], progress=progress)
+    items: Iterable = keys
+    if progress:
+        from tqdm import tqdm
+
+        items = tqdm(keys, desc="replaying runs", unit="run")
+    out = []
+    for key in items:
+        cams = sorted(runs[key], key=lambda r: r.camera)
+        if len(cams) != detector.sensors:
+            raise InputError(cams[0].path.parent, f"run has {len(cams)} camera video(s), the detector takes "
+                                                  f"{detector.sensors} sensor(s)")
+        labs = []
+        for r in cams:
+            if r.key not in labels:
+                raise InputError(r.path, "no label for this video")
+            labs.append(labels[r.key])
+        moment = labs[0].moment_of_slip
+        slipped = any(l.slipped for l in labs)
+        if slipped and moment is None:
+            continue
+        videos = [read_video(r.path, expected_size=None, min_frames=1) for r in cams]
+        n = min(len(v) for v in videos)
+        if any(len(v) != n for v in videos):
+            raise InputError(cams[0].path.parent, f"the cameras of this run differ in frame count: "
+                                                  f"{[len(v) for v in videos]}")
+        trace = detector.replay(*videos)
+        start = min(l.contact_start for l in labs)
+        end = moment if slipped else max(l.contact_end for l in labs)
+        out.append(RunTrace(key[0], key[1], slipped, moment, int(start), int(end), n, trace.probability,
+                            trace.per_sensor))
+    return out
+
+
+def write_early_warning(runs: Sequence[RunTrace], thresholds: Sequence[float], out_dir: str | Path,
+                        fps: float = FPS, meta: Mapping[str, Any] | None = None) -> dict[str, Path]:
+    """Write ``early_warning.csv``, ``early_warning.json`` and two PNG curves into ``out_dir``.
+
+    ``early_warning.png``: median/mean lead time (ms) and false alarms per minute against the
+    threshold; ``detection_vs_false_alarms.png``: detection rate against false alarms per minute
+    (each point a threshold). The JSON holds the table, ``meta`` and every run's first alarm per
+    threshold and probability trace.
+    """
+    from slipsense import atomic
+
+    out_dir = Path(out_dir)
+    rows = early_warning_table(runs, thresholds, fps)
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=EARLY_WARNING_COLUMNS, lineterminator="\n")
+    writer.writeheader()
+    for row in rows:
+        writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in row.items()})
+    paths = {"csv": out_dir / "early_warning.csv", "json": out_dir / "early_warning.json",
+             "png": out_dir / "early_warning.png", "tradeoff_png": out_dir / "detection_vs_false_alarms.png"}
+    atomic.write_text(paths["csv"], buf.getvalue())
+    doc = {
+        **(dict(meta) if meta else {}),
+        "fps": fps, "thresholds": [float(t) for t in thresholds],
+        "definitions": {
+            "lead_frames": "moment_of_slip - first alarm frame in contact_start..moment_of_slip (slip runs)",
+            "missed": "slip run without an alarm from contact_start to the moment of slip",
+            "false_alarms": "alarm onsets (rising edges) in contact_start..contact_end of non-slip runs",
+        },
+        "table": [_json_safe(r) for r in rows],
+        "runs": [{
+            "object": r.object, "experiment": r.experiment, "slipped": r.slipped, "moment_of_slip": r.moment_of_slip,
+            "contact_start": r.contact_start, "contact_end": r.contact_end, "n_frames": r.n_frames,
+            "first_alarm": {f"{t:g}": r.first_alarm(t) for t in thresholds} if r.slipped else None,
+            "false_alarms": None if r.slipped else {f"{t:g}": r.false_alarms(t) for t in thresholds},
+            "probability": [None if math.isnan(p) else round(float(p), 5) for p in r.probability],
+        } for r in runs],
+    }
+    atomic.write_text(paths["json"], json.dumps(doc, indent=1))
+    plot_early_warning(rows, paths["png"], paths["tradeoff_png"])
+    return paths
+
+
+def _json_safe(row: Mapping[str, Any]) -> dict[str, Any]:
+    return {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in row.items()}
+
+
+def plot_early_warning(rows: Sequence[Mapping[str, Any]], path: str | Path, tradeoff_path: str | Path) -> None:
+    """The two early-warning figures from :func:`early_warning_table` rows."""
+    from slipsense.plots import _plt, save_figure
+
+    plt = _plt()
+    th = [r["threshold"] for r in rows]
+    fig, ax = plt.subplots(figsize=(6.4, 3.8))
+    ax.plot(th, [r["median_lead_ms"] for r in rows], marker="o", color="C0", label="median lead")
+    ax.plot(th, [r["mean_lead_ms"] for r in rows], marker=".", ls="--", color="C0", alpha=0.7, label="mean lead")
+    ax.set_xlabel("alarm threshold")
+    ax.set_ylabel("lead time before slip (ms)", color="C0")
+    ax.grid(alpha=0.3)
+    ax2 = ax.twinx()
+    ax2.plot(th, [r["false_alarms_per_min"] for r in rows], marker="s", color="C3", label="false alarms / min")
+    ax2.set_ylabel("false alarms per minute of contact", color="C3")
+    lines = ax.get_legend_handles_labels()
+    lines2 = ax2.get_legend_handles_labels()
+    ax.legend(lines[0] + lines2[0], lines[1] + lines2[1], loc="upper right", fontsize=8)
+    det = [r["detection_rate"] for r in rows]
+    ax.set_title("early warning: " + ", ".join(f"{t:g}: {d:.0%}" for t, d in zip(th, det) if not math.isnan(d))[:90]
+                 if rows else "early warning", fontsize=8)
+    save_figure(fig, path)
+
+    fig, ax = plt.subplots(figsize=(4.6, 3.8))
+    ax.plot([r["false_alarms_per_min"] for r in rows], det, marker="o")
+    points: dict[tuple[float, float], list[float]] = {}  # thresholds landing on the same point share a label
+    for r in rows:
+        if not (math.isnan(r["false_alarms_per_min"]) or math.isnan(r["detection_rate"])):
+            points.setdefault((r["false_alarms_per_min"], r["detection_rate"]), []).append(r["threshold"])
+    for xy, ths in points.items():
+        label = f"{ths[0]:g}" if len(ths) == 1 else f"{min(ths):g}-{max(ths):g}"
+        ax.annotate(label, xy, fontsize=7, xytext=(3, 3), textcoords="offset points")
+    ax.set_xlabel("false alarms per minute of contact (non-slip runs)")
+    ax.set_ylabel("slip runs detected before the moment")
+    ax.set_ylim(-0.02, 1.02)
+    ax.grid(alpha=0.3)
+    save_figure(fig, tradeoff_path)
+
+
+# ---------------------------------------------------------------------------------------------
+# Annotated frames for `slipsense watch --out`
+# ---------------------------------------------------------------------------------------------
+
+#: Seconds of probability history the trace panel shows.
+TRACE_SECONDS = 6.0
+
+
+class Annotator:
+    """Draws one annotated picture per reading: the sensor frame(s) with the heat map, the
+    probability trace with the threshold line, and the alarm state. BGR uint8 pictures.
+
+    ``panel_height``: pixel height each sensor frame is drawn at.
+    """
+
+    def __init__(self, threshold: float, sensors: int, fps: float = FPS, panel_height: int = 240):
+        self.threshold, self.sensors, self.fps, self.panel_height = threshold, sensors, fps, panel_height
+        self.history: collections.deque[float] = collections.deque(maxlen=int(TRACE_SECONDS * fps))
+
+    def draw(self, frames: Sequence[np.ndarray], reading: Reading, heatmaps: Sequence[np.ndarray | None] = (),
+             clouds: Sequence[np.ndarray | None] = ()) -> np.ndarray:
+        """``frames``: per sensor a BGR image or None (marker-only sensors); ``heatmaps``: per sensor
+        a patch-grid map ``(Hp, Wp)``, a per-marker map ``(M,)`` or None; ``clouds``: per sensor the
+        ``(M, 3)`` cloud the marker map refers to (its x, y are drawn)."""
+        self.history.append(math.nan if reading.probability is None else reading.probability)
+        panels = []
+        for s in range(self.sensors):
+            frame = frames[s] if s < len(frames) else None
+            heat = heatmaps[s] if s < len(heatmaps) else None
+            cloud = clouds[s] if s < len(clouds) else None
+            p = None if reading.per_sensor is None else reading.per_sensor[s]
+            panels.append(self._sensor_panel(frame, heat, cloud, s, p))
+        top = np.concatenate(panels, axis=1)
+        width = top.shape[1]
+        return np.concatenate([self._banner(reading, width), top, self._trace(width)], axis=0)
+
+    def _sensor_panel(self, frame, heat, cloud, sensor, p) -> np.ndarray:
+        h = self.panel_height
+        if frame is not None:
+            w = max(1, int(round(frame.shape[1] * h / frame.shape[0])))
+            img = cv2.resize(np.ascontiguousarray(frame), (w, h), interpolation=cv2.INTER_AREA)
+        else:
+            w = int(round(h * 4 / 3))
+            img = np.full((h, w, 3), 40, np.uint8)
+        if heat is not None and heat.ndim == 2:
+            m = heat / max(float(heat.max()), 1e-12)
+            m = cv2.resize(m.astype(np.float32), (w, h), interpolation=cv2.INTER_LINEAR)
+            colour = cv2.applyColorMap(np.clip(m * 255, 0, 255).astype(np.uint8), cv2.COLORMAP_JET)
+            img = cv2.addWeighted(img, 0.6, colour, 0.4, 0)
+        if cloud is not None:
+            xy = cloud[:, :2].astype(np.float64)
+            lo, hi = xy.min(axis=0), xy.max(axis=0)
+            span = np.maximum(hi - lo, 1e-9)
+            pix = 10 + (xy - lo) / span * np.array([w - 20, h - 20])
+            sal = np.zeros(len(xy)) if heat is None or heat.ndim != 1 else heat
+            colours = cv2.applyColorMap(np.clip(sal * 255, 0, 255).astype(np.uint8)[:, None], cv2.COLORMAP_JET)[:, 0]
+            for (x, y), c in zip(pix, colours):
+                cv2.circle(img, (int(x), int(y)), 3, tuple(int(v) for v in c), -1, cv2.LINE_AA)
+        label = f"sensor {sensor}" + ("" if p is None else f"  p={p:.2f}")
+        cv2.putText(img, label, (6, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1, cv2.LINE_AA)
+        return img
+
+    def _banner(self, reading: Reading, width: int) -> np.ndarray:
+        bar = np.zeros((28, width, 3), np.uint8)
+        if reading.probability is None:
+            bar[:] = (90, 90, 90)
+            state = "filling window"
+        elif reading.alarm:
+            bar[:] = (0, 0, 200)
+            state = f"SLIP ALARM  p={reading.probability:.2f}"
+        else:
+            bar[:] = (0, 120, 0)
+            state = f"no slip  p={reading.probability:.2f}"
+        text = f"frame {reading.index}  t={reading.index / self.fps:6.2f} s   {state}"
+        cv2.putText(bar, text, (6, 19), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
+        return bar
+
+    def _trace(self, width: int, height: int = 90) -> np.ndarray:
+        img = np.full((height, width, 3), 255, np.uint8)
+        top, bottom, left, right = 6, height - 8, 30, width - 6
+        cv2.putText(img, "1", (12, top + 8), cv2.FONT_HERSHEY_SIMPLEX, 0.35, (0, 0, 0), 1, cv2.LINE_AA)
+        cv2.putText(img, "0", (12, bottom), cv2.FONT_HERSHEY_SIMPLEX, 0.35, (0, 0, 0), 1, cv2.LINE_AA)
+        cv2.rectangle(img, (left, top), (right, bottom), (200, 200, 200), 1)
+
+        def y_of(p: float) -> int:
+            return int(round(bottom - p * (bottom - top)))
+
+        yt = y_of(self.threshold)
+        for x in range(left, right, 8):  # dashed threshold line
+            cv2.line(img, (x, yt), (min(x + 4, right), yt), (0, 0, 220), 1)
+        n = self.history.maxlen or 1
+        step = (right - left) / max(n - 1, 1)
+        pts = [(int(round(left + i * step)), y_of(p)) for i, p in enumerate(self.history) if not math.isnan(p)]
+        if len(pts) > 1:
+            cv2.polylines(img, [np.array(pts, np.int32)], False, (160, 60, 0), 2, cv2.LINE_AA)
+        elif pts:
+            cv2.circle(img, pts[0], 2, (160, 60, 0), -1)
+        cv2.putText(img, f"slip probability (last {TRACE_SECONDS:g} s), threshold {self.threshold:g}",
+                    (left + 4, top + 12), cv2.FONT_HERSHEY_SIMPLEX, 0.35, (80, 80, 80), 1, cv2.LINE_AA)
+        return img
+
+
+class AnnotatedWriter:
+    """Collects annotated BGR pictures and writes them as a GIF (Pillow) or a video (OpenCV), atomically.
+
+    ``.gif``: 256-colour frames held in memory (1 byte per pixel) until :meth:`close`;
+    ``.mp4`` (mp4v) / ``.avi`` (MJPG): streamed to a temporary file, renamed on :meth:`close`.
+    """
+
+    def __init__(self, path: str | Path, fps: float = FPS):
+        self.path = Path(path)
+        self.fps = fps
+        suffix = self.path.suffix.lower()
+        if suffix not in (".gif", ".mp4", ".avi"):
+            raise InputError(self.path, "output must end in .gif, .mp4 or .avi")
+        self.kind = suffix
+        self._frames: list[Any] = []
+        self._writer = None
+        self._tmp: Path | None = None
+        self._size: tuple[int, int] | None = None
+
+    def add(self, picture: np.ndarray) -> None:
+        if self._size is None:
+            self._size = (picture.shape[1], picture.shape[0])
+        elif (picture.shape[1], picture.shape[0]) != self._size:
+            picture = cv2.resize(picture, self._size, interpolation=cv2.INTER_AREA)
+        if self.kind == ".gif":
+            from PIL import Image
+
+            rgb = Image.fromarray(cv2.cvtColor(picture, cv2.COLOR_BGR2RGB))
+            self._frames.append(rgb.quantize(colors=256, method=Image.Quantize.MEDIANCUT))
+            return
+        if self._writer is None:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            fd, tmp = tempfile.mkstemp(prefix=f".{self.path.stem}.", suffix=f".tmp{self.path.suffix}", dir=self.path.parent)
+            import os
+
+            os.close(fd)
+            self._tmp = Path(tmp)
+            fourcc = cv2.VideoWriter_fourcc(*("mp4v" if self.kind == ".mp4" else "MJPG"))
+            self._writer = cv2.VideoWriter(str(self._tmp), fourcc, self.fps, self._size)
+            if not self._writer.isOpened():
+                self._tmp.unlink(missing_ok=True)
+                raise InputError(self.path, "OpenCV cannot write this video format here")
+        self._writer.write(picture)
+
+    def close(self) -> Path | None:
+        """Finish the file; returns its path (None when no picture was added)."""
+        import os
+
+        if self.kind == ".gif":
+            if not self._frames:
+                return None
+            from slipsense.atomic import write_with
+
+            first, rest = self._frames[0], self._frames[1:]
+            write_with(self.path, lambda tmp: first.save(tmp, format="GIF", save_all=True, append_images=rest,
+                                                         duration=int(round(1000 / self.fps)), loop=0))
+            self._frames = []
+            return self.path
+        if self._writer is None:
+            return None
+        self._writer.release()
+        self._writer = None
+        os.replace(self._tmp, self.path)
+        return self.path
+
+    def abort(self) -> None:
+        if self._writer is not None:
+            self._writer.release()
+            self._writer = None
+        if self._tmp is not None and self._tmp.exists():
+            self._tmp.unlink()
+        self._frames = []
+
+
+__all__ = [
+    "AnnotatedWriter", "Annotator", "DEFAULT_CHECKPOINT", "EARLY_WARNING_COLUMNS", "FPS", "Reading", "RunTrace",
+    "SlipDetector", "Trace", "alarm_at", "onnx_cache_dir", "alarm_onsets", "combine_probabilities", "early_warning_table",
+    "plot_early_warning", "replay_recordings", "slip_probability", "streaming_parts", "window_geometry",
+    "write_early_warning",
+]
