@@ -413,3 +413,15 @@ def test_resnet3d50_load_weights(tmp_path):
     junk.write_bytes(b"not a checkpoint")
     with pytest.raises(InputError, match="cannot read"):
         target.load_weights(junk)
+
+
+def test_inference_mode_then_no_grad_reuses_no_inference_buffer():
+    from slipsense.models import build
+
+    m = build("vivit", image_size=(48, 64), patch_size=(16, 16), frames=3).eval()
+    x = torch.rand(1, 3, 3, 48, 64)
+    with torch.inference_mode():
+        a = m(x)
+    with torch.no_grad():
+        b = m(x)
+    torch.testing.assert_close(a.clone(), b)

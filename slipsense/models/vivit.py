@@ -366,7 +366,8 @@ class ViViT(nn.Module):
         patches = frames.reshape(n, c, hp, ph, wp, pw).permute(0, 2, 4, 1, 3, 5)  # a view: (n, hp, wp, c, ph, pw)
         if not _eager_inference():
             return patches.reshape(n * hp * wp, c * ph * pw)
-        key = (threading.get_ident(), frames.dtype, frames.device)
+        # Inference tensors cannot be written outside inference mode: one buffer per mode.
+        key = (threading.get_ident(), frames.dtype, frames.device, torch.is_inference_mode_enabled())
         buffer = self._scratch.get(key)
         if buffer is None or buffer.shape[0] < n * hp * wp:
             buffer = self._scratch[key] = frames.new_empty(n * hp * wp, c * ph * pw)
