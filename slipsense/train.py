@@ -432,7 +432,14 @@ def run_training(req: TrainRequest, resume: bool = False) -> dict[str, Any]:
     part; returns the evaluation metrics (rank 0) or ``{}`` (other ranks)."""
     from slipsense.evaluate import evaluate_model
 
-    kind = model_class(req.model).input_kind
+    cls = model_class(req.model)
+    kind = cls.input_kind
+    import inspect
+
+    accepted = set(inspect.signature(cls.__init__).parameters) - {"self"}
+    unknown = sorted(set(req.model_overrides) - accepted)
+    if unknown:  # before any data is decoded
+        raise ConfigError(f"model {req.model!r} has no setting {', '.join(unknown)}; settings: {', '.join(sorted(accepted))}")
     settings = {**PAPER_SETTINGS.get(req.model, {}), "seed": req.seed, "progress": req.progress, **req.train_overrides}
     cfg = TrainConfig.from_dict(settings)
     train_data, test_data, split_info, data_config = prepare_data(req, kind)
