@@ -35,6 +35,7 @@ def evaluate_checkpoint(checkpoint: str | Path, recordings=None, split=None, mar
     Clips are made with the clip settings stored in the checkpoint.
     """
     from slipsense.checkpoint import load_model
+    from slipsense.config import resolve_path
     from slipsense.data import clip_spec_from, gelsight_clips, load_markers
     from slipsense.datasets import ClipDataset, MarkerDataset
 
@@ -43,7 +44,9 @@ def evaluate_checkpoint(checkpoint: str | Path, recordings=None, split=None, mar
         raise ConfigError("give exactly one of --recordings, --split or --markers")
     model, info = load_model(checkpoint)
     kind = model.input_kind
-    extra: dict[str, Any] = {"checkpoint": str(checkpoint), "model": info["model"], "noise_std": noise_std}
+    from slipsense.config import portable_path
+
+    extra: dict[str, Any] = {"checkpoint": portable_path(checkpoint), "model": info["model"], "noise_std": noise_std}
     if kind == "video":
         if markers is not None:
             raise InputError(checkpoint, "this checkpoint holds a video model; use --recordings or --split")
@@ -51,31 +54,32 @@ def evaluate_checkpoint(checkpoint: str | Path, recordings=None, split=None, mar
         if split is not None:
             split_info = _read_split(split)
             spec = clip_spec_from(split_info)
-            clips, _ = gelsight_clips(split_info["recordings"], spec, on_error=split_info.get("on_error", on_error),
-                                      overrides=split_info.get("overrides"), progress=progress)
+            clips, _ = gelsight_clips(resolve_path(split_info["recordings"]), spec, on_error=split_info.get("on_error", on_error),
+                                      overrides=split_info.get("overrides") and resolve_path(split_info["overrides"]),
+                                      progress=progress)
             idx = split_info["test_indices"]
             if idx and max(idx) >= len(clips):
                 raise InputError(split, "test indices do not fit the clips rebuilt from its recordings")
             clips = clips.subset(idx)
-            extra.update(split=str(split), test_objects=split_info.get("test_objects"))
+            extra.update(split=portable_path(split), test_objects=split_info.get("test_objects"))
         else:
             if "clip_spec" not in data_info:
                 raise InputError(checkpoint, "checkpoint has no clip settings (data.clip_spec)")
             clips, _ = gelsight_clips(recordings, clip_spec_from(data_info), on_error=on_error, overrides=overrides,
                                       progress=progress)
-            extra.update(recordings=str(recordings), objects=sorted(set(clips.objects)))
+            extra.update(recordings=portable_path(recordings), objects=sorted(set(clips.objects)))
         data = ClipDataset(clips, noise_std=noise_std, seed=0)
     else:
         if recordings is not None:
             raise InputError(checkpoint, "this checkpoint holds a marker model; use --markers or --split")
         if split is not None:
             split_info = _read_split(split)
-            x, y, _ = load_markers(split_info["markers"])
+            x, y, _ = load_markers(resolve_path(split_info["markers"]))
             idx = split_info["test_indices"]
             x, y = x[idx], y[idx]
         else:
             x, y, _ = load_markers(markers)
-            extra["markers"] = str(markers)
+            extra["markers"] = portable_path(markers)
         data = MarkerDataset(x, y)
     return evaluate_model(model, data, json_out, png, extra=extra, progress=progress)
 

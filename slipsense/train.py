@@ -408,9 +408,11 @@ def prepare_data(req: TrainRequest, kind: str):
         else:
             raise ConfigError(f"--split must be objects, clips or all, got {req.split!r}")
         size = tuple(clips.x.shape[2:4])
-        split_info = {"kind": "video", "recordings": str(root), "clip_spec": spec_dict(spec), "split": req.split,
+        from slipsense.config import portable_path
+
+        split_info = {"kind": "video", "recordings": portable_path(root), "clip_spec": spec_dict(spec), "split": req.split,
                       "test_objects": test_objects, "test_indices": [int(i) for i in te],
-                      "on_error": req.on_error, "overrides": str(req.overrides) if req.overrides else None}
+                      "on_error": req.on_error, "overrides": portable_path(req.overrides) if req.overrides else None}
         train = ClipDataset(clips.subset(tr), AugmentConfig(enabled=req.augment), seed=req.seed)
         test = ClipDataset(clips.subset(te))
         return train, test, split_info, {"frames": req.frames, "image_size": size}
@@ -421,7 +423,9 @@ def prepare_data(req: TrainRequest, kind: str):
             raise ConfigError(f"model {req.model!r} takes marker sequences: give --markers FILE.npz")
         x, y, groups = load_markers(req.markers)
         tr, te = split_groups(groups, 0.2 if req.test_fraction == 0.1 else req.test_fraction, req.seed)
-        split_info = {"kind": "markers", "markers": str(req.markers), "test_indices": [int(i) for i in te]}
+        from slipsense.config import portable_path
+
+        split_info = {"kind": "markers", "markers": portable_path(req.markers), "test_indices": [int(i) for i in te]}
         return (MarkerDataset(x[tr], y[tr]), MarkerDataset(x[te], y[te]), split_info,
                 {"frames": int(x.shape[1]), "markers": int(x.shape[2])})
     raise ConfigError(f"model input kind {kind!r} is not supported")
@@ -458,7 +462,7 @@ def run_training(req: TrainRequest, resume: bool = False) -> dict[str, Any]:
 
     best, _ = load_model(out / "best.safetensors")
     metrics = evaluate_model(best, test_data, out / "evaluation.json", out / "confusion.png",
-                             extra={"checkpoint": str(out / "best.safetensors"), "split": split_info.get("split"),
+                             extra={"checkpoint": (out / "best.safetensors").as_posix(), "split": split_info.get("split"),
                                     "test_objects": split_info.get("test_objects")}, progress=req.progress)
     print(json.dumps({k: metrics[k] for k in ("accuracy", "precision", "recall", "f1", "n_clips")}))
     return metrics
