@@ -346,6 +346,16 @@ def model_class(name: str):
     return _REGISTRY[name]
 
 
+def _settings_of(cls) -> set[str] | None:
+    """Keyword settings a model class takes (None: it forwards ``**kwargs``, e.g. TemNet -> STNet)."""
+    import inspect
+
+    params = inspect.signature(cls.__init__).parameters
+    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
+        return None
+    return set(params) - {"self"}
+
+
 def build_model(name: str, preset: str | None, overrides: dict[str, Any], data_config: dict[str, Any]):
     """Build a model: preset (if any) < data-implied sizes < explicit overrides."""
     from slipsense.models import build
@@ -360,10 +370,8 @@ def build_model(name: str, preset: str | None, overrides: dict[str, Any], data_c
             raise ConfigError(f"unknown preset {preset!r}; known: {sorted(stnet.PRESETS)}")
         config.update(stnet.PRESETS[preset])
     # Data-implied sizes only where the network has such a setting (a 3D ResNet takes any T, H, W).
-    import inspect
-
-    accepted = inspect.signature(model_class(name).__init__).parameters
-    config.update({k: v for k, v in data_config.items() if k in accepted})
+    accepted = _settings_of(model_class(name))
+    config.update({k: v for k, v in data_config.items() if accepted is None or k in accepted})
     config.update(overrides)
     return build(name, **config)
 
@@ -438,10 +446,8 @@ def run_training(req: TrainRequest, resume: bool = False) -> dict[str, Any]:
 
     cls = model_class(req.model)
     kind = cls.input_kind
-    import inspect
-
-    accepted = set(inspect.signature(cls.__init__).parameters) - {"self"}
-    unknown = sorted(set(req.model_overrides) - accepted)
+    accepted = _settings_of(cls)
+    unknown = sorted(set(req.model_overrides) - accepted) if accepted is not None else []
     if unknown:  # before any data is decoded
         raise ConfigError(f"model {req.model!r} has no setting {', '.join(unknown)}; settings: {', '.join(sorted(accepted))}")
     settings = {**PAPER_SETTINGS.get(req.model, {}), "seed": req.seed, "progress": req.progress, **req.train_overrides}
