@@ -102,3 +102,17 @@ def test_train_config_rejects_bad_values():
     for bad in ({"epochs": 0}, {"lr": -1.0}, {"gamma": 2.0}, {"batch_size": 0}, {"lr": float("nan")}):
         with pytest.raises(ConfigError):
             TrainConfig.from_dict(bad)
+
+
+def test_pooling_folds_sums_confusions(tmp_path):
+    from slipsense.folds import pool
+
+    for k, cm in enumerate(([[8, 0], [2, 2]], [[5, 1], [0, 3]])):
+        (tmp_path / f"f{k}").mkdir()
+        m = {"confusion": cm, "accuracy": 0, "precision": 0, "recall": 0, "f1": 0, "n_clips": 0, "n_slip": 0, "n_wiggle": 0}
+        (tmp_path / f"f{k}" / "evaluation.json").write_text(json.dumps(m))
+    out = pool([tmp_path / "f0", tmp_path / "f1"])
+    assert out["pooled"]["confusion"] == [[13, 1], [2, 5]]
+    assert out["pooled"]["recall"] == pytest.approx(5 / 7) and out["pooled"]["precision"] == pytest.approx(5 / 6)
+    with pytest.raises(InputError, match="evaluation.json"):
+        pool([tmp_path / "missing"])

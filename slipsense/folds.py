@@ -1,0 +1,46 @@
+"""Pool the held-out evaluations of cross-validation folds: ``python -m slipsense.folds RUN... --json OUT``.
+
+Each run folder holds ``evaluation.json`` (written by ``slipsense train``); the pooled scores come
+from the summed confusion matrices, so every held-out clip counts once.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+from slipsense.atomic import write_text
+from slipsense.errors import InputError
+from slipsense.metrics import scores
+
+
+def pool(run_dirs: list[Path]) -> dict:
+    folds, total = [], np.zeros((2, 2), np.int64)
+    for run in run_dirs:
+        path = Path(run) / "evaluation.json"
+        if not path.is_file():
+            raise InputError(path, "no evaluation.json (did the run finish?)")
+        m = json.loads(path.read_text())
+        total += np.asarray(m["confusion"], np.int64)
+        folds.append({"run": Path(run).name, "test_objects": m.get("test_objects"),
+                      **{k: m[k] for k in ("accuracy", "precision", "recall", "f1", "n_clips", "n_slip", "n_wiggle")}})
+    pooled = {**scores(total), "n_clips": int(total.sum()), "n_slip": int(total[1].sum()),
+              "n_wiggle": int(total[0].sum()), "confusion": total.tolist()}
+    mean = {k: float(np.mean([f[k] for f in folds])) for k in ("accuracy", "precision", "recall", "f1")}
+    return {"folds": folds, "pooled": pooled, "mean_over_folds": mean}
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("runs", nargs="+", type=Path)
+    ap.add_argument("--json", type=Path, required=True)
+    args = ap.parse_args(argv)
+    result = pool(args.runs)
+    write_text(args.json, json.dumps(result, indent=2))
+    print(json.dumps({"pooled": result["pooled"], "mean_over_folds": result["mean_over_folds"]}, indent=1))
+
+
+if __name__ == "__main__":
+    main()
