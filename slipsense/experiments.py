@@ -255,7 +255,9 @@ class DataSource:
         self._recs = None
 
     def describe(self) -> dict[str, Any]:
-        return {"recordings": str(self.root), "overrides": str(self.overrides) if self.overrides else None,
+        from slipsense.config import portable_path
+
+        return {"recordings": portable_path(self.root), "overrides": portable_path(self.overrides) if self.overrides else None,
                 "on_error": self.on_error}
 
     def recordings(self):
