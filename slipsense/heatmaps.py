@@ -1,0 +1,63 @@
+"""Heat maps of what a trained model looks at, drawn over the sensor (ViViT paper Fig. 6 style
+attention, STNet paper Fig. 8 style marker relevance over the displacement field)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from slipsense.errors import InputError
+
+
+def video_attention_figure(model, clip: np.ndarray, out: str | Path, title: str = "") -> Path:
+    """ViViT spatial CLS attention (rollout, heads averaged) over each frame of ``clip``.
+
+    ``clip``: uint8 ``(T, H, W, 3)`` BGR at the model's image size.
+    """
+    from slipsense.datasets import clip_to_tensor
+    from slipsense.plots import _plt, save_figure
+
+    if not hasattr(model, "cls_attention_map"):
+        raise InputError(None, f"model {model.model_name!r} has no spatial attention to draw")
+    x = clip_to_tensor(clip)[None]
+    with torch.no_grad():
+        att = model.cls_attention_map(x)[0].numpy()  # (T, Hp, Wp)
+        p = torch.softmax(model(x), -1)[0, 1].item()
+    plt = _plt()
+    T = clip.shape[0]
+    fig, axes = plt.subplots(1, T, figsize=(2.6 * T, 2.4))
+    h, w = clip.shape[1:3]
+    for t, ax in enumerate(np.atleast_1d(axes)):
+        ax.imshow(clip[t, :, :, ::-1])
+        ax.imshow(att[t], cmap="inferno", alpha=0.5, extent=(0, w, h, 0), interpolation="bilinear")
+        ax.set_title(f"frame {t + 1}/{T}", fontsize=9)
+        ax.axis("off")
+    fig.suptitle(f"{title}  p(slip) = {p:.2f}")
+    return save_figure(fig, out)
+
+
+def marker_saliency_figure(model, window: np.ndarray, rest_xy: np.ndarray, out: str | Path, title: str = "") -> Path:
+    """STNet/TemNet marker relevance for the slip class over the window's displacement field.
+
+    ``window``: float32 ``(T, M, 3)`` marker positions (mm); ``rest_xy``: ``(M, 2)`` where each marker
+    is drawn (its rest position).
+    """
+    from slipsense.plots import _plt, save_figure
+
+    x = torch.from_numpy(np.ascontiguousarray(window, np.float32))[None]
+    sal = model.marker_saliency(x)[0].detach().numpy()
+    with torch.no_grad():
+        p = torch.softmax(model(x), -1)[0, 1].item()
+    disp = window[-1] - window[0]
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(5, 4.4))
+    sc = ax.scatter(rest_xy[:, 0], rest_xy[:, 1], c=sal, cmap="inferno", s=40)
+    ax.quiver(rest_xy[:, 0], rest_xy[:, 1], disp[:, 0], disp[:, 1], angles="xy", scale_units="xy",
+              scale=0.25, color="tab:cyan", width=0.004)
+    fig.colorbar(sc, ax=ax, label="relevance for slip")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("y (mm)")
+    ax.set_title(f"{title}  p(slip) = {p:.2f}\narrows: displacement over the window (x4)", fontsize=9)
+    return save_figure(fig, out)
