@@ -38,13 +38,16 @@ def friendly(fn):
     return wrapper
 
 
-def _parse_size(size: Optional[str]) -> Optional[tuple[int, int]]:
-    if size is None:
+def parse_hw(text: Optional[str], option: str = "--size") -> Optional[tuple[int, int]]:
+    """``"240x320"`` -> ``(240, 320)`` (height, width); None stays None."""
+    if text is None:
         return None
     try:
-        h, w = (int(v) for v in size.lower().split("x"))
+        h, w = (int(v) for v in text.lower().split("x"))
     except ValueError:
-        raise ConfigError(f"--size must look like 240x320 (height x width), got {size!r}") from None
+        raise ConfigError(f"{option} must look like 240x320 (height x width), got {text!r}") from None
+    if h < 1 or w < 1:
+        raise ConfigError(f"{option} must be positive, got {text!r}")
     return (h, w)
 
 
@@ -127,7 +130,7 @@ def train(
 
     req = TrainRequest(
         model=model, recordings=recordings, markers=markers, out=out, preset=preset, model_overrides=_parse_sets(set_),
-        frames=frames, horizon=horizon, size=_parse_size(size), wiggle_per_video=wiggle_per_video, split=split,
+        frames=frames, horizon=horizon, size=parse_hw(size), wiggle_per_video=wiggle_per_video, split=split,
         test_objects=[o for o in (test_objects or "").split(",") if o], fold=fold, folds=folds,
         test_fraction=test_fraction, augment=augment, seed=seed, on_error=on_error, overrides=overrides,
         progress=progress,

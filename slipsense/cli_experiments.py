@@ -61,15 +61,9 @@ TRAIN_OPTIONS = [
 
 
 def _parse_pair(text: Optional[str], option: str) -> Optional[tuple]:
-    if text is None:
-        return None
-    try:
-        h, w = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise ConfigError(f"{option} must look like 240x320 (height x width), got {text!r}") from None
-    if h < 1 or w < 1:
-        raise ConfigError(f"{option} must be positive, got {text!r}")
-    return (h, w)
+    from slipsense.cli import parse_hw
+
+    return parse_hw(text, option)
 
 
 def _parse_model_sets(items: Optional[List[str]], option: str) -> dict:

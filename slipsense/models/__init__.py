@@ -63,6 +63,18 @@ def build(name: str, **config: Any) -> nn.Module:
         raise ConfigError(f"model {name!r}: {exc}") from None
 
 
+def check_video_values(x) -> None:
+    """Raise InputError unless the video tensor ``x`` is float and finite (shape checked by the model)."""
+    import torch
+
+    from slipsense.errors import InputError
+
+    if not x.dtype.is_floating_point:
+        raise InputError(None, f"video must be a float tensor in [0, 1], got dtype {x.dtype}")
+    if not bool(torch.isfinite(x).all()):
+        raise InputError(None, "video contains NaN or infinite values")
+
+
 def count_parameters(model: nn.Module) -> int:
     """Number of trainable parameters."""
     return sum(p.numel() for p in model.parameters() if p.requires_grad)

@@ -34,7 +34,7 @@ from einops import rearrange
 from torch import Tensor, nn
 
 from slipsense.errors import ConfigError, InputError
-from slipsense.models import register
+from slipsense.models import check_video_values, register
 
 #: Parameter count the study reports for its VideoResNet50 with 2 classes (the default config here).
 PAPER_PARAMETERS = 31_657_410
@@ -184,10 +184,7 @@ class ResNet3D50(nn.Module):
     def check_input(self, x: Any) -> None:
         """Raise :class:`InputError` unless ``x`` is a finite float tensor ``(B, T, channels, H, W)``."""
         self._check_shape(x)
-        if not x.dtype.is_floating_point:
-            raise InputError(None, f"video must be a float tensor in [0, 1], got dtype {x.dtype}")
-        if not bool(torch.isfinite(x).all()):
-            raise InputError(None, "video contains NaN or infinite values")
+        check_video_values(x)
 
     def _check_shape(self, x: Any) -> None:
         if not isinstance(x, Tensor):

@@ -54,7 +54,7 @@ from einops import rearrange, repeat
 from torch import Tensor, nn
 
 from slipsense.errors import ConfigError, InputError
-from slipsense.models import register
+from slipsense.models import check_video_values, register
 
 
 def pair(value: int | Sequence[int]) -> tuple[int, int]:
@@ -305,10 +305,7 @@ class ViViT(nn.Module):
     def check_input(self, x: Any) -> None:
         """Raise :class:`InputError` unless ``x`` is a finite float tensor ``(B, frames, channels, H, W)``."""
         self._check_shape(x)
-        if not x.dtype.is_floating_point:
-            raise InputError(None, f"video must be a float tensor in [0, 1], got dtype {x.dtype}")
-        if not bool(torch.isfinite(x).all()):
-            raise InputError(None, "video contains NaN or infinite values")
+        check_video_values(x)
 
     def _check_shape(self, x: Any) -> None:
         if not isinstance(x, Tensor):
