@@ -139,6 +139,8 @@ def streaming_parts(model: nn.Module) -> tuple[nn.Module | None, nn.Module]:
     if name == "vivit":
         return ViViTFramePart(model), ViViTWindowPart(model)
     if name in ("stnet", "temnet"):
+        if getattr(model, "relative", False):  # every frame is seen relative to its window's first one
+            return None, model
         return MarkerFramePart(model), MarkerWindowPart(model)
     if getattr(model, "input_kind", None) == "video":
         return None, model

@@ -305,3 +305,22 @@ def test_frame_sum_head_matches_flat_linear():
     with torch.inference_mode():
         for b in (1, 5):
             torch.testing.assert_close(fast(_x(b)), model(_x(b)), atol=1e-4, rtol=1e-4)
+
+
+def test_relative_input_ignores_where_the_window_starts():
+    """relative=True sees displacements from the window's first frame: a rigid shift of the whole
+    window changes nothing; the paper's absolute input does change."""
+    import torch
+
+    from slipsense.models import build
+
+    torch.manual_seed(0)
+    kw = dict(frames=4, markers=9, d_model=16, heads=2, blocks=1, ff_dim=16, codec_channels=2, dropout=0.0)
+    rel = build("stnet", relative=True, **kw).eval()
+    x = torch.randn(2, 4, 9, 3)
+    shifted = x + torch.tensor([1.5, -2.0, 0.3])
+    with torch.no_grad():
+        torch.testing.assert_close(rel(x), rel(shifted))
+        absolute = build("stnet", **kw).eval()
+        assert not torch.allclose(absolute(x), absolute(shifted))
+    assert rel.config()["relative"] is True and "relative" not in absolute.config()

@@ -204,7 +204,7 @@ class STNet(nn.Module):
 
     def __init__(self, frames=12, markers=552, d_model=None, heads=8, blocks=5, ff_dim=2048, head_hidden=None,
                  dropout=0.1, codec_channels=16, codec_kernel=3, codec_layers=4, pool="flatten",
-                 activation="relu", num_classes=2, use_codecs=True):
+                 activation="relu", num_classes=2, use_codecs=True, relative=False):
         super().__init__()
         d_in = markers * 3
         d_model = d_in if d_model is None else d_model
@@ -216,7 +216,13 @@ class STNet(nn.Module):
                             ff_dim=ff_dim, head_hidden=head_hidden, dropout=dropout, codec_channels=codec_channels,
                             codec_kernel=codec_kernel, codec_layers=codec_layers, pool=pool,
                             activation=activation, num_classes=num_classes, use_codecs=use_codecs)
+        if relative:  # only stored when set, so checkpoints of the paper's network keep their config
+            self._config["relative"] = True
         self.frames, self.markers, self.pool, self.use_codecs = frames, markers, pool, use_codecs
+        # Beyond the paper: feed each frame's displacement from the window's first frame instead of
+        # absolute positions. Slip shows as 0.1-1 mm motions on a +-11 mm grid; relative input puts
+        # them at the scale the first layers see.
+        self.relative = bool(relative)
 
         self.to_frames = Rearrange('b t m c -> b t (m c)')       # x_i: (b, t, 1656), a view
         if use_codecs:
@@ -270,7 +276,10 @@ class STNet(nn.Module):
     # forward
 
     def _tokens(self, x):                                     # (b, t, m, 3) -> a: (b, t, d)
-        x = self.to_frames(x.to(self.pos_embedding.dtype))
+        x = x.to(self.pos_embedding.dtype)
+        if self.relative:
+            x = x - x[:, :1]
+        x = self.to_frames(x)
         if self.codecs is not None:
             x = torch.cat((self.codecs(x), x), dim=-1)        # eq. 5
         return self.fuse(x) + self.pos_embedding
