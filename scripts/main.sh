@@ -12,6 +12,6 @@ mkdir -p "$out"
 .venv/bin/slipsense label --csv "$out/labels.csv" --overrides configs/gelsight-label-overrides.csv --no-progress
 .venv/bin/slipsense train --model vivit --fold 0 --folds 5 --size 120x160 --set 'patch_size=[20,20]' \
     --overrides configs/gelsight-label-overrides.csv --out "$out/vivit-fold0" --no-progress "$@"
-.venv/bin/slipsense evaluate --checkpoint "$out/vivit-fold0/best.safetensors" \
+.venv/bin/slipsense evaluate --checkpoint "$out/vivit-fold0/last.safetensors" \
     --split "$out/vivit-fold0/split.json" --json "$out/held_out_objects.json" --no-progress
 echo "reports in $out: labels.csv, vivit-fold0/ (curves.png, metrics.csv), held_out_objects.json/.png"

@@ -440,7 +440,7 @@ def prepare_data(req: TrainRequest, kind: str):
 
 
 def run_training(req: TrainRequest, resume: bool = False) -> dict[str, Any]:
-    """Prepare data, build and train the model, then evaluate ``best.safetensors`` on the held-out
+    """Prepare data, build and train the model, then evaluate ``last.safetensors`` on the held-out
     part; returns the evaluation metrics (rank 0) or ``{}`` (other ranks)."""
     from slipsense.evaluate import evaluate_model
 
@@ -466,9 +466,11 @@ def run_training(req: TrainRequest, resume: bool = False) -> dict[str, Any]:
         return {}
     from slipsense.checkpoint import load_model
 
-    best, _ = load_model(out / "best.safetensors")
-    metrics = evaluate_model(best, test_data, out / "evaluation.json", out / "confusion.png",
-                             extra={"checkpoint": (out / "best.safetensors").as_posix(), "split": split_info.get("split"),
+    # The held-out part is also the validation set that picked best.safetensors, so scoring that
+    # checkpoint on it would be optimistic: the reported model is the last epoch's.
+    final, _ = load_model(out / "last.safetensors")
+    metrics = evaluate_model(final, test_data, out / "evaluation.json", out / "confusion.png",
+                             extra={"checkpoint": (out / "last.safetensors").as_posix(), "split": split_info.get("split"),
                                     "test_objects": split_info.get("test_objects")}, progress=req.progress)
     print(json.dumps({k: metrics[k] for k in ("accuracy", "precision", "recall", "f1", "n_clips")}))
     return metrics
