@@ -24,7 +24,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import sys
 import tempfile
 import time
@@ -42,13 +41,9 @@ TARGET_P99_MS = {"vivit": 2.0, "stnet paper": 30.0}
 
 
 def cpu_name() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown CPU"
+    from slipsense.experiments import cpu_model
+
+    return cpu_model() or "unknown CPU"
 
 
 def cases(quick: bool) -> list[dict]:

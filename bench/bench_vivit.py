@@ -28,7 +28,6 @@ import argparse
 import importlib.util
 import json
 import os
-import platform
 import statistics
 import sys
 import time
@@ -56,13 +55,9 @@ def load_reference_class():
 
 
 def cpu_name() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown CPU"
+    from slipsense.experiments import cpu_model
+
+    return cpu_model() or "unknown CPU"
 
 
 def time_models(fns: dict, rounds: int, round_time: float, warmup: int, clock) -> dict[str, list[float]]:

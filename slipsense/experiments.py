@@ -377,7 +377,8 @@ def _git_commit() -> dict[str, Any]:
     return {"commit": None}
 
 
-def _cpu_model() -> str | None:
+def cpu_model() -> str | None:
+    """The processor's model name (Linux /proc/cpuinfo, else platform), None if unknown."""
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
             if line.lower().startswith("model name"):
@@ -396,7 +397,7 @@ def machine_info(device: str = "auto") -> dict[str, Any]:
     resolved = device if device != "auto" else ("cuda" if torch.cuda.is_available() else "cpu")
     info: dict[str, Any] = {
         "platform": platform.platform(), "machine": platform.machine(), "python": platform.python_version(),
-        "cpu_model": _cpu_model(), "cpu_count": os.cpu_count(),
+        "cpu_model": cpu_model(), "cpu_count": os.cpu_count(),
         "cpus_usable": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
         "torch": torch.__version__, "torch_threads": torch.get_num_threads(), "numpy": np.__version__,
         "cuda_available": torch.cuda.is_available(), "device": resolved, "slipsense": __version__, **_git_commit(),

@@ -406,13 +406,19 @@ def build_preset(name: str, model: str = "stnet", **overrides) -> STNet:
         raise ConfigError(f"model {model!r}: {exc}") from None
 
 
-def count_parameters_for(config: dict[str, Any] | None = None, model: str = "stnet") -> int:
-    """Exact parameter count of ``model`` ("stnet"/"temnet") for ``config`` (defaults filled in),
-    computed analytically - no need to build a 129 M network to know its size."""
+def _full_config(config: dict[str, Any] | None, model: str) -> dict[str, Any]:
+    """``config`` with STNet's defaults filled in (what the analytic counts below need)."""
     c = dict(frames=12, markers=552, d_model=None, heads=8, blocks=5, ff_dim=2048, head_hidden=None,
              codec_channels=16, codec_kernel=3, codec_layers=4, pool="flatten", num_classes=2,
              use_codecs=(model == "stnet"))
     c.update(config or {})
+    return c
+
+
+def count_parameters_for(config: dict[str, Any] | None = None, model: str = "stnet") -> int:
+    """Exact parameter count of ``model`` ("stnet"/"temnet") for ``config`` (defaults filled in),
+    computed analytically - no need to build a 129 M network to know its size."""
+    c = _full_config(config, model)
     d_in = 3 * c["markers"]
     d = d_in if c["d_model"] is None else c["d_model"]
     f, t, k, ch = c["ff_dim"], c["frames"], c["codec_kernel"], c["codec_channels"]
@@ -433,10 +439,7 @@ def count_parameters_for(config: dict[str, Any] | None = None, model: str = "stn
 
 def flops_per_sample(config: dict[str, Any] | None = None, model: str = "stnet") -> int:
     """Multiply-adds x 2 of one forward pass (matmuls, convolutions, attention; no elementwise)."""
-    c = dict(frames=12, markers=552, d_model=None, heads=8, blocks=5, ff_dim=2048, head_hidden=None,
-             codec_channels=16, codec_kernel=3, codec_layers=4, pool="flatten", num_classes=2,
-             use_codecs=(model == "stnet"))
-    c.update(config or {})
+    c = _full_config(config, model)
     d_in = 3 * c["markers"]
     d = d_in if c["d_model"] is None else c["d_model"]
     f, t, k, ch = c["ff_dim"], c["frames"], c["codec_kernel"], c["codec_channels"]
