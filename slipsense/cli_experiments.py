@@ -245,12 +245,12 @@ def _results_cmd(
     reports: Path = typer.Option(Path("reports"), help="folder holding the report folders"),
     out: Path = typer.Option(Path("docs/results.md"), help="Markdown file to write"),
 ):
-    """Gather the latest report of each experiment under --reports into one Markdown page."""
+    """Gather every report folder under --reports into one Markdown page, one section per experiment."""
     from slipsense.experiments import collect_results, find_reports
 
     path = collect_results(reports, out)
     found = find_reports(reports)
-    typer.echo(f"{len(found)} experiment(s) with results -> {path}")
+    typer.echo(f"{sum(map(len, found.values()))} report(s) of {len(found)} experiment(s) -> {path}")
 
 
 def register(app: typer.Typer) -> None:

@@ -273,6 +273,12 @@ def test_results_collects_latest_reports(tmp_path):
     assert "Machine: " in text and "torch" in text
     for i, name in enumerate(E.EXPERIMENTS, 1):
         assert f"## {i}. {E.TITLES[name]}" in text
+    # a second condition of the same experiment gets its own subsection; both stay on the page
+    E.run_params(E.Settings(out=reports / "params-quick", quick=True))
+    text = E.collect_results(reports, tmp_path / "docs" / "results.md").read_text()
+    assert "### `params-quick`" in text and "### `params`" in text
+    assert text.index("### `params-quick`") < text.index("### `params`")  # newest first
+    assert "![params](../reports/params-quick/params.png)" in text
 
 
 def test_cli_params_and_one_line_errors(tmp_path):
