@@ -6,11 +6,13 @@ import os
 import warnings
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+
+import striped_video
+from striped_video import index_of
 
 from slipsense import config
 from slipsense.errors import ConfigError, InputError
@@ -32,33 +34,16 @@ from slipsense.recordings.clips import (
 from slipsense.recordings.folders import SkippedInputWarning, find_recordings
 from slipsense.recordings.types import Recording, VideoLabel
 
-BITS = 8
 N_FRAMES = 60
 SIZE = (96, 128)  # small frames keep the suite fast; stripes stay 16 px wide
 
 
 def frame_for(i: int, size=SIZE) -> np.ndarray:
-    """A frame carrying index ``i`` as 8 vertical stripes (bright = 1), robust to XVID's losses."""
-    h, w = size
-    f = np.full((h, w, 3), 60, np.uint8)
-    for b in range(BITS):
-        if (i >> b) & 1:
-            f[:, b * w // BITS : (b + 1) * w // BITS] = 220
-    return f
-
-
-def index_of(frame: np.ndarray) -> int:
-    h, w = frame.shape[:2]
-    return sum(int(frame[h // 2, b * w // BITS + w // (2 * BITS)].mean() > 140) << b for b in range(BITS))
+    return striped_video.frame_for(i, size)
 
 
 def write_video(path: Path, n: int, size=SIZE) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    vw = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"XVID"), 25.0, (size[1], size[0]))
-    for i in range(n):
-        vw.write(frame_for(i, size))
-    vw.release()
-    return path
+    return striped_video.write_video(path, n, size)
 
 
 # object -> {experiment -> slipped}

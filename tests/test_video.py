@@ -19,33 +19,7 @@ from slipsense.recordings.folders import (
 )
 from slipsense.recordings.video import TRUNCATION_TOLERANCE, VideoInfo, probe_video, read_video
 
-BITS = 8
-
-
-def frame_for(i: int, size=(240, 320)) -> np.ndarray:
-    """A frame carrying index ``i`` as 8 vertical stripes (bright = 1), robust to XVID's losses."""
-    h, w = size
-    f = np.full((h, w, 3), 60, np.uint8)
-    for b in range(BITS):
-        if (i >> b) & 1:
-            f[:, b * w // BITS : (b + 1) * w // BITS] = 220
-    return f
-
-
-def index_of(frame: np.ndarray) -> int:
-    h, w = frame.shape[:2]
-    return sum(int(frame[h // 2, b * w // BITS + w // (2 * BITS)].mean() > 140) << b for b in range(BITS))
-
-
-def write_video(path: Path, n: int, size=(240, 320), fps: float = 25.0) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    h, w = size
-    vw = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"XVID"), fps, (w, h))
-    assert vw.isOpened()
-    for i in range(n):
-        vw.write(frame_for(i, size))
-    vw.release()
-    return path
+from striped_video import frame_for, index_of, write_video  # noqa: E402
 
 
 def one_line(exc: pytest.ExceptionInfo, path: Path, *words: str) -> None:
