@@ -1256,8 +1256,16 @@ def find_reports(reports: str | Path) -> dict[str, list[tuple[Path, dict[str, An
         if md.is_file():
             found.setdefault(name, []).append((cfg_path.parent, cfg))
     for folders in found.values():
-        folders.sort(key=lambda fc: str(fc[1].get("finished", "")), reverse=True)
+        # "finished" has one-second resolution; the config file's write time breaks ties
+        folders.sort(key=lambda fc: (str(fc[1].get("finished", "")), _mtime_ns(fc[0] / "config.json")), reverse=True)
     return found
+
+
+def _mtime_ns(path: Path) -> int:
+    try:
+        return path.stat().st_mtime_ns
+    except OSError:
+        return 0
 
 
 def _data_line(data: dict[str, Any]) -> str:
