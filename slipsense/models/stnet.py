@@ -464,9 +464,23 @@ def flops_per_sample(config: dict[str, Any] | None = None, model: str = "stnet")
 
 # fast / reduced-precision inference
 
-def _onednn_packing_available() -> bool:
-    return (torch.backends.mkldnn.is_available() and hasattr(torch.ops.mkldnn, "_reorder_linear_weight")
-            and hasattr(torch.ops.mkldnn, "_linear_pointwise"))
+_PACKING: dict[torch.dtype, bool] = {}
+
+
+def _onednn_packing_available(dtype: torch.dtype = torch.float32) -> bool:
+    """Whether this build and this CPU can pre-pack ``dtype`` Linear weights for oneDNN (bf16
+    packing needs AVX512-BF16/AVX-NE-CONVERT or AVX512BW/VL/DQ; plain AVX2 machines lack it)."""
+    if dtype not in _PACKING:
+        ok = (torch.backends.mkldnn.is_available() and hasattr(torch.ops.mkldnn, "_reorder_linear_weight")
+              and hasattr(torch.ops.mkldnn, "_linear_pointwise"))
+        if ok:
+            try:
+                w = torch.ops.mkldnn._reorder_linear_weight(torch.zeros(8, 8, dtype=dtype), 1)
+                torch.ops.mkldnn._linear_pointwise(torch.zeros(1, 8, dtype=dtype), w, None, "none", [], "")
+            except RuntimeError:
+                ok = False
+        _PACKING[dtype] = ok
+    return _PACKING[dtype]
 
 
 class PackedLinear(nn.Module):
@@ -515,8 +529,8 @@ def optimize_for_inference(model: nn.Module, dtype: torch.dtype = torch.float32,
     bfloat16), every nn.Linear pre-packed for oneDNN (:class:`PackedLinear`), a big classifier
     layer over the flattened frames split by frame (:class:`FrameSumLinear`). Inputs stay float32
     (cast inside), logits come out float32. Falls back to plain (cast) Linears where this PyTorch
-    build lacks oneDNN packing. Run it under ``torch.inference_mode()``; inference only (the
-    packed weights have no gradients and no state_dict - keep ``model`` for that).
+    build or this CPU lacks oneDNN packing for ``dtype``. Run it under ``torch.inference_mode()``;
+    inference only (the packed weights have no gradients and no state_dict - keep ``model`` for that).
 
     Tip: ``THP_MEM_ALLOC_ENABLE=1`` in the environment (before torch is imported) backs the weights
     with huge pages, which helps batch-1 inference stream them from memory.
@@ -533,7 +547,7 @@ def optimize_for_inference(model: nn.Module, dtype: torch.dtype = torch.float32,
                 fast.to_logits[0] = head
             else:
                 fast.to_logits = head
-    if not _onednn_packing_available():
+    if not _onednn_packing_available(dtype):
         return fast
     for block in fast.modules():
         if isinstance(block, Block) and isinstance(block.ff[1], nn.ReLU):
