@@ -50,8 +50,9 @@ import torch.nn as nn  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from slipsense.models import count_parameters  # noqa: E402
-from slipsense.models.stnet import (PRESETS, build_preset, flops_per_sample, optimize_for_inference,  # noqa: E402
-                                    quantize_dynamic_int8)
+from slipsense.experiments import cpu_description  # noqa: E402
+from slipsense.models.stnet import (PRESETS, build_preset, flops_per_sample, onednn_packing_available,  # noqa: E402
+                                    optimize_for_inference, quantize_dynamic_int8)
 
 
 # --- reference ports ------------------------------------------------------------------------------
@@ -244,6 +245,8 @@ def main(argv=None):
     x64 = torch.randn(64, 12, 552, 3)
     budget = 0.4 if args.quick else 1.0                   # x the seconds below
     rows = []
+    # without oneDNN bf16 packing (AVX2-only CPUs) bf16 matmuls are emulated: not worth timing
+    bf16 = onednn_packing_available(torch.bfloat16)
 
     def run(preset, variants, base, seconds1, calls1, seconds64, calls64):
         ref_model = variants["STNet"] if "STNet" in variants else next(iter(variants.values()))
@@ -273,15 +276,18 @@ def main(argv=None):
         variants["port: nn.TransformerEncoder"] = PortSTNet(**cfg, encoder="torch").load_from(net).eval()
     variants["STNet"] = net
     variants["STNet packed"] = optimize_for_inference(net)
-    variants["STNet bf16"] = optimize_for_inference(net, torch.bfloat16)
+    if bf16:
+        variants["STNet bf16"] = optimize_for_inference(net, torch.bfloat16)
     variants["STNet int8"] = quantize_dynamic_int8(net)
     run("paper", variants, "port: naive", 30, 3, 60, 1)
     del variants, net
 
     if not args.no_ff4096:                  # the other ~129 M reading: 3.1 GFLOP/sample
         net = build_preset("paper-ff4096").eval()
-        variants = {"STNet": net, "STNet packed": optimize_for_inference(net),
-                    "STNet bf16": optimize_for_inference(net, torch.bfloat16), "STNet int8": quantize_dynamic_int8(net)}
+        variants = {"STNet": net, "STNet packed": optimize_for_inference(net)}
+        if bf16:
+            variants["STNet bf16"] = optimize_for_inference(net, torch.bfloat16)
+        variants["STNet int8"] = quantize_dynamic_int8(net)
         run("paper-ff4096", variants, "STNet", 15, 3, 30, 1)
         del variants, net
 
@@ -297,7 +303,7 @@ def main(argv=None):
     fl_bound = mach["matmul_gflops"] * 1e9 / flops_per_sample(paper)
     thp = "on" if os.environ.get("THP_MEM_ALLOC_ENABLE") == "1" else "off"
     lines = [
-        f"torch {torch.__version__}, {args.threads} threads, {platform.machine()}, "
+        f"torch {torch.__version__}, {args.threads} threads, {platform.machine()} ({cpu_description()}), "
         f"load average at start {load:.2f}, transparent huge pages {thp}",
         "",
         f"machine (best of {len(probes)} probes spread over the run): read {mach['read_gbs']:.1f} GB/s, "
@@ -322,7 +328,9 @@ def main(argv=None):
                      f"{f(r['x_base_b64'], '.2f')} | {f(r['max_logit_diff'], '.2g')} |")
     lines += ["", "samples/s. speed-up: vs port: naive (paper), vs plain STNet (other presets). logit error: "
               "max |logits - STNet float32 logits| / max |STNet logits| on 8 random samples. "
-              "bounds: weights / read bandwidth, FLOPs / matmul GFLOP/s.",
+              "bounds: weights / read bandwidth, FLOPs / matmul GFLOP/s."
+              + ("" if bf16 else " bf16 rows left out: this CPU cannot pack bf16 weights for oneDNN "
+                 "(it needs AVX-512 BW/VL/DQ or AVX-NE-CONVERT)."),
               f"bench took {time.time() - t_start:.0f} s"]
     table = "\n".join(lines)
     print(table)

@@ -41,9 +41,9 @@ TARGET_P99_MS = {"vivit": 2.0, "stnet paper": 30.0}
 
 
 def cpu_name() -> str:
-    from slipsense.experiments import cpu_model
+    from slipsense.experiments import cpu_description
 
-    return cpu_model() or "unknown CPU"
+    return cpu_description()
 
 
 def cases(quick: bool) -> list[dict]:

@@ -154,13 +154,14 @@ def evaluate(
     on_error: str = typer.Option("raise"),
     overrides: Optional[Path] = typer.Option(None, help="CSV of hand labels for --recordings"),
     progress: bool = typer.Option(True),
+    dtype: str = typer.Option("float32", help="inference numerics: float32, bfloat16 (STNet/TemNet) or int8 weights"),
 ):
     """Evaluate a checkpoint: accuracy, precision, recall, F1 and a confusion matrix."""
     from slipsense.evaluate import evaluate_checkpoint
 
     m = evaluate_checkpoint(checkpoint, recordings=recordings, split=split, markers=markers, json_out=json_out,
                             png=png, noise_std=noise_std, on_error=on_error, overrides=overrides,
-                            progress=progress)
+                            progress=progress, dtype=dtype)
     typer.echo(json.dumps({k: m[k] for k in ("accuracy", "precision", "recall", "f1", "n_clips", "n_slip", "n_wiggle")}))
 
 

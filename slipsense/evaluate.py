@@ -27,13 +27,18 @@ def evaluate_model(model, data, json_out: str | Path | None = None, png: str | P
 
 
 def evaluate_checkpoint(checkpoint: str | Path, recordings=None, split=None, markers=None, json_out=None, png=None,
-                        noise_std: float = 0.0, on_error: str = "raise", overrides=None, progress: bool = True) -> dict[str, Any]:
+                        noise_std: float = 0.0, on_error: str = "raise", overrides=None, progress: bool = True,
+                        dtype: str = "float32") -> dict[str, Any]:
     """Run the whole pipeline a checkpoint needs on one data source and score it.
 
     Exactly one of ``recordings`` (every clip of that folder: zero-shot on unseen objects),
     ``split`` (a run's ``split.json``: its held-out part) or ``markers`` (an ``.npz``) is given.
-    Clips are made with the clip settings stored in the checkpoint.
+    Clips are made with the clip settings stored in the checkpoint. ``dtype`` ("float32",
+    "bfloat16", "int8"; see :func:`slipsense.models.with_precision`) scores a reduced-precision
+    inference copy of the model instead, to compare its F1 with float32's.
     """
+    from slipsense.models import with_precision
+
     from slipsense.checkpoint import load_model
     from slipsense.config import resolve_path
     from slipsense.data import clip_spec_from, gelsight_clips, load_markers
@@ -44,9 +49,11 @@ def evaluate_checkpoint(checkpoint: str | Path, recordings=None, split=None, mar
         raise ConfigError("give exactly one of --recordings, --split or --markers")
     model, info = load_model(checkpoint)
     kind = model.input_kind
+    model = with_precision(model.eval(), dtype)
     from slipsense.config import portable_path
 
-    extra: dict[str, Any] = {"checkpoint": portable_path(checkpoint), "model": info["model"], "noise_std": noise_std}
+    extra: dict[str, Any] = {"checkpoint": portable_path(checkpoint), "model": info["model"], "noise_std": noise_std,
+                             "inference_dtype": dtype}
     if kind == "video":
         if markers is not None:
             raise InputError(checkpoint, "this checkpoint holds a video model; use --recordings or --split")
@@ -81,7 +88,10 @@ def evaluate_checkpoint(checkpoint: str | Path, recordings=None, split=None, mar
             x, y, _ = load_markers(markers)
             extra["markers"] = portable_path(markers)
         data = MarkerDataset(x, y)
-    return evaluate_model(model, data, json_out, png, extra=extra, progress=progress)
+    import torch
+
+    with torch.inference_mode():
+        return evaluate_model(model, data, json_out, png, extra=extra, progress=progress)
 
 
 def _read_split(path) -> dict[str, Any]:

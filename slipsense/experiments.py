@@ -388,6 +388,15 @@ def cpu_model() -> str | None:
     return platform.processor() or None
 
 
+def cpu_description() -> str:
+    """The processor and the widest vector instruction set PyTorch uses on it, e.g.
+    ``AMD EPYC, AVX512``: machines that share a model name can differ in AVX-512 and bf16 support,
+    which changes every CPU timing."""
+    import torch
+
+    return f"{cpu_model() or 'unknown CPU'}, {torch.backends.cpu.get_cpu_capability()}"
+
+
 def machine_info(device: str = "auto") -> dict[str, Any]:
     """Where a result was measured: platform, CPUs, torch/numpy versions, accelerator."""
     import torch
@@ -397,7 +406,7 @@ def machine_info(device: str = "auto") -> dict[str, Any]:
     resolved = device if device != "auto" else ("cuda" if torch.cuda.is_available() else "cpu")
     info: dict[str, Any] = {
         "platform": platform.platform(), "machine": platform.machine(), "python": platform.python_version(),
-        "cpu_model": cpu_model(), "cpu_count": os.cpu_count(),
+        "cpu_model": cpu_model(), "cpu_isa": torch.backends.cpu.get_cpu_capability(), "cpu_count": os.cpu_count(),
         "cpus_usable": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
         "torch": torch.__version__, "torch_threads": torch.get_num_threads(), "numpy": np.__version__,
         "cuda_available": torch.cuda.is_available(), "device": resolved, "slipsense": __version__, **_git_commit(),
@@ -1350,9 +1359,48 @@ def collect_results(reports: str | Path = "reports", out: str | Path = "docs/res
                       + ", ".join(f"`{folder.name}`" for folder, _ in found[name]) + ".", ""]
         for folder, cfg in found[name]:
             lines += _report_section(name, folder, cfg, out, heading=len(found[name]) > 1)
+    lines += _live_and_speed_section(Path(reports), out)
     text = "\n".join(lines).rstrip() + "\n"
     write_text(out, text)
     return out
+
+
+#: benchmark report name prefix -> the script that writes it
+BENCH_SCRIPTS = {"vivit": "bench/bench_vivit.py", "stnet": "bench/bench_stnet.py", "stream": "bench/bench_stream.py",
+                 "data": "bench/bench_data.py"}
+
+
+def _live_and_speed_section(reports: Path, out: Path) -> list[str]:
+    """Links to the early-warning replays (``slipsense early-warning``) and the benchmark reports under
+    ``reports`` (``bench/<machine>/<name>.md``), for the end of the results page."""
+    lines = ["## Live detection and speed", ""]
+    warnings = sorted(p.parent for p in reports.rglob("early_warning.json"))
+    bench = sorted(p for p in reports.rglob("*.md") if "bench" in p.relative_to(reports).parts)
+    if not warnings and not bench:
+        return lines + ["No early-warning replay or benchmark report yet: `slipsense early-warning --checkpoint CKPT --recordings DIR --out "
+                        "reports/early-warning` and `python bench/bench_*.py --out reports/bench/MACHINE/NAME.md`.", ""]
+    for folder in warnings:
+        try:
+            meta = json.loads((folder / "early_warning.json").read_text())
+        except (OSError, json.JSONDecodeError, UnicodeDecodeError):
+            continue
+        rel = Path(os.path.relpath(folder, out.parent)).as_posix()
+        lines += [f"### Early warning: `{folder.name}`", "",
+                  f"Model `{Path(str(meta.get('checkpoint', '?'))).name}` ({meta.get('model', '?')}) replayed through the "
+                  f"streaming detector on recordings `{Path(str(meta.get('recordings', '?'))).name}` "
+                  f"(`slipsense early-warning`); table: [`early_warning.csv`]({rel}/early_warning.csv).", ""]
+        lines += [f"![early warning]({rel}/{png.name})" for png in sorted(folder.glob("*.png"))] + [""]
+    if bench:
+        lines += ["### Benchmarks", "",
+                  "Written by the scripts in `bench/` with `--out`; the folder names the CPU's vector instruction set "
+                  "(timings differ between machines of one model name with and without AVX-512).", "",
+                  "| report | script |", "|---|---|"]
+        for md in bench:
+            rel = Path(os.path.relpath(md, out.parent)).as_posix()
+            script = BENCH_SCRIPTS.get(md.stem.split("-")[0], "bench/")
+            lines.append(f"| [`{md.relative_to(reports).as_posix()}`]({rel}) | `python {script}` |")
+        lines.append("")
+    return lines
 
 
 __all__ = [

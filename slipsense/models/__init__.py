@@ -78,3 +78,27 @@ def check_video_values(x) -> None:
 def count_parameters(model: nn.Module) -> int:
     """Number of trainable parameters."""
     return sum(p.numel() for p in model.parameters() if p.requires_grad)
+
+
+#: inference precisions :func:`with_precision` offers
+PRECISIONS = ("float32", "bfloat16", "int8")
+
+
+def with_precision(model: nn.Module, precision: str = "float32") -> nn.Module:
+    """``model`` for CPU inference at ``precision``: "float32" (unchanged), "int8" (a copy with every
+    nn.Linear dynamically quantized: int8 weights, activations quantized per batch) or "bfloat16"
+    (a copy with bf16 weights packed for oneDNN, float32 in and out). Reduced precision is offered for
+    STNet and TemNet, whose time goes to streaming ~0.5 GB of Linear weights; ViViT (67 k parameters)
+    and the 3D ResNet-50 (convolutions) gain nothing from it. The copies are inference-only: call
+    them under ``torch.inference_mode()``."""
+    if precision not in PRECISIONS:
+        raise ConfigError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
+    if precision == "float32":
+        return model
+    import torch
+
+    from slipsense.models.stnet import STNet, optimize_for_inference, quantize_dynamic_int8
+
+    if not isinstance(model, STNet):
+        raise ConfigError(f"{precision} inference is implemented for STNet and TemNet, not {type(model).__name__}")
+    return quantize_dynamic_int8(model) if precision == "int8" else optimize_for_inference(model, torch.bfloat16)

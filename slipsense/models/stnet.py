@@ -467,7 +467,7 @@ def flops_per_sample(config: dict[str, Any] | None = None, model: str = "stnet")
 _PACKING: dict[torch.dtype, bool] = {}
 
 
-def _onednn_packing_available(dtype: torch.dtype = torch.float32) -> bool:
+def onednn_packing_available(dtype: torch.dtype = torch.float32) -> bool:
     """Whether this build and this CPU can pre-pack ``dtype`` Linear weights for oneDNN (bf16
     packing needs AVX512-BF16/AVX-NE-CONVERT or AVX512BW/VL/DQ; plain AVX2 machines lack it)."""
     if dtype not in _PACKING:
@@ -547,7 +547,7 @@ def optimize_for_inference(model: nn.Module, dtype: torch.dtype = torch.float32,
                 fast.to_logits[0] = head
             else:
                 fast.to_logits = head
-    if not _onednn_packing_available(dtype):
+    if not onednn_packing_available(dtype):
         return fast
     for block in fast.modules():
         if isinstance(block, Block) and isinstance(block.ff[1], nn.ReLU):
