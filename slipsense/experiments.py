@@ -1280,10 +1280,16 @@ def _mtime_ns(path: Path) -> int:
 def _data_line(data: dict[str, Any]) -> str:
     rec = data.get("recordings")
     text = f"recordings `{Path(rec).name}`" if rec else "in-memory data"
-    if rec and Path(rec).resolve() != _default_recordings().resolve():
+    if rec and _resolved(rec) != _default_recordings().resolve():
         text += " (not the default recordings folder)"
     ov = data.get("overrides")
     return text + (f", hand labels `{Path(ov).name}`" if ov else ", automatic labels only")
+
+
+def _resolved(stored: str) -> Path:
+    from slipsense.config import resolve_path
+
+    return Path(resolve_path(stored)).resolve()
 
 
 def _default_recordings() -> Path:

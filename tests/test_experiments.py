@@ -318,3 +318,8 @@ def test_resume_reuses_finished_runs(tmp_path, source):
     again = E.run_horizon(tiny(tmp_path, resume=True), source, horizons=(0,))
     assert again["rows"][0]["accuracy"] == first["rows"][0]["accuracy"]
     assert again["rows"][0]["train_seconds"] == first["rows"][0]["train_seconds"]  # nothing retrained
+
+
+def test_data_line_knows_the_default_recordings_in_portable_form(tmp_path):
+    assert "not the default" not in E._data_line({"recordings": "$SLIPSENSE_DATA/gelsight-slip"})
+    assert "not the default" in E._data_line({"recordings": str(tmp_path / "gelsight-slip")})
