@@ -1366,6 +1366,7 @@ def collect_results(reports: str | Path = "reports", out: str | Path = "docs/res
         for folder, cfg in found[name]:
             lines += _report_section(name, folder, cfg, out, heading=len(found[name]) > 1)
     lines += _live_and_speed_section(Path(reports), out)
+    lines += _written_reports_section(Path(reports), out)
     text = "\n".join(lines).rstrip() + "\n"
     write_text(out, text)
     return out
@@ -1407,6 +1408,23 @@ def _live_and_speed_section(reports: Path, out: Path) -> list[str]:
             lines.append(f"| [`{md.relative_to(reports).as_posix()}`]({rel}) | `python {script}` |")
         lines.append("")
     return lines
+
+
+def _written_reports_section(reports: Path, out: Path) -> list[str]:
+    """Links to reports written by hand around a few commands (a folder under ``reports`` holding a
+    ``README.md`` whose first line is its title and which names its commands), for the end of the page."""
+    readmes = sorted(p for p in reports.rglob("README.md") if "bench" not in p.relative_to(reports).parts)
+    if not readmes:
+        return []
+    lines = ["## Other measurements", "", "Reports that run a few commands by hand (each names its commands and machine):", ""]
+    for md in readmes:
+        try:
+            first = md.read_text(encoding="utf-8").splitlines()[0].lstrip("# ").strip()
+        except (OSError, UnicodeDecodeError, IndexError):
+            continue
+        rel = Path(os.path.relpath(md, out.parent)).as_posix()
+        lines.append(f"- [{first or md.parent.name}]({rel}) (`{md.parent.relative_to(reports).as_posix()}`)")
+    return lines + [""]
 
 
 __all__ = [

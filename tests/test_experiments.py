@@ -295,6 +295,11 @@ def test_results_link_benchmarks_and_early_warning(tmp_path):
     assert "| [`bench/avx2/stream-1thread.md`](../reports/bench/avx2/stream-1thread.md) | `python bench/bench_stream.py` |" in text
     assert "![early warning](../reports/early-warning-fold0/early_warning.png)" in text
     assert "Model `last.safetensors` (vivit)" in text and "/somewhere" not in text
+    assert "## Other measurements" not in text
+    (reports / "stnet-precision").mkdir()
+    (reports / "stnet-precision" / "README.md").write_text("# STNet at int8\n\nslipsense evaluate ...\n")
+    text = E.collect_results(reports, out).read_text()
+    assert "- [STNet at int8](../reports/stnet-precision/README.md) (`stnet-precision`)" in text
 
 
 def test_cli_params_and_one_line_errors(tmp_path):
