@@ -102,8 +102,10 @@ def conv_embed_patches(model: nn.Module, frames: torch.Tensor) -> torch.Tensor:
     kernel, _row_sum, bias = model.fused_patch_weights()  # rows in (c p1 p2) order, + a 1/n row
     weight = kernel[:-1].reshape(-1, c, ph, pw)  # (dim, C, ph, pw) = W diag(gamma)
     blocks = frames.reshape(-1, c, hp, ph, wp, pw)
-    centred = blocks - blocks.mean(dim=(1, 3, 5), keepdim=True)
-    var = (centred * centred).mean(dim=(1, 3, 5))  # (N, Hp, Wp)
+    # the reductions run innermost axis first: ONNX Runtime reduces a contiguous trailing axis fast,
+    # and strided axes (1, 3, 5) at once about 3x slower (measured: frame part 0.9 -> 0.5 ms)
+    centred = blocks - blocks.mean(dim=5, keepdim=True).mean(dim=(1, 3), keepdim=True)
+    var = (centred * centred).mean(dim=5).mean(dim=(1, 3))  # (N, Hp, Wp)
     z = F.conv2d(centred.reshape(-1, c, h, w), weight, stride=(ph, pw))  # (N, dim, Hp, Wp)
     z = z * torch.rsqrt(var + model.patch_norm.eps).unsqueeze(1) + bias[:, None, None]
     tokens = z.flatten(2).transpose(1, 2)  # (N, P, dim), patches row-major as in the model

@@ -11,7 +11,7 @@ A model classifies a window of its ``frames`` (T) latest frames. The detector ke
   for every window the frame will be part of;
 * a **window part**, run on each push over the T cached frame outputs.
 
-ViViT. Its position embedding belongs to a frame's *slot* in the window (0 = oldest), so the
+ViViT. With the paper's position embedding (``positions="slot"``) it belongs to a frame's *slot* in the window (0 = oldest), so the
 spatial transformer's token of a frame changes as the frame slides back: a frame's
 ``encode_frames`` token cannot simply be cached. The frame part therefore encodes a new frame at
 *every* slot at once: the patch embedding once (:meth:`ViViT.embed_patches`, nearly all of the
@@ -21,6 +21,10 @@ push, ..., so the window part reads the diagonal (frame ``i - T + 1 + s`` at slo
 only :meth:`ViViT.classify_frames` (temporal transformer + head). Per push that is one patch
 embedding, T spatial-transformer sequences and one temporal one; a full forward would embed T
 frames. The numbers equal ``model(window)`` to float rounding (tests check < 1e-5).
+A ViViT built with ``positions="factorised"`` (beyond the paper) gives each frame one spatial token
+whatever its slot: its frame part runs the spatial transformer once per frame (the T rows of its
+output are one row repeated, so the window part reads them the same way), and a push costs one frame
+encoding plus the temporal transformer.
 
 STNet / TemNet. The S codecs and the fusion layer act on each frame alone: that is the frame part
 ``(M, 3) -> (d_model,)``. The window part adds the frame embedding and runs the MSA blocks and the
@@ -89,6 +93,8 @@ class ViViTFramePart(nn.Module):
 
     def forward(self, frames: Tensor) -> Tensor:
         tokens = self.model.embed_patches(frames)  # (N, P, dim), independent of the slot
+        if self.model.positions == "factorised":  # the spatial token does not depend on the slot either
+            return self.model.encode_patches(tokens.unsqueeze(1)).expand(-1, self.model.frames, -1)
         slots = tokens.unsqueeze(1).expand(-1, self.model.frames, -1, -1)  # (N, T, P, dim), a view
         return self.model.encode_patches(slots)  # slot t gets pos_embedding[t]
 
@@ -355,7 +361,12 @@ class SlipDetector:
         if len(frames) != self.sensors:
             raise InputError(None, f"frame {self._index}: push takes {self.sensors} frame(s), one per sensor, "
                                    f"got {len(frames)}")
-        x = np.stack([self._prepare(f, s, self._index) for s, f in enumerate(frames)])  # (S, ...) float32
+        if self.kind == "video":  # converted straight into the batch: no per-sensor copies
+            x = np.empty((self.sensors, 3, *self.image_size), dtype=np.float32)
+            for s, f in enumerate(frames):
+                _video_input(_check_image(f, f"frame {self._index}, sensor {s}", self.image_size), out=x[s])
+        else:
+            x = np.stack([self._prepare(f, s, self._index) for s, f in enumerate(frames)])  # (S, M, 3) float32
         index = self._index
         self._cache.append(self._runner.frame(x) if self._has_frame_part else x)
         self._inputs.append(x)
@@ -519,9 +530,12 @@ def _resize(frame: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     return cv2.resize(np.ascontiguousarray(frame), (w, h), interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
 
 
-def _video_input(frames: np.ndarray) -> np.ndarray:
-    """uint8 ``(..., H, W, 3)`` BGR -> float32 ``(..., 3, H, W)`` in [0, 1] (as ``datasets.clip_to_tensor``)."""
-    return np.ascontiguousarray(np.moveaxis(frames, -1, -3), dtype=np.float32) / np.float32(255.0)
+def _video_input(frames: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """uint8 ``(..., H, W, 3)`` BGR -> float32 ``(..., 3, H, W)`` in [0, 1] (as ``datasets.clip_to_tensor``,
+    bit for bit), written into ``out`` when given. One pass over the frame: it sits on the live path."""
+    if out is None:
+        out = np.empty((*frames.shape[:-3], 3, *frames.shape[-3:-1]), dtype=np.float32)
+    return np.divide(np.moveaxis(frames, -1, -3), np.float32(255.0), out=out, dtype=np.float32)
 
 
 def _check_cloud(cloud: Any, where: str, markers: int) -> np.ndarray:

@@ -88,6 +88,36 @@ def test_streaming_vivit_equals_full_forward(vivit):
             assert abs(r.per_sensor[s] - _full_forward(vivit, video[i - 4 : i + 1])) < 1e-5
 
 
+def test_factorised_vivit_streams_one_spatial_encoding_per_frame():
+    """positions="factorised": a frame's spatial token is the same in every slot, so the frame part
+    runs the spatial transformer once per frame, and streaming still equals the full forward."""
+    from slipsense.live import streaming_parts
+
+    model = _model("vivit", positions="factorised", **VIVIT_SMALL)
+    assert model.pos_embedding.shape == (1, 1, 12, 8) and model.temporal_pos_embedding.shape == (1, 5, 8)
+    frame_part, _ = streaming_parts(model)
+    calls = []
+    hook = model.spatial_transformer.register_forward_hook(lambda m, args, out: calls.append(args[0].shape[0]))
+    x = torch.rand(3, 3, 48, 64)
+    with torch.no_grad():
+        tokens = frame_part(x)
+    hook.remove()
+    assert calls == [3] and tokens.shape == (3, 5, 8)  # 3 sequences, not 3 x 5
+    assert torch.equal(tokens[:, 0], tokens[:, 4])
+    det = SlipDetector(model)
+    video = _frames(9, seed=4)
+    for i in range(9):
+        r = det.push(video[i])
+        if i >= 4:
+            assert abs(r.probability - _full_forward(model, video[i - 4 : i + 1])) < 1e-5
+    assert np.allclose(det.replay(video).probability[4:], [_full_forward(model, video[i - 4 : i + 1]) for i in range(4, 9)],
+                       atol=1e-5)
+    # slot order still matters: the temporal embedding tells the frames apart
+    assert abs(_full_forward(model, video[:5]) - _full_forward(model, video[:5][::-1].copy())) > 1e-6
+    with pytest.raises(ConfigError, match="positions"):
+        build("vivit", positions="tubelet")
+
+
 def test_streaming_resizes_frames(vivit):
     det = SlipDetector(vivit)
     big = _frames(6, size=(96, 128), seed=3)
@@ -426,6 +456,25 @@ def test_onnx_resnet3d_matches_torch_on_real_clips(tmp_path, real_clips):
     with torch.no_grad():
         ref = model(x).numpy()
     assert np.abs(run_onnx(onnx_session(res.paths["model"]), x) - ref).max() <= 1e-4
+
+
+@needs_ort
+def test_onnx_factorised_vivit_parts(tmp_path):
+    from slipsense.export import export_onnx
+
+    model = _model("vivit", positions="factorised", **VIVIT_SMALL)
+    res = export_onnx(model, tmp_path / "f.onnx")
+    assert set(res.max_abs_diff) == {"model", "frame", "window"}
+    assert max(res.max_abs_diff.values()) <= 1e-5, res.max_abs_diff
+    parts = tmp_path / "parts"
+    parts.mkdir()
+    for key in ("frame", "window"):
+        shutil.copy(res.paths[key], parts / f"{key}.onnx")
+    dets = [SlipDetector(model), SlipDetector(model, backend="onnx", onnx_dir=parts)]
+    video = _frames(7, seed=5)
+    probs = np.array([[d.push(f).probability for f in video][4:] for d in dets])
+    assert np.abs(probs[0] - probs[1]).max() <= 1e-5
+    dets[1].close()
 
 
 @needs_ort

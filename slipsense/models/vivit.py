@@ -11,8 +11,9 @@ CPU at batch 1::
     video (B, T, 3, H, W)
       -> patches of every frame               (B*T, P, 3*ph*pw)          P = (H/ph) * (W/pw)
       -> LayerNorm(3*ph*pw) -> Linear -> LayerNorm(dim)                  (B*T, P, dim)
-      -> + pos_embedding[t]                   per frame slot t and patch
+      -> + pos_embedding[t]                   per frame slot t and patch (positions="factorised": per patch)
       -> [spatial CLS] + tokens -> spatial transformer -> CLS (or mean)  (B, T, dim)    encode_frames
+      -> (+ temporal_pos_embedding[t], positions="factorised" only)
       -> [temporal CLS] + frames -> temporal transformer -> CLS (or mean)
       -> Linear(dim, num_classes)                                        (B, num_classes) classify_frames
 
@@ -38,10 +39,15 @@ even in eval); no tubelets (``frame_patch_size`` is always 1); no temporal mask;
 exactly ``frames`` frames of exactly ``image_size``. Input is ``(B, T, C, H, W)``, vit-pytorch's is
 ``(B, C, T, H, W)``.
 
-Streaming. The position embedding depends on the frame's *slot* in the clip, so a frame's
-``encode_frames`` token is only reusable while the frame stays in the same slot. What can be cached
-per frame regardless of slot is :meth:`ViViT.embed_patches` (the patch tokens before the position
-embedding: nearly all of the cost); :meth:`ViViT.encode_patches` then finishes a clip cheaply.
+Streaming. With the paper's (vit-pytorch's) position embedding, ``positions="slot"``, the
+embedding depends on the frame's *slot* in the clip, so a frame's ``encode_frames`` token is only
+reusable while the frame stays in the same slot. What can be cached per frame regardless of slot is
+:meth:`ViViT.embed_patches` (the patch tokens before the position embedding);
+:meth:`ViViT.encode_patches` then finishes a clip. ``positions="factorised"`` (beyond the paper)
+splits the embedding in two: one spatial embedding per patch, shared by every frame, and one
+temporal embedding per slot added to the frame tokens before the temporal transformer. A frame's
+spatial token is then the same in every slot, so a streaming detector encodes each frame once
+(patch embedding *and* spatial transformer) and reruns only the temporal transformer per window.
 """
 from __future__ import annotations
 
@@ -204,6 +210,9 @@ class Transformer(nn.Module):
 
 # the model
 
+#: ViViT position embeddings: per frame slot and patch (the paper's), or spatial + temporal.
+POSITIONS = ("slot", "factorised")
+
 
 @register("vivit")
 class ViViT(nn.Module):
@@ -212,7 +221,9 @@ class ViViT(nn.Module):
     Keyword config (defaults: the paper's model): ``image_size=(240, 320)``, ``patch_size=(40, 40)``,
     ``frames=5``, ``dim=8``, ``spatial_depth=2``, ``temporal_depth=2``, ``heads=2``, ``dim_head=64``,
     ``mlp_dim=8``, ``pool="cls"`` (or ``"mean"``), ``dropout=0.0``, ``emb_dropout=0.0``,
-    ``channels=3``, ``num_classes=2``.
+    ``channels=3``, ``num_classes=2``, ``positions="slot"`` (vit-pytorch's ``(frames, P, dim)``
+    position embedding) or ``"factorised"`` (a ``(P, dim)`` spatial and a ``(frames, dim)`` temporal
+    embedding: every frame encodes to the same spatial token in every slot, see the module notes).
 
     ``fused`` (attribute, not config): True (default) embeds patches with the folded fast path;
     False with the straightforward rearrange + LayerNorm + Linear.
@@ -237,6 +248,7 @@ class ViViT(nn.Module):
         emb_dropout: float = 0.0,
         channels: int = 3,
         num_classes: int = 2,
+        positions: str = "slot",
     ):
         super().__init__()
         image_h, image_w = pair(image_size)
@@ -255,6 +267,8 @@ class ViViT(nn.Module):
                               f"patch_size {(patch_h, patch_w)}")
         if pool not in ("cls", "mean"):
             raise ConfigError(f"vivit: pool must be 'cls' or 'mean', got {pool!r}")
+        if positions not in POSITIONS:
+            raise ConfigError(f"vivit: positions must be one of {', '.join(map(repr, POSITIONS))}, got {positions!r}")
         for key, value in dict(dropout=dropout, emb_dropout=emb_dropout).items():
             if not 0.0 <= float(value) < 1.0:
                 raise ConfigError(f"vivit: {key} must be in [0, 1), got {value!r}")
@@ -267,6 +281,9 @@ class ViViT(nn.Module):
                             dim=dim, spatial_depth=spatial_depth, temporal_depth=temporal_depth, heads=heads,
                             dim_head=dim_head, mlp_dim=mlp_dim, pool=pool, dropout=float(dropout),
                             emb_dropout=float(emb_dropout), channels=channels, num_classes=num_classes)
+        if positions != "slot":  # only when set: checkpoints of the paper model keep their config unchanged
+            self._config["positions"] = positions
+        self.positions = positions
         self.fused = True
         self.embed_chunk = 5  # frames per fused patch-embedding step (cache-sized working set)
         self._fused_cache: tuple | None = None
@@ -280,7 +297,12 @@ class ViViT(nn.Module):
         self.patch_to_dim = nn.Linear(patch_dim, dim)
         self.dim_norm = nn.LayerNorm(dim)
 
-        self.pos_embedding = nn.Parameter(torch.randn(1, frames, num_patches, dim))  # per frame slot and patch
+        if positions == "slot":
+            self.pos_embedding = nn.Parameter(torch.randn(1, frames, num_patches, dim))  # per frame slot and patch
+            self.register_parameter("temporal_pos_embedding", None)
+        else:
+            self.pos_embedding = nn.Parameter(torch.randn(1, 1, num_patches, dim))  # per patch, any slot
+            self.temporal_pos_embedding = nn.Parameter(torch.randn(1, frames, dim))  # per frame slot
         self.emb_dropout = nn.Dropout(emb_dropout)
         if pool == "cls":
             self.spatial_cls = nn.Parameter(torch.randn(1, 1, dim))
@@ -415,10 +437,11 @@ class ViViT(nn.Module):
     def encode_patches(self, tokens: Tensor, attn_store: list[Tensor] | None = None) -> Tensor:
         """Spatial transformer over each frame's patch tokens: (B, T, P, dim) -> (B, T, dim).
 
-        Frame slot ``t`` gets ``pos_embedding[t]``; T may be less than ``frames`` (first slots).
+        Frame slot ``t`` gets ``pos_embedding[t]`` (``positions="slot"``; T may be less than
+        ``frames``: the first slots) or the one shared spatial embedding (``"factorised"``: any T).
         """
         b, t = tokens.shape[:2]
-        x = tokens + self.pos_embedding[:, :t]
+        x = tokens + (self.pos_embedding[:, :t] if self.positions == "slot" else self.pos_embedding)
         if self.spatial_cls is not None:
             x = torch.cat((repeat(self.spatial_cls, "1 1 d -> b t 1 d", b=b, t=t), x), dim=2)  # (B, T, 1+P, dim)
         x = self.emb_dropout(x)
@@ -436,6 +459,8 @@ class ViViT(nn.Module):
     def classify_frames(self, tokens: Tensor, attn_store: list[Tensor] | None = None) -> Tensor:
         """Temporal transformer and head: (B, T, dim) -> (B, num_classes) logits."""
         x = tokens
+        if self.temporal_pos_embedding is not None:
+            x = x + self.temporal_pos_embedding[:, : x.shape[1]]
         if self.temporal_cls is not None:
             x = torch.cat((repeat(self.temporal_cls, "1 1 d -> b 1 d", b=x.shape[0]), x), dim=1)  # (B, 1+T, dim)
         cls_only = self.temporal_cls is not None and attn_store is None
@@ -535,6 +560,9 @@ class ViViT(nn.Module):
 
     def load_reference_state_dict(self, sd: dict[str, Tensor]) -> None:
         """Load a vit-pytorch ViViT (``frame_patch_size=1``) state dict, renaming its keys to this file's."""
+        if self.positions != "slot":
+            raise ConfigError("load_reference_state_dict: vit-pytorch's ViViT has per-slot positions; this model has "
+                              f"positions={self.positions!r}")
         self.load_state_dict({_rename_reference_key(k): v for k, v in sd.items()}, strict=True)
 
 
