@@ -1,12 +1,13 @@
 #!/usr/bin/env bash
 # Leave-objects-out evaluation of ViViT: 5 folds by object (each fold's objects never seen in
 # training), paper training settings at 120x160. Writes reports/vivit-folds/folds.json (per-fold and
-# pooled metrics). Extra arguments go to every `slipsense train`.
+# pooled metrics; REPORT=... elsewhere). Extra arguments go to every `slipsense train`.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 out=${OUT:-runs/vivit-folds}
+report=${REPORT:-reports/vivit-folds/folds.json}
 for k in 0 1 2 3 4; do
     .venv/bin/slipsense train --model vivit --fold "$k" --folds 5 --size 120x160 --set 'patch_size=[20,20]' \
         --overrides configs/gelsight-label-overrides.csv --out "$out/fold$k" --no-progress "$@"
 done
-.venv/bin/python -m slipsense.folds "$out"/fold* --json reports/vivit-folds/folds.json
+.venv/bin/python -m slipsense.folds "$out"/fold* --json "$report"
