@@ -138,6 +138,8 @@ def test_params_counts_table(tmp_path):
     assert int(by["temnet", "paper"]["parameters"]) == count_parameters_for(PRESETS["paper"], model="temnet")
     assert 120e6 < int(by["stnet", "paper"]["parameters"]) < 130e6
     assert {("vivit", "paper"), ("stnet", "compact"), ("temnet", "compact")} <= set(by)
+    # factorised positions: (5 - 1) x 48 x 8 fewer spatial, 5 x 8 more temporal
+    assert int(by["vivit", "paper"]["parameters"]) - int(by["vivit", "positions=factorised"]["parameters"]) == 4 * 48 * 8 - 5 * 8
     assert all(r["setting"] == "full" for r in rows)
     cfg = json.loads((tmp_path / "config.json").read_text())
     assert cfg["models"]["vivit/paper"]["model_config"]["patch_size"] == [40, 40]
