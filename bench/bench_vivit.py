@@ -182,18 +182,14 @@ def main(argv=None) -> int:
             times = time_models(fns, args.rounds, args.round_time, args.warmup, clock)
             med = {k: statistics.median(v) for k, v in times.items()}
             best = {k: min(v) for k, v in times.items()}
-            for ref in ("ref-frame", "ref-tubelet"):
+            for case, mine, ref in (("a", "ours", "ref-frame"), ("b", "ours", "ref-tubelet"),
+                                    ("c", "ours-onnx", "ref-frame")):
+                if mine not in med:  # no ONNX Runtime
+                    continue
                 results.append(dict(
-                    case="a" if ref == "ref-frame" else "b", reference=ref, batch=batch,
-                    ours_clips_s=batch / med["ours"], ref_clips_s=batch / med[ref], ratio=med[ref] / med["ours"],
-                    ours_ms=med["ours"] * 1e3, ref_ms=med[ref] * 1e3, best_ratio=best[ref] / best["ours"],
-                ))
-            if onnx_run is not None:
-                results.append(dict(
-                    case="c", reference="ref-frame", batch=batch, ours_clips_s=batch / med["ours-onnx"],
-                    ref_clips_s=batch / med["ref-frame"], ratio=med["ref-frame"] / med["ours-onnx"],
-                    ours_ms=med["ours-onnx"] * 1e3, ref_ms=med["ref-frame"] * 1e3,
-                    best_ratio=best["ref-frame"] / best["ours-onnx"],
+                    case=case, reference=ref, batch=batch,
+                    ours_clips_s=batch / med[mine], ref_clips_s=batch / med[ref], ratio=med[ref] / med[mine],
+                    ours_ms=med[mine] * 1e3, ref_ms=med[ref] * 1e3, best_ratio=best[ref] / best[mine],
                 ))
         parts = breakdown(ours, args.rounds, args.round_time, args.warmup, clock, gen) if 1 in args.batches else {}
         profiles = {}
