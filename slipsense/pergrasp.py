@@ -1,0 +1,165 @@
+"""Per-grasp early warning: how a robot builder judges a slip detector.
+
+A detector is replayed over whole runs from the first frame, exactly as it would run live, and each
+run gets one outcome. With ``m`` the moment of slip (last frame before contact is lost), ``H`` the
+warning horizon in frames and ``S`` the camera start-up frames (not the scene, never scored):
+
+* a run that slipped is **warned in time** when its first alarm in ``S..m`` falls in ``m-H..m``
+  (lead = ``m - first alarm`` frames), **premature** when that first alarm comes before ``m-H``
+  (a false alarm: the gripper would have reacted to nothing), **missed** when there is none;
+* a run that held is a **false-positive grasp** when it alarms at any frame from ``S`` on; the
+  fraction of its frames in alarm is reported too.
+
+Alarms while the gel is at rest (no contact on any sensor) are counted separately: a detector must
+not fire before anything touches it. A detector that is always on scores 0 warned and 100%
+false-positive grasps; one that is always off scores 0 warned and 0 false positives; one that
+alarms only in ``m-H..m`` scores 100% and 0 (tests hold all three).
+
+Everything here is numpy on alarm arrays: the models and the replay live elsewhere.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import numpy as np
+
+#: Default warning horizon: 50 frames = 2 s at 25 frames/s.
+HORIZON = 50
+#: Frames of camera start-up transient at the start of every recording (see recordings.labels).
+STARTUP = 10
+#: Contact strength above the camera's rest floor that counts as touching (recordings.labels.MIN_CONTACT).
+REST_MARGIN = 3.0
+
+OUTCOMES = ("warned", "premature", "missed", "false_positive", "clean")
+
+
+def debounce(probability: np.ndarray, threshold: float, frames: int = 1) -> np.ndarray:
+    """``(N,)`` bool: alarm at ``t`` when the probability is ``>= threshold`` at ``t`` and the
+    ``frames - 1`` frames before it. NaN (no answer yet) counts as below the threshold."""
+    above = np.nan_to_num(np.asarray(probability, dtype=np.float64), nan=-np.inf) >= threshold
+    if frames <= 1:
+        return above
+    run = np.zeros(len(above), dtype=np.int64)
+    count = 0
+    for i, a in enumerate(above):  # consecutive count; N is a few hundred
+        count = count + 1 if a else 0
+        run[i] = count
+    return run >= frames
+
+
+def rest_mask(contact: np.ndarray, margin: float = REST_MARGIN) -> np.ndarray:
+    """``(S, N)`` contact strength per sensor -> ``(N,)`` bool, True where no sensor is touched:
+    every sensor within ``margin`` of its own rest floor (lowest 5-frame median after start-up)."""
+    c = np.asarray(contact, dtype=np.float64)
+    rest = np.ones(c.shape[1], dtype=bool)
+    for s in c:
+        tail = s[STARTUP:] if len(s) > STARTUP + 5 else s
+        padded = np.pad(tail, 2, mode="edge")
+        floor = float(np.median(np.lib.stride_tricks.sliding_window_view(padded, 5), axis=1).min())
+        rest &= s < floor + margin
+    return rest
+
+
+@dataclass(frozen=True)
+class GraspOutcome:
+    """One run's verdict. ``first_alarm``: first alarm frame scored (None: none); ``lead``: frames
+    from it to the moment (warned runs); ``alarm_fraction``: frames in alarm over frames scored;
+    ``rest_alarms``: alarm frames while no gel is touched."""
+
+    outcome: str
+    first_alarm: int | None
+    lead: int | None
+    alarm_fraction: float
+    rest_alarms: int
+
+
+def grasp_outcome(alarm: np.ndarray, moment: int | None, horizon: int = HORIZON, startup: int = STARTUP,
+                  rest: np.ndarray | None = None) -> GraspOutcome:
+    """Score one run.
+
+    Args:
+        alarm: ``(N,)`` bool, the detector's alarm at every frame of the recording.
+        moment: the moment of slip, or None for a run that held.
+        horizon: frames before the moment in which a first alarm is a warning in time.
+        startup: leading frames not scored.
+        rest: optional ``(N,)`` bool, True where no sensor is touched (:func:`rest_mask`).
+    """
+    a = np.asarray(alarm, dtype=bool)
+    start = min(startup, len(a))
+    end = len(a) if moment is None else min(moment + 1, len(a))
+    scored = a[start:end]
+    on = np.flatnonzero(scored)
+    first = None if on.size == 0 else start + int(on[0])
+    fraction = float(scored.mean()) if scored.size else 0.0
+    rest_alarms = 0 if rest is None else int((scored & np.asarray(rest, dtype=bool)[start:end]).sum())
+    if moment is None:
+        return GraspOutcome("false_positive" if first is not None else "clean", first, None, fraction, rest_alarms)
+    if first is None:
+        return GraspOutcome("missed", None, None, fraction, rest_alarms)
+    if first < moment - horizon:
+        return GraspOutcome("premature", first, None, fraction, rest_alarms)
+    return GraspOutcome("warned", first, moment - first, fraction, rest_alarms)
+
+
+#: Columns of the per-grasp table, in order.
+COLUMNS = (
+    "threshold", "debounce", "slip_runs", "warned", "premature", "missed", "warned_rate", "median_lead_frames",
+    "median_lead_ms", "held_runs", "false_positive_grasps", "false_positive_rate", "held_alarm_fraction",
+    "runs_alarming_at_rest", "score",
+)
+
+
+def summarise(outcomes: Sequence[GraspOutcome], fps: float = 25.0) -> dict[str, Any]:
+    """Pool run outcomes into one row (without threshold/debounce). ``score`` = warned rate minus
+    false-positive rate: 1 for a perfect detector, 0 for one that never alarms, -1 for one always on."""
+    slip = [o for o in outcomes if o.outcome in ("warned", "premature", "missed")]
+    held = [o for o in outcomes if o.outcome in ("false_positive", "clean")]
+    leads = np.array([o.lead for o in slip if o.outcome == "warned"], dtype=float)
+    warned = int(leads.size)
+    fp = sum(o.outcome == "false_positive" for o in held)
+    med = float(np.median(leads)) if leads.size else math.nan
+    warned_rate = warned / len(slip) if slip else math.nan
+    fp_rate = fp / len(held) if held else math.nan
+    return {
+        "slip_runs": len(slip), "warned": warned,
+        "premature": sum(o.outcome == "premature" for o in slip), "missed": sum(o.outcome == "missed" for o in slip),
+        "warned_rate": warned_rate, "median_lead_frames": med, "median_lead_ms": med * 1000.0 / fps,
+        "held_runs": len(held), "false_positive_grasps": int(fp), "false_positive_rate": fp_rate,
+        "held_alarm_fraction": float(np.mean([o.alarm_fraction for o in held])) if held else math.nan,
+        "runs_alarming_at_rest": sum(o.rest_alarms > 0 for o in outcomes),
+        "score": (0.0 if math.isnan(warned_rate) else warned_rate) - (0.0 if math.isnan(fp_rate) else fp_rate),
+    }
+
+
+def table(probabilities: Sequence[np.ndarray], moments: Sequence[int | None], thresholds: Sequence[float],
+          debounces: Sequence[int] = (1,), horizon: int = HORIZON, startup: int = STARTUP,
+          rests: Sequence[np.ndarray | None] | None = None, fps: float = 25.0) -> list[dict[str, Any]]:
+    """One row (:data:`COLUMNS`) per (threshold, debounce) over runs given as probability traces."""
+    rests = rests if rests is not None else [None] * len(probabilities)
+    rows = []
+    for k in debounces:
+        for th in thresholds:
+            outs = [grasp_outcome(debounce(p, th, k), m, horizon, startup, r)
+                    for p, m, r in zip(probabilities, moments, rests)]
+            rows.append({"threshold": float(th), "debounce": int(k), **summarise(outs, fps)})
+    return rows
+
+
+def choose_operating_point(probabilities: Sequence[np.ndarray], moments: Sequence[int | None],
+                           thresholds: Sequence[float] | None = None, debounces: Sequence[int] = (1, 2, 3, 5),
+                           horizon: int = HORIZON, startup: int = STARTUP) -> dict[str, Any]:
+    """The (threshold, debounce) with the best :func:`summarise` score on these runs (ties: the
+    shortest debounce, then the middle of the tying thresholds, for a margin on both sides). Call it on training runs only (out-of-fold
+    predictions of inner folds): choosing it on test runs is tuning on the test set."""
+    if thresholds is None:
+        thresholds = np.round(np.linspace(0.05, 0.95, 19), 3)
+    rows = table(probabilities, moments, thresholds, debounces, horizon, startup)
+    top = max(round(r["score"], 9) for r in rows)
+    tied = [r for r in rows if round(r["score"], 9) == top]
+    k = min(r["debounce"] for r in tied)
+    tied = sorted((r for r in tied if r["debounce"] == k), key=lambda r: r["threshold"])
+    best = tied[(len(tied) - 1) // 2]
+    return {"threshold": best["threshold"], "debounce": best["debounce"], "horizon": horizon,
+            "startup": startup, "score_on_training_runs": best["score"]}

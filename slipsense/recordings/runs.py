@@ -1,0 +1,171 @@
+"""Whole grasps: every frame of both sensors of a run, small and grey, with its moment of slip.
+
+Per-grasp training and evaluation replay runs from the first frame, the way a gripper sees them,
+so they need whole recordings rather than clips. A 450-frame run of two 240 x 320 colour videos
+is 207 MB decoded; the models that learn from motion look at grey frames a few times smaller, so
+that is what is kept: ``gray`` uint8 ``(S, N, h, w)`` per run (S sensors, N frames), plus each
+camera's contact signal (:func:`slipsense.recordings.labels.contact_signal`, used only to score
+"alarms while the gel is at rest", never as model input).
+
+:func:`gray_frames` is the one conversion used both here and by the live detector, so training
+and streaming see the same pixels.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterable, Mapping, Sequence
+
+import cv2
+import numpy as np
+
+from .. import atomic, config
+from ..errors import InputError
+from .types import Recording, VideoLabel
+
+#: Bump when what :func:`load_runs` caches could change.
+RUNS_VERSION = "runs-1"
+
+
+def gray_frames(frames: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """uint8 BGR ``(N, H, W, 3)`` or one ``(H, W, 3)`` frame -> uint8 grey ``(N, h, w)`` / ``(h, w)``
+    at ``size = (h, w)``, area-averaged (which also smooths the codec's per-pixel flicker)."""
+    one = frames.ndim == 3
+    seq = frames[None] if one else frames
+    h, w = size
+    out = np.empty((len(seq), h, w), dtype=np.uint8)
+    for i, f in enumerate(seq):
+        g = cv2.cvtColor(f, cv2.COLOR_BGR2GRAY)
+        out[i] = g if g.shape == (h, w) else cv2.resize(g, (w, h), interpolation=cv2.INTER_AREA)
+    return out[0] if one else out
+
+
+@dataclass
+class GraspRun:
+    """One run (experiment) of one object, every frame, all sensors.
+
+    ``moment_of_slip``: last frame before contact is lost (None: the run held, or no moment found
+    and ``slipped`` is True). ``gray``: uint8 ``(S, N, h, w)``; ``contact``: float32 ``(S, N)``
+    contact strength per camera (8-bit intensity units above the gel at rest).
+    """
+
+    object: str
+    experiment: int
+    slipped: bool
+    moment_of_slip: int | None
+    gray: np.ndarray
+    contact: np.ndarray
+    cameras: tuple[str, ...]
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.gray.shape[1])
+
+    @property
+    def key(self) -> tuple[str, int]:
+        return (self.object, self.experiment)
+
+    @property
+    def usable(self) -> bool:
+        """A run scored per grasp: it held, or it slipped at a known moment."""
+        return not self.slipped or self.moment_of_slip is not None
+
+
+def _cache_file(recs: Sequence[Recording], size: tuple[int, int]) -> Path:
+    h = hashlib.sha256(RUNS_VERSION.encode())
+    for r in recs:
+        st = r.path.stat()
+        h.update(f"{r.path.resolve()}|{st.st_size}|{st.st_mtime_ns}|{size}".encode())
+    return config.cache_root() / "runs" / f"{h.hexdigest()[:24]}.npz"
+
+
+def _sha(arrays: Mapping[str, np.ndarray]) -> str:
+    h = hashlib.sha256()
+    for k in sorted(arrays):
+        h.update(k.encode())
+        h.update(np.ascontiguousarray(arrays[k]).tobytes())
+    return h.hexdigest()
+
+
+def _load_cached(path: Path) -> dict[str, np.ndarray] | None:
+    """The cached arrays when the file is whole and its checksum matches, else None (rebuild)."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in ("gray", "contact")}
+            stored = str(z["sha256"])
+    except Exception:  # missing, truncated, foreign: rebuild
+        return None
+    return arrays if _sha(arrays) == stored else None
+
+
+def _decode_run(recs: Sequence[Recording], size: tuple[int, int]) -> dict[str, np.ndarray]:
+    from .labels import contact_signal
+    from .video import read_video
+
+    grays, contacts = [], []
+    for r in recs:
+        video = read_video(r.path, expected_size=None, min_frames=2)
+        grays.append(gray_frames(video, size))
+        contacts.append(contact_signal(video).astype(np.float32))
+    counts = {r.camera: len(g) for r, g in zip(recs, grays)}
+    if len(set(counts.values())) != 1:
+        raise InputError(recs[0].path.parent, f"the cameras of this run differ in frame count: {counts}")
+    return {"gray": np.stack(grays), "contact": np.stack(contacts)}
+
+
+def load_runs(recordings: Iterable[Recording], labels: Mapping[tuple, VideoLabel], size: tuple[int, int],
+              sensors: int = 2, progress: bool = True) -> list[GraspRun]:
+    """Every run of ``recordings`` as a :class:`GraspRun` (decoded once, then cached, checksummed).
+
+    Args:
+        recordings: from :func:`~slipsense.recordings.folders.find_recordings`.
+        labels: ``{(object, experiment, camera): VideoLabel}`` (with overrides applied); the run's
+            moment of slip is its cameras' (they share it). A video labelled ``exclude`` (absent
+            from ``labels``) leaves its run out.
+        size: ``(h, w)`` of the grey frames kept.
+        sensors: cameras a run must have; a run with another number is refused, naming its folder.
+    """
+    groups: dict[tuple[str, int], list[Recording]] = {}
+    for r in recordings:
+        groups.setdefault((r.object, r.experiment), []).append(r)
+    keys = sorted(groups)
+    items: Iterable = keys
+    if progress:
+        from tqdm import tqdm
+
+        items = tqdm(keys, desc="loading runs", unit="run")
+    runs = []
+    for key in items:
+        recs = sorted(groups[key], key=lambda r: r.camera)
+        if len(recs) != sensors:
+            raise InputError(recs[0].path.parent, f"run has {len(recs)} camera video(s), expected {sensors}")
+        if any(r.key not in labels for r in recs):
+            continue  # excluded by an override
+        path = _cache_file(recs, size)
+        arrays = _load_cached(path)
+        if arrays is None:
+            arrays = _decode_run(recs, size)
+            digest = _sha(arrays)
+            atomic.write_with(path, lambda tmp: np.savez(tmp, sha256=np.array(digest), **arrays))
+        labs = [labels[r.key] for r in recs]
+        moment = next((l.moment_of_slip for l in labs if l.moment_of_slip is not None), None)
+        slipped = any(l.slipped for l in labs)
+        runs.append(GraspRun(key[0], key[1], slipped, moment if slipped else None, arrays["gray"],
+                             arrays["contact"], tuple(r.camera for r in recs)))
+    return runs
+
+
+def runs_summary(runs: Sequence[GraspRun]) -> dict[str, int]:
+    """Counts a report states: runs, slip runs with a moment, slip runs without one, runs that held."""
+    return {
+        "runs": len(runs),
+        "slip_with_moment": sum(r.slipped and r.moment_of_slip is not None for r in runs),
+        "slip_without_moment": sum(r.slipped and r.moment_of_slip is None for r in runs),
+        "held": sum(not r.slipped for r in runs),
+    }
+
+
+def describe(run: GraspRun) -> str:
+    return json.dumps({"object": run.object, "experiment": run.experiment, "n_frames": run.n_frames})
