@@ -1,14 +1,17 @@
 """Checkpoints: one safetensors file holding the weights and, in its metadata, the full config.
 
 A checkpoint rebuilds its model with no other file: ``load_model(path)``. Training state for
-``--resume`` (optimizer, scheduler, RNG, epoch) lives beside it in ``resume.pt``.
+``--resume`` (optimizer, scheduler, RNG, epoch) lives beside it in ``resume.pt``: also a safetensors
+file (tensors + JSON), never a pickle, so a run folder from elsewhere cannot run code when resumed.
 """
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 import torch.nn as nn
 
@@ -98,15 +101,159 @@ def _diff_keys(expected: dict, got: dict) -> tuple[list[str], list[str]]:
     return sorted(set(expected) - set(got)), sorted(set(got) - set(expected))
 
 
+#: Metadata key of a resume state file, and the format tag stored under it.
+RESUME_KEY = "slipsense-resume"
+RESUME_FORMAT = 1
+
+
+def _encode(obj: Any, tensors: dict[str, torch.Tensor]) -> Any:
+    """``obj`` as JSON, its tensors moved to ``tensors`` (named ``t<k>``).
+
+    Only plain data is accepted: None, bool, int, float, str, tuples, lists, dicts, torch tensors,
+    numpy arrays and scalars. Reading it back builds nothing else, so a resume state cannot carry
+    code the way a pickle can.
+    """
+    if obj is None or isinstance(obj, (bool, str)):
+        return obj
+    if isinstance(obj, int):
+        return int(obj)
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else {"__float__": repr(obj)}
+    if isinstance(obj, torch.Tensor):
+        name = f"t{len(tensors)}"
+        # a copy: safetensors refuses tensors sharing storage (tied weights)
+        tensors[name] = obj.detach().cpu().contiguous().clone()
+        return {"__tensor__": name}
+    if isinstance(obj, np.ndarray):
+        if obj.dtype.kind not in "biuf":
+            raise TypeError(f"resume state: numpy array of dtype {obj.dtype} cannot be stored")
+        return {"__ndarray__": obj.tolist(), "dtype": obj.dtype.str, "shape": list(obj.shape)}
+    if isinstance(obj, np.generic):
+        return _encode(obj.item(), tensors)
+    if isinstance(obj, tuple):
+        return {"__tuple__": [_encode(v, tensors) for v in obj]}
+    if isinstance(obj, list):
+        return [_encode(v, tensors) for v in obj]
+    if isinstance(obj, dict):
+        if all(isinstance(k, str) and not k.startswith("__") for k in obj):
+            return {k: _encode(v, tensors) for k, v in obj.items()}
+        return {"__dict__": [[_encode(k, tensors), _encode(v, tensors)] for k, v in obj.items()]}
+    raise TypeError(f"resume state: a {type(obj).__name__} cannot be stored (plain data only)")
+
+
+_FLOATS = {"inf": math.inf, "-inf": -math.inf, "nan": math.nan}
+
+
+def _decode(obj: Any, tensors: dict[str, torch.Tensor]) -> Any:
+    """Inverse of :func:`_encode`; ValueError on anything it did not write."""
+    if obj is None or isinstance(obj, (bool, str, int, float)):
+        return obj
+    if isinstance(obj, list):
+        return [_decode(v, tensors) for v in obj]
+    if not isinstance(obj, dict):
+        raise ValueError(f"unexpected {type(obj).__name__} in the state")
+    if "__tensor__" in obj:
+        name = obj["__tensor__"]
+        if not isinstance(name, str) or name not in tensors:
+            raise ValueError(f"refers to a tensor {name!r} the file does not hold")
+        return tensors[name]
+    if "__float__" in obj:
+        if obj["__float__"] not in _FLOATS:
+            raise ValueError(f"unknown float {obj['__float__']!r}")
+        return _FLOATS[obj["__float__"]]
+    if "__ndarray__" in obj:
+        dtype = np.dtype(str(obj.get("dtype")))
+        if dtype.kind not in "biuf":
+            raise ValueError(f"array of dtype {dtype} in the state")
+        arr = np.array(obj["__ndarray__"], dtype=dtype)
+        if list(arr.shape) != list(obj.get("shape", [])):
+            raise ValueError("array shape does not match its data")
+        return arr
+    if "__tuple__" in obj:
+        if not isinstance(obj["__tuple__"], list):
+            raise ValueError("malformed tuple")
+        return tuple(_decode(v, tensors) for v in obj["__tuple__"])
+    if "__dict__" in obj:
+        pairs = obj["__dict__"]
+        if not isinstance(pairs, list) or not all(isinstance(p, list) and len(p) == 2 for p in pairs):
+            raise ValueError("malformed mapping")
+        out = {}
+        for k, v in pairs:
+            key = _decode(k, tensors)
+            if not isinstance(key, (str, int, float, bool, type(None))):
+                raise ValueError(f"mapping key of type {type(key).__name__}")
+            out[key] = _decode(v, tensors)
+        return out
+    if any(k.startswith("__") for k in obj):
+        raise ValueError(f"unknown entry {sorted(obj)[0]!r}")
+    return {k: _decode(v, tensors) for k, v in obj.items()}
+
+
 def save_resume_state(path: str | Path, state: dict[str, Any]) -> None:
-    """Atomically write the training state needed by ``--resume``."""
+    """Atomically write the training state needed by ``--resume``.
+
+    The file is a safetensors file (whatever its name): the tensors (weights, optimizer moments,
+    RNG state) as tensors, everything else as JSON in its metadata. Nothing in it is executable.
+    """
+    from safetensors.torch import save_file
+
+    tensors: dict[str, torch.Tensor] = {}
+    tree = _encode(state, tensors)
+    meta = {RESUME_KEY: json.dumps({"format": RESUME_FORMAT, "state": tree}, allow_nan=False),
+            "slipsense_version": __version__}
     with atomic_path(path) as tmp:
-        torch.save(state, tmp)
+        save_file(tensors, str(tmp), metadata=meta)
+
+
+#: What a resume state holds, and the type each entry must have.
+RESUME_ENTRIES = {"model": dict, "optimizer": dict, "scheduler": dict, "rng": dict, "history": list,
+                  "best": (int, float), "epoch": int}
 
 
 def load_resume_state(path: str | Path) -> dict[str, Any]:
+    """Read a state written by :func:`save_resume_state`; InputError naming ``path`` otherwise.
+
+    Never unpickles: a ``resume.pt`` in torch's pickle format (written by an older slipsense, or put
+    there by someone else) is refused, since loading it could run arbitrary code.
+    """
+    from safetensors import safe_open
+
     path = Path(path)
     try:
-        return torch.load(path, map_location="cpu", weights_only=False)
-    except Exception as exc:
+        with open(path, "rb") as fh:
+            head = fh.read(9)
+    except OSError as exc:
+        raise InputError(path, f"resume state cannot be read ({exc.strerror or exc})") from None
+    if head[:4] == b"PK\x03\x04" or head[:1] == b"\x80":
+        raise InputError(path, "resume state is a pickle (torch.save format), which is never loaded because "
+                               "unpickling can run code; delete it and train again without --resume")
+    if len(head) < 9 or head[8:9] != b"{":
+        raise InputError(path, "resume state is not a slipsense resume file (not safetensors)")
+    try:
+        with safe_open(str(path), framework="pt") as fh:
+            meta = fh.metadata() or {}
+            tensors = {k: fh.get_tensor(k) for k in fh.keys()}
+    except Exception as exc:  # safetensors raises several error types for a damaged file
         raise InputError(path, f"resume state is unreadable ({type(exc).__name__}: {exc})") from None
+    if RESUME_KEY not in meta:
+        raise InputError(path, "safetensors file holds no slipsense resume state")
+    try:
+        doc = json.loads(meta[RESUME_KEY])
+        if not isinstance(doc, dict) or doc.get("format") != RESUME_FORMAT:
+            raise ValueError(f"format {doc.get('format') if isinstance(doc, dict) else doc!r}, "
+                             f"expected {RESUME_FORMAT}")
+        state = _decode(doc.get("state"), tensors)
+    except (ValueError, TypeError, RecursionError) as exc:
+        raise InputError(path, f"resume state is malformed ({exc})") from None
+    if not isinstance(state, dict):
+        raise InputError(path, "resume state is malformed (not a mapping)")
+    for key, kind in RESUME_ENTRIES.items():
+        if key not in state:
+            raise InputError(path, f"resume state lacks {key!r}")
+        if not isinstance(state[key], kind) or isinstance(state[key], bool):
+            raise InputError(path, f"resume state entry {key!r} has type {type(state[key]).__name__}")
+    if state["epoch"] < 0:
+        raise InputError(path, f"resume state epoch is {state['epoch']}")
+    if not all(isinstance(k, str) and isinstance(v, torch.Tensor) for k, v in state["model"].items()):
+        raise InputError(path, "resume state model weights are not a mapping of names to tensors")
+    return state

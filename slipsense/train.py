@@ -11,6 +11,7 @@
 """
 from __future__ import annotations
 
+import copy
 import csv
 import io
 import json
@@ -31,7 +32,7 @@ from torch.utils.data import DataLoader, Dataset, DistributedSampler, Subset
 
 from slipsense.atomic import write_text
 from slipsense.checkpoint import load_resume_state, save_checkpoint, save_resume_state
-from slipsense.errors import ConfigError
+from slipsense.errors import ConfigError, InputError
 from slipsense.metrics import confusion, scores
 
 
@@ -183,14 +184,51 @@ def _rng_state() -> dict[str, Any]:
 
 
 def _set_rng_state(s: dict[str, Any]) -> None:
-    random.setstate(s["python"])
-    np.random.set_state(s["numpy"])
+    py = s["python"]
+    # random.setstate wants (version, tuple of 625 ints, gauss); a list would be refused
+    random.setstate((py[0], tuple(py[1]), py[2]))
+    np.random.set_state(tuple(s["numpy"]))
     torch.set_rng_state(s["torch"])
+
+
+def make_optimizer(model: nn.Module, cfg: TrainConfig):
+    """``(optimizer, scheduler)``: Adam with a StepLR schedule, as in both papers."""
+    optimizer = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    scheduler = torch.optim.lr_scheduler.StepLR(optimizer, step_size=cfg.step_size, gamma=cfg.gamma)
+    return optimizer, scheduler
+
+
+def restore_state(path: Path, state: dict[str, Any], model: nn.Module, optimizer=None, scheduler=None) -> None:
+    """Load a resume state into ``model`` (and optimizer, scheduler, RNG); InputError naming
+    ``path`` when it does not fit them (another model, other settings, a damaged file)."""
+
+    def fail(what: str, exc: BaseException):
+        text = " ".join(str(exc).split())
+        raise InputError(path, f"resume state does not fit {what} ({text[:200]})") from None
+
+    try:
+        model.load_state_dict(state["model"])
+    except (RuntimeError, KeyError, TypeError, ValueError) as exc:
+        fail("the model", exc)
+    for part, obj in (("optimizer", optimizer), ("scheduler", scheduler)):
+        if obj is None:
+            continue
+        try:
+            obj.load_state_dict(state[part])
+        except (RuntimeError, KeyError, TypeError, ValueError, IndexError) as exc:
+            fail(f"the {part}", exc)
+    try:
+        _set_rng_state(state["rng"])
+    except (RuntimeError, KeyError, TypeError, ValueError, IndexError) as exc:
+        fail("the random number generators", exc)
+    if not all(isinstance(r, dict) for r in state["history"]):
+        raise InputError(path, "resume state history is not a list of metric rows")
 
 
 def fit(model: nn.Module, train_data: Dataset, val_data: Dataset | None, cfg: TrainConfig,
         out_dir: str | Path, info: dict[str, Any] | None = None, resume: bool = False,
-        extra_eval: dict[str, Dataset] | None = None) -> list[dict[str, Any]]:
+        extra_eval: dict[str, Dataset] | None = None,
+        resume_state: dict[str, Any] | None = None) -> list[dict[str, Any]]:
     """Train ``model`` on ``train_data``; validate on ``val_data`` after every epoch.
 
     Args:
@@ -203,6 +241,8 @@ def fit(model: nn.Module, train_data: Dataset, val_data: Dataset | None, cfg: Tr
         resume: continue from ``out_dir/resume.pt`` if it exists.
         extra_eval: more labelled sets scored after every epoch (columns ``<name>_accuracy``...),
             e.g. held-out objects beside a clip-level test split; they do not pick the best epoch.
+        resume_state: a state already read by :func:`~slipsense.checkpoint.load_resume_state`
+            (checked before anything was written); used instead of reading ``resume.pt``.
 
     Returns:
         The per-epoch metric rows (also written to ``metrics.csv``).
@@ -213,8 +253,7 @@ def fit(model: nn.Module, train_data: Dataset, val_data: Dataset | None, cfg: Tr
         out.mkdir(parents=True, exist_ok=True)
     model.to(d.device)
     net = nn.parallel.DistributedDataParallel(model) if d.world > 1 else model
-    optimizer = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
-    scheduler = torch.optim.lr_scheduler.StepLR(optimizer, step_size=cfg.step_size, gamma=cfg.gamma)
+    optimizer, scheduler = make_optimizer(model, cfg)
     # One sampler for every world size: with 1 replica it is a seeded shuffle whose order the
     # ranks of a larger world split between them, so 2 x 8 sees the batches 1 x 16 sees.
     sampler = DistributedSampler(train_data, num_replicas=d.world, rank=d.rank, shuffle=True, seed=cfg.seed)
@@ -225,13 +264,12 @@ def fit(model: nn.Module, train_data: Dataset, val_data: Dataset | None, cfg: Tr
     best = -math.inf
     start_epoch = 0
     resume_path = out / "resume.pt"
-    if resume and resume_path.exists():
-        state = load_resume_state(resume_path)
-        model.load_state_dict(state["model"])
-        optimizer.load_state_dict(state["optimizer"])
-        scheduler.load_state_dict(state["scheduler"])
-        _set_rng_state(state["rng"])
-        history, best, start_epoch = state["history"], state["best"], state["epoch"] + 1
+    if resume_state is None and resume and resume_path.exists():
+        resume_state = load_resume_state(resume_path)
+    if resume_state is not None:
+        state = resume_state
+        restore_state(resume_path, state, model, optimizer, scheduler)
+        history, best, start_epoch = [dict(r) for r in state["history"]], float(state["best"]), state["epoch"] + 1
         if d.main:
             print(f"resuming {out} after epoch {state['epoch'] + 1}/{cfg.epochs}")
     if d.main:
@@ -439,6 +477,26 @@ def prepare_data(req: TrainRequest, kind: str):
     raise ConfigError(f"model input kind {kind!r} is not supported")
 
 
+#: split.json entries that must not change when a run is resumed.
+SPLIT_IDENTITY = ("kind", "split", "test_objects", "test_indices", "clip_spec")
+
+
+def check_same_split(path: Path, split_info: dict[str, Any]) -> None:
+    """Refuse to resume a run whose ``split.json`` describes another split than ``split_info``."""
+    if not path.is_file():
+        return
+    try:
+        old = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise InputError(path, f"cannot be read to check the resumed run's split ({exc})") from None
+    if not isinstance(old, dict):
+        raise InputError(path, "is not a split description (a JSON object)")
+    changed = [k for k in SPLIT_IDENTITY if (k in old or k in split_info) and old.get(k) != split_info.get(k)]
+    if changed:
+        raise InputError(path, f"the run was started with another data split ({', '.join(changed)} differ); "
+                               "resume with the same data and split options, or use a new --out")
+
+
 def run_training(req: TrainRequest, resume: bool = False) -> dict[str, Any]:
     """Prepare data, build and train the model, then evaluate ``last.safetensors`` on the held-out
     part; returns the evaluation metrics (rank 0) or ``{}`` (other ranks)."""
@@ -457,11 +515,24 @@ def run_training(req: TrainRequest, resume: bool = False) -> dict[str, Any]:
     model = build_model(req.model, req.preset, req.model_overrides, data_config)
     out = Path(req.out)
     d = setup(cfg.device)
+    state = None
+    if resume and (out / "resume.pt").exists():
+        # Everything a resume needs is read and checked before the first file is written, so a
+        # refused resume leaves the run folder as it was.
+        state = load_resume_state(out / "resume.pt")
+        probe = copy.deepcopy(model)
+        rng = _rng_state()
+        try:
+            restore_state(out / "resume.pt", state, probe, *make_optimizer(probe, cfg))
+        finally:
+            _set_rng_state(rng)
+        del probe
+        check_same_split(out / "split.json", split_info)
     if d.main:
         out.mkdir(parents=True, exist_ok=True)
         write_text(out / "split.json", json.dumps(split_info, indent=1))
     info = {"data": {k: v for k, v in split_info.items() if k != "test_indices"}, "preset": req.preset}
-    fit(model, train_data, test_data, cfg, out, info=info, resume=resume)
+    fit(model, train_data, test_data, cfg, out, info=info, resume=resume, resume_state=state)
     if not d.main or len(test_data) == 0:
         return {}
     from slipsense.checkpoint import load_model

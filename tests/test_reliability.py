@@ -1,0 +1,143 @@
+"""Reliability promises of issue 12 (docs/reliability.md): run folders never run code, training and
+evaluation refuse empty data, a refused --resume writes nothing, caches are verified."""
+from __future__ import annotations
+
+import json
+import math
+import pickle
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from typer.testing import CliRunner
+
+from slipsense.checkpoint import load_resume_state, save_resume_state
+from slipsense.cli import app
+from slipsense.errors import InputError
+
+runner = CliRunner()
+
+#: A TemNet small enough to train in a fraction of a second.
+TINY = ["--model", "temnet", "--set", "d_model=8", "--set", "heads=2", "--set", "blocks=1", "--set", "ff_dim=8",
+        "--set", "head_hidden=0", "--batch-size", "4", "--no-progress"]
+
+
+def _markers(path: Path, n: int = 24, groups=None, frames: int = 4, markers: int = 5) -> Path:
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(n, frames, markers, 3)).astype(np.float32)
+    y = np.arange(n) % 2
+    g = np.arange(n) // 2 if groups is None else np.asarray(groups)
+    np.savez(path, x=x, y=y, groups=g)
+    return path
+
+
+def _error_line(result) -> str:
+    text = result.stderr if hasattr(result, "stderr") else result.output
+    lines = [l for l in text.splitlines() if l.startswith("error: ")]
+    assert len(lines) == 1, text
+    assert "Traceback" not in text, text
+    return lines[0]
+
+
+def _train(tmp_path, out, *extra):
+    return runner.invoke(app, ["train", *TINY, "--markers", str(tmp_path / "m.npz"), "--out", str(out), *extra])
+
+
+# ------------------------------------------------------------------------------ 1. no pickles
+class _Evil:
+    """Unpickling this creates the file ``marker``: what a planted resume.pt could do."""
+
+    def __init__(self, marker: Path):
+        self.marker = str(marker)
+
+    def __reduce__(self):
+        return (open, (self.marker, "w"))
+
+
+@pytest.mark.parametrize("fmt", ["pickle", "torch.save"])
+def test_malicious_resume_state_is_refused_and_not_run(tmp_path, fmt):
+    _markers(tmp_path / "m.npz")
+    out = tmp_path / "run"
+    assert _train(tmp_path, out, "--epochs", "1").exit_code == 0
+    split_before = (out / "split.json").read_bytes()
+    marker = tmp_path / "pwned"
+    if fmt == "pickle":
+        (out / "resume.pt").write_bytes(pickle.dumps(_Evil(marker)))
+    else:
+        torch.save({"model": _Evil(marker)}, out / "resume.pt")
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    result = _train(tmp_path, out, "--epochs", "2", "--resume")
+    assert result.exit_code == 2, result.output
+    line = _error_line(result)
+    assert "resume.pt" in line and "pickle" in line, line
+    assert not marker.exists()
+    # nothing in the run folder was touched
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    assert (out / "split.json").read_bytes() == split_before
+
+
+def test_resume_state_is_data_only_and_round_trips(tmp_path):
+    import random
+
+    state = {"model": {"w": torch.randn(3, 2), "tied": torch.arange(4)}, "optimizer": {"state": {0: {"step": torch.tensor(3.0)}},
+             "param_groups": [{"lr": 1e-3, "betas": (0.9, 0.999), "params": [0], "foreach": None}]},
+             "scheduler": {"last_epoch": 2}, "rng": {"python": random.getstate(), "numpy": np.random.get_state(),
+                                                     "torch": torch.get_rng_state()},
+             "history": [{"epoch": 1, "val_loss": math.inf}], "best": -math.inf, "epoch": 0}
+    path = tmp_path / "resume.pt"
+    save_resume_state(path, state)
+    back = load_resume_state(path)
+    assert back["optimizer"]["state"][0]["step"].item() == 3.0  # int keys survive
+    assert back["optimizer"]["param_groups"][0]["betas"] == (0.9, 0.999)
+    assert back["rng"]["python"] == state["rng"]["python"]
+    np.testing.assert_array_equal(back["rng"]["numpy"][1], state["rng"]["numpy"][1])
+    assert back["rng"]["numpy"][1].dtype == np.uint32
+    assert torch.equal(back["rng"]["torch"], state["rng"]["torch"])
+    assert back["best"] == -math.inf and back["history"][0]["val_loss"] == math.inf
+    # The file is plain safetensors: no pickle opcodes, nothing to execute.
+    assert path.read_bytes()[8:9] == b"{"
+    with pytest.raises(TypeError, match="plain data"):
+        save_resume_state(tmp_path / "bad.pt", {**state, "model": _Evil(tmp_path / "x")})
+
+
+def test_damaged_resume_states_are_one_line_errors(tmp_path):
+    path = tmp_path / "resume.pt"
+    save_resume_state(path, {"model": {}, "optimizer": {}, "scheduler": {}, "rng": {}, "history": [], "best": 0.0,
+                             "epoch": 1})
+    data = path.read_bytes()
+    for name, payload, word in [("trunc", data[:-3] if len(data) > 200 else data[:20], "unreadable"),
+                                ("empty", b"", "not a slipsense resume"),
+                                ("text", b"hello world, not a state", "not a slipsense resume")]:
+        p = tmp_path / f"{name}.pt"
+        p.write_bytes(payload)
+        with pytest.raises(InputError, match=word):
+            load_resume_state(p)
+    from safetensors.torch import save_file
+
+    save_file({"a": torch.zeros(1)}, str(tmp_path / "foreign.pt"), metadata={"slipsense-resume": '{"format": 1, "state": {"__code__": 1}}'})
+    with pytest.raises(InputError, match="malformed"):
+        load_resume_state(tmp_path / "foreign.pt")
+
+
+def test_resume_of_another_model_changes_nothing(tmp_path):
+    _markers(tmp_path / "m.npz")
+    out = tmp_path / "run"
+    assert _train(tmp_path, out, "--epochs", "1").exit_code == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    # another size: the weights in resume.pt do not fit
+    result = runner.invoke(app, ["train", *TINY, "--set", "ff_dim=16", "--markers", str(tmp_path / "m.npz"),
+                                 "--out", str(out), "--epochs", "2", "--resume"])
+    assert result.exit_code == 2, result.output
+    assert "resume.pt" in _error_line(result) and "does not fit the model" in _error_line(result)
+    # another split: split.json would change
+    _markers(tmp_path / "m2.npz", groups=np.arange(24) // 3)
+    result = runner.invoke(app, ["train", *TINY, "--markers", str(tmp_path / "m2.npz"), "--out", str(out),
+                                 "--epochs", "2", "--resume"])
+    assert result.exit_code == 2, result.output
+    assert "split.json" in _error_line(result) and "test_indices" in _error_line(result)
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    # the same command resumes
+    result = _train(tmp_path, out, "--epochs", "2", "--resume")
+    assert result.exit_code == 0, result.output
+    assert len((out / "metrics.csv").read_text().strip().splitlines()) == 3
