@@ -44,10 +44,16 @@ def clip_spec_from(info: dict[str, Any]):
     """The ClipSpec stored in a checkpoint's or split's ``data`` section."""
     from slipsense.recordings.clips import ClipSpec
 
-    d = dict(info["clip_spec"])
-    if "size" in d and d["size"] is not None:
+    raw = info.get("clip_spec") if isinstance(info, dict) else None
+    if not isinstance(raw, dict):
+        raise ConfigError(f"clip_spec must be a mapping of clip settings, got {type(raw).__name__}")
+    d = dict(raw)
+    if isinstance(d.get("size"), list):
         d["size"] = tuple(d["size"])
-    return ClipSpec(**d)
+    try:
+        return ClipSpec(**d)
+    except TypeError as exc:
+        raise ConfigError(f"clip_spec: {exc}") from None
 
 
 def spec_dict(spec) -> dict[str, Any]:
@@ -74,9 +80,11 @@ def split_groups(groups: np.ndarray, test_fraction: float, seed: int) -> tuple[n
     if not 0 < test_fraction < 1:
         raise ConfigError("test fraction must be in (0, 1)")
     uniq = np.unique(groups)
+    if len(uniq) < 2:
+        raise ConfigError(f"a split by group needs at least 2 groups, got {len(uniq)}: one side would be empty")
     rng = np.random.default_rng(seed)
     perm = rng.permutation(uniq)
-    n_test = max(1, int(round(len(uniq) * test_fraction)))
+    n_test = min(max(1, int(round(len(uniq) * test_fraction))), len(uniq) - 1)  # neither side empty
     test_groups = set(perm[:n_test].tolist())
     is_test = np.array([g in test_groups for g in groups.tolist()])
     return np.flatnonzero(~is_test), np.flatnonzero(is_test)

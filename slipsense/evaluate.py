@@ -16,6 +16,8 @@ def evaluate_model(model, data, json_out: str | Path | None = None, png: str | P
     from slipsense.plots import plot_confusion
     from slipsense.train import metrics_from, predict
 
+    if len(data) == 0:
+        raise InputError(None, "nothing to evaluate: the data set is empty")
     p, y = predict(model, data, batch_size=batch_size, progress=progress)
     m = {**metrics_from(p, y), **(extra or {})}
     if json_out is not None:
@@ -59,14 +61,19 @@ def evaluate_checkpoint(checkpoint: str | Path, recordings=None, split=None, mar
             raise InputError(checkpoint, "this checkpoint holds a video model; use --recordings or --split")
         data_info = info.get("data", {})
         if split is not None:
-            split_info = _read_split(split)
-            spec = clip_spec_from(split_info)
-            clips, _ = gelsight_clips(resolve_path(split_info["recordings"]), spec, on_error=split_info.get("on_error", on_error),
+            split_info = _read_split(split, "video")
+            try:
+                spec = clip_spec_from(split_info)
+            except ConfigError as exc:
+                raise InputError(split, str(exc)) from None
+            clips, _ = gelsight_clips(resolve_path(split_info["recordings"]), spec,
+                                      on_error=split_info.get("on_error") or on_error,
                                       overrides=split_info.get("overrides") and resolve_path(split_info["overrides"]),
                                       progress=progress)
             idx = split_info["test_indices"]
-            if idx and max(idx) >= len(clips):
-                raise InputError(split, "test indices do not fit the clips rebuilt from its recordings")
+            if max(idx) >= len(clips):
+                raise InputError(split, f"test index {max(idx)} is out of range: the clips rebuilt from its "
+                                        f"recordings are {len(clips)}")
             clips = clips.subset(idx)
             extra.update(split=portable_path(split), test_objects=split_info.get("test_objects"))
         else:
@@ -80,28 +87,68 @@ def evaluate_checkpoint(checkpoint: str | Path, recordings=None, split=None, mar
         if recordings is not None:
             raise InputError(checkpoint, "this checkpoint holds a marker model; use --markers or --split")
         if split is not None:
-            split_info = _read_split(split)
+            split_info = _read_split(split, "markers")
             x, y, _ = load_markers(resolve_path(split_info["markers"]))
             idx = split_info["test_indices"]
+            if max(idx) >= len(y):
+                raise InputError(split, f"test index {max(idx)} is out of range: {split_info['markers']} holds "
+                                        f"{len(y)} samples")
             x, y = x[idx], y[idx]
         else:
             x, y, _ = load_markers(markers)
             extra["markers"] = portable_path(markers)
         data = MarkerDataset(x, y)
+    if len(data) == 0:
+        raise InputError(split or recordings or markers, "holds nothing to evaluate")
     import torch
 
     with torch.inference_mode():
         return evaluate_model(model, data, json_out, png, extra=extra, progress=progress)
 
 
-def _read_split(path) -> dict[str, Any]:
+#: Keys a split file (a run's ``split.json``) needs, by data kind.
+SPLIT_KEYS = {"video": ("recordings", "clip_spec", "test_indices"), "markers": ("markers", "test_indices")}
+
+
+def _read_split(path, kind: str | None = None) -> dict[str, Any]:
+    """A run's ``split.json``, checked: InputError naming the file for anything a split cannot be.
+
+    ``kind`` ("video" or "markers") is the model's input kind; a split of the other kind, missing
+    keys, and test indices that are not a non-empty list of distinct integers >= 0 are refused
+    (indices beyond the data are checked once the data is loaded).
+    """
     path = Path(path)
     if not path.is_file():
         raise InputError(path, "split file not found")
     try:
-        info = json.loads(path.read_text())
+        info = json.loads(path.read_text(encoding="utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise InputError(path, f"not a JSON split file ({exc})") from None
-    if "test_indices" not in info:
-        raise InputError(path, "split file lacks test_indices")
+    except OSError as exc:
+        raise InputError(path, f"split file cannot be read ({exc.strerror or exc})") from None
+    if not isinstance(info, dict):
+        raise InputError(path, f"a split file is a JSON object, got a {type(info).__name__}")
+    split_kind = info.get("kind", "markers" if "markers" in info else "video")
+    if split_kind not in SPLIT_KEYS:
+        raise InputError(path, f"kind must be 'video' or 'markers', got {split_kind!r}")
+    if kind is not None and split_kind != kind:
+        raise InputError(path, f"this split is of {split_kind} data but the checkpoint holds a {kind} model")
+    missing = [k for k in SPLIT_KEYS[split_kind] if k not in info]
+    if missing:
+        raise InputError(path, f"split file lacks {', '.join(missing)}")
+    for key in ("recordings", "markers", "overrides", "on_error"):
+        if key in info and info[key] is not None and not isinstance(info[key], str):
+            raise InputError(path, f"{key} must be a string, got {type(info[key]).__name__}")
+    if info.get("on_error") not in (None, "raise", "skip"):
+        raise InputError(path, f"on_error must be 'raise' or 'skip', got {info['on_error']!r}")
+    idx = info["test_indices"]
+    if not isinstance(idx, list) or not all(isinstance(i, int) and not isinstance(i, bool) for i in idx):
+        raise InputError(path, "test_indices must be a list of integers")
+    if not idx:
+        raise InputError(path, "the split holds no test items (test_indices is empty; a run trained with "
+                               "--split all has no held-out part): nothing to evaluate")
+    if min(idx) < 0:
+        raise InputError(path, f"test_indices holds a negative index ({min(idx)})")
+    if len(set(idx)) != len(idx):
+        raise InputError(path, "test_indices repeats an index")
     return info

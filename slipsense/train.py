@@ -247,6 +247,8 @@ def fit(model: nn.Module, train_data: Dataset, val_data: Dataset | None, cfg: Tr
     Returns:
         The per-epoch metric rows (also written to ``metrics.csv``).
     """
+    if len(train_data) == 0:
+        raise ConfigError("the training set is empty: nothing to train on")
     d = setup(cfg.device)
     out = Path(out_dir)
     if d.main:
@@ -451,6 +453,9 @@ def prepare_data(req: TrainRequest, kind: str):
                     raise ConfigError(f"--fold must be in 0..{req.folds - 1}")
                 test_objects = sorted(object_folds(objects, n_folds=req.folds, seed=req.seed)[k])
             tr, te = split_by_object(clips, test_objects)
+            if len(tr) == 0:
+                raise ConfigError(f"every object of {root} is held out ({', '.join(test_objects)}): "
+                                  "nothing is left to train on")
         else:
             raise ConfigError(f"--split must be objects, clips or all, got {req.split!r}")
         size = tuple(clips.x.shape[2:4])
@@ -468,6 +473,10 @@ def prepare_data(req: TrainRequest, kind: str):
         if req.markers is None:
             raise ConfigError(f"model {req.model!r} takes marker sequences: give --markers FILE.npz")
         x, y, groups = load_markers(req.markers)
+        n_groups = len(np.unique(groups))
+        if n_groups < 2:
+            raise InputError(req.markers, f"all {len(groups)} samples are in one group: a split that never cuts a "
+                                          "group leaves nothing to train on (give groups with several values)")
         tr, te = split_groups(groups, 0.2 if req.test_fraction == 0.1 else req.test_fraction, req.seed)
         from slipsense.config import portable_path
 

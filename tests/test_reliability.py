@@ -141,3 +141,89 @@ def test_resume_of_another_model_changes_nothing(tmp_path):
     result = _train(tmp_path, out, "--epochs", "2", "--resume")
     assert result.exit_code == 0, result.output
     assert len((out / "metrics.csv").read_text().strip().splitlines()) == 3
+
+
+# ------------------------------------------------------------------------- 2. nothing is not success
+def _recordings(root: Path, objects=("cup", "pen"), n: int = 30, cameras=("camera_0", "camera_2")) -> Path:
+    """One slip run per object (uniform grey videos) and an override CSV giving each a moment of slip."""
+    import cv2
+
+    rows = ["object,experiment,camera,moment_of_slip"]
+    for obj in objects:
+        folder = root / obj / "exp_num_1"
+        folder.mkdir(parents=True)
+        (folder / "slip.txt").write_text("")
+        for cam in cameras:
+            vw = cv2.VideoWriter(str(folder / f"{cam}.avi"), cv2.VideoWriter_fourcc(*"XVID"), 25.0, (320, 240))
+            for i in range(n):
+                vw.write(np.full((240, 320, 3), 80 + i, np.uint8))
+            vw.release()
+        rows.append(f"{obj},1,,{n - 5}")
+    (root.parent / "overrides.csv").write_text("\n".join(rows) + "\n")
+    return root
+
+
+@pytest.fixture
+def cache(tmp_path, monkeypatch):
+    monkeypatch.setenv("SLIPSENSE_CACHE", str(tmp_path / "cache"))
+    return tmp_path / "cache"
+
+
+def test_training_with_every_object_held_out_is_refused(tmp_path, cache):
+    rec = _recordings(tmp_path / "rec")
+    out = tmp_path / "run"
+    result = runner.invoke(app, ["train", "--model", "vivit", "--recordings", str(rec), "--overrides",
+                                 str(tmp_path / "overrides.csv"), "--size", "48x64", "--frames", "2",
+                                 "--test-objects", "cup,pen", "--out", str(out), "--no-progress"])
+    assert result.exit_code == 2, result.output
+    assert "nothing is left to train on" in _error_line(result)
+    assert not out.exists()
+
+
+def test_training_on_markers_of_one_group_is_refused(tmp_path):
+    _markers(tmp_path / "m.npz", groups=np.zeros(24, int))
+    result = _train(tmp_path, tmp_path / "run", "--epochs", "1")
+    assert result.exit_code == 2, result.output
+    line = _error_line(result)
+    assert "m.npz" in line and "one group" in line
+    assert not (tmp_path / "run").exists()
+
+
+def test_fit_refuses_an_empty_training_set(tmp_path):
+    from slipsense.datasets import MarkerDataset
+    from slipsense.errors import ConfigError
+    from slipsense.models import build
+    from slipsense.train import TrainConfig, fit
+
+    model = build("temnet", frames=4, markers=5, d_model=8, heads=2, blocks=1, ff_dim=8, head_hidden=0)
+    empty = MarkerDataset(np.zeros((0, 4, 5, 3), np.float32), np.zeros(0, np.int64))
+    with pytest.raises(ConfigError, match="training set is empty"):
+        fit(model, empty, None, TrainConfig(epochs=1, progress=False), tmp_path / "run")
+    assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize("split, word", [
+    ({"kind": "markers", "test_indices": []}, "no test items"),
+    ({"kind": "markers"}, "lacks test_indices"),
+    ({"kind": "markers", "test_indices": [0, -1]}, "negative"),
+    ({"kind": "markers", "test_indices": [0, 500]}, "out of range"),
+    ({"kind": "markers", "test_indices": [1, 1]}, "repeats"),
+    ({"kind": "markers", "test_indices": "0,1"}, "list of integers"),
+    ({"kind": "markers", "test_indices": [0.5]}, "list of integers"),
+    ({"kind": "video", "test_indices": [0]}, "video data"),
+    ([1, 2, 3], "JSON object"),
+])
+def test_bad_split_files_are_refused(tmp_path, split, word):
+    _markers(tmp_path / "m.npz")
+    assert _train(tmp_path, tmp_path / "run", "--epochs", "1").exit_code == 0
+    if isinstance(split, dict) and split.get("kind") == "markers" and "markers" not in split:
+        split["markers"] = str(tmp_path / "m.npz")
+    path = tmp_path / "split.json"
+    path.write_text(json.dumps(split))
+    json_out = tmp_path / "eval.json"
+    result = runner.invoke(app, ["evaluate", "--checkpoint", str(tmp_path / "run" / "last.safetensors"),
+                                 "--split", str(path), "--json", str(json_out), "--no-progress"])
+    assert result.exit_code == 2, result.output
+    line = _error_line(result)
+    assert "split.json" in line and word in line, line
+    assert not json_out.exists()
