@@ -22,3 +22,14 @@ class InputError(SlipsenseError):
 
 class ConfigError(SlipsenseError):
     """A configuration key is unknown or a value is out of range."""
+
+
+class OutputError(InputError, OSError):
+    """A file slipsense was asked to write cannot be written (an existing folder, a read-only place).
+
+    Also an OSError, so code that treats a failed write as recoverable (caches) still catches it.
+    """
+
+
+class CacheWarning(UserWarning):
+    """A cache entry failed its checks (checksum, inputs, contents) and is rebuilt from its inputs."""

@@ -332,5 +332,96 @@ def export_onnx(checkpoint_or_model: str | Path | nn.Module, out_path: str | Pat
     return result
 
 
-__all__ = ["ExportResult", "conv_embed_patches", "example_inputs", "export_module", "export_onnx", "export_streaming_parts", "exportable",
+# ------------------------------------------------------------------------------ verified parts cache
+#: Written last into a parts folder: format, what the parts were exported from, each file's sha256.
+PARTS_MANIFEST = "parts.json"
+PARTS_FORMAT = 1
+
+
+def _file_sha256(path: Path) -> str:
+    import hashlib
+
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _parts_key(model: nn.Module, geometry: Mapping[str, Any], precision: str) -> dict[str, Any]:
+    import json
+
+    from slipsense import __version__
+
+    config = model.config() if hasattr(model, "config") else {}
+    return json.loads(json.dumps({"model": getattr(model, "model_name", type(model).__name__), "config": config,
+                                  "geometry": dict(geometry), "precision": precision, "slipsense": __version__,
+                                  "torch": torch.__version__}, default=str))
+
+
+def check_parts(folder: str | Path, names: list[str], key: Mapping[str, Any]) -> str | None:
+    """Why the cached parts ``names`` in ``folder`` cannot be used (None: they can): the manifest is
+    missing or unreadable, records other inputs than ``key``, or a file's sha256 differs."""
+    import json
+
+    folder = Path(folder)
+    try:
+        manifest = json.loads((folder / PARTS_MANIFEST).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        return "no manifest"
+    except (OSError, ValueError) as exc:
+        return f"manifest unreadable ({exc})"
+    if not isinstance(manifest, dict) or manifest.get("format") != PARTS_FORMAT:
+        return "manifest of another format"
+    if manifest.get("key") != key:
+        return "exported from another model or setting"
+    files = manifest.get("files")
+    if not isinstance(files, dict):
+        return "manifest lists no files"
+    for name in names:
+        path = folder / name
+        if name not in files or not path.is_file():
+            return f"{name} missing"
+        if _file_sha256(path) != files[name]:
+            return f"{name}: checksum mismatch"
+    return None
+
+
+def cached_streaming_parts(model: nn.Module, folder: str | Path, geometry: Mapping[str, Any],
+                           precision: str = "fp32") -> tuple[Path | None, Path]:
+    """The model's streaming parts as ONNX files in ``folder``, exported unless a verified copy is
+    there: ``(frame.onnx or None, window.onnx)``, their ``*.int8.onnx`` copies for ``precision="int8"``.
+
+    ``folder/parts.json`` (written last) records the model's name, config, geometry, precision, the
+    library versions and each file's sha256; files that do not match it (damaged, half written,
+    from another checkpoint) are exported again with a :class:`~slipsense.errors.CacheWarning`.
+    """
+    import json
+
+    from slipsense.atomic import write_text
+    from slipsense.errors import CacheWarning
+    from slipsense.live import streaming_parts
+
+    folder = Path(folder)
+    has_frame = streaming_parts(model)[0] is not None
+    names = (["frame.onnx"] if has_frame else []) + ["window.onnx"]
+    if precision == "int8":
+        names = [n.replace(".onnx", ".int8.onnx") for n in names]
+    key = _parts_key(model, geometry, precision)
+    why = check_parts(folder, names, key)
+    if why is not None:
+        if why != "no manifest":
+            warnings.warn(f"{folder}: cached ONNX parts unusable ({why}); exporting again", CacheWarning, stacklevel=2)
+        (folder / PARTS_MANIFEST).unlink(missing_ok=True)
+        export_streaming_parts(model, folder, geometry=geometry, verify=False)
+        if precision == "int8":
+            for src in (["frame.onnx"] if has_frame else []) + ["window.onnx"]:
+                quantize_int8(folder / src, folder / src.replace(".onnx", ".int8.onnx"))
+        manifest = {"format": PARTS_FORMAT, "key": key, "files": {n: _file_sha256(folder / n) for n in names}}
+        write_text(folder / PARTS_MANIFEST, json.dumps(manifest, indent=1))
+    paths = [folder / n for n in names]
+    return (paths[0] if has_frame else None), paths[-1]
+
+
+__all__ = ["ExportResult", "cached_streaming_parts", "check_parts", "conv_embed_patches", "example_inputs", "export_module", "export_onnx", "export_streaming_parts", "exportable",
            "max_abs_diff", "onnx_session", "quantize_int8", "run_onnx"]

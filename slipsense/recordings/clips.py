@@ -39,13 +39,14 @@ from .video import read_video
 MIN_CLIP_FRAMES = 2
 MAX_CLIP_FRAMES = 12
 #: Bumped whenever the cache file layout or the window rules change, so old entries are not reused.
-CACHE_VERSION = 1
+CACHE_VERSION = 2
 
 Key = tuple[str, int, str]
 
 
-class CacheWarning(UserWarning):
-    """A cache entry could not be used (or written) and the clips were rebuilt from the videos."""
+# A cache entry could not be used (or written) and the clips were rebuilt from the videos; one
+# class for every cache of slipsense (labels, clips, markers).
+from ..errors import CacheWarning  # noqa: E402
 
 
 def _is_int(v: Any) -> bool:
@@ -272,6 +273,44 @@ def build_clips(
     Videos left without clips (slip too early, contact phase too short, no moment of slip)
     are reported with a :class:`~slipsense.recordings.folders.SkippedInputWarning`.
     """
+    plans = _plans(recordings, labels, spec, warn=True)
+    n_clips = sum(len(w) for _, _, w in plans)
+    h, w = spec.size
+    x = np.empty((n_clips, spec.frames, h, w, 3), dtype=np.uint8)
+    y = np.empty(n_clips, dtype=np.int64)
+    meta: list[dict[str, Any]] = []
+    i = 0
+    for rec, label, windows in tqdm(plans, desc="decoding videos", unit="video", disable=not progress):
+        # Size is enforced on the output (resize); per-video size checks belong to validate_recordings.
+        video = read_video(rec.path, expected_size=None, min_frames=spec.frames)
+        if len(video) != label.n_frames:
+            raise InputError(
+                rec.path, f"label is for {label.n_frames} frames but the video has {len(video)}; relabel it"
+            )
+        for win in windows:
+            x[i] = _resize_clip(video[win.start : win.end + 1], spec.size)
+            y[i] = win.y
+            meta.append(_meta(rec, label, win))
+            i += 1
+        del video
+    return ClipSet(x, y, meta, spec)
+
+
+def _meta(rec: Recording, label: VideoLabel, win: Window) -> dict[str, Any]:
+    return {
+        "object": rec.object,
+        "experiment": int(rec.experiment),
+        "camera": rec.camera,
+        "start": int(win.start),
+        "end": int(win.end),
+        "moment_of_slip": None if label.moment_of_slip is None else int(label.moment_of_slip),
+        "augmented": False,
+    }
+
+
+def _plans(recordings: Iterable[Recording], labels: Mapping[Key, VideoLabel], spec: ClipSpec,
+           warn: bool) -> list[tuple[Recording, VideoLabel, list[Window]]]:
+    """The videos that give clips, with their label and windows, in clip order (checks labels)."""
     plans: list[tuple[Recording, VideoLabel, list[Window]]] = []
     seen: set[Key] = set()
     for rec in sorted(recordings, key=lambda r: r.key):
@@ -289,42 +328,12 @@ def build_clips(
             )
         check_label(label, rec.path)
         windows, note = _plan(label, spec)
-        if note is not None:
+        if note is not None and warn:
             warnings.warn(f"{rec.path}: {note}; {'skipped' if not windows else 'using fewer'}",
-                          SkippedInputWarning, stacklevel=2)
+                          SkippedInputWarning, stacklevel=3)
         if windows:
             plans.append((rec, label, windows))
-
-    n_clips = sum(len(w) for _, _, w in plans)
-    h, w = spec.size
-    x = np.empty((n_clips, spec.frames, h, w, 3), dtype=np.uint8)
-    y = np.empty(n_clips, dtype=np.int64)
-    meta: list[dict[str, Any]] = []
-    i = 0
-    for rec, label, windows in tqdm(plans, desc="decoding videos", unit="video", disable=not progress):
-        # Size is enforced on the output (resize); per-video size checks belong to validate_recordings.
-        video = read_video(rec.path, expected_size=None, min_frames=spec.frames)
-        if len(video) != label.n_frames:
-            raise InputError(
-                rec.path, f"label is for {label.n_frames} frames but the video has {len(video)}; relabel it"
-            )
-        for win in windows:
-            x[i] = _resize_clip(video[win.start : win.end + 1], spec.size)
-            y[i] = win.y
-            meta.append(
-                {
-                    "object": rec.object,
-                    "experiment": int(rec.experiment),
-                    "camera": rec.camera,
-                    "start": int(win.start),
-                    "end": int(win.end),
-                    "moment_of_slip": None if label.moment_of_slip is None else int(label.moment_of_slip),
-                    "augmented": False,
-                }
-            )
-            i += 1
-        del video
-    return ClipSet(x, y, meta, spec)
+    return plans
 
 
 # ----------------------------------------------------------------------------------------- cache
@@ -378,19 +387,36 @@ def _save_npz(path: Path, clips: ClipSet) -> str:
     return digest[0]
 
 
-def _load_npz(npz: Path, sidecar: Path, spec: ClipSpec) -> ClipSet:
-    """Load a cache entry, raising ValueError/OSError on any inconsistency."""
+def _load_npz(npz: Path, sidecar: Path, spec: ClipSpec, key: str | None = None,
+              expected: tuple[list[dict[str, Any]], np.ndarray] | None = None) -> ClipSet:
+    """Load a cache entry, raising ValueError/OSError on any inconsistency.
+
+    ``key``: the :func:`cache_key` of the inputs, which the sidecar must record; ``expected``:
+    the ``(meta, y)`` the inputs give (:func:`_plans`), which the entry must hold exactly.
+    """
     info = json.loads(sidecar.read_text())
     if not isinstance(info, dict):
         raise ValueError("checksum file is not a JSON object")
     if info.get("version") != CACHE_VERSION:
         raise ValueError(f"cache version {info.get('version')!r}, expected {CACHE_VERSION}")
+    if key is not None and info.get("key") != key:
+        raise ValueError("made from other videos, labels or settings")
     if _sha256_file(npz) != info.get("sha256"):
         raise ValueError("checksum mismatch")
     with np.load(npz, allow_pickle=False) as data:
+        if set(data.files) != {"x", "y", "meta"}:
+            raise ValueError(f"unexpected arrays {sorted(data.files)}")
         x, y, meta = data["x"], data["y"], json.loads(str(data["meta"]))
-    if x.shape[1:] != (spec.frames, *spec.size, 3) or len(y) != len(x) or len(meta) != len(x):
-        raise ValueError(f"clip array shape {x.shape} does not match the spec")
+    if x.dtype != np.uint8 or x.ndim != 5 or x.shape[1:] != (spec.frames, *spec.size, 3):
+        raise ValueError(f"clip array {x.dtype} {x.shape} does not match the spec")
+    if y.ndim != 1 or len(y) != len(x) or not isinstance(meta, list) or len(meta) != len(x):
+        raise ValueError("clip, label and provenance counts differ")
+    if expected is not None:
+        want_meta, want_y = expected
+        if meta != want_meta:
+            raise ValueError("clip windows differ from those the labels give")
+        if not np.array_equal(y, want_y):
+            raise ValueError("clip labels differ from those the labels give")
     return ClipSet(x, y, meta, spec)
 
 
@@ -407,7 +433,9 @@ def load_or_build_clips(
     holding its sha256; ``cache_dir`` defaults to ``config.cache_root() / "clips"`` and ``<key>``
     is the first 24 hex digits of :func:`cache_key`. Both files are written atomically, the
     sidecar last, so an interrupted write leaves no entry that looks complete. An entry that fails
-    its checksum or cannot be loaded is rebuilt with a :class:`CacheWarning`; a failure to write
+    its checksum, was made from other inputs (the sidecar records the full key), holds other
+    windows or labels than the labels give, or cannot be loaded is rebuilt with a
+    :class:`CacheWarning`; a failure to write
     the cache only warns, since the clips are in hand.
 
     Returns:
@@ -415,7 +443,8 @@ def load_or_build_clips(
     """
     recordings = list(recordings)
     folder = Path(cache_dir) if cache_dir is not None else config.cache_root() / "clips"
-    stem = f"clips-{cache_key(recordings, labels, spec)[:24]}"
+    key = cache_key(recordings, labels, spec)
+    stem = f"clips-{key[:24]}"
     npz, sidecar = folder / f"{stem}.npz", folder / f"{stem}.json"
 
     if npz.exists() or sidecar.exists():
@@ -424,7 +453,10 @@ def load_or_build_clips(
                 raise ValueError("checksum file missing")
             if not npz.exists():
                 raise ValueError("clip file missing")
-            return _load_npz(npz, sidecar, spec)
+            plans = _plans(recordings, labels, spec, warn=False)
+            want_meta = [_meta(rec, label, win) for rec, label, windows in plans for win in windows]
+            want_y = np.array([win.y for _, _, windows in plans for win in windows], np.int64)
+            return _load_npz(npz, sidecar, spec, key, (want_meta, want_y))
         except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, InputError) as exc:
             warnings.warn(f"{npz}: cache entry unusable ({exc}); rebuilding", CacheWarning, stacklevel=2)
 
@@ -433,6 +465,7 @@ def load_or_build_clips(
         digest = _save_npz(npz, clips)
         sidecar_info = {
             "version": CACHE_VERSION,
+            "key": key,
             "sha256": digest,
             "n_clips": len(clips),
             "spec": asdict(spec),

@@ -272,6 +272,23 @@ def _read_at(cap: cv2.VideoCapture, index: int) -> tuple[bool, np.ndarray | None
     return bool(ok and frame is not None), frame
 
 
+def frame_count(path: str | Path) -> int | None:
+    """The frame count ``path``'s container states (no decoding; about 1 ms), or None when it
+    states none that can be trusted or the file cannot be opened."""
+    path = Path(path)
+    try:
+        _check_file(path)
+        cap = _open_capture(path)
+    except (InputError, cv2.error):
+        return None
+    try:
+        return _container_count(cap) if cap.isOpened() else None
+    except cv2.error:
+        return None
+    finally:
+        cap.release()
+
+
 def probe_video(
     path: str | Path,
     expected_size: tuple[int, int] | None = (240, 320),
@@ -339,4 +356,4 @@ def probe_video(
     return VideoInfo(n_frames=int(count), height=int(height), width=int(width), fps=fps, fourcc=fourcc)
 
 
-__all__ = ["TRUNCATION_TOLERANCE", "VideoInfo", "probe_video", "read_video"]
+__all__ = ["TRUNCATION_TOLERANCE", "VideoInfo", "frame_count", "probe_video", "read_video"]
