@@ -114,6 +114,9 @@ def train(
     augment: bool = typer.Option(True, help="append the paper's transformed copies to the training set"),
     epochs: Optional[int] = typer.Option(None),
     batch_size: Optional[int] = typer.Option(None, help="per process; under torchrun the global batch is world x this"),
+    accumulate: Optional[int] = typer.Option(None, help="micro-batches per process per step (global batch: world x "
+                                                         "batch size x this); 1 process x accumulate N draws the "
+                                                         "dropout masks of N processes"),
     lr: Optional[float] = typer.Option(None),
     weight_decay: Optional[float] = typer.Option(None),
     seed: int = typer.Option(0),
@@ -134,7 +137,8 @@ def train(
         test_objects=[o for o in (test_objects or "").split(",") if o], fold=fold, folds=folds,
         test_fraction=test_fraction, augment=augment, seed=seed, on_error=on_error, overrides=overrides,
         progress=progress,
-        train_overrides={k: v for k, v in dict(epochs=epochs, batch_size=batch_size, lr=lr, weight_decay=weight_decay,
+        train_overrides={k: v for k, v in dict(epochs=epochs, batch_size=batch_size, accumulate=accumulate, lr=lr,
+                                               weight_decay=weight_decay,
                                                num_workers=workers, device=device,
                                                max_steps_per_epoch=max_steps_per_epoch).items() if v is not None},
     )

@@ -2,15 +2,20 @@
 
 * seeded, with a progress bar, per-epoch metrics in ``metrics.csv`` and ``curves.png``;
 * ``best.safetensors`` / ``last.safetensors`` checkpoints (weights + full config);
-* ``resume.pt`` after every epoch so a killed run continues with ``resume=True`` and ends with the
-  same weights as an uninterrupted one (the sampler's order depends only on seed and epoch);
-* under ``torchrun`` the data is sharded by a ``DistributedSampler``, gradients are averaged by
-  DDP (gloo on CPU, NCCL on GPU), metrics are summed across ranks and only rank 0 writes files.
-  ``world_size x batch_size`` equals the single-process batch: launch 2 processes with
-  ``--batch-size 8`` to reproduce a 1-process ``--batch-size 16`` run.
+* ``resume.pt`` after every epoch (data only: safetensors + JSON) so a killed run continues with
+  ``resume=True`` and ends with the same weights as an uninterrupted one (the item order depends
+  only on seed and epoch, dropout masks only on seed, epoch, step and micro-batch);
+* under ``torchrun`` each step's items are split between the ranks by a :class:`StepPlan` (no
+  padding: no item is seen twice, for any dataset size), gradients are averaged by DDP (gloo on
+  CPU, NCCL on GPU) with each rank's loss weighted by its share of the step, metrics are summed
+  across ranks and only rank 0 writes files. ``world_size x batch_size x accumulate`` is the
+  global batch: 2 processes with ``--batch-size 8`` reproduce a 1-process ``--batch-size 16`` run
+  (dropout-free models), and 1 process with ``--batch-size 8 --accumulate 2`` (any model: the
+  dropout masks of a micro-batch do not depend on the process that draws them).
 """
 from __future__ import annotations
 
+import contextlib
 import copy
 import csv
 import io
@@ -28,7 +33,7 @@ import torch
 import torch.distributed as dist
 import torch.nn as nn
 import torch.nn.functional as F
-from torch.utils.data import DataLoader, Dataset, DistributedSampler, Subset
+from torch.utils.data import DataLoader, Dataset, Subset, default_collate
 
 from slipsense.atomic import write_text
 from slipsense.checkpoint import load_resume_state, save_checkpoint, save_resume_state
@@ -52,6 +57,7 @@ class TrainConfig:
     select_by: str = "accuracy"  # validation metric that picks best.safetensors
     progress: bool = True
     max_steps_per_epoch: int | None = None  # cap for smoke runs and tests
+    accumulate: int = 1  # micro-batches per process per step: global batch = world x batch_size x accumulate
 
     def __post_init__(self):
         checks = [
@@ -64,6 +70,7 @@ class TrainConfig:
             (self.num_workers >= 0, "num_workers must be >= 0"),
             (self.select_by in ("accuracy", "f1", "loss"), "select_by must be accuracy, f1 or loss"),
             (self.max_steps_per_epoch is None or self.max_steps_per_epoch >= 1, "max_steps_per_epoch must be >= 1"),
+            (self.accumulate >= 1, "accumulate must be >= 1"),
         ]
         for ok, msg in checks:
             if not ok:
@@ -225,6 +232,69 @@ def restore_state(path: Path, state: dict[str, Any], model: nn.Module, optimizer
         raise InputError(path, "resume state history is not a list of metric rows")
 
 
+class StepPlan:
+    """Which items every micro-batch of every training step holds; the same for any world size.
+
+    Epoch ``e`` shuffles the ``n`` items with ``torch.randperm`` seeded ``seed + e`` (the order a
+    one-replica DistributedSampler gives). Step ``s`` takes the next ``world x batch x accumulate``
+    items of that order and cuts them into ``world x accumulate`` micro-batches of ``batch`` items
+    (the last step's may be short or empty); micro-batch ``m`` runs on rank ``m // accumulate``.
+    """
+
+    def __init__(self, n: int, batch: int, world: int = 1, accumulate: int = 1, seed: int = 0):
+        self.n, self.batch, self.world, self.accumulate, self.seed = n, batch, world, accumulate, seed
+
+    @property
+    def global_batch(self) -> int:
+        return self.world * self.batch * self.accumulate
+
+    def steps(self, epoch: int) -> list[list[list[int]]]:
+        g = torch.Generator()
+        g.manual_seed(self.seed + epoch)
+        order = torch.randperm(self.n, generator=g).tolist()
+        out = []
+        for a in range(0, self.n, self.global_batch):
+            items = order[a : a + self.global_batch]
+            out.append([items[m * self.batch : (m + 1) * self.batch] for m in range(self.world * self.accumulate)])
+        return out
+
+
+class _RankBatches:
+    """Batch sampler: this rank's non-empty micro-batches of an epoch, in order."""
+
+    def __init__(self, plan: StepPlan, rank: int):
+        self.plan, self.rank, self.epoch = plan, rank, 0
+
+    def set_epoch(self, epoch: int) -> None:
+        self.epoch = epoch
+
+    def _mine(self) -> list[list[int]]:
+        a = self.plan.accumulate
+        return [m for micro in self.plan.steps(self.epoch) for m in micro[self.rank * a : (self.rank + 1) * a] if m]
+
+    def __iter__(self):
+        return iter(self._mine())
+
+    def __len__(self) -> int:
+        return len(self._mine())
+
+
+@contextlib.contextmanager
+def micro_batch_rng(seed: int, epoch: int, step: int, micro: int, device: torch.device):
+    """Run a micro-batch with torch's generator seeded from ``(seed, epoch, step, micro)`` only.
+
+    Dropout masks (and any other random draw of the forward pass) then depend on which items are
+    computed together, never on which process computes them or on what ran before, so a torchrun
+    world and one process with ``accumulate = world`` draw the same masks, and a resumed run the
+    masks of an uninterrupted one. The generator state outside is left as it was.
+    """
+    key = int(np.random.SeedSequence([seed, epoch, step, micro]).generate_state(1, np.uint64)[0])
+    cuda = device.type == "cuda"
+    with torch.random.fork_rng(devices=[device] if cuda else [], device_type="cuda"):
+        torch.manual_seed(key)
+        yield
+
+
 def fit(model: nn.Module, train_data: Dataset, val_data: Dataset | None, cfg: TrainConfig,
         out_dir: str | Path, info: dict[str, Any] | None = None, resume: bool = False,
         extra_eval: dict[str, Dataset] | None = None,
@@ -256,12 +326,16 @@ def fit(model: nn.Module, train_data: Dataset, val_data: Dataset | None, cfg: Tr
     model.to(d.device)
     net = nn.parallel.DistributedDataParallel(model) if d.world > 1 else model
     optimizer, scheduler = make_optimizer(model, cfg)
-    # One sampler for every world size: with 1 replica it is a seeded shuffle whose order the
-    # ranks of a larger world split between them, so 2 x 8 sees the batches 1 x 16 sees.
-    sampler = DistributedSampler(train_data, num_replicas=d.world, rank=d.rank, shuffle=True, seed=cfg.seed)
-    loader = DataLoader(train_data, batch_size=cfg.batch_size, sampler=sampler, num_workers=cfg.num_workers,
-                        persistent_workers=cfg.num_workers > 0, drop_last=False)
-    info = {**(info or {}), "train": asdict(cfg), "world_size": d.world}
+    # One plan for every world size: each step takes the next world x batch x accumulate items of a
+    # seeded shuffle and cuts them into micro-batches; rank r runs micro-batches r*A .. r*A+A-1. No
+    # item is repeated or dropped (a DistributedSampler pads with repeats), so 2 x 8 sees the
+    # batches 1 x 16 sees, for any dataset size.
+    plan = StepPlan(len(train_data), cfg.batch_size, d.world, cfg.accumulate, cfg.seed)
+    batches = _RankBatches(plan, d.rank)
+    loader = DataLoader(train_data, batch_sampler=batches, num_workers=cfg.num_workers,
+                        persistent_workers=cfg.num_workers > 0)
+    info = {**(info or {}), "train": asdict(cfg), "world_size": d.world,
+            "global_batch": d.world * cfg.batch_size * cfg.accumulate}
     history: list[dict[str, Any]] = []
     best = -math.inf
     start_epoch = 0
@@ -278,29 +352,51 @@ def fit(model: nn.Module, train_data: Dataset, val_data: Dataset | None, cfg: Tr
         write_text(out / "run.json", json.dumps({**info, "model": model.model_name,
                                                  "model_config": model.config()}, indent=2, default=str))
     t_run = time.perf_counter()
+    dummy: list = []  # one real item, run with weight 0 by a rank whose micro-batch is empty
     for epoch in range(start_epoch, cfg.epochs):
         t0 = time.perf_counter()
-        sampler.set_epoch(epoch)
+        batches.set_epoch(epoch)
         net.train()
         sums = torch.zeros(3, dtype=torch.float64)  # loss * n, correct, n
-        bar = _bar(loader, cfg.progress and d.main, f"epoch {epoch + 1}/{cfg.epochs}")
-        for step, (x, y) in enumerate(bar):
-            if cfg.max_steps_per_epoch is not None and step >= cfg.max_steps_per_epoch:
-                break
-            x, y = x.to(d.device, non_blocking=True), y.to(d.device, non_blocking=True)
-            logits = net(x)
-            loss = F.cross_entropy(logits, y)
+        items = iter(loader)
+        steps = plan.steps(epoch)
+        if cfg.max_steps_per_epoch is not None:
+            steps = steps[: cfg.max_steps_per_epoch]
+        bar = _bar(steps, cfg.progress and d.main, f"epoch {epoch + 1}/{cfg.epochs}")
+        for step, micro in enumerate(bar):
+            n_global = sum(len(m) for m in micro)
             optimizer.zero_grad(set_to_none=True)
-            loss.backward()
+            mine = range(d.rank * cfg.accumulate, (d.rank + 1) * cfg.accumulate)
+            for k, m in enumerate(mine):
+                last = k == cfg.accumulate - 1
+                sync = contextlib.nullcontext() if (last or d.world == 1) else net.no_sync()
+                with sync, micro_batch_rng(cfg.seed, epoch, step, m, d.device):
+                    if micro[m]:
+                        x, y = next(items)
+                        x, y = x.to(d.device, non_blocking=True), y.to(d.device, non_blocking=True)
+                        logits = net(x)
+                        total = F.cross_entropy(logits, y, reduction="sum")
+                        # DDP averages over ranks: scaled so the step's gradient is the mean over
+                        # the n_global items of the step, wherever they were computed.
+                        (total * (d.world / n_global)).backward()
+                        sums += torch.tensor([total.item(), (logits.argmax(-1) == y).sum().item(), len(y)],
+                                             dtype=torch.float64)
+                    else:
+                        # Every rank joins every gradient all-reduce; in eval mode (no dropout, no
+                        # batch-norm update) and with weight 0, the item changes nothing.
+                        if not dummy:
+                            dummy.append(default_collate([train_data[0]]))
+                        net.eval()
+                        (net(dummy[0][0].to(d.device)).sum() * 0.0).backward()
+                        net.train()
             optimizer.step()
-            n = len(y)
-            sums += torch.tensor([loss.item() * n, (logits.argmax(-1) == y).sum().item(), n], dtype=torch.float64)
-            if bar is not loader:
+            if bar is not steps and sums[2] > 0:
                 bar.set_postfix(loss=f"{sums[0].item() / sums[2].item():.4f}")
         sums = _all_sum(sums, d)
         row: dict[str, Any] = {"epoch": epoch + 1, "lr": optimizer.param_groups[0]["lr"],
                                "train_loss": sums[0].item() / max(sums[2].item(), 1),
-                               "train_accuracy": sums[1].item() / max(sums[2].item(), 1)}
+                               "train_accuracy": sums[1].item() / max(sums[2].item(), 1),
+                               "train_items": int(sums[2].item())}
         scheduler.step()
         if val_data is not None and len(val_data):
             p, y = predict(model, val_data, batch_size=max(cfg.batch_size, 32), device=d.device, d=d)
