@@ -56,10 +56,86 @@ def read_info(path: str | Path) -> dict[str, Any]:
         info = json.loads(meta[META_KEY])
     except json.JSONDecodeError as exc:
         raise InputError(path, f"checkpoint config is not valid JSON ({exc})") from None
+    if not isinstance(info, dict):
+        raise InputError(path, f"checkpoint config is a JSON {type(info).__name__}, not an object")
     for key in ("model", "model_config"):
         if key not in info:
             raise InputError(path, f"checkpoint config lacks {key!r}")
+    if not isinstance(info["model"], str):
+        raise InputError(path, f"checkpoint model name must be a string, got {type(info['model']).__name__}")
+    if not isinstance(info["model_config"], dict):
+        raise InputError(path, f"checkpoint model_config must be a mapping of settings, got a "
+                               f"{type(info['model_config']).__name__}")
     return info
+
+
+#: A model setting may exceed this only when the weights in the file are as large.
+CONFIG_FLOOR = 4096
+
+
+def _header_shapes(path: Path) -> dict[str, tuple[int, ...]]:
+    """Tensor shapes a safetensors file states, read from its header (no tensor is loaded)."""
+    from safetensors import safe_open
+
+    try:
+        with safe_open(str(path), framework="pt") as fh:
+            return {k: tuple(fh.get_slice(k).get_shape()) for k in fh.keys()}
+    except Exception as exc:
+        raise InputError(path, f"checkpoint weights are unreadable ({type(exc).__name__}: {exc})") from None
+
+
+def _check_config_bounds(path: Path, config: dict[str, Any], shapes: dict[str, tuple[int, ...]]) -> None:
+    """Refuse, before anything is allocated, settings no model in this file can have.
+
+    Every number in ``model_config`` (nested lists too) must be at most the largest of
+    :data:`CONFIG_FLOOR`, the largest tensor dimension in the file and its number of tensors: a
+    width of 1e9 needs a tensor that wide, a depth of 1e7 at least that many tensors.
+    """
+    limit = max([CONFIG_FLOOR, len(shapes)] + [d for shape in shapes.values() for d in shape])
+
+    def walk(key: str, v: Any, depth: int = 0) -> None:
+        if depth > 8:
+            raise InputError(path, f"checkpoint setting {key} is nested too deeply")
+        if isinstance(v, bool) or v is None or isinstance(v, str):
+            return
+        if isinstance(v, (int, float)):
+            if not math.isfinite(v) or abs(v) > limit:
+                raise InputError(path, f"checkpoint setting {key}={v!r} is out of range (at most {limit} for the "
+                                       f"weights this file holds)")
+            return
+        if isinstance(v, (list, tuple)):
+            if len(v) > limit:
+                raise InputError(path, f"checkpoint setting {key} lists {len(v)} values")
+            for i, item in enumerate(v):
+                walk(f"{key}[{i}]", item, depth + 1)
+            return
+        if isinstance(v, dict):
+            for k, item in v.items():
+                walk(f"{key}.{k}", item, depth + 1)
+            return
+        raise InputError(path, f"checkpoint setting {key} has an unsupported type {type(v).__name__}")
+
+    for k, v in config.items():
+        walk(k, v)
+
+
+def _check_shapes_on_meta(path: Path, name: str, config: dict[str, Any], shapes: dict[str, tuple[int, ...]]) -> None:
+    """Build the model on the meta device (no memory) and refuse weights that do not fit it."""
+    from slipsense.models import build
+
+    try:
+        with torch.device("meta"):
+            ref = {k: tuple(v.shape) for k, v in build(name, **config).state_dict().items()}
+    except ConfigError as exc:
+        raise InputError(path, f"checkpoint config cannot build its model: {exc}") from None
+    except Exception:  # a model that cannot be built on the meta device is checked after building
+        return
+    missing, unexpected = _diff_keys(ref, shapes)
+    if missing or unexpected:
+        raise InputError(path, f"weights do not fit model {name!r}: missing {missing[:3]}, unexpected {unexpected[:3]}")
+    for key, shape in ref.items():
+        if shapes[key] != shape:
+            raise InputError(path, f"weight {key} has shape {shapes[key]}, model expects {shape}")
 
 
 def load_model(path: str | Path, expect_model: str | None = None) -> tuple[nn.Module, dict[str, Any]]:
@@ -76,6 +152,9 @@ def load_model(path: str | Path, expect_model: str | None = None) -> tuple[nn.Mo
     info = read_info(path)
     if expect_model is not None and info["model"] != expect_model:
         raise InputError(path, f"checkpoint holds a {info['model']!r} model, expected {expect_model!r}")
+    shapes = _header_shapes(path)
+    _check_config_bounds(path, info["model_config"], shapes)
+    _check_shapes_on_meta(path, info["model"], info["model_config"], shapes)
     try:
         model = build(info["model"], **info["model_config"])
     except ConfigError as exc:
@@ -224,10 +303,12 @@ def load_resume_state(path: str | Path) -> dict[str, Any]:
             head = fh.read(9)
     except OSError as exc:
         raise InputError(path, f"resume state cannot be read ({exc.strerror or exc})") from None
-    if head[:4] == b"PK\x03\x04" or head[:1] == b"\x80":
-        raise InputError(path, "resume state is a pickle (torch.save format), which is never loaded because "
-                               "unpickling can run code; delete it and train again without --resume")
-    if len(head) < 9 or head[8:9] != b"{":
+    # safetensors: an 8-byte little-endian header length, then the JSON header
+    is_safetensors = len(head) == 9 and head[8:9] == b"{" and int.from_bytes(head[:8], "little") < path.stat().st_size
+    if not is_safetensors:
+        if head[:4] == b"PK\x03\x04" or head[:1] == b"\x80":
+            raise InputError(path, "resume state is a pickle (torch.save format), which is never loaded because "
+                                   "unpickling can run code; delete it and train again without --resume")
         raise InputError(path, "resume state is not a slipsense resume file (not safetensors)")
     try:
         with safe_open(str(path), framework="pt") as fh:

@@ -227,3 +227,15 @@ def test_bad_split_files_are_refused(tmp_path, split, word):
     line = _error_line(result)
     assert "split.json" in line and word in line, line
     assert not json_out.exists()
+
+
+def test_resume_files_are_told_apart_by_content_not_by_their_first_byte(tmp_path):
+    # a safetensors header length whose low byte is 0x80 (the pickle protocol opcode) still loads
+    base = {"model": {}, "optimizer": {}, "scheduler": {}, "rng": {}, "history": [], "best": 0.0, "epoch": 0}
+    seen = set()
+    for pad in range(0, 300):
+        path = tmp_path / f"r{pad}.pt"
+        save_resume_state(path, {**base, "history": [{"note": "x" * pad}]})
+        seen.add(path.read_bytes()[0])
+        assert load_resume_state(path)["history"][0]["note"] == "x" * pad
+    assert 0x80 in seen
