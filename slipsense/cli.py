@@ -51,6 +51,26 @@ def parse_hw(text: Optional[str], option: str = "--size") -> Optional[tuple[int,
     return (h, w)
 
 
+#: Seeds are unsigned 32-bit integers (what NumPy's legacy generator takes, and every seed here fits).
+MAX_SEED = 2**32 - 1
+
+
+def check_seed(seed: int, option: str = "--seed") -> int:
+    """``seed`` if it is in 0..2**32-1, else ConfigError (a negative seed breaks NumPy's generators)."""
+    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= MAX_SEED:
+        raise ConfigError(f"{option} must be an integer in 0..{MAX_SEED}, got {seed!r}")
+    return seed
+
+
+def check_nonnegative(value: float, option: str) -> float:
+    """``value`` if it is a finite number >= 0, else ConfigError."""
+    import math
+
+    if not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
+        raise ConfigError(f"{option} must be a finite number >= 0, got {value!r}")
+    return value
+
+
 def _parse_sets(sets: Optional[List[str]]) -> dict[str, Any]:
     """``--set key=value`` pairs; values are parsed as JSON where they can be (numbers, lists)."""
     out: dict[str, Any] = {}
@@ -81,13 +101,20 @@ def label(
     progress: bool = typer.Option(True),
 ):
     """Find the moment of slip in every video and write it as CSV."""
+    from slipsense.data import label_runs
     from slipsense.recordings.folders import find_recordings, validate_recordings
-    from slipsense.recordings.labels import label_recordings, read_overrides_csv, write_labels_csv
+    from slipsense.recordings.labels import read_overrides_csv, write_labels_csv
 
+    from slipsense.atomic import check_output_file
+
+    check_output_file(csv, "--csv")
     root = recordings or _default_recordings()
     recs = validate_recordings(find_recordings(root, on_error=on_error), on_error=on_error)
-    ov = read_overrides_csv(overrides) if overrides else None
-    labels = label_recordings(recs, overrides=ov, progress=progress)
+    if overrides:
+        read_overrides_csv(overrides)  # a malformed file is refused before any video is decoded
+    # the path, not the parsed rows: label_recordings reads it against the recordings, so an error
+    # names the file and line
+    labels = label_runs(recs, overrides=overrides, on_error=on_error, progress=progress)
     write_labels_csv(labels, csv)
     n_slip = sum(1 for l in labels.values() if l.moment_of_slip is not None)
     typer.echo(f"{len(labels)} videos labelled ({n_slip} with a moment of slip) -> {csv}")
@@ -129,8 +156,11 @@ def train(
     progress: bool = typer.Option(True),
 ):
     """Train a model on recordings or marker sequences (works under torchrun for DDP)."""
+    from slipsense.atomic import check_output_dir
     from slipsense.train import TrainRequest, run_training
 
+    check_seed(seed)
+    check_output_dir(out, "--out")
     req = TrainRequest(
         model=model, recordings=recordings, markers=markers, out=out, preset=preset, model_overrides=_parse_sets(set_),
         frames=frames, horizon=horizon, size=parse_hw(size), wiggle_per_video=wiggle_per_video, split=split,
@@ -161,8 +191,12 @@ def evaluate(
     dtype: str = typer.Option("float32", help="inference numerics: float32, bfloat16 (STNet/TemNet) or int8 weights"),
 ):
     """Evaluate a checkpoint: accuracy, precision, recall, F1 and a confusion matrix."""
+    from slipsense.atomic import check_output_file
     from slipsense.evaluate import evaluate_checkpoint
 
+    check_nonnegative(noise_std, "--noise-std")
+    check_output_file(json_out, "--json")
+    check_output_file(png, "--png")
     m = evaluate_checkpoint(checkpoint, recordings=recordings, split=split, markers=markers, json_out=json_out,
                             png=png, noise_std=noise_std, on_error=on_error, overrides=overrides,
                             progress=progress, dtype=dtype)

@@ -139,8 +139,15 @@ def _command(name: str, train: bool, fn):
 
     @functools.wraps(fn)
     def wrapper(**kwargs):
+        from slipsense.atomic import check_output_dir
+        from slipsense.cli import check_seed
+
         kw = {k: kwargs.pop(k) for k in common_names}
+        check_seed(kw["seed"])
+        if "data_seed" in kw:
+            check_seed(kw["data_seed"], "--data-seed")
         settings = _settings(name, kw)
+        check_output_dir(settings.out, "--out")
         paths = fn(settings, kw, **kwargs)
         for key in ("csv", "md", "png", "config"):
             if key in paths:
@@ -246,8 +253,10 @@ def _results_cmd(
     out: Path = typer.Option(Path("docs/results.md"), help="Markdown file to write"),
 ):
     """Gather every report folder under --reports into one Markdown page, one section per experiment."""
+    from slipsense.atomic import check_output_file
     from slipsense.experiments import collect_results, find_reports
 
+    check_output_file(out, "--out")
     path = collect_results(reports, out)
     found = find_reports(reports)
     typer.echo(f"{sum(map(len, found.values()))} report(s) of {len(found)} experiment(s) -> {path}")

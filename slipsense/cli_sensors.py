@@ -20,8 +20,16 @@ def register(app: typer.Typer) -> None:
         progress: bool = typer.Option(True),
     ):
         """Simulate the binocular marker sensor: 6 objects x 4 motion patterns, 12-frame windows."""
+        from slipsense.atomic import check_output_dir, check_output_file
+        from slipsense.cli import check_seed
+        from slipsense.errors import InputError
         from slipsense.sensors.simulator import SimConfig, make_dataset, plot_patterns, save_dataset
 
+        check_seed(seed)
+        if out.suffix != ".npz":
+            raise InputError(out, "marker datasets are saved as .npz; give a path ending in .npz")
+        check_output_file(out, "--out")
+        check_output_dir(figures, "--figures")
         cfg = SimConfig(seed=seed, n_sequences=sequences)
         ds = make_dataset(cfg, progress=progress)
         save_dataset(ds, out)
@@ -44,8 +52,13 @@ def register(app: typer.Typer) -> None:
         progress: bool = typer.Option(True),
     ):
         """Track the gel markers of real GelSight recordings (KLT) into labelled marker sequences."""
+        from slipsense.atomic import check_output_file
+        from slipsense.cli import check_seed
         from slipsense.config import gelsight_recordings
         from slipsense.sensors.real import real_marker_dataset, save_marker_npz
+
+        check_seed(seed)
+        check_output_file(out, "--out")
 
         arrays = real_marker_dataset(recordings or gelsight_recordings(), frames=frames, n_markers=n_markers,
                                      horizon=horizon, wiggle_per_video=wiggle_per_video, seed=seed,

@@ -26,18 +26,60 @@ def gelsight_clips(recordings_dir: str | Path, spec, on_error: str = "raise", ov
     """
     from slipsense.recordings.clips import load_or_build_clips
     from slipsense.recordings.folders import find_recordings, validate_recordings
-    from slipsense.recordings.labels import label_recordings, read_overrides_csv
 
     recordings = find_recordings(recordings_dir, on_error=on_error)
     recordings = validate_recordings(recordings, on_error=on_error)
     if not recordings:
         raise InputError(recordings_dir, "no usable recordings")
-    ov = read_overrides_csv(overrides) if overrides else None
-    labels = label_recordings(recordings, overrides=ov, progress=progress)
+    labels = label_runs(recordings, overrides=overrides, on_error=on_error, progress=progress)
+    recordings = [r for r in recordings if r.key in labels]  # runs skipped while labelling
+    if not recordings:
+        raise InputError(recordings_dir, "no usable recordings")
     clips = load_or_build_clips(recordings, labels, spec, progress=progress)
     if len(clips) == 0:
         raise InputError(recordings_dir, "no clips could be made (no slip moments and no contact phases found)")
     return clips, labels
+
+
+def label_runs(recordings, overrides=None, on_error: str = "raise", progress: bool = True):
+    """Label recordings run by run (:func:`~slipsense.recordings.labels.label_recordings`) and
+    apply the overrides (a CSV path, read against the recordings so errors name its file and line).
+
+    With ``on_error="skip"`` a run that cannot be labelled (a video that does not decode, cameras
+    that differ in frame count) is left out with a
+    :class:`~slipsense.recordings.folders.SkippedInputWarning`, together with its override rows;
+    with ``"raise"`` its InputError stops everything. Returns ``{key: VideoLabel}``.
+    """
+    import warnings
+
+    from slipsense.recordings.folders import SkippedInputWarning, check_on_error
+    from slipsense.recordings.labels import Overrides, apply_overrides, label_recordings, read_overrides_csv
+
+    check_on_error(on_error)
+    runs: dict[tuple[str, int], list] = {}
+    for r in recordings:
+        runs.setdefault((r.object, r.experiment), []).append(r)
+    known = {key: [r.camera for r in recs] for key, recs in runs.items()}
+    ov = read_overrides_csv(overrides, known=known) if isinstance(overrides, (str, Path)) else overrides
+    if on_error == "raise":
+        return label_recordings(recordings, overrides=ov, progress=progress)
+    labels: dict = {}
+    skipped: set = set()
+    items = list(runs.items())
+    if progress:
+        from tqdm import tqdm
+
+        items = tqdm(items, desc="labelling runs", unit="run")
+    for key, recs in items:
+        try:
+            labels.update(label_recordings(recs, progress=False))
+        except InputError as exc:
+            warnings.warn(f"{exc}; run skipped", SkippedInputWarning, stacklevel=2)
+            skipped.add(key)
+    if ov:
+        ov = ov.without_runs(skipped) if isinstance(ov, Overrides) else {k: v for k, v in ov.items() if k[:2] not in skipped}
+        labels = apply_overrides(labels, ov)
+    return dict(sorted(labels.items()))
 
 
 def clip_spec_from(info: dict[str, Any]):

@@ -24,6 +24,12 @@ class ClipDataset(Dataset):
     """
 
     def __init__(self, clips, augment=None, seed: int = 0, noise_std: float = 0.0):
+        import math
+
+        from slipsense.errors import ConfigError
+
+        if not isinstance(noise_std, (int, float)) or not math.isfinite(noise_std) or noise_std < 0:
+            raise ConfigError(f"noise_std must be a finite number >= 0, got {noise_std!r}")
         self.clips = clips
         self.augment = augment if (augment is not None and augment.enabled) else None
         self.seed = seed

@@ -49,6 +49,10 @@ def evaluate_checkpoint(checkpoint: str | Path, recordings=None, split=None, mar
     sources = [s for s in (recordings, split, markers) if s is not None]
     if len(sources) != 1:
         raise ConfigError("give exactly one of --recordings, --split or --markers")
+    import math
+
+    if not isinstance(noise_std, (int, float)) or not math.isfinite(noise_std) or noise_std < 0:
+        raise ConfigError(f"--noise-std must be a finite number >= 0, got {noise_std!r}")
     model, info = load_model(checkpoint)
     kind = model.input_kind
     model = with_precision(model.eval(), dtype)

@@ -71,6 +71,7 @@ class TrainConfig:
             (self.select_by in ("accuracy", "f1", "loss"), "select_by must be accuracy, f1 or loss"),
             (self.max_steps_per_epoch is None or self.max_steps_per_epoch >= 1, "max_steps_per_epoch must be >= 1"),
             (self.accumulate >= 1, "accumulate must be >= 1"),
+            (isinstance(self.seed, int) and 0 <= self.seed < 2**32, f"seed must be an integer in 0..{2**32 - 1}"),
         ]
         for ok, msg in checks:
             if not ok:

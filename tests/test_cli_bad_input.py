@@ -148,3 +148,271 @@ def test_bad_config_values(tmp_path, args, word):
                                  "--no-progress", *args])
     assert result.exit_code == 2, result.output
     assert word in _error_line(result)
+
+
+# ------------------------------------------------------------------ issue 12: more bad-input classes
+import os
+import subprocess
+import sys
+
+TINY = ["--model", "temnet", "--set", "d_model=8", "--set", "heads=2", "--set", "blocks=1", "--set", "ff_dim=8",
+        "--set", "head_hidden=0", "--batch-size", "4", "--no-progress"]
+
+
+def _markers_npz(path: Path, n: int = 24, **extra) -> Path:
+    rng = np.random.default_rng(0)
+    arrays = {"x": rng.normal(size=(n, 4, 5, 3)).astype(np.float32), "y": np.arange(n) % 2,
+              "groups": np.arange(n) // 2, **extra}
+    np.savez(path, **arrays)
+    return path
+
+
+def _stderr_lines(result) -> list[str]:
+    text = result.stderr if hasattr(result, "stderr") else result.output
+    return text.splitlines()
+
+
+def _one_error(result, *words) -> str:
+    assert result.exit_code == 2, result.output
+    assert "Traceback" not in result.output
+    line = _error_line(result)
+    for w in words:
+        assert w in line, line
+    return line
+
+
+@pytest.fixture
+def cache(tmp_path, monkeypatch):
+    monkeypatch.setenv("SLIPSENSE_CACHE", str(tmp_path / "cache"))
+
+
+@pytest.fixture
+def unwritable(tmp_path):
+    """A folder nothing can be created in (permission bits do not stop root: use /proc then)."""
+    if os.geteuid() == 0:
+        yield Path("/proc/self/slipsense-test")
+        return
+    folder = tmp_path / "readonly"
+    folder.mkdir()
+    folder.chmod(0o555)
+    yield folder
+    folder.chmod(0o755)
+
+
+@pytest.fixture
+def run_dir(tmp_path):
+    """A trained tiny TemNet run (its checkpoint) and its marker file."""
+    _markers_npz(tmp_path / "m.npz")
+    result = runner.invoke(app, ["train", *TINY, "--markers", str(tmp_path / "m.npz"), "--out", str(tmp_path / "run"),
+                                 "--epochs", "1"])
+    assert result.exit_code == 0, result.output
+    return tmp_path / "run"
+
+
+# output paths --------------------------------------------------------------------------------
+def test_label_csv_that_is_a_folder_or_unwritable(tmp_path, cache, unwritable):
+    root = tmp_path / "rec"
+    _good_run(root)
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / "keep.txt").write_text("mine")
+    result = runner.invoke(app, ["label", "--recordings", str(root), "--csv", str(tmp_path / "out"), "--no-progress"])
+    _one_error(result, str(tmp_path / "out"), "folder")
+    assert (tmp_path / "out" / "keep.txt").read_text() == "mine"
+    result = runner.invoke(app, ["label", "--recordings", str(root), "--csv", str(unwritable / "l.csv"), "--no-progress"])
+    _one_error(result, "l.csv", "cannot be written")
+    assert not (tmp_path / "cache" / "labels").exists()  # refused before any work
+
+
+def test_evaluate_json_and_train_out_that_cannot_be_written(tmp_path, run_dir, unwritable):
+    ck = run_dir / "last.safetensors"
+    before = ck.read_bytes()
+    (tmp_path / "eval.json").mkdir()
+    result = runner.invoke(app, ["evaluate", "--checkpoint", str(ck), "--markers", str(tmp_path / "m.npz"),
+                                 "--json", str(tmp_path / "eval.json"), "--no-progress"])
+    _one_error(result, "eval.json", "folder")
+    result = runner.invoke(app, ["evaluate", "--checkpoint", str(ck), "--markers", str(tmp_path / "m.npz"),
+                                 "--json", str(unwritable / "e.json"), "--no-progress"])
+    _one_error(result, "e.json", "cannot be written")
+    (tmp_path / "afile").write_text("mine")
+    result = runner.invoke(app, ["train", *TINY, "--markers", str(tmp_path / "m.npz"), "--out", str(tmp_path / "afile")])
+    _one_error(result, "afile", "is a file")
+    result = runner.invoke(app, ["train", *TINY, "--markers", str(tmp_path / "m.npz"), "--out", str(unwritable / "r")])
+    _one_error(result, "cannot be written")
+    assert (tmp_path / "afile").read_text() == "mine" and ck.read_bytes() == before
+
+
+def test_simulate_out_that_cannot_be_written(tmp_path, unwritable):
+    (tmp_path / "sim.npz").mkdir()
+    result = runner.invoke(app, ["simulate", "--out", str(tmp_path / "sim.npz"), "--sequences", "1", "--no-progress"])
+    _one_error(result, "sim.npz", "folder")
+    result = runner.invoke(app, ["simulate", "--out", str(unwritable / "sim.npz"), "--sequences", "1", "--no-progress"])
+    _one_error(result, "sim.npz", "cannot be written")
+    result = runner.invoke(app, ["simulate", "--out", str(tmp_path / "sim.txt"), "--sequences", "1", "--no-progress"])
+    _one_error(result, "sim.txt", ".npz")
+
+
+def test_write_failure_inside_atomic_path_is_one_line(tmp_path):
+    from slipsense.atomic import write_text
+    from slipsense.errors import OutputError
+
+    (tmp_path / "d").mkdir()
+    with pytest.raises(OutputError, match="is a folder"):
+        write_text(tmp_path / "d", "x")
+    (tmp_path / "f").write_text("mine")
+    with pytest.raises(OSError):  # an OutputError is an OSError too: caches that only warn still catch it
+        write_text(tmp_path / "f" / "below.txt", "x")
+    assert (tmp_path / "f").read_text() == "mine"
+
+
+# checkpoint configs --------------------------------------------------------------------------
+def _rewrite_config(src: Path, dst: Path, **changes) -> Path:
+    from safetensors import safe_open
+    from safetensors.torch import save_file
+
+    with safe_open(str(src), framework="pt") as fh:
+        meta = fh.metadata()
+        tensors = {k: fh.get_tensor(k) for k in fh.keys()}
+    info = json.loads(meta["slipsense"])
+    for k, v in changes.items():
+        if k == "model_config":
+            info["model_config"] = v
+        else:
+            info["model_config"][k] = v
+    save_file(tensors, str(dst), metadata={"slipsense": json.dumps(info)})
+    return dst
+
+
+@pytest.mark.parametrize("change, word", [
+    ({"d_model": 10**9}, "out of range"),
+    ({"blocks": 10**7}, "out of range"),
+    ({"ff_dim": 4000, "blocks": 4000}, "missing"),
+    ({"ff_dim": 16}, "has shape"),
+    ({"model_config": [8, 2]}, "mapping"),
+    ({"d_model": float("inf")}, "out of range"),
+])
+def test_checkpoint_configs_out_of_bounds_are_refused_before_allocating(tmp_path, run_dir, change, word):
+    import time
+
+    bad = _rewrite_config(run_dir / "last.safetensors", tmp_path / "bad.safetensors", **change)
+    t = time.perf_counter()
+    result = runner.invoke(app, ["evaluate", "--checkpoint", str(bad), "--markers", str(tmp_path / "m.npz"),
+                                 "--json", str(tmp_path / "e.json"), "--no-progress"])
+    _one_error(result, "bad.safetensors", word)
+    assert time.perf_counter() - t < 20  # refused from the header, not after building the model
+
+
+# recordings ----------------------------------------------------------------------------------
+def test_skip_leaves_out_a_run_whose_cameras_differ_in_frame_count(tmp_path, cache, recwarn):
+    root = tmp_path / "rec"
+    _good_run(root, obj="cup")
+    _video(root / "mug" / "exp_num_1" / "camera_0.avi", 30)
+    _video(root / "mug" / "exp_num_1" / "camera_2.avi", 24)
+    csv_out = tmp_path / "l.csv"
+    result = runner.invoke(app, ["label", "--recordings", str(root), "--csv", str(csv_out), "--no-progress"])
+    _one_error(result, "mug", "differ in frame count")
+    result = runner.invoke(app, ["label", "--recordings", str(root), "--csv", str(csv_out), "--on-error", "skip",
+                                 "--no-progress"])
+    assert result.exit_code == 0, result.output
+    # (pytest records warnings; the command line prints each as one "warning: ..." line)
+    assert any("mug" in str(w.message) and "skipped" in str(w.message) for w in recwarn.list)
+    rows = csv_out.read_text().strip().splitlines()[1:]
+    assert len(rows) == 2 and all(r.startswith("cup,") for r in rows)
+
+
+def test_one_camera_and_upper_case_avi_are_warned_about(tmp_path, cache, recwarn):
+    root = tmp_path / "rec"
+    _video(root / "cup" / "exp_num_1" / "camera_0.avi", 30)
+    (root / "cup" / "exp_num_1" / "camera_0.avi").rename(root / "cup" / "exp_num_1" / "camera_2.AVI")
+    _video(root / "cup" / "exp_num_1" / "camera_0.avi", 30)
+    result = runner.invoke(app, ["label", "--recordings", str(root), "--csv", str(tmp_path / "l.csv"), "--no-progress"])
+    assert result.exit_code == 0, result.output
+    warned = [str(w.message) for w in recwarn.list]
+    assert any("camera_2.AVI" in l and "not used" in l for l in warned), warned
+    assert any("only one sensor video" in l for l in warned), warned
+
+
+@pytest.mark.parametrize("row, words", [
+    ("plate,1,,20", ["line 2", "unknown object 'plate'"]),
+    ("cup,7,,20", ["line 2", "no experiment 7"]),
+    ("cup,1,,500", ["line 2", "moment 500 is outside 0..29"]),
+    ("cup,1,camera_2,40", ["line 2", "outside"]),
+])
+def test_override_csv_errors_name_file_and_line(tmp_path, cache, row, words):
+    root = tmp_path / "rec"
+    _good_run(root)
+    ov = tmp_path / "hand.csv"
+    ov.write_text("object,experiment,camera,moment_of_slip\n" + row + "\n")
+    result = runner.invoke(app, ["label", "--recordings", str(root), "--csv", str(tmp_path / "l.csv"),
+                                 "--overrides", str(ov), "--no-progress"])
+    _one_error(result, str(ov), *words)
+    assert not (tmp_path / "l.csv").exists()
+
+
+# marker files --------------------------------------------------------------------------------
+@pytest.mark.parametrize("extra, word", [
+    ({"fps": np.array("fast")}, "fps"),
+    ({"fps": np.array(-3.0)}, "fps"),
+    ({"object": np.zeros(24, np.int64), "object_names": np.array("cup")}, "object_names"),
+])
+def test_marker_npz_metadata_is_checked(tmp_path, extra, word):
+    path = _markers_npz(tmp_path / "meta.npz", **extra)
+    result = runner.invoke(app, ["train", *TINY, "--markers", str(path), "--out", str(tmp_path / "r")])
+    _one_error(result, "meta.npz", word)
+
+
+def test_marker_values_out_of_range_are_refused(tmp_path):
+    x = np.zeros((24, 4, 5, 3), np.float32)
+    x[3, 2, 1, 0] = 1e30
+    path = tmp_path / "huge.npz"
+    np.savez(path, x=x, y=np.arange(24) % 2, groups=np.arange(24) // 2)
+    result = runner.invoke(app, ["train", *TINY, "--markers", str(path), "--out", str(tmp_path / "r")])
+    _one_error(result, "huge.npz", "out of range", "sample 3, frame 2, marker 1")
+
+
+def test_marker_npz_reads_only_the_keys_it_uses(tmp_path):
+    from slipsense.sensors.simulator import load_marker_npz
+
+    # an unused object array (it would need unpickling) and an unused big one are never read
+    path = _markers_npz(tmp_path / "extra.npz", notes=np.array([{"a": 1}], dtype=object))
+    ds = load_marker_npz(path)
+    assert ds.x.shape == (24, 4, 5, 3)
+
+
+# numbers -------------------------------------------------------------------------------------
+@pytest.mark.parametrize("cmd", ["train", "simulate"])
+@pytest.mark.parametrize("seed", ["-5", str(2**40)])
+def test_bad_seeds(tmp_path, cmd, seed):
+    _markers_npz(tmp_path / "m.npz")
+    args = {"train": ["train", *TINY, "--markers", str(tmp_path / "m.npz"), "--out", str(tmp_path / "r")],
+            "simulate": ["simulate", "--out", str(tmp_path / "s.npz"), "--no-progress"]}[cmd]
+    result = runner.invoke(app, [*args, "--seed", seed])
+    _one_error(result, "--seed")
+    assert not (tmp_path / "r").exists() and not (tmp_path / "s.npz").exists()
+
+
+@pytest.mark.parametrize("std", ["-5", "nan", "inf"])
+def test_bad_noise_std(tmp_path, run_dir, std):
+    result = runner.invoke(app, ["evaluate", "--checkpoint", str(run_dir / "last.safetensors"), "--markers",
+                                 str(tmp_path / "m.npz"), "--json", str(tmp_path / "e.json"), "--noise-std", std])
+    _one_error(result, "--noise-std")
+    assert not (tmp_path / "e.json").exists()
+
+
+# library log noise ---------------------------------------------------------------------------
+def test_corrupt_and_foreign_videos_make_no_library_log_noise(tmp_path):
+    good = _video(tmp_path / "good.avi", 40)
+    data = bytearray(good.read_bytes())
+    for k in range(len(data) // 3, len(data) - 2000, 997):
+        data[k] ^= 0xFF
+    (tmp_path / "corrupt.avi").write_bytes(bytes(data))
+    (tmp_path / "fake.avi").write_bytes(b"RIFF\x00\x00\x00\x00AVI not really a video")
+    code = ("import sys\nfrom slipsense.recordings.video import probe_video, read_video\n"
+            "for p in sys.argv[1:]:\n"
+            "    try:\n        probe_video(p, expected_size=None); read_video(p, expected_size=None)\n"
+            "    except Exception as e:\n        print('refused', e)\n")
+    env = {k: v for k, v in os.environ.items() if k != "OPENCV_FFMPEG_LOGLEVEL"}
+    proc = subprocess.run([sys.executable, "-c", code, str(tmp_path / "corrupt.avi"), str(tmp_path / "fake.avi")],
+                          capture_output=True, text=True, env=env, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stderr == "", proc.stderr  # no "[mpeg4 @ 0x...] ac-tex damaged", no "[ WARN:0] ..."
+    assert "refused" in proc.stdout and "fake.avi" in proc.stdout

@@ -31,6 +31,10 @@ class SkippedInputWarning(UserWarning):
     """A file or folder was left out because of the problem the message names (``on_error="skip"``)."""
 
 
+class IncompleteRunWarning(UserWarning):
+    """An experiment is used with fewer sensor videos than a run normally has (one camera)."""
+
+
 def check_on_error(on_error: str) -> None:
     """Raise ConfigError unless ``on_error`` is ``"raise"`` or ``"skip"``."""
     if on_error not in ("raise", "skip"):
@@ -115,9 +119,18 @@ def _object_recordings(obj_dir: Path, on_error: str) -> list[Recording]:
         except PermissionError:
             report(exp_dir, "experiment folder is not readable (permission denied)", on_error)
             continue
+        # camera_2.AVI, Camera_0.avi, camera_0.mp4: look like sensor videos but are not read;
+        # say so rather than label the run from the other camera alone without a word.
+        for p in sorted(exp_dir.iterdir()):
+            if p.is_file() and p.name.lower().startswith("camera_") and p not in cameras:
+                warnings.warn(f"{p}: not used (sensor videos are read from files named {CAMERA_GLOB}, lower case)",
+                              SkippedInputWarning, stacklevel=3)
         if not cameras:
             report(exp_dir, f"experiment folder holds no {CAMERA_GLOB} video", on_error)
             continue
+        if len(cameras) == 1:
+            warnings.warn(f"{exp_dir}: only one sensor video ({cameras[0].name}); the run is labelled from it alone",
+                          IncompleteRunWarning, stacklevel=3)
         seen[number] = exp_dir
         slipped = (exp_dir / SLIP_MARKER).exists()
         out.extend(
@@ -162,6 +175,7 @@ def validate_recordings(
 __all__ = [
     "CAMERA_GLOB",
     "EXPERIMENT_RE",
+    "IncompleteRunWarning",
     "SLIP_MARKER",
     "SkippedInputWarning",
     "check_on_error",

@@ -685,13 +685,14 @@ def apply_overrides(
     # Whole-run overrides first so that camera-specific ones, applied after, win.
     ordered = sorted(overrides.items(), key=lambda kv: kv[0][2] is not None)
     for (obj, exp, cam), moment in ordered:
+        path, line = _where(overrides, (obj, exp, cam))
         keys = runs.get((obj, exp))
         if not keys:
-            raise InputError(None, f"override for {obj} experiment {exp}: no such run among the recordings")
+            raise InputError(path, f"{line}override for {obj} experiment {exp}: no such run among the recordings")
         if cam is not None:
             keys = [k for k in keys if k[2] == cam]
             if not keys:
-                raise InputError(None, f"override for {obj} experiment {exp}: no camera {cam!r} in that run")
+                raise InputError(path, f"{line}override for {obj} experiment {exp}: no camera {cam!r} in that run")
         for key in keys:
             label = out[key]
             if moment == EXCLUDE:
@@ -702,9 +703,9 @@ def apply_overrides(
                 continue
             if not (0 <= moment < label.n_frames):
                 raise InputError(
-                    None,
-                    f"override for {obj} experiment {exp} {key[2]}: moment {moment} is outside "
-                    f"0..{label.n_frames - 1}",
+                    path,
+                    f"{line}override for {obj} experiment {exp} {key[2]}: moment {moment} is outside "
+                    f"0..{label.n_frames - 1} (the video has {label.n_frames} frames)",
                 )
             out[key] = replace(
                 label,
@@ -743,6 +744,28 @@ def write_labels_csv(labels: Mapping[Key, VideoLabel] | Iterable[VideoLabel], pa
 
 
 _EXPERIMENT_RE = re.compile(r"^(?:exp_num_)?(\d+)$")
+
+
+class Overrides(dict):
+    """``{(object, experiment, camera or None): moment or None}`` read from a CSV file, which also
+    remembers the file (``path``) and each row's line (``lines``) so later errors can name them."""
+
+    def __init__(self, items=(), path: Path | None = None, lines: Mapping | None = None):
+        super().__init__(items)
+        self.path = path
+        self.lines = dict(lines or {})
+
+    def without_runs(self, runs) -> "Overrides":
+        """The rows of runs other than ``runs`` (``{(object, experiment)}``), lines kept."""
+        runs = set(runs)
+        return Overrides({k: v for k, v in self.items() if k[:2] not in runs}, self.path, self.lines)
+
+
+def _where(overrides, key) -> tuple[Path | None, str]:
+    """``(file, "line N: ")`` of an override row when it was read from a CSV, else ``(None, "")``."""
+    path = getattr(overrides, "path", None)
+    line = getattr(overrides, "lines", {}).get(key)
+    return path, (f"line {line}: " if path is not None and line is not None else "")
 
 
 def _open_csv(path: Path) -> tuple[list[str], list[tuple[int, dict[str, str]]]]:
@@ -813,7 +836,7 @@ def read_overrides_csv(
     if missing:
         raise InputError(path, f"line 1: missing column(s) {', '.join(missing)} (header is {','.join(header)})")
     objects = {k[0] for k in known} if known is not None else None
-    out: dict[tuple[str, int, str | None], int | None] = {}
+    out = Overrides(path=path)
     seen: dict[tuple[str, int, str | None], int] = {}
     for line, row in rows:
         obj = row["object"]
@@ -847,6 +870,7 @@ def read_overrides_csv(
             )
         seen[key] = line
         out[key] = moment
+        out.lines[key] = line
     return out
 
 

@@ -15,13 +15,20 @@ trailing index (the last bytes of an AVI) still decodes completely and is accept
 """
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
-import numpy as np
+# FFmpeg reports every damaged macroblock of a corrupt file on stderr ("[mpeg4 @ 0x...] ac-tex
+# damaged"), dozens of lines a video, which drown the one line slipsense prints for it. OpenCV sets
+# FFmpeg's log level from this variable when it first opens a file; -8 is quiet. A value the user
+# set (to debug a codec) is kept.
+os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
 
-from ..errors import InputError
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+
+from ..errors import InputError  # noqa: E402
 
 #: Largest accepted gap between the frame count the container states and the frames decoded.
 TRUNCATION_TOLERANCE = 1
@@ -93,9 +100,19 @@ def _open_capture(path: Path) -> cv2.VideoCapture:
     """Open ``path`` with the FFmpeg backend only.
 
     Naming the backend keeps OpenCV from treating the path as an image-sequence pattern (a
-    ``%d`` in a file name) or trying other backends with other failure modes.
+    ``%d`` in a file name) or trying other backends with other failure modes. OpenCV's own
+    warnings ("[ WARN:0] ... can't be used to capture by name") are silenced while it opens: what
+    went wrong is reported as an InputError instead.
     """
-    return cv2.VideoCapture(str(path), cv2.CAP_FFMPEG)
+    logging = getattr(getattr(cv2, "utils", None), "logging", None)
+    if logging is None:
+        return cv2.VideoCapture(str(path), cv2.CAP_FFMPEG)
+    level = logging.getLogLevel()
+    logging.setLogLevel(logging.LOG_LEVEL_ERROR)
+    try:
+        return cv2.VideoCapture(str(path), cv2.CAP_FFMPEG)
+    finally:
+        logging.setLogLevel(level)
 
 
 def _fourcc(cap: cv2.VideoCapture) -> str:

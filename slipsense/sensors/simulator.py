@@ -648,6 +648,13 @@ def save_dataset(ds: MarkerDataset, path: str | Path) -> Path:
     return path
 
 
+#: Largest marker coordinate accepted, in mm (1 km): beyond it a value is a corrupt number, not a position.
+MAX_ABS_MM = 1e6
+
+#: Keys of a marker .npz that are read; any other array in the file is never loaded.
+NPZ_KEYS = ("x", "y", "groups", "pattern", "object", "pattern_names", "object_names", "fps")
+
+
 def validate_marker_array(x, path: str | Path | None, name: str = "x") -> np.ndarray:
     """``x`` as float32 ``(N, T, M, 3)``, or InputError naming ``path`` and where it is wrong."""
     x = np.asarray(x)
@@ -665,7 +672,30 @@ def validate_marker_array(x, path: str | Path | None, name: str = "x") -> np.nda
         kind = "NaN" if np.isnan(x[i, t, m]).any() else "inf"
         raise InputError(path, f"{name} contains {len(bad)} non-finite value(s); first {kind} at sample {i}, "
                                f"frame {t}, marker {m}")
+    big = np.abs(x) > MAX_ABS_MM
+    if big.any():
+        i, t, m, _ = (int(v) for v in np.argwhere(big)[0])
+        raise InputError(path, f"{name} holds {int(big.sum())} value(s) out of range (|value| > {MAX_ABS_MM:g} mm); "
+                               f"first {float(x[i, t, m][big[i, t, m]][0]):g} at sample {i}, frame {t}, marker {m}")
     return x
+
+
+def _names(arr, key: str, path) -> tuple[str, ...]:
+    """A 1-D array of names as a tuple of str, or InputError."""
+    a = np.asarray(arr)
+    if a.ndim != 1 or not (np.issubdtype(a.dtype, np.str_) or np.issubdtype(a.dtype, np.bytes_)):
+        raise InputError(path, f"{key} must be a 1-D array of names, got {a.dtype} of shape {a.shape}")
+    return tuple(s.decode("utf-8", "replace") if isinstance(s, bytes) else str(s) for s in a.tolist())
+
+
+def _fps(arr, path) -> float:
+    a = np.asarray(arr)
+    if a.size != 1 or not (np.issubdtype(a.dtype, np.integer) or np.issubdtype(a.dtype, np.floating)):
+        raise InputError(path, f"fps must be one number (frames per second), got {a.dtype} of shape {a.shape}")
+    fps = float(a.reshape(()))
+    if not (np.isfinite(fps) and 0 < fps <= 1e6):
+        raise InputError(path, f"fps must be a positive finite number of frames per second, got {fps!r}")
+    return fps
 
 
 def _per_sample(arr, n: int, key: str, path) -> np.ndarray:
@@ -682,19 +712,32 @@ def load_marker_npz(path: str | Path, require_labels: bool = True) -> MarkerData
     ``(N,)`` 0/1 (1 = slip; required unless ``require_labels=False``); optional ``groups`` ``(N,)``
     int (sequence/recording id for leak-free splits; defaults to one group per sample); optional
     ``pattern`` ``(N,)`` (int indices into ``pattern_names``, or strings), ``object`` likewise,
-    ``fps``. Raises InputError naming the file for a missing file or key, wrong shapes, NaN/inf
-    (with sample, frame and marker), labels other than 0/1, and length mismatches.
+    ``fps`` (one positive number). Only these keys are read. Raises InputError naming the file for
+    a missing file or key, wrong shapes, NaN/inf or values beyond :data:`MAX_ABS_MM` (with sample,
+    frame and marker), labels other than 0/1, length mismatches, names that are not a 1-D array of
+    strings and an fps that is not one positive number.
     """
     path = Path(path)
     if not path.is_file():
         raise InputError(path, "no such file")
     try:
         with np.load(path, allow_pickle=False) as z:
-            data = {k: z[k] for k in z.files}
+            if not hasattr(z, "files"):
+                raise ValueError("a single array (.npy), not an .npz archive")
+            data = {}
+            present = sorted(z.files)
+            for k in NPZ_KEYS:  # only what is used: other arrays (object arrays too) are never read
+                if k in z.files:
+                    try:
+                        data[k] = z[k]
+                    except ValueError as exc:
+                        raise InputError(path, f"array {k!r} is unreadable ({exc})") from None
+    except InputError:
+        raise
     except Exception as exc:  # zipfile/pickle/OS errors: all mean "not a usable npz"
         raise InputError(path, f"not a readable .npz file ({type(exc).__name__}: {exc})") from None
     if "x" not in data:
-        raise InputError(path, f"missing key 'x' (marker positions (N, T, M, 3)); keys present: {sorted(data)}")
+        raise InputError(path, f"missing key 'x' (marker positions (N, T, M, 3)); keys present: {present}")
     x = validate_marker_array(data["x"], path)
     n = len(x)
     y = None
@@ -710,16 +753,16 @@ def load_marker_npz(path: str | Path, require_labels: bool = True) -> MarkerData
                                    f"({int(bad.sum())} bad label(s))")
         y = y_raw.astype(np.int64)
     elif require_labels:
-        raise InputError(path, f"missing key 'y' (labels (N,), 0/1); keys present: {sorted(data)}")
+        raise InputError(path, f"missing key 'y' (labels (N,), 0/1); keys present: {present}")
     groups = _per_sample(data["groups"], n, "groups", path) if "groups" in data else np.arange(n)
     if not np.issubdtype(groups.dtype, np.integer):
         _, groups = np.unique(groups, return_inverse=True)  # e.g. string recording names
-    out = MarkerDataset(x, y, groups.astype(np.int64), fps=float(data.get("fps", 20.0)))
+    out = MarkerDataset(x, y, groups.astype(np.int64), fps=_fps(data["fps"], path) if "fps" in data else 20.0)
     for key, names_key, default in (("pattern", "pattern_names", PATTERNS), ("object", "object_names", OBJECTS)):
         if key not in data:
             continue
         a = _per_sample(data[key], n, key, path)
-        names = tuple(str(s) for s in data[names_key]) if names_key in data else default
+        names = _names(data[names_key], names_key, path) if names_key in data else default
         if np.issubdtype(a.dtype, np.integer):
             if a.size and (a.min() < 0 or a.max() >= len(names)):
                 raise InputError(path, f"{key} indices must be in [0, {len(names)}) ({names_key}: {list(names)})")
