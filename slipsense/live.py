@@ -247,11 +247,14 @@ class Trace:
     probability: np.ndarray
     per_sensor: np.ndarray
     threshold: float
+    debounce: int = 1
 
     @property
     def alarm(self) -> np.ndarray:
-        """``(N,)`` bool: probability >= threshold (False where the probability is NaN)."""
-        return alarm_at(self.probability, self.threshold)
+        """``(N,)`` bool: probability >= threshold for ``debounce`` frames in a row (NaN: no answer yet)."""
+        from slipsense.pergrasp import debounce
+
+        return debounce(self.probability, self.threshold, self.debounce)
 
 
 def alarm_at(probability: np.ndarray, threshold: float) -> np.ndarray:
@@ -292,18 +295,24 @@ class SlipDetector:
 
     def __init__(self, model: nn.Module, *, threshold: float = 0.5, sensors: int = 1, combine: str = "max",
                  backend: str = "torch", info: Mapping[str, Any] | None = None, onnx_dir: str | Path | None = None,
-                 precision: str = "fp32"):
+                 precision: str = "fp32", debounce: int = 1):
         _check_settings(threshold, sensors, combine, backend, precision)
+        if isinstance(debounce, bool) or not isinstance(debounce, (int, np.integer)) or not 1 <= debounce <= 1000:
+            raise ConfigError(f"debounce must be a whole number of frames in 1..1000, got {debounce!r}")
         self.precision = precision
         self.model = model.eval()
         self.model_name = getattr(model, "model_name", type(model).__name__)
         self.threshold, self.sensors, self.combine, self.backend = float(threshold), int(sensors), combine, backend
+        self.debounce = int(debounce)
+        self._tmpdir = None
+        if getattr(model, "input_kind", None) == "grasp":  # the model streams itself over all sensors at once
+            self._init_grasp(model, info)
+            return
         geo = window_geometry(model, info)
         self.kind: str = geo["kind"]
         self.frames: int = geo["frames"]
         self.image_size: tuple[int, int] | None = geo.get("image_size")
         self.markers: int | None = geo.get("markers")
-        self._tmpdir = None
         if backend == "torch":
             self._runner = _TorchRunner(*streaming_parts(model))
         else:
@@ -315,25 +324,48 @@ class SlipDetector:
         self.reset()
 
     @classmethod
-    def from_checkpoint(cls, path: str | Path, threshold: float = 0.5, sensors: int = 1, combine: str = "max",
+    def from_checkpoint(cls, path: str | Path, threshold: float | None = None, sensors: int = 1, combine: str = "max",
                         backend: str = "torch", onnx_dir: str | Path | None = None,
-                        precision: str = "fp32") -> "SlipDetector":
+                        precision: str = "fp32", debounce: int | None = None) -> "SlipDetector":
         """Load a checkpoint (:func:`slipsense.checkpoint.load_model`) into a detector.
+
+        ``threshold`` / ``debounce`` default to the operating point stored in the checkpoint (chosen
+        on its training objects only); a checkpoint without one gets 0.5 / 1 and a warning.
 
         With ``backend="onnx"`` the ONNX parts are cached under ``onnx_dir`` (default
         ``<cache_root>/onnx/<hash of the checkpoint file>``), so only the first use pays the export.
         """
         from slipsense.checkpoint import load_model
 
-        _check_settings(threshold, sensors, combine, backend, precision)
         model, info = load_model(path)
+        threshold, debounce = stored_operating_point(path, info, threshold, debounce)
+        _check_settings(threshold, sensors, combine, backend, precision)
         if backend == "onnx" and onnx_dir is None:
             onnx_dir = onnx_cache_dir(Path(path))
         return cls(model, threshold=threshold, sensors=sensors, combine=combine, backend=backend, info=info,
-                   onnx_dir=onnx_dir, precision=precision)
+                   onnx_dir=onnx_dir, precision=precision, debounce=debounce)
+
+    def _init_grasp(self, model: nn.Module, info: Mapping[str, Any] | None) -> None:
+        from slipsense.pergrasp import STARTUP
+
+        if self.backend != "torch" or self.precision != "fp32":
+            raise ConfigError(f"{self.model_name} streams on PyTorch in float32 (backend='torch'): it needs "
+                              f"no more to stay under 2 ms per push")
+        if self.sensors != model.sensors:
+            raise ConfigError(f"{self.model_name} was trained on {model.sensors} sensor(s) seen together; "
+                              f"the detector was given sensors={self.sensors}")
+        self.kind, self.frames = "grasp", 1
+        self.image_size, self.markers = None, None
+        self.gray_size: tuple[int, int] = tuple(model.image_size)
+        self.startup = int(((info or {}).get("operating_point") or {}).get("startup", STARTUP))
+        self._stream = model.stream()
+        self._has_frame_part = False
+        self.reset()
 
     @property
     def geometry(self) -> dict[str, Any]:
+        if self.kind == "grasp":
+            return {"kind": "grasp", "frames": 1, "gray_size": self.gray_size, "startup": self.startup}
         g = {"kind": self.kind, "frames": self.frames}
         g.update({"image_size": self.image_size} if self.kind == "video" else {"markers": self.markers})
         return g
@@ -341,12 +373,42 @@ class SlipDetector:
     def reset(self) -> None:
         """Forget the window and restart frame numbering at 0."""
         self._index = 0
+        self._above = 0  # consecutive pushes at or above the threshold (debounce)
+        self._shapes: dict[int, tuple[int, ...]] = {}  # image shape per sensor, fixed by the first push
+        if self.kind == "grasp":
+            self._stream.reset()
         self._cache: collections.deque[np.ndarray] = collections.deque(maxlen=self.frames)  # frame-part outputs (S, ...)
         self._inputs: collections.deque[np.ndarray] = collections.deque(maxlen=self.frames)  # model inputs (S, ...)
 
     @property
     def window_full(self) -> bool:
+        if self.kind == "grasp":
+            return self._index > self.startup
         return len(self._cache) == self.frames
+
+    def _reading(self, index: int, per_sensor: np.ndarray, p: float) -> Reading:
+        # NaN must never read as "safe": a model answer that is not a number raises the alarm
+        above = not (p < self.threshold)
+        self._above = self._above + 1 if above else 0
+        return Reading(index, p, tuple(float(v) for v in per_sensor), self._above >= self.debounce)
+
+    def _push_grasp(self, frames: Sequence[Any]) -> Reading:
+        from slipsense.recordings.runs import gray_frames
+
+        index = self._index
+        gray = np.empty((self.sensors, *self.gray_size), dtype=np.uint8)
+        for s, f in enumerate(frames):
+            image = _check_image(f, f"frame {index}, sensor {s}", None)
+            if self._shapes.setdefault(s, image.shape) != image.shape:
+                raise InputError(None, f"frame {index}, sensor {s}: image is {image.shape[1]}x{image.shape[0]}, "
+                                       f"the earlier frames of this sensor were {self._shapes[s][1]}x"
+                                       f"{self._shapes[s][0]} (call reset() to start a new stream)")
+            gray[s] = gray_frames(image, self.gray_size)
+        self._index += 1
+        if index < self.startup:  # the camera's start-up transient is not the scene
+            return Reading(index, None, None, False)
+        p = self._stream.push(gray)
+        return self._reading(index, np.full(self.sensors, p), p)
 
     # pushing frames
 
@@ -361,6 +423,8 @@ class SlipDetector:
         if len(frames) != self.sensors:
             raise InputError(None, f"frame {self._index}: push takes {self.sensors} frame(s), one per sensor, "
                                    f"got {len(frames)}")
+        if self.kind == "grasp":
+            return self._push_grasp(frames)
         if self.kind == "video":  # converted straight into the batch: no per-sensor copies
             x = np.empty((self.sensors, 3, *self.image_size), dtype=np.float32)
             for s, f in enumerate(frames):
@@ -375,7 +439,7 @@ class SlipDetector:
             return Reading(index, None, None, False)
         per_sensor = slip_probability(self._runner.window(self._window()))
         p = float(combine_probabilities(per_sensor, self.combine))
-        return Reading(index, p, tuple(float(v) for v in per_sensor), p >= self.threshold)
+        return self._reading(index, per_sensor, p)
 
     def _window(self) -> np.ndarray:
         """The window part's input from the cache: ``(S, T, ...)``."""
@@ -410,6 +474,8 @@ class SlipDetector:
         n = len(streams[0])
         if any(len(s) != n for s in streams):
             raise InputError(None, f"replay streams differ in length: {[len(s) for s in streams]}")
+        if self.kind == "grasp":
+            return self._replay_grasp(streams)
         t, s_count = self.frames, self.sensors
         per_sensor = np.full((n, s_count), np.nan)
         if n >= t:
@@ -432,13 +498,25 @@ class SlipDetector:
                 probs.append(slip_probability(logits).reshape(s_count, w))
             per_sensor[t - 1 :] = np.concatenate(probs, axis=1).T
         combined = combine_probabilities(per_sensor, self.combine)
-        return Trace(combined, per_sensor, self.threshold)
+        return Trace(combined, per_sensor, self.threshold, self.debounce)
+
+    def _replay_grasp(self, streams: list[np.ndarray]) -> Trace:
+        from slipsense.recordings.runs import gray_frames
+
+        n = len(streams[0])
+        p = np.full(n, np.nan)
+        if n > self.startup:
+            gray = np.stack([gray_frames(s[self.startup:], self.gray_size) for s in streams])
+            with torch.no_grad():
+                logits = self.model(torch.from_numpy(gray[None]).float().div_(255.0))[0]
+            p[self.startup:] = torch.softmax(logits, dim=-1)[:, 1].double().numpy()
+        return Trace(p, np.repeat(p[:, None], self.sensors, axis=1), self.threshold, self.debounce)
 
     def _check_stream(self, stream: Any, sensor: int) -> np.ndarray:
         where = f"sensor {sensor}"
         if not isinstance(stream, np.ndarray):
             raise InputError(None, f"{where}: replay takes numpy arrays, got {type(stream).__name__}")
-        if self.kind == "video":
+        if self.kind in ("video", "grasp"):
             if stream.dtype != np.uint8 or stream.ndim != 4 or stream.shape[-1] != 3:
                 raise InputError(None, f"{where}: expected a uint8 (N, H, W, 3) BGR video, got {stream.dtype} "
                                        f"{stream.shape}")
@@ -491,6 +569,26 @@ class SlipDetector:
             self._tmpdir = None
 
 
+def stored_operating_point(path: str | Path, info: Mapping[str, Any], threshold: float | None,
+                           debounce: int | None) -> tuple[float, int]:
+    """The threshold and debounce to use: the caller's where given, else the checkpoint's operating
+    point, else 0.5 / 1 with a warning naming the checkpoint."""
+    import warnings
+
+    op = info.get("operating_point") if isinstance(info, Mapping) else None
+    if threshold is None:
+        if isinstance(op, Mapping) and isinstance(op.get("threshold"), (int, float)):
+            threshold = float(op["threshold"])
+        else:
+            warnings.warn(f"{path}: checkpoint stores no alarm threshold; using 0.5 (pass a threshold to choose)",
+                          stacklevel=3)
+            threshold = 0.5
+    if debounce is None:
+        k = op.get("debounce", 1) if isinstance(op, Mapping) else 1
+        debounce = int(k) if isinstance(k, int) and not isinstance(k, bool) else 1
+    return threshold, debounce
+
+
 def _check_settings(threshold: Any, sensors: Any, combine: str, backend: str, precision: str = "fp32") -> None:
     try:
         ok = 0.0 <= float(threshold) <= 1.0
@@ -523,7 +621,10 @@ def _check_image(frame: Any, where: str, size: tuple[int, int]) -> np.ndarray:
 
 
 def _resize(frame: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-    """Resize like the training clips do (area filter when shrinking, bilinear when enlarging)."""
+    """Resize like the training clips do (area filter when shrinking, bilinear when enlarging);
+    ``size`` None keeps the frame as it is."""
+    if size is None:
+        return frame
     h, w = size
     if frame.shape[:2] == (h, w):
         return frame

@@ -22,7 +22,7 @@ from slipsense.errors import ConfigError
 
 _REGISTRY: dict[str, Callable[..., nn.Module]] = {}
 # Modules that register models on import; imported lazily so `import slipsense` stays fast.
-_MODULES = ("slipsense.models.vivit", "slipsense.models.resnet3d", "slipsense.models.stnet")
+_MODULES = ("slipsense.models.vivit", "slipsense.models.resnet3d", "slipsense.models.stnet", "slipsense.models.motion")
 
 
 def register(name: str):

@@ -1,0 +1,313 @@
+"""Training on whole grasps: per-frame targets from the moment of slip, chunks of runs, class
+balance, the alarm operating point from inner folds, and leave-objects-out over 5 folds.
+
+Targets (``frame_targets``), per frame of a run after the camera start-up, with ``m`` the moment
+of slip, ``h`` the onset frames and ``H`` the warning horizon:
+
+* 1 (onset of slip) for frames ``m-h .. m``;
+* ignored for ``m-H .. m-h-1`` (an alarm there is still a warning in time: not pushed either way)
+  and after ``m`` (contact is gone; what happens then is not scored);
+* 0 everywhere else: the calm parts of slip runs, every frame of runs that held, frames without
+  contact.
+
+Each epoch draws chunks: one ending at (or a few frames after) the moment of every slip run, and
+``negatives`` random ones from every run. A chunk carries the frames the model needs before its
+scored frames (lags and temporal context) so its logits equal a replay of the whole run. Positive
+and negative frames get equal total weight in the loss.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict, dataclass, field
+from typing import Any, Callable, Sequence
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from slipsense import pergrasp
+from slipsense.errors import ConfigError
+from slipsense.recordings.runs import GraspRun
+
+
+@dataclass
+class GraspTrainConfig:
+    """Settings of :func:`fit_runs` (stored whole in every checkpoint)."""
+
+    model: str = "motionnet"
+    model_config: dict = field(default_factory=dict)
+    epochs: int = 25
+    lr: float = 2e-3
+    weight_decay: float = 1e-4
+    batch_size: int = 16
+    chunk: int = 24  # scored frames per chunk
+    negatives: int = 8  # random chunks per run per epoch
+    hard_negatives: int = 4  # chunks per run per epoch drawn where the model errs most (after epoch 1)
+    positive_weight: float = 0.5  # total weight of onset frames relative to the other frames
+    onset_frames: int = 10  # h
+    horizon: int = pergrasp.HORIZON  # H
+    flips: bool = True  # random horizontal / vertical flips of whole chunks
+    seed: int = 0
+    inner_folds: int = 3  # for the operating point (0: choose it on the training runs themselves)
+
+    def __post_init__(self):
+        checks = {"epochs": (1, 10_000), "batch_size": (1, 4096), "chunk": (1, 2048), "negatives": (0, 100), "hard_negatives": (0, 100),
+                  "onset_frames": (0, 500), "horizon": (1, 5000), "seed": (0, 2**32 - 1), "inner_folds": (0, 20)}
+        for key, (lo, hi) in checks.items():
+            v = getattr(self, key)
+            if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+                raise ConfigError(f"{key} must be an integer in {lo}..{hi}, got {v!r}")
+        for key in ("lr", "weight_decay", "positive_weight"):
+            v = getattr(self, key)
+            if not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0 or (key == "lr" and v == 0):
+                raise ConfigError(f"{key} must be a finite number {'> 0' if key == 'lr' else '>= 0'}, got {v!r}")
+        if self.inner_folds == 1:
+            raise ConfigError("inner_folds must be 0 or at least 2")
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def frame_targets(n: int, moment: int | None, onset: int, horizon: int) -> np.ndarray:
+    """``(n,)`` int8 targets of a run's frames (1 onset, 0 no slip, -1 ignored); indices as in the run."""
+    y = np.zeros(n, dtype=np.int8)
+    if moment is None:
+        return y
+    y[max(0, moment - horizon) : moment + 1] = -1
+    y[max(0, moment - onset) : moment + 1] = 1
+    y[moment + 1 :] = -1
+    return y
+
+
+class _Chunks:
+    """Draws training chunks from runs (frames after the start-up only)."""
+
+    def __init__(self, runs: Sequence[GraspRun], model, cfg: GraspTrainConfig):
+        self.cfg = cfg
+        self.context = model.receptive_field - 1 + model.max_lag
+        self.length = self.context + cfg.chunk
+        self.items = []
+        for r in runs:
+            if not r.usable:
+                continue
+            s = pergrasp.STARTUP if r.n_frames > pergrasp.STARTUP + 1 else 0
+            gray = r.gray[:, s:]
+            moment = None if r.moment_of_slip is None else r.moment_of_slip - s
+            if moment is not None and moment < 0:
+                continue
+            y = frame_targets(gray.shape[1], moment, cfg.onset_frames, cfg.horizon)
+            self.items.append((gray, y, moment))
+
+    def draw(self, rng: np.random.Generator, hardness: list[np.ndarray] | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Chunks of one epoch; ``hardness``: per run, per frame P(slip) of the current model, from
+        which ``hard_negatives`` chunk ends per run are drawn among the negative frames."""
+        out = []
+        for i, (gray, y, moment) in enumerate(self.items):
+            n = gray.shape[1]
+            ends = [int(rng.integers(0, n)) for _ in range(self.cfg.negatives)]
+            if hardness is not None and self.cfg.hard_negatives:
+                w = np.where(y == 0, np.nan_to_num(hardness[i], nan=0.0) + 1e-3, 0.0)
+                if w.sum() > 0:
+                    ends += [int(e) for e in rng.choice(n, self.cfg.hard_negatives, p=w / w.sum())]
+            if moment is not None:
+                ends.append(min(n - 1, moment + int(rng.integers(0, 6))))
+            for e in ends:
+                idx = np.arange(e - self.length + 1, e + 1).clip(min=0)  # before the start: the first frame
+                targets = np.where(np.arange(e - self.cfg.chunk + 1, e + 1) >= 0,
+                                   y[np.arange(e - self.cfg.chunk + 1, e + 1).clip(min=0)], -1)
+                out.append((gray[:, idx], targets.astype(np.int64)))
+        order = rng.permutation(len(out))
+        return [out[i] for i in order]
+
+
+def _batches(chunks, size: int, flips: bool, rng: np.random.Generator):
+    for a in range(0, len(chunks), size):
+        part = chunks[a : a + size]
+        x = torch.from_numpy(np.stack([c[0] for c in part])).float().div_(255.0)  # (B, S, T, h, w)
+        if flips:
+            if rng.random() < 0.5:
+                x = x.flip(-1)
+            if rng.random() < 0.5:
+                x = x.flip(-2)
+        yield x, torch.from_numpy(np.stack([c[1] for c in part]))
+
+
+def fit_runs(runs: Sequence[GraspRun], cfg: GraspTrainConfig, progress: bool = True,
+             on_epoch: Callable[[dict[str, Any]], None] | None = None):
+    """Train ``cfg.model`` on ``runs``; returns ``(model in eval mode, per-epoch metrics)``."""
+    from slipsense.models import build
+
+    torch.manual_seed(cfg.seed)
+    rng = np.random.default_rng(cfg.seed)
+    model = build(cfg.model, **cfg.model_config)
+    data = _Chunks(runs, model, cfg)
+    if not data.items:
+        raise ConfigError("no usable training runs (every run excluded, or slip runs without a moment)")
+    if not any(m is not None for _, _, m in data.items):
+        raise ConfigError("the training runs hold no slip with a known moment: nothing to learn onset from")
+    opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=cfg.epochs)
+    history = []
+    epochs = range(cfg.epochs)
+    if progress:
+        from tqdm import tqdm
+
+        epochs = tqdm(epochs, desc=f"training {cfg.model}", unit="epoch")
+    for epoch in epochs:
+        model.train()
+        t0 = time.perf_counter()
+        hardness = None
+        if epoch > 0 and cfg.hard_negatives:
+            model.eval()
+            hardness = [p for p in _predict_items(model, data.items)]
+            model.train()
+        chunks = data.draw(rng, hardness)
+        ys = np.concatenate([c[1] for c in chunks])
+        n_pos, n_neg = int((ys == 1).sum()), int((ys == 0).sum())
+        weight = torch.tensor([1.0, cfg.positive_weight * n_neg / max(n_pos, 1)])
+        total, seen, correct = 0.0, 0, 0
+        for x, y in _batches(chunks, cfg.batch_size, cfg.flips, rng):
+            logits = model.last_logits(x, cfg.chunk)
+            keep = y >= 0
+            if not bool(keep.any()):
+                continue
+            loss = F.cross_entropy(logits[keep], y[keep], weight=weight)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            total += float(loss.detach()) * int(keep.sum())
+            seen += int(keep.sum())
+            correct += int((logits[keep].argmax(-1) == y[keep]).sum())
+        sched.step()
+        row = {"epoch": epoch + 1, "loss": total / max(seen, 1), "frame_accuracy": correct / max(seen, 1),
+               "onset_frames": n_pos, "other_frames": n_neg, "seconds": time.perf_counter() - t0}
+        history.append(row)
+        if on_epoch is not None:
+            on_epoch(row)
+    return model.eval(), history
+
+
+@torch.no_grad()
+def _predict_items(model, items) -> list[np.ndarray]:
+    return [torch.softmax(model(torch.from_numpy(g[None]).float().div_(255.0))[0], -1)[:, 1].numpy()
+            for g, _, _ in items]
+
+
+@torch.no_grad()
+def predict_runs(model, runs: Sequence[GraspRun]) -> list[np.ndarray]:
+    """P(slip) at every frame of every run, as a replay from the first frame gives it; NaN during
+    the camera start-up (the detector does not answer there)."""
+    out = []
+    for r in runs:
+        s = pergrasp.STARTUP if r.n_frames > pergrasp.STARTUP + 1 else 0
+        p = np.full(r.n_frames, np.nan)
+        x = torch.from_numpy(r.gray[None, :, s:]).float().div_(255.0)
+        p[s:] = torch.softmax(model(x)[0], dim=-1)[:, 1].double().numpy()
+        out.append(p)
+    return out
+
+
+def object_split(runs: Sequence[GraspRun], folds: int, seed: int = 0) -> list[list[str]]:
+    """Objects of ``runs`` in ``folds`` folds (:func:`slipsense.recordings.clips.object_folds`)."""
+    from slipsense.recordings.clips import object_folds
+
+    return object_folds({r.object for r in runs}, folds, seed)
+
+
+def operating_point(runs: Sequence[GraspRun], cfg: GraspTrainConfig, progress: bool = False,
+                    model=None) -> dict[str, Any]:
+    """The alarm threshold and debounce for a model trained on ``runs``, chosen on those runs only:
+    on out-of-fold predictions of ``cfg.inner_folds`` inner folds by object (each inner model trained
+    like the outer one), or, with ``inner_folds=0``, on ``model``'s own predictions of ``runs``."""
+    usable = [r for r in runs if r.usable]
+    if cfg.inner_folds == 0:
+        if model is None:
+            raise ConfigError("inner_folds=0 needs the trained model")
+        probs = predict_runs(model, usable)
+    else:
+        probs_by_key: dict[tuple[str, int], np.ndarray] = {}
+        for k, held in enumerate(object_split(usable, cfg.inner_folds, cfg.seed)):
+            train = [r for r in usable if r.object not in held]
+            test = [r for r in usable if r.object in held]
+            inner, _ = fit_runs(train, cfg, progress=progress)
+            for r, p in zip(test, predict_runs(inner, test)):
+                probs_by_key[r.key] = p
+        probs = [probs_by_key[r.key] for r in usable]
+    op = pergrasp.choose_operating_point(probs, [r.moment_of_slip for r in usable], horizon=cfg.horizon)
+    op["chosen_on"] = f"{cfg.inner_folds} inner folds of the training objects" if cfg.inner_folds else \
+        "the training runs themselves"
+    return op
+
+
+def clip_scores(runs: Sequence[GraspRun], probs: Sequence[np.ndarray], labels: dict, frames: int = 5) -> tuple[np.ndarray, np.ndarray]:
+    """The paper's clip protocol on per-frame traces: every ``frames``-frame clip the project cuts
+    (:func:`slipsense.recordings.clips.plan_windows`: the clip ending right before the moment of
+    slip, two wiggle windows per video of a run that held) is scored by the detector's probability
+    at its last frame. Returns ``(p, y)``; a run's cameras share one fused trace, so both cameras'
+    clips of a run get the probability of their own end frames."""
+    from slipsense.recordings.clips import ClipSpec, plan_windows
+
+    spec = ClipSpec(frames=frames)
+    p, y = [], []
+    for run, trace in zip(runs, probs):
+        for cam in run.cameras:
+            label = labels.get((run.object, run.experiment, cam))
+            if label is None:
+                continue
+            for w in plan_windows(label, spec):
+                p.append(trace[w.end])
+                y.append(w.y)
+    return np.asarray(p, dtype=np.float64), np.asarray(y, dtype=np.int64)
+
+
+def clip_metrics(p: np.ndarray, y: np.ndarray, threshold: float) -> dict[str, Any]:
+    """Accuracy, balanced accuracy, precision, recall, F1 and the always-wiggle baseline."""
+    pred = np.nan_to_num(p, nan=0.0) >= threshold
+    tp, fp = int((pred & (y == 1)).sum()), int((pred & (y == 0)).sum())
+    fn, tn = int((~pred & (y == 1)).sum()), int((~pred & (y == 0)).sum())
+    prec = tp / (tp + fp) if tp + fp else 0.0
+    rec = tp / (tp + fn) if tp + fn else 0.0
+    spec = tn / (tn + fp) if tn + fp else 0.0
+    return {"clips": len(y), "slip_clips": int((y == 1).sum()), "accuracy": (tp + tn) / max(len(y), 1),
+            "balanced_accuracy": (rec + spec) / 2, "precision": prec, "recall": rec,
+            "f1": 2 * prec * rec / (prec + rec) if prec + rec else 0.0,
+            "always_wiggle_accuracy": float((y == 0).mean()) if len(y) else math.nan,
+            "tp": tp, "fp": fp, "fn": fn, "tn": tn}
+
+
+def leave_objects_out(runs: Sequence[GraspRun], cfg: GraspTrainConfig, labels: dict, folds: int = 5,
+                      progress: bool = True, on_fold: Callable[[dict[str, Any]], None] | None = None) -> dict[str, Any]:
+    """Train one model per fold of objects on the other folds' runs, choose its operating point on
+    those training runs only (:func:`operating_point`), replay the held-out objects' runs, and pool
+    the per-grasp outcomes and the clip metrics over the folds."""
+    usable = [r for r in runs if r.usable]
+    split = object_split(usable, folds, cfg.seed)
+    outcomes, all_p, all_y, fold_rows = [], [], [], []
+    traces: list[dict[str, Any]] = []
+    for k, held in enumerate(split):
+        train = [r for r in usable if r.object not in held]
+        test = [r for r in usable if r.object in held]
+        model, history = fit_runs(train, cfg, progress=progress)
+        op = operating_point(train, cfg, progress=False, model=model)
+        probs = predict_runs(model, test)
+        outs = [pergrasp.grasp_outcome(pergrasp.debounce(p, op["threshold"], op["debounce"]), r.moment_of_slip,
+                                       cfg.horizon, rest=pergrasp.rest_mask(r.contact)) for r, p in zip(test, probs)]
+        p, y = clip_scores(test, probs, labels)
+        row = {"fold": k, "objects": held, "operating_point": op, "per_grasp": pergrasp.summarise(outs),
+               "clips": clip_metrics(p, y, op["threshold"]), "final_loss": history[-1]["loss"]}
+        fold_rows.append(row)
+        if on_fold is not None:
+            on_fold(row)
+        outcomes += outs
+        all_p.append(p)
+        all_y.append(y)
+        traces += [{"object": r.object, "experiment": r.experiment, "fold": k, "moment_of_slip": r.moment_of_slip,
+                    "outcome": o.outcome, "first_alarm": o.first_alarm, "lead": o.lead} for r, o in zip(test, outs)]
+    pooled_clips = [clip_metrics(p, y, f["operating_point"]["threshold"]) for p, y, f in zip(all_p, all_y, fold_rows)]
+    tot = {k: sum(c[k] for c in pooled_clips) for k in ("tp", "fp", "fn", "tn")}
+    y_all = np.concatenate(all_y)
+    pred_all = np.concatenate([np.nan_to_num(p, nan=0) >= f["operating_point"]["threshold"]
+                               for p, f in zip(all_p, fold_rows)])
+    return {"config": cfg.to_dict(), "folds": fold_rows, "per_grasp": pergrasp.summarise(outcomes),
+            "clips": clip_metrics(pred_all.astype(float), y_all, 0.5), "clip_counts": tot, "runs": traces}

@@ -1,0 +1,199 @@
+"""MotionNet: a small causal network that watches how both gels move over a whole grasp.
+
+Beyond the papers. The ViViT learns from what a 5-frame clip *looks like*, which on objects it never
+saw turns out to be the object and the session rather than slip. MotionNet sees only motion:
+
+* input: every frame of every sensor, grey and small, ``(B, S, N, h, w)`` float in [0, 1]
+  (:func:`slipsense.recordings.runs.gray_frames`), from the end of the camera start-up on;
+* per frame and sensor, the differences to the frames ``lags`` back (default 1, 5 and 25 frames:
+  fast motion, motion over 0.2 s, change over the last second; before the first frame the first
+  frame stands in), scaled and fed to a 3-layer strided CNN -> a feature vector;
+* both sensors fused symmetrically (mean and max over sensors: the fingers are interchangeable,
+  slip is a loss of the grasp, not of one pad);
+* a causal temporal convolution (dilations 1, 2, 4, 8: 31 frames, 1.2 s of context) -> slip logits
+  for *every* frame: ``(B, N, 2)``. Nothing looks ahead, so the same numbers come out streaming.
+
+The left edge is handled by repeating the first frame (in the lags) and the first feature (in the
+temporal stack): running the whole sequence or pushing frame by frame (:class:`MotionStream`)
+gives equal results, which the tests check.
+"""
+from __future__ import annotations
+
+from collections import deque
+from typing import Sequence
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from einops import rearrange
+from torch import Tensor, nn
+
+from slipsense.errors import ConfigError, InputError
+from slipsense.models import register
+
+#: Bounds on settings a checkpoint may carry (refused before anything is allocated).
+_LIMITS = {"width": 256, "features": 512, "temporal": 512, "sensors": 8, "max_lag": 250, "pixels": 512 * 512}
+
+
+def _conv(cin: int, cout: int, k: int, stride: int) -> nn.Sequential:
+    return nn.Sequential(nn.Conv2d(cin, cout, k, stride, k // 2, bias=False), nn.BatchNorm2d(cout), nn.ReLU(inplace=True))
+
+
+@register("motionnet")
+class MotionNet(nn.Module):
+    """Causal slip detector over grey frame differences of all sensors.
+
+    Args:
+        sensors: sensors per frame (2: both fingers).
+        image_size: ``(h, w)`` of the grey frames.
+        lags: frame differences taken, in frames back.
+        width: channels of the first convolution (then 2x, 2x).
+        features: per-sensor feature size.
+        temporal: channels of the temporal convolutions.
+        dilations: of the causal temporal convolutions (kernel 3 each).
+        dropout: before the classifier.
+        diff_scale: differences are multiplied by this (grey levels in [0, 1]; motion is a few %).
+    """
+
+    input_kind = "grasp"
+
+    def __init__(self, sensors: int = 2, image_size: Sequence[int] = (30, 40), lags: Sequence[int] = (1, 5, 25),
+                 width: int = 16, features: int = 32, temporal: int = 32, dilations: Sequence[int] = (1, 2, 4, 8),
+                 dropout: float = 0.1, diff_scale: float = 10.0):
+        super().__init__()
+        image_size = tuple(int(v) for v in image_size)
+        lags, dilations = tuple(int(v) for v in lags), tuple(int(v) for v in dilations)
+        if len(image_size) != 2 or min(image_size) < 8 or image_size[0] * image_size[1] > _LIMITS["pixels"]:
+            raise ConfigError(f"motionnet: image_size must be (h, w) with 8 <= h, w and h*w <= {_LIMITS['pixels']}, "
+                              f"got {image_size}")
+        if not lags or min(lags) < 1 or max(lags) > _LIMITS["max_lag"]:
+            raise ConfigError(f"motionnet: lags must be 1..{_LIMITS['max_lag']} frames, got {lags}")
+        if not dilations or min(dilations) < 1 or sum(dilations) > 256:
+            raise ConfigError(f"motionnet: dilations must be >= 1 with a sum <= 256, got {dilations}")
+        for key, v in (("sensors", sensors), ("width", width), ("features", features), ("temporal", temporal)):
+            if not 1 <= int(v) <= _LIMITS[key]:
+                raise ConfigError(f"motionnet: {key} must be 1..{_LIMITS[key]}, got {v}")
+        if not 0.0 <= float(dropout) < 1.0:
+            raise ConfigError(f"motionnet: dropout must be in [0, 1), got {dropout}")
+        self.sensors, self.image_size, self.lags = int(sensors), image_size, lags
+        self.width, self.features, self.temporal = int(width), int(features), int(temporal)
+        self.dilations, self.dropout_p, self.diff_scale = dilations, float(dropout), float(diff_scale)
+        w = self.width
+        self.encoder = nn.Sequential(_conv(len(lags), w, 5, 2), _conv(w, 2 * w, 3, 2), _conv(2 * w, 2 * w, 3, 2))
+        self.project = nn.Linear(4 * w, self.features)
+        chans = [2 * self.features] + [self.temporal] * len(dilations)
+        self.tcn = nn.ModuleList(nn.Conv1d(a, b, 3, dilation=d) for a, b, d in zip(chans, chans[1:], dilations))
+        self.dropout = nn.Dropout(self.dropout_p)
+        self.head = nn.Linear(self.temporal, 2)
+
+    def config(self) -> dict:
+        return {"sensors": self.sensors, "image_size": list(self.image_size), "lags": list(self.lags),
+                "width": self.width, "features": self.features, "temporal": self.temporal,
+                "dilations": list(self.dilations), "dropout": self.dropout_p, "diff_scale": self.diff_scale}
+
+    @property
+    def receptive_field(self) -> int:
+        """Frames of features the temporal stack sees (kernel 3 per dilation)."""
+        return 1 + 2 * sum(self.dilations)
+
+    @property
+    def max_lag(self) -> int:
+        return max(self.lags)
+
+    # per-frame part
+
+    def differences(self, gray: Tensor) -> Tensor:
+        """``(B, S, N, h, w)`` -> ``(B, S, N, L, h, w)``: frame minus the frame ``lag`` back (the first
+        frame standing in before the start), scaled."""
+        n = gray.shape[2]
+        idx = torch.arange(n, device=gray.device)
+        past = [gray[:, :, (idx - lag).clamp(min=0)] for lag in self.lags]
+        return torch.stack([gray - p for p in past], dim=3) * self.diff_scale
+
+    def encode(self, diffs: Tensor) -> Tensor:
+        """``(B, S, N, L, h, w)`` differences -> ``(B, N, 2F)`` fused per-frame features."""
+        b, s = diffs.shape[:2]
+        x = rearrange(diffs, "b s n l h w -> (b s n) l h w")
+        x = self.encoder(x)
+        x = torch.cat([x.mean(dim=(2, 3)), x.amax(dim=(2, 3))], dim=1)
+        f = rearrange(self.project(x), "(b s n) f -> b s n f", b=b, s=s)
+        return torch.cat([f.mean(dim=1), f.amax(dim=1)], dim=-1)
+
+    # over time
+
+    def classify(self, feats: Tensor) -> Tensor:
+        """``(B, N, 2F)`` features -> ``(B, N', 2)`` logits, ``N' = N - receptive_field + 1`` (valid
+        causal convolution: pad the left edge yourself)."""
+        x = rearrange(feats, "b n f -> b f n")
+        for i, conv in enumerate(self.tcn):
+            y = F.relu(conv(x))
+            x = y + x[:, :, -y.shape[2]:] if i > 0 else y
+        x = self.dropout(rearrange(x, "b f n -> b n f"))
+        return self.head(x)
+
+    def forward(self, gray: Tensor) -> Tensor:
+        """``(B, S, N, h, w)`` grey frames in [0, 1] -> ``(B, N, 2)`` slip logits at every frame."""
+        self.check_input(gray)
+        feats = self.encode(self.differences(gray))
+        pad = feats[:, :1].expand(-1, self.receptive_field - 1, -1)
+        return self.classify(torch.cat([pad, feats], dim=1))
+
+    def last_logits(self, gray: Tensor, n_out: int) -> Tensor:
+        """Logits of the last ``n_out`` frames of ``(B, S, T, h, w)`` computed from the frames within
+        it alone (what training on chunks uses): needs ``T >= n_out + receptive_field - 1 + max_lag``,
+        and then equals ``forward(whole run)`` at those frames."""
+        self.check_input(gray)
+        need = n_out + self.receptive_field - 1
+        t = gray.shape[2]
+        if t < need + self.max_lag:
+            raise InputError(None, f"motionnet chunk of {t} frames is shorter than {need + self.max_lag}")
+        cur = gray[:, :, t - need:]
+        diffs = torch.stack([cur - gray[:, :, t - need - lag: t - lag] for lag in self.lags], dim=3)
+        return self.classify(self.encode(diffs * self.diff_scale))
+
+    def check_input(self, x: Tensor) -> None:
+        if x.ndim != 5 or x.shape[1] != self.sensors or tuple(x.shape[3:]) != self.image_size:
+            raise InputError(None, f"motionnet takes grey frames (B, {self.sensors}, N, {self.image_size[0]}, "
+                                   f"{self.image_size[1]}), got {tuple(x.shape)}")
+        if not x.dtype.is_floating_point or not bool(torch.isfinite(x).all()):
+            raise InputError(None, "motionnet input must be finite floats in [0, 1]")
+
+    def stream(self) -> "MotionStream":
+        """A frame-by-frame runner of this model (eval mode)."""
+        return MotionStream(self)
+
+
+class MotionStream:
+    """Push one grey frame per sensor, get the slip probability of that frame.
+
+    Keeps the last ``max_lag + 1`` frames and the last ``receptive_field`` features, so each push
+    encodes one frame per sensor and runs the temporal stack over one window: the same numbers as
+    :meth:`MotionNet.forward` over the whole sequence.
+    """
+
+    def __init__(self, model: MotionNet):
+        self.model = model.eval()
+        self.reset()
+
+    def reset(self) -> None:
+        self._frames: deque[Tensor] = deque(maxlen=self.model.max_lag + 1)
+        self._feats: deque[Tensor] = deque(maxlen=self.model.receptive_field)
+
+    @torch.no_grad()
+    def push(self, gray: np.ndarray) -> float:
+        """``gray``: uint8 ``(S, h, w)``, one frame per sensor. Returns P(slip) at this frame."""
+        m = self.model
+        frame = torch.from_numpy(np.ascontiguousarray(gray)).float().div_(255.0)
+        if not self._frames:
+            self._frames.extend([frame] * (m.max_lag + 1))
+        else:
+            self._frames.append(frame)
+        past = [self._frames[-1 - lag] for lag in m.lags]
+        diffs = torch.stack([frame - p for p in past], dim=1) * m.diff_scale  # (S, L, h, w)
+        feat = m.encode(diffs[None, :, None])[0, 0]  # (2F,)
+        if not self._feats:
+            self._feats.extend([feat] * m.receptive_field)
+        else:
+            self._feats.append(feat)
+        logits = m.classify(torch.stack(list(self._feats))[None])[0, -1]
+        return float(torch.softmax(logits, dim=0)[1])

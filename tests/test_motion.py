@@ -1,0 +1,120 @@
+"""MotionNet: causal, streams equal to the whole-run forward, trains on runs, detector integration."""
+import warnings
+
+import numpy as np
+import pytest
+import torch
+
+from slipsense.errors import ConfigError, InputError
+from slipsense.grasp_train import GraspTrainConfig, fit_runs, frame_targets, operating_point, predict_runs
+from slipsense.live import SlipDetector
+from slipsense.models import build
+from slipsense.recordings.runs import GraspRun
+
+
+def _model(**kw):
+    torch.manual_seed(0)
+    return build("motionnet", image_size=(16, 20), width=4, features=8, temporal=8, lags=(1, 5, 10),
+                 dilations=(1, 2, 4), **kw).eval()
+
+
+def test_causal_and_stream_equals_forward():
+    m = _model()
+    g = torch.randint(0, 256, (1, 2, 50, 16, 20)).float() / 255
+    with torch.no_grad():
+        full = torch.softmax(m(g), -1)[0, :, 1].numpy()
+        g2 = g.clone()
+        g2[:, :, 30:] = torch.rand_like(g2[:, :, 30:])  # the future must not change the past
+        assert np.allclose(torch.softmax(m(g2), -1)[0, :30, 1].numpy(), full[:30], atol=1e-6)
+        tail = torch.softmax(m.last_logits(g, 5), -1)[0, :, 1].numpy()
+    assert np.allclose(tail, full[-5:], atol=1e-5)
+    st = m.stream()
+    pushed = [st.push((g[0, :, t] * 255).round().byte().numpy()) for t in range(50)]
+    assert np.allclose(pushed, full, atol=1e-5)
+
+
+def test_config_bounds_refused():
+    with pytest.raises(ConfigError):
+        build("motionnet", width=10**9)
+    with pytest.raises(ConfigError):
+        build("motionnet", lags=[0])
+
+
+def _runs(n_runs=8, n=70, size=(16, 20), seed=0):
+    """Made-up grasps: still noise; slip runs get a moving stripe in the 8 frames up to the moment."""
+    rng = np.random.default_rng(seed)
+    runs = []
+    for i in range(n_runs):
+        gray = rng.integers(100, 104, (2, n, *size), dtype=np.uint8)
+        slipped = i % 2 == 0
+        m = 50 if slipped else None
+        if slipped:
+            for t in range(m - 8, m + 1):
+                gray[:, t, :, (t * 2) % size[1]] = 250
+        runs.append(GraspRun(f"obj{i % 4}", i, slipped, m, gray, np.zeros((2, n), np.float32), ("camera_0", "camera_2")))
+    return runs
+
+
+def test_frame_targets():
+    y = frame_targets(100, 60, onset=5, horizon=20)
+    assert (y[55:61] == 1).all() and (y[40:55] == -1).all() and (y[:40] == 0).all() and (y[61:] == -1).all()
+    assert (frame_targets(10, None, 5, 20) == 0).all()
+
+
+def test_fit_learns_a_moving_stripe():
+    runs = _runs()
+    cfg = GraspTrainConfig(model_config={"image_size": [16, 20], "width": 4, "features": 8, "temporal": 8},
+                           epochs=25, lr=1e-2, batch_size=8, chunk=16, negatives=2, hard_negatives=1, inner_folds=0)
+    model, hist = fit_runs(runs, cfg, progress=False)
+    assert len(hist) == 25 and hist[-1]["loss"] < hist[0]["loss"]
+    probs = predict_runs(model, runs)
+    assert np.isnan(probs[0][:10]).all()
+    slip_peak = np.mean([np.nanmax(p[40:51]) for p, r in zip(probs, runs) if r.slipped])
+    calm_peak = np.mean([np.nanmax(p[:40]) for p, r in zip(probs, runs)])
+    assert slip_peak > calm_peak
+    op = operating_point(runs, cfg, model=model)
+    assert 0 < op["threshold"] < 1 and op["debounce"] >= 1
+
+
+def test_fit_refuses_runs_without_slip():
+    runs = [r for r in _runs() if not r.slipped]
+    with pytest.raises(ConfigError):
+        fit_runs(runs, GraspTrainConfig(model_config={"image_size": [16, 20]}, epochs=1), progress=False)
+
+
+def test_detector_pushes_like_replay_and_guards_input(tmp_path):
+    from slipsense.checkpoint import save_checkpoint
+
+    m = _model()
+    path = save_checkpoint(tmp_path / "m.safetensors", m, {"operating_point": {"threshold": 0.3, "debounce": 2,
+                                                                              "startup": 10}})
+    det = SlipDetector.from_checkpoint(path, sensors=2)
+    assert det.threshold == 0.3 and det.debounce == 2
+    rng = np.random.default_rng(1)
+    vids = [rng.integers(0, 255, (30, 48, 64, 3), dtype=np.uint8) for _ in range(2)]
+    trace = det.replay(*vids)
+    readings = [det.push(vids[0][i], vids[1][i]) for i in range(30)]
+    assert all(r.probability is None and not r.alarm for r in readings[:10])
+    assert np.allclose([r.probability for r in readings[10:]], trace.probability[10:], atol=1e-5)
+    assert [r.alarm for r in readings] == trace.alarm.tolist()
+    with pytest.raises(InputError, match="earlier frames"):
+        det.push(vids[0][0][:40], vids[1][0])
+    with pytest.raises(ConfigError):
+        SlipDetector.from_checkpoint(path, sensors=1)
+
+
+def test_checkpoint_without_threshold_warns(tmp_path):
+    from slipsense.checkpoint import save_checkpoint
+
+    path = save_checkpoint(tmp_path / "m.safetensors", _model(), {})
+    with pytest.warns(UserWarning, match="no alarm threshold"):
+        det = SlipDetector.from_checkpoint(path, sensors=2)
+    assert det.threshold == 0.5
+
+
+def test_nan_probability_raises_the_alarm():
+    det = SlipDetector(_model(), sensors=2, threshold=0.5)
+    det._stream.push = lambda gray: float("nan")
+    frame = np.zeros((16, 20, 3), np.uint8)
+    readings = [det.push(frame, frame) for _ in range(12)]
+    assert readings[-1].alarm
