@@ -1,6 +1,8 @@
 """Commands for live detection: ``watch``, ``early-warning`` and ``export`` (registered by slipsense.cli)."""
 from __future__ import annotations
 
+import warnings
+
 from pathlib import Path
 from typing import Any, Iterator, Optional, Sequence
 
@@ -97,7 +99,7 @@ def open_source(source: str, kind: str, markers: int | None = None) -> Source:
             return _npy_source(path, markers)
         return _array_source(str(path), [read_video(path, expected_size=None, min_frames=1)], [path], kind, markers)
     if source.strip().isdigit():
-        if kind != "video":
+        if kind not in ("video", "grasp"):
             raise InputError(None, f"camera {source}: live cameras need a video model; marker models take a "
                                    f"video file or a marker .npy")
         return _camera_source(int(source))
@@ -105,7 +107,7 @@ def open_source(source: str, kind: str, markers: int | None = None) -> Source:
 
 
 def _array_source(name: str, videos: list[np.ndarray], paths: list[Path], kind: str, markers: int | None) -> Source:
-    if kind == "video":
+    if kind in ("video", "grasp"):
         steps = ((list(fr), list(fr)) for fr in zip(*videos))
         return Source(name, len(videos), steps)
     from slipsense.sensors.markers import marker_sequences, track_markers
@@ -150,21 +152,23 @@ def _camera_source(index: int) -> Source:
 # ---------------------------------------------------------------------------------------------
 
 
-def watch_source(source: str, checkpoint: Optional[Path], threshold: float = 0.5, out: Optional[Path] = None,
+def watch_source(source: str, checkpoint: Optional[Path], threshold: Optional[float] = None, out: Optional[Path] = None,
                  combine: str = "max", backend: str = "torch", max_frames: Optional[int] = None,
                  heatmap: bool = True, echo=typer.echo, quiet: bool = False, precision: str = "fp32") -> dict[str, Any]:
     """Stream ``source`` through the detector; print a line per frame; optionally write an annotated
     GIF/video. Returns ``{"frames", "alarm_onsets", "first_alarm", "out"}``."""
     from slipsense.checkpoint import load_model
-    from slipsense.live import Annotator, AnnotatedWriter, SlipDetector, onnx_cache_dir
+    from slipsense.live import Annotator, AnnotatedWriter, SlipDetector, onnx_cache_dir, stored_operating_point
 
     ckpt = _checkpoint(checkpoint)
     if out is not None:
         AnnotatedWriter(out)  # refuse a wrong suffix before any work
     model, info = load_model(ckpt)
+    threshold, debounce = stored_operating_point(ckpt, info, threshold, None)
     src = open_source(source, model.input_kind, getattr(model, "markers", None))
     det = SlipDetector(model, threshold=threshold, sensors=src.sensors, combine=combine, backend=backend, info=info,
-                       onnx_dir=onnx_cache_dir(ckpt) if backend == "onnx" else None, precision=precision)
+                       onnx_dir=onnx_cache_dir(ckpt) if backend == "onnx" else None, precision=precision,
+                       debounce=debounce)
     annot = Annotator(det.threshold, det.sensors) if out is not None else None
     writer = AnnotatedWriter(out) if out is not None else None
     onsets: list[int] = []
@@ -219,7 +223,8 @@ def register(app: typer.Typer) -> None:
         source: str = typer.Argument(..., help="video file, recordings experiment folder (camera_*.avi as sensors), "
                                                "marker .npy, or camera index (0, 1, ...)"),
         checkpoint: Optional[Path] = typer.Option(None, help="checkpoint (default: models/vivit-gelsight.safetensors)"),
-        threshold: float = typer.Option(0.5, help="alarm when the slip probability is >= this"),
+        threshold: Optional[float] = typer.Option(None, help="alarm when the slip probability is >= this "
+                                                  "(default: the checkpoint's operating point)"),
         out: Optional[Path] = typer.Option(None, help="annotated output: .gif, .mp4 or .avi"),
         combine: str = typer.Option("max", help="two sensors: max or mean of their probabilities"),
         backend: str = typer.Option("torch", help="torch or onnx (ONNX Runtime)"),
@@ -240,7 +245,12 @@ def register(app: typer.Typer) -> None:
         checkpoint: Optional[Path] = typer.Option(None, help="video-model checkpoint (default: the shipped ViViT)"),
         recordings: Optional[Path] = typer.Option(None, help="recordings folder (default: $SLIPSENSE_DATA/gelsight-slip)"),
         out: Path = typer.Option(..., help="output folder for CSV, JSON and PNGs"),
-        thresholds: str = typer.Option(DEFAULT_THRESHOLDS, help="comma-separated alarm thresholds"),
+        thresholds: str = typer.Option(DEFAULT_THRESHOLDS, help="comma-separated alarm thresholds (the "
+                                       "checkpoint's own operating point is always added)"),
+        horizon: int = typer.Option(50, help="frames before the moment of slip in which a first alarm is in time"),
+        debounce: Optional[int] = typer.Option(None, help="frames in a row above the threshold before an alarm "
+                                               "(default: the checkpoint's)"),
+        overrides: Optional[Path] = typer.Option(None, help="label overrides CSV (object,experiment,camera,moment)"),
         labels: Optional[Path] = typer.Option(None, help="labels CSV (slipsense label) instead of automatic labels"),
         combine: str = typer.Option("max", help="max or mean of the two cameras' probabilities"),
         backend: str = typer.Option("torch", help="torch or onnx"),
@@ -251,10 +261,11 @@ def register(app: typer.Typer) -> None:
         progress: bool = typer.Option(True),
         threads: Optional[int] = typer.Option(None, help=THREADS_HELP),
     ):
-        """Lead time before slip and false alarms per minute, per alarm threshold."""
+        """Per-grasp early warning: slips warned in time, premature, missed; grasps that held yet alarmed."""
         _set_threads(threads)
         summary = run_early_warning(checkpoint, recordings, out, thresholds, labels, combine, backend, limit, fps,
-                                    on_error, progress, precision)
+                                    on_error, progress, precision, horizon=horizon, debounce=debounce,
+                                    overrides=overrides)
         typer.echo(summary)
 
     @app.command("export")
@@ -279,10 +290,12 @@ def register(app: typer.Typer) -> None:
 def run_early_warning(checkpoint: Optional[Path], recordings: Optional[Path], out: Path,
                       thresholds: str | Sequence[float] = DEFAULT_THRESHOLDS, labels: Optional[Path] = None,
                       combine: str = "max", backend: str = "torch", limit: Optional[int] = None, fps: float = 25.0,
-                      on_error: str = "raise", progress: bool = True, precision: str = "fp32") -> str:
+                      on_error: str = "raise", progress: bool = True, precision: str = "fp32", horizon: int = 50,
+                      debounce: Optional[int] = None, overrides: Optional[Path] = None) -> str:
     """The ``early-warning`` command as a function; returns the summary text it prints."""
     from slipsense.config import gelsight_recordings
-    from slipsense.live import SlipDetector, early_warning_table, replay_recordings, write_early_warning
+    from slipsense.early_warning import early_warning_table, replay_recordings, write_early_warning
+    from slipsense.live import SlipDetector
     from slipsense.recordings.folders import find_recordings
     from slipsense.recordings.labels import read_labels_csv
 
@@ -291,6 +304,8 @@ def run_early_warning(checkpoint: Optional[Path], recordings: Optional[Path], ou
         raise ConfigError(f"--limit must be a positive integer, got {limit}")
     if not fps > 0:
         raise ConfigError(f"--fps must be positive, got {fps}")
+    if isinstance(horizon, bool) or not isinstance(horizon, int) or not 1 <= horizon <= 100_000:
+        raise ConfigError(f"--horizon must be a whole number of frames >= 1, got {horizon!r}")
     ckpt = _checkpoint(checkpoint)
     root = Path(recordings) if recordings else gelsight_recordings()
     recs = find_recordings(root, on_error=on_error)
@@ -301,22 +316,30 @@ def run_early_warning(checkpoint: Optional[Path], recordings: Optional[Path], ou
     if len(counts) != 1:
         raise InputError(root, f"runs hold different numbers of camera videos ({counts}); early warning needs the same")
     lab = read_labels_csv(labels) if labels is not None else None
-    det = SlipDetector.from_checkpoint(ckpt, threshold=0.5, sensors=counts[0], combine=combine, backend=backend,
-                                       precision=precision)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # a checkpoint without a threshold: the table covers thresholds anyway
+        det = SlipDetector.from_checkpoint(ckpt, sensors=counts[0], combine=combine, backend=backend,
+                                           precision=precision, debounce=debounce)
+    if det.threshold not in ths:
+        ths = sorted(ths + [det.threshold])
     try:
-        runs = replay_recordings(det, recs, lab, progress=progress, limit=limit)
+        runs = replay_recordings(det, recs, lab, progress=progress, limit=limit, overrides=overrides)
     finally:
         det.close()
     meta = {"checkpoint": str(ckpt), "model": det.model_name, "recordings": str(root), "combine": combine,
-            "backend": backend, "precision": precision, "window_frames": det.frames, "sensors": det.sensors}
-    paths = write_early_warning(runs, ths, out, fps=fps, meta=meta)
-    rows = early_warning_table(runs, ths, fps)
-    lines = [f"{sum(r.slipped for r in runs)} slip runs, {sum(not r.slipped for r in runs)} non-slip runs "
-             f"({rows[0]['contact_minutes']:.2f} min of contact)" if rows else "no runs",
-             "threshold  detected  median lead (ms)  false alarms/min"]
+            "backend": backend, "precision": precision, "sensors": det.sensors,
+            "operating_point": {"threshold": det.threshold, "debounce": det.debounce}}
+    paths = write_early_warning(runs, ths, out, debounce=det.debounce, horizon=horizon, fps=fps, meta=meta)
+    rows = early_warning_table(runs, ths, det.debounce, horizon, fps)
+    slips = sum(r.slipped for r in runs)
+    lines = [f"{slips} slip runs, {len(runs) - slips} runs that held; horizon {horizon} frames, "
+             f"debounce {det.debounce}",
+             "threshold  warned in time  premature  missed  median lead (ms)  false-positive grasps  alarm at rest"]
     for row in rows:
-        lines.append(f"{row['threshold']:9.2f}  {row['detection_rate']:8.0%}  {row['median_lead_ms']:16.0f}  "
-                     f"{row['false_alarms_per_min']:16.2f}")
+        mark = "  <- checkpoint's operating point" if row["threshold"] == det.threshold else ""
+        lines.append(f"{row['threshold']:9.3g}  {row['warned']:>6d}/{row['slip_runs']:<7d} {row['premature']:>9d}  "
+                     f"{row['missed']:>6d}  {row['median_lead_ms']:16.0f}  {row['false_positive_grasps']:>11d}/"
+                     f"{row['held_runs']:<9d} {row['runs_alarming_at_rest']:>13d}{mark}")
     lines.append("-> " + ", ".join(str(p) for p in paths.values()))
     return "\n".join(lines)
 

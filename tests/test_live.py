@@ -18,8 +18,8 @@ from slipsense.checkpoint import save_checkpoint
 from slipsense.cli import app
 from slipsense.config import gelsight_recordings
 from slipsense.errors import ConfigError, InputError
-from slipsense.live import (EARLY_WARNING_COLUMNS, Reading, RunTrace, SlipDetector, alarm_onsets,
-                            early_warning_table, slip_probability)
+from slipsense.early_warning import EARLY_WARNING_COLUMNS, RunTrace, early_warning_table
+from slipsense.live import Reading, SlipDetector, slip_probability
 from slipsense.models import build
 
 VIVIT_SMALL = dict(image_size=(48, 64), patch_size=(16, 16), frames=5, dim=8, heads=2, dim_head=16, mlp_dim=8)
@@ -239,35 +239,32 @@ def test_settings_are_checked(vivit):
 # ---------------------------------------------------------------------------------------------
 
 
-def _run(prob, slipped, moment=None, start=0, end=None):
+def _run(prob, slipped, moment=None):
     prob = np.asarray(prob, float)
-    end = (moment if slipped else len(prob) - 1) if end is None else end
-    return RunTrace("o", 1, slipped, moment, start, end, len(prob), prob)
+    return RunTrace("o", 1, slipped, moment, len(prob), prob)
 
 
-def test_alarm_onsets_count_rising_edges():
-    alarm = np.array([1, 1, 0, 1, 1, 0, 0, 1, 0], bool)
-    assert alarm_onsets(alarm, 0, 8).tolist() == [0, 3, 7]
-    assert alarm_onsets(alarm, 1, 6).tolist() == [1, 3]  # on at the phase start counts once
-    assert alarm_onsets(alarm, 5, 6).tolist() == []
-
-
-def test_early_warning_table():
+def test_early_warning_table_per_grasp():
     nan = math.nan
-    slip_a = _run([nan, nan, 0.2, 0.6, 0.9, 0.9, 0.2], True, moment=5, start=2)  # 0.5: alarm at 3 -> lead 2
-    slip_b = _run([nan, nan, 0.9, 0.1, 0.1, 0.1, 0.1, 0.95], True, moment=6, start=3)  # alarm at 2 is before contact
-    calm = _run([nan, 0.7, 0.7, 0.1, 0.8, 0.1, 0.9], False, start=2, end=5)  # 4 frames of contact
-    rows = early_warning_table([slip_a, slip_b, calm], [0.5, 0.85], fps=25.0)
-    r5, r85 = rows
-    assert (r5["slip_runs"], r5["detected"], r5["missed"]) == (2, 1, 1)
+    pre = [nan] * 10
+    slip_a = _run(pre + [0.2, 0.6, 0.9, 0.9, 0.2], True, moment=13)  # 0.5: first alarm 11 -> lead 2
+    slip_b = _run(pre + [0.9] + [0.1] * 60 + [0.95], True, moment=70)  # 0.5: alarm at 10, 60 frames early
+    calm = _run(pre + [0.1, 0.1, 0.7, 0.1], False)
+    rows = early_warning_table([slip_a, slip_b, calm], [0.5, 0.8], horizon=50, fps=25.0)
+    r5, r8 = rows
+    assert (r5["slip_runs"], r5["warned"], r5["premature"], r5["missed"]) == (2, 1, 1, 0)
     assert r5["median_lead_frames"] == 2 and r5["median_lead_ms"] == 80.0
-    assert r5["false_alarms"] == 2  # on at frame 2 (phase start) and the onset at 4
-    assert r5["contact_minutes"] == pytest.approx(4 / 25 / 60)
-    assert r5["false_alarms_per_min"] == pytest.approx(2 / (4 / 25 / 60))
-    assert r85["detected"] == 1 and r85["median_lead_frames"] == 1 and r85["false_alarms"] == 0
+    assert r5["false_positive_grasps"] == 1 and r8["false_positive_grasps"] == 0
+    assert (r8["warned"], r8["premature"]) == (1, 1)  # slip_a at 12 (lead 1); slip_b still premature
     assert list(r5) == list(EARLY_WARNING_COLUMNS)
     empty = early_warning_table([calm], [0.5])[0]
-    assert math.isnan(empty["detection_rate"]) and math.isnan(empty["median_lead_ms"])
+    assert math.isnan(empty["warned_rate"]) and math.isnan(empty["median_lead_ms"])
+
+
+def test_always_on_detector_scores_badly_in_early_warning():
+    runs = [_run([np.nan] * 10 + [0.99] * 90, True, moment=80), _run([np.nan] * 10 + [0.99] * 90, False)]
+    row = early_warning_table(runs, [0.5])[0]
+    assert row["warned"] == 0 and row["premature"] == 1 and row["false_positive_rate"] == 1.0 and row["score"] == -1
 
 
 # ---------------------------------------------------------------------------------------------
@@ -359,14 +356,13 @@ def test_early_warning_on_synthetic_recordings(tmp_path, vivit_ckpt, recordings,
         rows = list(csv.DictReader(fh))
     assert tuple(rows[0]) == EARLY_WARNING_COLUMNS
     assert [float(r["threshold"]) for r in rows] == [0.2, 0.5, 0.8]
-    assert all(r["slip_runs"] == "1" and r["nonslip_runs"] == "1" for r in rows)
-    assert float(rows[0]["contact_minutes"]) == pytest.approx(41 / 25 / 60, rel=1e-5)  # contact 20..60
+    assert all(r["slip_runs"] == "1" and r["held_runs"] == "1" for r in rows)
     doc = json.loads((out / "early_warning.json").read_text())
     assert [r["threshold"] for r in doc["table"]] == [0.2, 0.5, 0.8]
     slip_run = next(r for r in doc["runs"] if r["slipped"])
-    assert slip_run["moment_of_slip"] == 50 and slip_run["contact_start"] == 20
+    assert slip_run["moment_of_slip"] == 50 and set(slip_run["outcome"]["0.5"].split()) <= {"warned", "premature", "missed"}
     assert len(slip_run["probability"]) == 70 and slip_run["probability"][3] is None
-    for name in ("early_warning.png", "detection_vs_false_alarms.png"):
+    for name in ("early_warning.png",):
         assert (out / name).read_bytes()[:4] == b"\x89PNG"
     # the replay inside early-warning equals streaming the run frame by frame
     from slipsense.recordings.video import read_video

@@ -118,3 +118,18 @@ def test_nan_probability_raises_the_alarm():
     frame = np.zeros((16, 20, 3), np.uint8)
     readings = [det.push(frame, frame) for _ in range(12)]
     assert readings[-1].alarm
+
+
+def test_motion_energy_baseline_streams_and_trains():
+    torch.manual_seed(0)
+    m = build("motion-energy", image_size=(16, 20), lags=(1, 5, 10)).eval()
+    assert sum(p.numel() for p in m.parameters()) == 8
+    g = torch.randint(0, 256, (1, 2, 30, 16, 20)).float() / 255
+    with torch.no_grad():
+        full = torch.softmax(m(g), -1)[0, :, 1].numpy()
+    st = m.stream()
+    assert np.allclose([st.push((g[0, :, t] * 255).round().byte().numpy()) for t in range(30)], full, atol=1e-5)
+    cfg = GraspTrainConfig(model="motion-energy", model_config={"image_size": [16, 20], "lags": [1, 5, 10]},
+                           epochs=30, lr=5e-2, batch_size=8, chunk=16, negatives=2, hard_negatives=0, inner_folds=0)
+    model, hist = fit_runs(_runs(), cfg, progress=False)
+    assert hist[-1]["loss"] < hist[0]["loss"]

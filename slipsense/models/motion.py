@@ -197,3 +197,33 @@ class MotionStream:
             self._feats.append(feat)
         logits = m.classify(torch.stack(list(self._feats))[None])[0, -1]
         return float(torch.softmax(logits, dim=0)[1])
+
+
+@register("motion-energy")
+class MotionEnergy(MotionNet):
+    """The non-learned baseline: how much the gels move, with a fitted threshold.
+
+    Per frame, the mean absolute grey-level change over each lag (1, 5, 25 frames) on each sensor,
+    the largest over sensors, ``log1p`` -> a logistic regression (``len(lags) + 1`` numbers fitted).
+    No appearance, no learned filters: what frame-difference slip detectors threshold, so users see
+    what the network adds. Streams and trains like :class:`MotionNet`.
+    """
+
+    def __init__(self, sensors: int = 2, image_size: Sequence[int] = (30, 40), lags: Sequence[int] = (1, 5, 25),
+                 diff_scale: float = 10.0):
+        super().__init__(sensors=sensors, image_size=image_size, lags=lags, width=1, features=1, temporal=1,
+                         dilations=(1,), dropout=0.0, diff_scale=diff_scale)
+        del self.encoder, self.project, self.tcn, self.head
+        self.head = nn.Linear(len(self.lags), 2)
+        self.dilations = ()
+
+    def config(self) -> dict:
+        return {"sensors": self.sensors, "image_size": list(self.image_size), "lags": list(self.lags),
+                "diff_scale": self.diff_scale}
+
+    def encode(self, diffs: Tensor) -> Tensor:
+        """``(B, S, N, L, h, w)`` -> ``(B, N, L)``: log1p of the mean absolute change, max over sensors."""
+        return torch.log1p(diffs.abs().mean(dim=(4, 5)).amax(dim=1))
+
+    def classify(self, feats: Tensor) -> Tensor:
+        return self.head(feats)

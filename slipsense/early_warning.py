@@ -1,0 +1,179 @@
+"""Early warning: replay recordings through a streaming detector and judge it per grasp.
+
+Every run is replayed from its first frame with all its cameras, exactly as the live detector
+would see it (:meth:`slipsense.live.SlipDetector.replay`), then scored with
+:mod:`slipsense.pergrasp`: slips warned in time (first alarm within ``horizon`` frames before the
+moment of slip), premature and missed; grasps that held yet alarmed; alarms while no gel is
+touched. One row per alarm threshold, at the detector's debounce.
+
+An earlier version of this report counted an alarm held since the grasp as a warning and counted
+false alarms as rising edges, so that a detector always on scored well; the tests now hold the
+opposite.
+"""
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterable, Mapping, Sequence
+
+import numpy as np
+
+from slipsense import pergrasp
+from slipsense.errors import ConfigError, InputError
+
+#: Columns of the early-warning CSV, in order.
+EARLY_WARNING_COLUMNS = pergrasp.COLUMNS
+
+
+@dataclass
+class RunTrace:
+    """One replayed run: its labels, its probability trace and where no gel was touched."""
+
+    object: str
+    experiment: int
+    slipped: bool
+    moment_of_slip: int | None  # last frame before the object loses contact (slip runs)
+    n_frames: int
+    probability: np.ndarray  # (N,) combined; NaN where the detector gives no answer yet
+    rest: np.ndarray | None = field(default=None, repr=False)  # (N,) bool: no sensor touched
+
+    def outcome(self, threshold: float, debounce: int = 1, horizon: int = pergrasp.HORIZON,
+                startup: int = pergrasp.STARTUP) -> pergrasp.GraspOutcome:
+        alarm = pergrasp.debounce(self.probability, threshold, debounce)
+        return pergrasp.grasp_outcome(alarm, self.moment_of_slip, horizon, startup, self.rest)
+
+
+def early_warning_table(runs: Sequence[RunTrace], thresholds: Sequence[float], debounce: int = 1,
+                        horizon: int = pergrasp.HORIZON, fps: float = 25.0) -> list[dict[str, Any]]:
+    """One row (:data:`EARLY_WARNING_COLUMNS`) per threshold, pooled over ``runs``."""
+    return [{"threshold": float(th), "debounce": int(debounce),
+             **pergrasp.summarise([r.outcome(th, debounce, horizon) for r in runs], fps)} for th in thresholds]
+
+
+def replay_recordings(detector, recordings: Iterable[Any], labels: Mapping[tuple, Any] | None = None,
+                      progress: bool = True, limit: int | None = None, overrides=None) -> list[RunTrace]:
+    """Replay every run (all cameras of an experiment as the detector's sensors) through ``detector``.
+
+    Args:
+        detector: a :class:`~slipsense.live.SlipDetector` on video frames; ``sensors`` = cameras per run.
+        recordings: :class:`~slipsense.recordings.types.Recording` s (``find_recordings``).
+        labels: ``{(object, experiment, camera): VideoLabel}``; default: ``label_recordings`` with
+            ``overrides``.
+        limit: replay at most this many runs (in sorted order).
+
+    Slipped runs without a moment of slip are left out (nothing to warn of).
+    """
+    from slipsense.recordings.labels import contact_signal, label_recordings
+    from slipsense.recordings.video import read_video
+
+    if detector.kind not in ("video", "grasp"):
+        raise ConfigError("early warning replays GelSight videos: it needs a video model")
+    runs: dict[tuple[str, int], list[Any]] = {}
+    for r in recordings:
+        runs.setdefault((r.object, r.experiment), []).append(r)
+    keys = sorted(runs)[:limit] if limit is not None else sorted(runs)
+    if labels is None:
+        labels = label_recordings([r for k in keys for r in runs[k]], overrides=overrides, progress=progress)
+    items: Iterable = keys
+    if progress:
+        from tqdm import tqdm
+
+        items = tqdm(keys, desc="replaying runs", unit="run")
+    out = []
+    for key in items:
+        cams = sorted(runs[key], key=lambda r: r.camera)
+        if len(cams) != detector.sensors:
+            raise InputError(cams[0].path.parent, f"run has {len(cams)} camera video(s), the detector takes "
+                                                  f"{detector.sensors} sensor(s)")
+        labs = []
+        for r in cams:
+            if r.key not in labels:
+                raise InputError(r.path, "no label for this video")
+            labs.append(labels[r.key])
+        moment = next((l.moment_of_slip for l in labs if l.moment_of_slip is not None), None)
+        slipped = any(l.slipped for l in labs)
+        if slipped and moment is None:
+            continue
+        videos = [read_video(r.path, expected_size=None, min_frames=1) for r in cams]
+        n = len(videos[0])
+        if any(len(v) != n for v in videos):
+            raise InputError(cams[0].path.parent, f"the cameras of this run differ in frame count: "
+                                                  f"{[len(v) for v in videos]}")
+        trace = detector.replay(*videos)
+        rest = pergrasp.rest_mask(np.stack([contact_signal(v) for v in videos])) if n > 1 else None
+        out.append(RunTrace(key[0], key[1], slipped, moment, n, trace.probability, rest))
+    return out
+
+
+def write_early_warning(runs: Sequence[RunTrace], thresholds: Sequence[float], out_dir: str | Path,
+                        debounce: int = 1, horizon: int = pergrasp.HORIZON, fps: float = 25.0,
+                        meta: Mapping[str, Any] | None = None) -> dict[str, Path]:
+    """Write ``early_warning.csv``, ``early_warning.json`` (table, definitions, every run's outcome
+    per threshold and its trace) and ``early_warning.png`` (slips warned in time against grasps
+    that held yet alarmed, one point per threshold) into ``out_dir``."""
+    from slipsense import atomic
+
+    out_dir = Path(out_dir)
+    rows = early_warning_table(runs, thresholds, debounce, horizon, fps)
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=EARLY_WARNING_COLUMNS, lineterminator="\n")
+    writer.writeheader()
+    for row in rows:
+        writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in row.items()})
+    paths = {"csv": out_dir / "early_warning.csv", "json": out_dir / "early_warning.json",
+             "png": out_dir / "early_warning.png"}
+    atomic.write_text(paths["csv"], buf.getvalue())
+    doc = {
+        **(dict(meta) if meta else {}),
+        "fps": fps, "horizon_frames": horizon, "debounce": debounce, "startup_frames": pergrasp.STARTUP,
+        "thresholds": [float(t) for t in thresholds],
+        "definitions": {
+            "warned": "slip run whose first alarm after the start-up falls in moment-horizon..moment",
+            "premature": "slip run whose first alarm comes before moment-horizon (a false alarm)",
+            "missed": "slip run without an alarm up to the moment",
+            "false_positive_grasps": "runs that held yet alarmed at any frame after the start-up",
+            "runs_alarming_at_rest": "runs with an alarm while no gel was touched",
+            "score": "warned_rate - false_positive_rate",
+        },
+        "table": [_json_safe(r) for r in rows],
+        "runs": [{
+            "object": r.object, "experiment": r.experiment, "slipped": r.slipped, "moment_of_slip": r.moment_of_slip,
+            "n_frames": r.n_frames,
+            "outcome": {f"{t:g}": r.outcome(t, debounce, horizon).outcome for t in thresholds},
+            "first_alarm": {f"{t:g}": r.outcome(t, debounce, horizon).first_alarm for t in thresholds},
+            "probability": [None if math.isnan(p) else round(float(p), 5) for p in r.probability],
+        } for r in runs],
+    }
+    atomic.write_text(paths["json"], json.dumps(doc, indent=1))
+    plot_tradeoff(rows, paths["png"])
+    return paths
+
+
+def _json_safe(row: Mapping[str, Any]) -> dict[str, Any]:
+    return {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in row.items()}
+
+
+def plot_tradeoff(rows: Sequence[Mapping[str, Any]], path: str | Path, title: str = "") -> None:
+    """Slips warned in time against grasps that held yet alarmed, one labelled point per threshold."""
+    from slipsense.plots import _plt, save_figure
+
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(5.2, 4.2))
+    xs = [r["false_positive_rate"] for r in rows]
+    ys = [r["warned_rate"] for r in rows]
+    ax.plot(xs, ys, marker="o")
+    for r, x, y in zip(rows, xs, ys):
+        if not (math.isnan(x) or math.isnan(y)):
+            ax.annotate(f"{r['threshold']:g}", (x, y), fontsize=7, xytext=(3, 3), textcoords="offset points")
+    ax.plot([0, 1], [0, 1], ls=":", color="gray", lw=0.8)
+    ax.set_xlabel("grasps that held yet alarmed (false-positive grasps)")
+    ax.set_ylabel("slips warned in time (first alarm <= 2 s before)")
+    ax.set_xlim(-0.02, 1.02)
+    ax.set_ylim(-0.02, 1.02)
+    ax.grid(alpha=0.3)
+    ax.set_title(title or "per-grasp early warning (labels: thresholds)", fontsize=9)
+    save_figure(fig, path)
