@@ -217,7 +217,7 @@ def _register_extensions() -> None:
     """Commands defined beside their subsystems (live detection, export, sensors, experiments)."""
     import importlib
 
-    for mod in ("slipsense.cli_live", "slipsense.cli_sensors", "slipsense.cli_experiments"):
+    for mod in ("slipsense.cli_live", "slipsense.cli_sensors", "slipsense.cli_experiments", "slipsense.cli_grasp"):
         try:
             importlib.import_module(mod).register(app)
         except ModuleNotFoundError as exc:

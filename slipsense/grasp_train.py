@@ -41,9 +41,10 @@ class GraspTrainConfig:
     lr: float = 2e-3
     weight_decay: float = 1e-4
     batch_size: int = 16
-    chunk: int = 24  # scored frames per chunk
-    negatives: int = 8  # random chunks per run per epoch
-    hard_negatives: int = 4  # chunks per run per epoch drawn where the model errs most (after epoch 1)
+    chunk: int = 48  # scored frames per chunk
+    negatives: int = 3  # random chunks per run per epoch
+    hard_negatives: int = 2  # chunks per run per epoch drawn where the model errs most (after epoch 1)
+    mine_every: int = 3  # epochs between refreshes of where the model errs
     positive_weight: float = 0.5  # total weight of onset frames relative to the other frames
     onset_frames: int = 10  # h
     horizon: int = pergrasp.HORIZON  # H
@@ -52,7 +53,7 @@ class GraspTrainConfig:
     inner_folds: int = 3  # for the operating point (0: choose it on the training runs themselves)
 
     def __post_init__(self):
-        checks = {"epochs": (1, 10_000), "batch_size": (1, 4096), "chunk": (1, 2048), "negatives": (0, 100), "hard_negatives": (0, 100),
+        checks = {"epochs": (1, 10_000), "batch_size": (1, 4096), "chunk": (1, 2048), "negatives": (0, 100), "hard_negatives": (0, 100), "mine_every": (1, 1000),
                   "onset_frames": (0, 500), "horizon": (1, 5000), "seed": (0, 2**32 - 1), "inner_folds": (0, 20)}
         for key, (lo, hi) in checks.items():
             v = getattr(self, key)
@@ -149,6 +150,7 @@ def fit_runs(runs: Sequence[GraspRun], cfg: GraspTrainConfig, progress: bool = T
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=cfg.epochs)
     history = []
+    hardness = None
     epochs = range(cfg.epochs)
     if progress:
         from tqdm import tqdm
@@ -157,8 +159,7 @@ def fit_runs(runs: Sequence[GraspRun], cfg: GraspTrainConfig, progress: bool = T
     for epoch in epochs:
         model.train()
         t0 = time.perf_counter()
-        hardness = None
-        if epoch > 0 and cfg.hard_negatives:
+        if epoch > 0 and cfg.hard_negatives and (epoch - 1) % cfg.mine_every == 0:
             model.eval()
             hardness = [p for p in _predict_items(model, data.items)]
             model.train()
@@ -276,38 +277,167 @@ def clip_metrics(p: np.ndarray, y: np.ndarray, threshold: float) -> dict[str, An
             "tp": tp, "fp": fp, "fn": fn, "tn": tn}
 
 
-def leave_objects_out(runs: Sequence[GraspRun], cfg: GraspTrainConfig, labels: dict, folds: int = 5,
-                      progress: bool = True, on_fold: Callable[[dict[str, Any]], None] | None = None) -> dict[str, Any]:
-    """Train one model per fold of objects on the other folds' runs, choose its operating point on
-    those training runs only (:func:`operating_point`), replay the held-out objects' runs, and pool
-    the per-grasp outcomes and the clip metrics over the folds."""
+def evaluate_fold(runs: Sequence[GraspRun], cfg: GraspTrainConfig, labels: dict, held: Sequence[str],
+                  progress: bool = True) -> dict[str, Any]:
+    """Train on the runs of every object but ``held``, choose the operating point on those training
+    runs only (:func:`operating_point`), replay the held-out objects' runs. Returns the fold's
+    per-grasp summary and clip metrics at that operating point, plus what pooling needs: every
+    held-out run's trace and the clips' probabilities and labels."""
     usable = [r for r in runs if r.usable]
-    split = object_split(usable, folds, cfg.seed)
-    outcomes, all_p, all_y, fold_rows = [], [], [], []
-    traces: list[dict[str, Any]] = []
-    for k, held in enumerate(split):
-        train = [r for r in usable if r.object not in held]
-        test = [r for r in usable if r.object in held]
-        model, history = fit_runs(train, cfg, progress=progress)
-        op = operating_point(train, cfg, progress=False, model=model)
-        probs = predict_runs(model, test)
-        outs = [pergrasp.grasp_outcome(pergrasp.debounce(p, op["threshold"], op["debounce"]), r.moment_of_slip,
-                                       cfg.horizon, rest=pergrasp.rest_mask(r.contact)) for r, p in zip(test, probs)]
-        p, y = clip_scores(test, probs, labels)
-        row = {"fold": k, "objects": held, "operating_point": op, "per_grasp": pergrasp.summarise(outs),
-               "clips": clip_metrics(p, y, op["threshold"]), "final_loss": history[-1]["loss"]}
-        fold_rows.append(row)
-        if on_fold is not None:
-            on_fold(row)
-        outcomes += outs
-        all_p.append(p)
-        all_y.append(y)
-        traces += [{"object": r.object, "experiment": r.experiment, "fold": k, "moment_of_slip": r.moment_of_slip,
-                    "outcome": o.outcome, "first_alarm": o.first_alarm, "lead": o.lead} for r, o in zip(test, outs)]
-    pooled_clips = [clip_metrics(p, y, f["operating_point"]["threshold"]) for p, y, f in zip(all_p, all_y, fold_rows)]
-    tot = {k: sum(c[k] for c in pooled_clips) for k in ("tp", "fp", "fn", "tn")}
-    y_all = np.concatenate(all_y)
-    pred_all = np.concatenate([np.nan_to_num(p, nan=0) >= f["operating_point"]["threshold"]
-                               for p, f in zip(all_p, fold_rows)])
-    return {"config": cfg.to_dict(), "folds": fold_rows, "per_grasp": pergrasp.summarise(outcomes),
-            "clips": clip_metrics(pred_all.astype(float), y_all, 0.5), "clip_counts": tot, "runs": traces}
+    train = [r for r in usable if r.object not in held]
+    test = [r for r in usable if r.object in held]
+    if not test:
+        raise ConfigError(f"no usable runs of the held-out objects {', '.join(held)}")
+    model, history = fit_runs(train, cfg, progress=progress)
+    op = operating_point(train, cfg, progress=False, model=model)
+    probs = predict_runs(model, test)
+    rests = [pergrasp.rest_mask(r.contact) for r in test]
+    outs = [pergrasp.grasp_outcome(pergrasp.debounce(p, op["threshold"], op["debounce"]), r.moment_of_slip,
+                                   cfg.horizon, rest=rest) for r, p, rest in zip(test, probs, rests)]
+    p, y = clip_scores(test, probs, labels)
+    return {
+        "objects": sorted(held), "operating_point": op, "per_grasp": pergrasp.summarise(outs),
+        "clips": clip_metrics(p, y, op["threshold"]), "history": history,
+        "clip_probability": [round(float(v), 5) for v in p], "clip_label": [int(v) for v in y],
+        "runs": [{"object": r.object, "experiment": r.experiment, "moment_of_slip": r.moment_of_slip,
+                  "outcome": o.outcome, "first_alarm": o.first_alarm, "lead": o.lead,
+                  "rest": np.flatnonzero(rest).tolist(),
+                  "probability": [None if math.isnan(v) else round(float(v), 4) for v in pr]}
+                 for r, o, pr, rest in zip(test, outs, probs, rests)],
+    }
+
+
+def pool_folds(folds: Sequence[dict[str, Any]], thresholds: Sequence[float] | None = None) -> dict[str, Any]:
+    """Pool :func:`evaluate_fold` results: per-grasp outcomes and clip decisions, each fold at its own
+    operating point; and, for the trade-off curve, every fold's runs at shared ``thresholds``."""
+    outcomes = [pergrasp.GraspOutcome(r["outcome"], r["first_alarm"], r["lead"], 0.0, 0)
+                for f in folds for r in f["runs"]]
+    per_grasp = pergrasp.summarise(outcomes)
+    per_grasp["runs_alarming_at_rest"] = sum(f["per_grasp"]["runs_alarming_at_rest"] for f in folds)
+    per_grasp["held_alarm_fraction"] = float(np.mean([f["per_grasp"]["held_alarm_fraction"] for f in folds]))
+    decisions = np.concatenate([np.asarray(f["clip_probability"]) >= f["operating_point"]["threshold"] for f in folds])
+    y = np.concatenate([np.asarray(f["clip_label"], dtype=np.int64) for f in folds])
+    if thresholds is None:
+        thresholds = np.round(np.linspace(0.05, 0.95, 19), 3)
+    traces, moments, rests = [], [], []
+    for f in folds:
+        for r in f["runs"]:
+            p = np.array([np.nan if v is None else v for v in r["probability"]], dtype=np.float64)
+            rest = np.zeros(len(p), dtype=bool)
+            rest[r["rest"]] = True
+            traces.append(p)
+            moments.append(r["moment_of_slip"])
+            rests.append(rest)
+    debounce = int(np.median([f["operating_point"]["debounce"] for f in folds]))
+    curve = pergrasp.table(traces, moments, thresholds, (debounce,), rests=rests)
+    return {"per_grasp": per_grasp, "clips": clip_metrics(decisions.astype(np.float64), y, 0.5),
+            "operating_points": [f["operating_point"] for f in folds], "curve": curve}
+
+
+# ---------------------------------------------------------------------------------------------
+# What the commands run: data, one detector, the folds
+# ---------------------------------------------------------------------------------------------
+
+
+def make_config(model: str, settings: dict[str, Any], size: tuple[int, int] | None = None) -> GraspTrainConfig:
+    """A :class:`GraspTrainConfig` from ``--set`` pairs: training keys by name, anything else (or
+    ``model.KEY``) goes to the model's config; ``size`` sets the model's ``image_size``."""
+    train_keys = set(GraspTrainConfig.__dataclass_fields__) - {"model", "model_config"}
+    train, model_cfg = {}, {}
+    for key, value in settings.items():
+        if key.startswith("model."):
+            model_cfg[key[len("model."):]] = value
+        elif key in train_keys:
+            train[key] = value
+        else:
+            model_cfg[key] = value
+    if size is not None:
+        model_cfg["image_size"] = list(size)
+    cfg = GraspTrainConfig(model=model, model_config=model_cfg, **train)
+    from slipsense.models import build
+
+    build(cfg.model, **cfg.model_config)  # unknown or out-of-range model settings fail here, before any work
+    return cfg
+
+
+def load_grasp_data(recordings, overrides=None, image_size: tuple[int, int] = (30, 40), on_error: str = "raise",
+                    progress: bool = True) -> tuple[list[GraspRun], dict]:
+    """Labelled whole runs of a recordings folder (``(runs, labels)``), labels with overrides."""
+    from slipsense.recordings.folders import find_recordings, validate_recordings
+    from slipsense.recordings.labels import label_recordings
+    from slipsense.recordings.runs import load_runs
+
+    recs = validate_recordings(find_recordings(recordings, on_error=on_error), on_error=on_error, expected_size=None)
+    if not recs:
+        from slipsense.errors import InputError
+
+        raise InputError(recordings, "no usable recordings")
+    labels = label_recordings(recs, overrides=overrides, progress=progress)
+    return load_runs(recs, labels, image_size, progress=progress), labels
+
+
+def _checkpoint_info(cfg: GraspTrainConfig, op: dict[str, Any], runs: Sequence[GraspRun], data: dict[str, Any],
+                     history: list[dict[str, Any]]) -> dict[str, Any]:
+    return {"train_config": cfg.to_dict(), "operating_point": op, "history": history,
+            "data": {**data, "objects": sorted({r.object for r in runs}), "runs": len(runs)}}
+
+
+def train_detector(runs: Sequence[GraspRun], labels: dict, cfg: GraspTrainConfig, out, held: Sequence[str] = (),
+                   data: dict[str, Any] | None = None, progress: bool = True) -> dict[str, Any]:
+    """Train a detector on every run whose object is not in ``held``, choose its operating point on
+    those runs (inner folds), and write ``out/detector.safetensors`` (weights, full config, operating
+    point), ``metrics.csv`` and ``curves.png``; with ``held`` objects, also ``held_out.json`` (their
+    per-grasp outcomes and clip metrics, never used for any choice)."""
+    import json
+    from pathlib import Path
+
+    from slipsense import atomic
+    from slipsense.checkpoint import save_checkpoint
+
+    out = Path(out)
+    usable = [r for r in runs if r.usable]
+    train = [r for r in usable if r.object not in set(held)]
+    unknown = sorted(set(held) - {r.object for r in usable})
+    if unknown:
+        raise ConfigError(f"held-out objects without usable runs: {', '.join(unknown)}")
+    model, history = fit_runs(train, cfg, progress=progress)
+    op = operating_point(train, cfg, progress=progress, model=model)
+    info = _checkpoint_info(cfg, op, train, {**(data or {}), "held_out_objects": sorted(held)}, history)
+    path = save_checkpoint(out / "detector.safetensors", model, info)
+    _write_history(out, history)
+    result = {"checkpoint": str(path), "operating_point": op}
+    if held:
+        fold = evaluate_held_out(model, op, [r for r in usable if r.object in set(held)], labels, cfg.horizon)
+        atomic.write_text(out / "held_out.json", json.dumps({"objects": sorted(held), **fold}, indent=1))
+        result.update(fold)
+    return result
+
+
+def evaluate_held_out(model, op: dict[str, Any], runs: Sequence[GraspRun], labels: dict, horizon: int) -> dict[str, Any]:
+    probs = predict_runs(model, runs)
+    outs = [pergrasp.grasp_outcome(pergrasp.debounce(p, op["threshold"], op["debounce"]), r.moment_of_slip, horizon,
+                                   rest=pergrasp.rest_mask(r.contact)) for r, p in zip(runs, probs)]
+    p, y = clip_scores(runs, probs, labels)
+    return {"per_grasp": pergrasp.summarise(outs), "clips": clip_metrics(p, y, op["threshold"])}
+
+
+def _write_history(out, history: list[dict[str, Any]]) -> None:
+    import csv
+    import io
+
+    from slipsense import atomic
+    from slipsense.plots import _plt, save_figure
+
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=list(history[0]), lineterminator="\n")
+    w.writeheader()
+    w.writerows(history)
+    atomic.write_text(out / "metrics.csv", buf.getvalue())
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(5.2, 3.4))
+    ax.plot([h["epoch"] for h in history], [h["loss"] for h in history], marker=".", label="loss (weighted)")
+    ax.plot([h["epoch"] for h in history], [h["frame_accuracy"] for h in history], marker=".", label="frame accuracy")
+    ax.set_xlabel("epoch")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    save_figure(fig, out / "curves.png")

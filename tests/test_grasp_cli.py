@@ -1,0 +1,90 @@
+"""`slipsense grasp train|folds` and `early-warning` with a grasp detector, on small made-up recordings."""
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from slipsense.cli import app
+
+SMALL = ["--set", "width=4", "--set", "features=8", "--set", "temporal=8", "--set", "lags=[1,5,10]",
+         "--set", "dilations=[1,2,4]", "--set", "chunk=16", "--set", "negatives=1", "--set", "hard_negatives=1",
+         "--size", "12x16", "--epochs", "2", "--no-progress", "--threads", "1"]
+
+
+def _video(path: Path, n: int, contact: tuple[int, int], slide: bool, seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    w = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"XVID"), 25, (64, 48))
+    for t in range(n):
+        f = np.full((48, 64, 3), 110, np.uint8) + rng.integers(0, 4, (48, 64, 3), dtype=np.uint8)
+        if contact[0] <= t <= contact[1]:
+            x = 16 + (max(0, t - contact[1] + 8) * 2 if slide else 0)
+            f[12:36, x : x + 24] = 200
+        w.write(f)
+    w.release()
+
+
+@pytest.fixture(scope="module")
+def grasps(tmp_path_factory):
+    """4 objects, each one run that slips (the pressed square slides, then leaves) and one that holds."""
+    root = tmp_path_factory.mktemp("grasps")
+    for i in range(4):
+        for exp, slip in ((1, True), (2, False)):
+            for cam in (0, 2):
+                _video(root / f"obj{i}" / f"exp_num_{exp}" / f"camera_{cam}.avi", 70, (20, 50 if slip else 69),
+                       slip, seed=100 * i + 10 * exp + cam)
+            if slip:
+                (root / f"obj{i}" / f"exp_num_{exp}" / "slip.txt").write_text("")
+    return root
+
+
+def test_grasp_train_then_early_warning(tmp_path, grasps, monkeypatch):
+    monkeypatch.setenv("SLIPSENSE_CACHE", str(tmp_path / "cache"))
+    out = tmp_path / "det"
+    res = CliRunner().invoke(app, ["grasp", "train", "--out", str(out), "--recordings", str(grasps), "--fold", "0",
+                                   "--folds", "2", "--inner-folds", "2", *SMALL])
+    assert res.exit_code == 0, res.output
+    assert "held-out objects" in res.output and "always-wiggle" in res.output
+    from slipsense.checkpoint import read_info
+
+    info = read_info(out / "detector.safetensors")
+    assert info["model"] == "motionnet" and 0 <= info["operating_point"]["threshold"] <= 1
+    assert info["train_config"]["epochs"] == 2 and info["data"]["held_out_objects"]
+    assert (out / "curves.png").exists() and (out / "metrics.csv").read_text().count("\n") == 3
+    held = json.loads((out / "held_out.json").read_text())
+    assert held["per_grasp"]["slip_runs"] + held["per_grasp"]["held_runs"] == 4
+    ew = tmp_path / "ew"
+    res = CliRunner().invoke(app, ["early-warning", "--checkpoint", str(out / "detector.safetensors"),
+                                   "--recordings", str(grasps), "--out", str(ew), "--no-progress"])
+    assert res.exit_code == 0, res.output
+    assert "checkpoint's operating point" in res.output
+    doc = json.loads((ew / "early_warning.json").read_text())
+    assert doc["operating_point"]["threshold"] == info["operating_point"]["threshold"]
+    assert len(doc["runs"]) == 8
+
+
+def test_grasp_folds_resume(tmp_path, grasps, monkeypatch):
+    monkeypatch.setenv("SLIPSENSE_CACHE", str(tmp_path / "cache"))
+    out = tmp_path / "folds"
+    args = ["grasp", "folds", "--out", str(out), "--recordings", str(grasps), "--folds", "2", "--inner-folds", "0",
+            *SMALL]
+    res = CliRunner().invoke(app, args)
+    assert res.exit_code == 0, res.output
+    rep = json.loads((out / "folds.json").read_text())
+    assert rep["pooled"]["per_grasp"]["slip_runs"] == 4 and rep["pooled"]["per_grasp"]["held_runs"] == 4
+    assert rep["pooled"]["clips"]["always_wiggle_accuracy"] is not None
+    assert (out / "README.md").read_text().startswith("# motionnet") and (out / "tradeoff.png").exists()
+    before = (out / "fold0.json").stat().st_mtime_ns
+    res = CliRunner().invoke(app, args)  # a rerun reuses the finished folds
+    assert res.exit_code == 0 and (out / "fold0.json").stat().st_mtime_ns == before
+
+
+def test_grasp_bad_settings_one_line(tmp_path, grasps):
+    for extra in (["--set", "width=100000"], ["--set", "epochs=0"], ["--fold", "7"], ["--set", "nonsense=1"]):
+        res = CliRunner().invoke(app, ["grasp", "train", "--out", str(tmp_path / "x"), "--recordings", str(grasps),
+                                       "--no-progress", *extra])
+        assert res.exit_code == 2, (extra, res.output)
+        assert res.output.strip().startswith("error:") and "Traceback" not in res.output
