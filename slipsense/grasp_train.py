@@ -37,7 +37,7 @@ class GraspTrainConfig:
 
     model: str = "motionnet"
     model_config: dict = field(default_factory=dict)
-    epochs: int = 25
+    epochs: int = 20
     lr: float = 2e-3
     weight_decay: float = 1e-4
     batch_size: int = 16
@@ -50,7 +50,7 @@ class GraspTrainConfig:
     horizon: int = pergrasp.HORIZON  # H
     flips: bool = True  # random horizontal / vertical flips of whole chunks
     seed: int = 0
-    inner_folds: int = 3  # for the operating point (0: choose it on the training runs themselves)
+    inner_folds: int = 2  # for the operating point (0: choose it on the training runs themselves)
 
     def __post_init__(self):
         checks = {"epochs": (1, 10_000), "batch_size": (1, 4096), "chunk": (1, 2048), "negatives": (0, 100), "hard_negatives": (0, 100), "mine_every": (1, 1000),
@@ -318,7 +318,7 @@ def pool_folds(folds: Sequence[dict[str, Any]], thresholds: Sequence[float] | No
     decisions = np.concatenate([np.asarray(f["clip_probability"]) >= f["operating_point"]["threshold"] for f in folds])
     y = np.concatenate([np.asarray(f["clip_label"], dtype=np.int64) for f in folds])
     if thresholds is None:
-        thresholds = np.round(np.linspace(0.05, 0.95, 19), 3)
+        thresholds = pergrasp.THRESHOLDS
     traces, moments, rests = [], [], []
     for f in folds:
         for r in f["runs"]:

@@ -32,6 +32,10 @@ STARTUP = 10
 #: Contact strength above the camera's rest floor that counts as touching (recordings.labels.MIN_CONTACT).
 REST_MARGIN = 3.0
 
+#: Thresholds an operating point is chosen among: class-balanced training inflates probabilities,
+#: so the grid is dense near 1.
+THRESHOLDS = tuple(float(t) for t in np.round(np.linspace(0.05, 0.95, 19), 3)) + (0.97, 0.98, 0.99, 0.995, 0.998, 0.999)
+
 OUTCOMES = ("warned", "premature", "missed", "false_positive", "clean")
 
 
@@ -154,7 +158,7 @@ def choose_operating_point(probabilities: Sequence[np.ndarray], moments: Sequenc
     shortest debounce, then the middle of the tying thresholds, for a margin on both sides). Call it on training runs only (out-of-fold
     predictions of inner folds): choosing it on test runs is tuning on the test set."""
     if thresholds is None:
-        thresholds = np.round(np.linspace(0.05, 0.95, 19), 3)
+        thresholds = THRESHOLDS
     rows = table(probabilities, moments, thresholds, debounces, horizon, startup)
     top = max(round(r["score"], 9) for r in rows)
     tied = [r for r in rows if round(r["score"], 9) == top]

@@ -58,7 +58,7 @@ class MotionNet(nn.Module):
     input_kind = "grasp"
 
     def __init__(self, sensors: int = 2, image_size: Sequence[int] = (30, 40), lags: Sequence[int] = (1, 5, 25),
-                 width: int = 16, features: int = 32, temporal: int = 32, dilations: Sequence[int] = (1, 2, 4, 8),
+                 width: int = 8, features: int = 32, temporal: int = 32, dilations: Sequence[int] = (1, 2, 4, 8),
                  dropout: float = 0.1, diff_scale: float = 10.0):
         super().__init__()
         image_size = tuple(int(v) for v in image_size)

@@ -1,0 +1,89 @@
+"""Per-push latency of the shipped detector as a gripper runs it: two sensors, default settings,
+frames of a real recording, side by side with the paper's ViViT detector in one run.
+
+    .venv/bin/python bench/bench_detector.py --threads 1 --out reports/bench/detector.md
+
+What is timed: ``SlipDetector.from_checkpoint(path, sensors=2).push(left, right)`` on the 240 x 320
+BGR frames of both cameras of a shared recording (looped), everything a live loop pays per frame
+pair. The detectors are timed in interleaved rounds (the machine may be shared), each push on its
+own; p50 / p99 / max over all timed pushes. Target (issue 11): p99 <= 2 ms per push, one thread.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+from slipsense.config import gelsight_recordings  # noqa: E402
+from slipsense.live import DEFAULT_CHECKPOINT, SlipDetector  # noqa: E402
+from slipsense.recordings.video import read_video  # noqa: E402
+
+TARGET_P99_MS = 2.0
+VIVIT_CHECKPOINT = Path(__file__).resolve().parent.parent / "models" / "vivit-gelsight.safetensors"
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--pushes", type=int, default=400, help="timed pushes per detector per round")
+    parser.add_argument("--rounds", type=int, default=4)
+    parser.add_argument("--run", default="lemon/exp_num_1", help="recording (object/exp_num_N) whose frames are pushed")
+    parser.add_argument("--checkpoint", type=Path, default=DEFAULT_CHECKPOINT, help="the detector to time")
+    parser.add_argument("--out", type=Path, help="also write the Markdown report here")
+    parser.add_argument("--json", type=Path, help="also write the numbers as JSON here")
+    args = parser.parse_args(argv)
+    torch.set_num_threads(args.threads)
+    folder = gelsight_recordings() / args.run
+    cams = [read_video(folder / f"camera_{c}.avi") for c in (0, 2)]
+    n = min(len(c) for c in cams)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        detectors = {"shipped (" + args.checkpoint.stem + ")": SlipDetector.from_checkpoint(args.checkpoint, sensors=2)}
+        if VIVIT_CHECKPOINT.is_file() and VIVIT_CHECKPOINT != args.checkpoint:
+            detectors["paper ViViT (vivit-gelsight)"] = SlipDetector.from_checkpoint(VIVIT_CHECKPOINT, sensors=2)
+    times: dict[str, list[float]] = {k: [] for k in detectors}
+    for name, det in detectors.items():  # warm up: fill windows, first-call allocations
+        for i in range(40):
+            det.push(cams[0][i % n], cams[1][i % n])
+    for _ in range(args.rounds):
+        for name, det in detectors.items():
+            for i in range(args.pushes):
+                a, b = cams[0][i % n], cams[1][i % n]
+                t0 = time.perf_counter()
+                det.push(a, b)
+                times[name].append(time.perf_counter() - t0)
+    rows = []
+    for name, ts in times.items():
+        ms = np.asarray(ts) * 1000
+        rows.append({"detector": name, "pushes": len(ms), "p50_ms": float(np.percentile(ms, 50)),
+                     "p99_ms": float(np.percentile(ms, 99)), "max_ms": float(ms.max())})
+    from slipsense.experiments import cpu_description
+
+    lines = [f"# Live detector latency, two sensors, {args.threads} thread(s)", "",
+             f"`python bench/bench_detector.py --threads {args.threads}` on {cpu_description()}; frames of "
+             f"`{args.run}` (240 x 320, both cameras).", "",
+             "| detector | pushes | p50 ms | p99 ms | max ms | p99 target 2 ms |", "|---|---:|---:|---:|---:|---|"]
+    for r in rows:
+        lines.append(f"| {r['detector']} | {r['pushes']} | {r['p50_ms']:.3f} | {r['p99_ms']:.3f} | {r['max_ms']:.2f} | "
+                     f"{'met' if r['p99_ms'] <= TARGET_P99_MS else 'missed'} |")
+    if len(rows) == 2:
+        lines += ["", f"p50 ratio (ViViT / shipped): {rows[1]['p50_ms'] / rows[0]['p50_ms']:.2f}x"]
+    text = "\n".join(lines) + "\n"
+    print(text)
+    if args.out:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(text)
+    if args.json:
+        args.json.write_text(json.dumps({"threads": args.threads, "rows": rows}, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
