@@ -16,7 +16,8 @@ SET_HELP = ("KEY=VALUE: a training setting (epochs, lr, chunk, negatives, hard_n
             "inner_folds, positive_weight, ...) or a model setting (width, lags, dilations, ... or model.KEY)")
 
 
-def _prepare(model, sets, size, epochs, seed, inner_folds, recordings, overrides, on_error, progress, threads):
+def _prepare(model, sets, size, epochs, seed, inner_folds, recordings, overrides, on_error, progress, threads,
+             out=None):
     from slipsense.cli import _default_recordings, _parse_sets, check_seed, parse_hw
     from slipsense.grasp_train import load_grasp_data, make_config
 
@@ -24,6 +25,9 @@ def _prepare(model, sets, size, epochs, seed, inner_folds, recordings, overrides
         import torch
 
         torch.set_num_threads(threads)
+    from slipsense.atomic import check_output_dir
+
+    check_output_dir(out, "--out")
     settings = _parse_sets(sets)
     if epochs is not None:
         settings["epochs"] = epochs
@@ -79,7 +83,7 @@ def register(app: typer.Typer) -> None:
         from slipsense.grasp_train import object_split, train_detector
 
         cfg, runs, labels, data = _prepare(model, sets, size, epochs, seed, inner_folds, recordings, overrides,
-                                           on_error, progress, threads)
+                                           on_error, progress, threads, out)
         held: list[str] = []
         if fold is not None:
             split = object_split([r for r in runs if r.usable], folds, cfg.seed)
@@ -120,7 +124,7 @@ def register(app: typer.Typer) -> None:
         from slipsense.grasp_folds import run_folds
 
         cfg, runs, labels, data = _prepare(model, sets, size, epochs, seed, inner_folds, recordings, overrides,
-                                           on_error, progress, threads)
+                                           on_error, progress, threads, out)
         rep = run_folds(runs, labels, cfg, out, folds, meta={"command": _command(), **data}, progress=progress,
                         echo=typer.echo)
         g, c = rep["pooled"]["per_grasp"], rep["pooled"]["clips"]

@@ -160,8 +160,11 @@ def watch_source(source: str, checkpoint: Optional[Path], threshold: Optional[fl
     from slipsense.checkpoint import load_model
     from slipsense.live import Annotator, AnnotatedWriter, SlipDetector, onnx_cache_dir, stored_operating_point
 
+    from slipsense.atomic import check_output_file
+
     ckpt = _checkpoint(checkpoint)
     if out is not None:
+        check_output_file(out, "--out")
         AnnotatedWriter(out)  # refuse a wrong suffix before any work
     model, info = load_model(ckpt)
     threshold, debounce = stored_operating_point(ckpt, info, threshold, None)
@@ -306,6 +309,9 @@ def run_early_warning(checkpoint: Optional[Path], recordings: Optional[Path], ou
         raise ConfigError(f"--fps must be positive, got {fps}")
     if isinstance(horizon, bool) or not isinstance(horizon, int) or not 1 <= horizon <= 100_000:
         raise ConfigError(f"--horizon must be a whole number of frames >= 1, got {horizon!r}")
+    from slipsense.atomic import check_output_dir
+
+    check_output_dir(out, "--out")
     ckpt = _checkpoint(checkpoint)
     root = Path(recordings) if recordings else gelsight_recordings()
     recs = find_recordings(root, on_error=on_error)

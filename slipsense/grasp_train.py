@@ -363,8 +363,8 @@ def make_config(model: str, settings: dict[str, Any], size: tuple[int, int] | No
 def load_grasp_data(recordings, overrides=None, image_size: tuple[int, int] = (30, 40), on_error: str = "raise",
                     progress: bool = True) -> tuple[list[GraspRun], dict]:
     """Labelled whole runs of a recordings folder (``(runs, labels)``), labels with overrides."""
+    from slipsense.data import label_runs
     from slipsense.recordings.folders import find_recordings, validate_recordings
-    from slipsense.recordings.labels import label_recordings
     from slipsense.recordings.runs import load_runs
 
     recs = validate_recordings(find_recordings(recordings, on_error=on_error), on_error=on_error, expected_size=None)
@@ -372,7 +372,8 @@ def load_grasp_data(recordings, overrides=None, image_size: tuple[int, int] = (3
         from slipsense.errors import InputError
 
         raise InputError(recordings, "no usable recordings")
-    labels = label_recordings(recs, overrides=overrides, progress=progress)
+    labels = label_runs(recs, overrides, on_error=on_error, progress=progress)
+    recs = [r for r in recs if r.key in labels]  # runs left out by on_error="skip"
     return load_runs(recs, labels, image_size, progress=progress), labels
 
 

@@ -671,21 +671,12 @@ def onnx_cache_dir(checkpoint: Path) -> Path:
 
 def _exported_parts(model: nn.Module, geometry: Mapping[str, Any], folder: Path,
                     precision: str = "fp32") -> tuple[Path | None, Path]:
-    """The model's streaming parts as ONNX files in ``folder`` (exported unless already there);
-    ``precision="int8"``: their dynamically quantized copies (``*.int8.onnx``)."""
-    from slipsense.export import export_streaming_parts, quantize_int8
+    """The model's streaming parts as ONNX files in ``folder``, exported unless a verified copy is
+    there (:func:`slipsense.export.cached_streaming_parts`); ``precision="int8"``: their dynamically
+    quantized copies."""
+    from slipsense.export import cached_streaming_parts
 
-    has_frame = streaming_parts(model)[0] is not None
-    frame, window = folder / "frame.onnx", folder / "window.onnx"
-    if not (window.is_file() and (frame.is_file() or not has_frame)):
-        export_streaming_parts(model, folder, geometry=geometry, verify=False)
-    if precision == "int8":
-        q_frame, q_window = folder / "frame.int8.onnx", folder / "window.int8.onnx"
-        for src, dst in ((frame, q_frame), (window, q_window)):
-            if src.is_file() and not dst.is_file():
-                quantize_int8(src, dst)
-        frame, window = q_frame, q_window
-    return (frame if has_frame else None), window
+    return cached_streaming_parts(model, folder, geometry, precision)
 
 
 # ---------------------------------------------------------------------------------------------
