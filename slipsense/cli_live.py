@@ -225,7 +225,7 @@ def register(app: typer.Typer) -> None:
     def watch(
         source: str = typer.Argument(..., help="video file, recordings experiment folder (camera_*.avi as sensors), "
                                                "marker .npy, or camera index (0, 1, ...)"),
-        checkpoint: Optional[Path] = typer.Option(None, help="checkpoint (default: models/vivit-gelsight.safetensors)"),
+        checkpoint: Optional[Path] = typer.Option(None, help="checkpoint (default: the shipped detector, models/motionnet-gelsight.safetensors)"),
         threshold: Optional[float] = typer.Option(None, help="alarm when the slip probability is >= this "
                                                   "(default: the checkpoint's operating point)"),
         out: Optional[Path] = typer.Option(None, help="annotated output: .gif, .mp4 or .avi"),
@@ -245,7 +245,7 @@ def register(app: typer.Typer) -> None:
     @app.command("early-warning")
     @friendly
     def early_warning(
-        checkpoint: Optional[Path] = typer.Option(None, help="video-model checkpoint (default: the shipped ViViT)"),
+        checkpoint: Optional[Path] = typer.Option(None, help="video-model checkpoint (default: the shipped detector)"),
         recordings: Optional[Path] = typer.Option(None, help="recordings folder (default: $SLIPSENSE_DATA/gelsight-slip)"),
         out: Path = typer.Option(..., help="output folder for CSV, JSON and PNGs"),
         thresholds: str = typer.Option(DEFAULT_THRESHOLDS, help="comma-separated alarm thresholds (the "
@@ -274,7 +274,7 @@ def register(app: typer.Typer) -> None:
     @app.command("export")
     @friendly
     def export(
-        checkpoint: Optional[Path] = typer.Option(None, help="checkpoint (default: the shipped ViViT)"),
+        checkpoint: Optional[Path] = typer.Option(None, help="checkpoint (default: the shipped detector)"),
         out: Path = typer.Option(..., help="output .onnx file (streaming parts go beside it)"),
         batch: Optional[int] = typer.Option(None, help="fixed batch size (default: dynamic)"),
         streaming: bool = typer.Option(True, help="also write <stem>.frame.onnx / <stem>.window.onnx"),

@@ -1,6 +1,6 @@
 """Live slip detection: push one frame per sensor, get a slip probability once a window is full.
 
-    >>> det = SlipDetector.from_checkpoint("models/vivit-gelsight.safetensors", sensors=2)  # doctest: +SKIP
+    >>> det = SlipDetector.from_checkpoint("models/motionnet-gelsight.safetensors", sensors=2)  # doctest: +SKIP
     >>> for left, right in camera_pairs:          # uint8 (H, W, 3) BGR images at 25 frames/s
     ...     reading = det.push(left, right)       # Reading(index, probability, per_sensor, alarm)
 
@@ -64,7 +64,7 @@ from slipsense.errors import ConfigError, InputError
 #: Frame rate of the GelSight recordings (frames per second): converts frames to milliseconds.
 FPS = 25.0
 #: The shipped model, relative to the checkout (the lead engineer adds the file).
-DEFAULT_CHECKPOINT = Path(__file__).resolve().parent.parent / "models" / "vivit-gelsight.safetensors"
+DEFAULT_CHECKPOINT = Path(__file__).resolve().parent.parent / "models" / "motionnet-gelsight.safetensors"
 #: Window length used for a 3D ResNet whose checkpoint states none (the study's 5-frame clips).
 DEFAULT_FRAMES = 5
 #: Frame size used for a video model whose checkpoint states none (GelSight Mini recordings).
@@ -168,6 +168,9 @@ def window_geometry(model: nn.Module, info: Mapping[str, Any] | None = None) -> 
         return {"kind": kind, "frames": int(frames), "image_size": (int(size[0]), int(size[1]))}
     if kind == "markers":
         return {"kind": kind, "frames": int(frames), "markers": int(model.markers)}
+    if kind == "grasp":
+        raise ConfigError(f"{getattr(model, 'model_name', type(model).__name__)} takes whole grasps of both sensors: "
+                          f"it has no clip window and no ONNX export yet (it streams on PyTorch in under 2 ms)")
     raise ConfigError(f"model {getattr(model, 'model_name', type(model).__name__)!r} has no known input kind")
 
 
@@ -856,8 +859,7 @@ class AnnotatedWriter:
 
 
 __all__ = [
-    "AnnotatedWriter", "Annotator", "DEFAULT_CHECKPOINT", "EARLY_WARNING_COLUMNS", "FPS", "Reading", "RunTrace",
-    "SlipDetector", "Trace", "alarm_at", "onnx_cache_dir", "alarm_onsets", "combine_probabilities", "early_warning_table",
-    "plot_early_warning", "replay_recordings", "slip_probability", "streaming_parts", "window_geometry",
-    "write_early_warning",
+    "AnnotatedWriter", "Annotator", "DEFAULT_CHECKPOINT", "FPS", "Reading", "SlipDetector", "Trace", "alarm_at",
+    "combine_probabilities", "onnx_cache_dir", "slip_probability", "stored_operating_point", "streaming_parts",
+    "window_geometry",
 ]
