@@ -166,9 +166,10 @@ class MotionNet(nn.Module):
 class MotionStream:
     """Push one grey frame per sensor, get the slip probability of that frame.
 
-    Keeps the last ``max_lag + 1`` frames and the last ``receptive_field`` features, so each push
-    encodes one frame per sensor and runs the temporal stack over one window: the same numbers as
-    :meth:`MotionNet.forward` over the whole sequence.
+    Keeps the last ``max_lag + 1`` frames and, per temporal layer, the ``2 * dilation + 1`` inputs
+    its newest output needs, so each push encodes one frame per sensor and computes one output per
+    layer: the same numbers as :meth:`MotionNet.forward` over the whole sequence (repeating the first
+    input to the left of every layer equals repeating the first feature to the left of the stack).
     """
 
     def __init__(self, model: MotionNet):
@@ -177,7 +178,7 @@ class MotionStream:
 
     def reset(self) -> None:
         self._frames: deque[Tensor] = deque(maxlen=self.model.max_lag + 1)
-        self._feats: deque[Tensor] = deque(maxlen=self.model.receptive_field)
+        self._layers: list[deque[Tensor]] = [deque(maxlen=2 * d + 1) for d in self.model.dilations]
 
     @torch.no_grad()
     def push(self, gray: np.ndarray) -> float:
@@ -190,12 +191,15 @@ class MotionStream:
             self._frames.append(frame)
         past = [self._frames[-1 - lag] for lag in m.lags]
         diffs = torch.stack([frame - p for p in past], dim=1) * m.diff_scale  # (S, L, h, w)
-        feat = m.encode(diffs[None, :, None])[0, 0]  # (2F,)
-        if not self._feats:
-            self._feats.extend([feat] * m.receptive_field)
-        else:
-            self._feats.append(feat)
-        logits = m.classify(torch.stack(list(self._feats))[None])[0, -1]
+        x = m.encode(diffs[None, :, None])[0, 0]  # (2F,)
+        for i, (conv, buf) in enumerate(zip(getattr(m, "tcn", ()), self._layers)):
+            if not buf:
+                buf.extend([x] * buf.maxlen)
+            else:
+                buf.append(x)
+            y = F.relu(conv(torch.stack(tuple(buf), dim=1)[None]))[0, :, -1]
+            x = y + x if i > 0 else y
+        logits = m.head(x)
         return float(torch.softmax(logits, dim=0)[1])
 
 
