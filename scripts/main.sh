@@ -19,5 +19,5 @@ rm -rf "$out/held-out-recordings" && mkdir -p "$out/held-out-recordings"
 data=$(.venv/bin/python -c "from slipsense.config import gelsight_recordings; print(gelsight_recordings())")
 for o in $held; do ln -s "$data/$o" "$out/held-out-recordings/$o"; done
 .venv/bin/slipsense early-warning --checkpoint "$out/motionnet-fold0/detector.safetensors" \
-    --recordings "$out/held-out-recordings" --overrides "$overrides" --out "$out/early-warning" --no-progress
+    --recordings "$out/held-out-recordings" --labels "$out/labels.csv" --out "$out/early-warning" --no-progress
 echo "reports in $out: labels.csv, motionnet-fold0/ (detector, metrics.csv, curves.png, held_out.json), early-warning/"
