@@ -298,7 +298,7 @@ def test_checkpoint_configs_out_of_bounds_are_refused_before_allocating(tmp_path
     result = runner.invoke(app, ["evaluate", "--checkpoint", str(bad), "--markers", str(tmp_path / "m.npz"),
                                  "--json", str(tmp_path / "e.json"), "--no-progress"])
     _one_error(result, "bad.safetensors", word)
-    assert time.perf_counter() - t < 20  # refused from the header, not after building the model
+    assert time.perf_counter() - t < 60  # refused from the header, not after building the model (slack: shared CPU)
 
 
 # recordings ----------------------------------------------------------------------------------

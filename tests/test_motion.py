@@ -133,3 +133,10 @@ def test_motion_energy_baseline_streams_and_trains():
                            epochs=30, lr=5e-2, batch_size=8, chunk=16, negatives=2, hard_negatives=0, inner_folds=0)
     model, hist = fit_runs(_runs(), cfg, progress=False)
     assert hist[-1]["loss"] < hist[0]["loss"]
+
+
+def test_build_refuses_huge_settings_before_allocating():
+    with pytest.raises(ConfigError, match="beyond"):
+        build("vivit", dim=10**9)
+    with pytest.raises(ConfigError, match="parameters is beyond"):
+        build("vivit", dim=50_000, mlp_dim=50_000)

@@ -51,13 +51,44 @@ def available() -> list[str]:
     return sorted(_REGISTRY)
 
 
+#: No setting of any model is an integer this large (widths, depths, heads, frames, pixels).
+MAX_SETTING = 100_000
+#: Models with more parameters are refused before their weights are allocated.
+MAX_PARAMETERS = 1_000_000_000
+
+
+def _check_sizes(name: str, config: dict[str, Any]) -> None:
+    def walk(key, v):
+        if isinstance(v, bool):
+            return
+        if isinstance(v, (int, float)) and abs(v) > MAX_SETTING and key not in ("lr", "eps"):
+            raise ConfigError(f"model {name!r}: setting {key}={v!r} is beyond {MAX_SETTING:,}")
+        if isinstance(v, (list, tuple)):
+            for x in v:
+                walk(key, x)
+
+    for key, value in config.items():
+        walk(key, value)
+
+
 def build(name: str, **config: Any) -> nn.Module:
-    """Build model ``name`` with keyword ``config``; unknown names or keys raise ConfigError."""
+    """Build model ``name`` with keyword ``config``; unknown names or keys, settings beyond
+    :data:`MAX_SETTING` and models beyond :data:`MAX_PARAMETERS` raise ConfigError (the size is
+    checked on the meta device, before any weight is allocated)."""
+    import torch
+
     _load_all()
     if name not in _REGISTRY:
         raise ConfigError(f"unknown model {name!r}; available: {', '.join(sorted(_REGISTRY))}")
+    _check_sizes(name, config)
     cls = _REGISTRY[name]
     try:
+        if torch.empty(0).device.type == "meta":  # already building without memory (checkpoint checks)
+            return cls(**config)
+        with torch.device("meta"):
+            n = sum(p.numel() for p in cls(**config).parameters())
+        if n > MAX_PARAMETERS:
+            raise ConfigError(f"model {name!r}: {n:,} parameters is beyond {MAX_PARAMETERS:,}")
         return cls(**config)
     except TypeError as exc:
         raise ConfigError(f"model {name!r}: {exc}") from None
