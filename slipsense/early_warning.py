@@ -166,12 +166,16 @@ def plot_tradeoff(rows: Sequence[Mapping[str, Any]], path: str | Path, title: st
     xs = [r["false_positive_rate"] for r in rows]
     ys = [r["warned_rate"] for r in rows]
     ax.plot(xs, ys, marker="o")
+    points: dict[tuple[float, float], list[float]] = {}  # thresholds landing on one point share a label
     for r, x, y in zip(rows, xs, ys):
         if not (math.isnan(x) or math.isnan(y)):
-            ax.annotate(f"{r['threshold']:g}", (x, y), fontsize=7, xytext=(3, 3), textcoords="offset points")
+            points.setdefault((x, y), []).append(r["threshold"])
+    for xy, ths in points.items():
+        label = f"{ths[0]:g}" if len(ths) == 1 else f"{min(ths):g}-{max(ths):g}"
+        ax.annotate(label, xy, fontsize=7, xytext=(3, 3), textcoords="offset points")
     ax.plot([0, 1], [0, 1], ls=":", color="gray", lw=0.8)
     ax.set_xlabel("grasps that held yet alarmed (false-positive grasps)")
-    ax.set_ylabel("slips warned in time (first alarm <= 2 s before)")
+    ax.set_ylabel("slips warned in time (first alarm within the horizon)")
     ax.set_xlim(-0.02, 1.02)
     ax.set_ylim(-0.02, 1.02)
     ax.grid(alpha=0.3)
