@@ -92,13 +92,14 @@ def _pct(v) -> str:
 def summary_markdown(report: dict[str, Any]) -> str:
     """The report as a short Markdown page: per-grasp and clip tables, per fold and pooled."""
     g, c = report["pooled"]["per_grasp"], report["pooled"]["clips"]
-    cfg = report["config"]
+    cfg, d = report["config"], report["data"]
     lines = [
         f"# {cfg['model']}: leave-objects-out, {report['folds']} folds, judged per grasp",
         "",
         f"Command: `{report.get('command', 'slipsense grasp folds')}`",
         "",
-        f"Runs: {report['data']}. Horizon {cfg['horizon']} frames (2 s at 25 frames/s); operating point "
+        f"Runs: {d['runs']}: {d['slip_with_moment']} slips with a moment of slip, {d['slip_without_moment']} slips "
+        f"without one (left out), {d['held']} that held. Horizon {cfg['horizon']} frames (2 s at 25 frames/s); operating point "
         f"chosen per fold on its training objects only ({cfg['inner_folds']} inner folds; 0 = on the training "
         f"runs themselves).",
         "",
