@@ -555,9 +555,10 @@ class SlipDetector:
 
         ViViT: attention rollout of the latest frame (:meth:`ViViT.cls_attention_map`),
         ``(Hp, Wp)`` on the patch grid, sums to 1. STNet/TemNet: marker saliency
-        (:meth:`STNet.marker_saliency`) ``(M,)``, max 1. 3D ResNet: None (no attention to show).
+        (:meth:`STNet.marker_saliency`) ``(M,)``, max 1. 3D ResNet and grasp models: None (no
+        attention to show).
         """
-        if not self.window_full or not 0 <= sensor < self.sensors:
+        if self.kind == "grasp" or not self.window_full or not 0 <= sensor < self.sensors:
             return None
         window = torch.from_numpy(np.stack([x[sensor] for x in self._inputs])[None])  # (1, T, ...)
         if self.model_name == "vivit":

@@ -61,6 +61,11 @@ def test_grasp_train_then_early_warning(tmp_path, grasps, monkeypatch):
                                    "--recordings", str(grasps), "--out", str(ew), "--no-progress"])
     assert res.exit_code == 0, res.output
     assert "checkpoint's operating point" in res.output
+    gif = tmp_path / "run.gif"
+    res = CliRunner().invoke(app, ["watch", str(grasps / "obj0" / "exp_num_1"), "--checkpoint",
+                                   str(out / "detector.safetensors"), "--out", str(gif), "--max-frames", "15"])
+    assert res.exit_code == 0, res.output
+    assert gif.read_bytes()[:3] == b"GIF" and "filling window" in res.output
     doc = json.loads((ew / "early_warning.json").read_text())
     assert doc["operating_point"]["threshold"] == info["operating_point"]["threshold"]
     assert len(doc["runs"]) == 8
