@@ -114,10 +114,13 @@ def summary_markdown(report: dict[str, Any]) -> str:
         "",
         "## Per clip (the paper's 5-frame clips, scored at their last frame)",
         "",
-        "| clips | slip clips | accuracy | balanced accuracy | always-wiggle accuracy | precision | recall | F1 |",
-        "|---:|---:|---:|---:|---:|---:|---:|---:|",
-        f"| {c['clips']} | {c['slip_clips']} | {_pct(c['accuracy'])} | {_pct(c['balanced_accuracy'])} | "
-        f"{_pct(c['always_wiggle_accuracy'])} | {_pct(c['precision'])} | {_pct(c['recall'])} | {_pct(c['f1'])} |",
+        "| threshold | clips | slip clips | accuracy | balanced accuracy | always-wiggle accuracy | precision | recall "
+        "| F1 |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|",
+        *[f"| {name} | {c['clips']} | {c['slip_clips']} | {_pct(c['accuracy'])} | {_pct(c['balanced_accuracy'])} | "
+          f"{_pct(c['always_wiggle_accuracy'])} | {_pct(c['precision'])} | {_pct(c['recall'])} | {_pct(c['f1'])} |"
+          for name, c in (("each fold's operating point", c), ("0.5", report["pooled"].get("clips_at_half")))
+          if c is not None],
         "",
         "## Folds",
         "",

@@ -330,7 +330,9 @@ def pool_folds(folds: Sequence[dict[str, Any]], thresholds: Sequence[float] | No
             rests.append(rest)
     debounce = int(np.median([f["operating_point"]["debounce"] for f in folds]))
     curve = pergrasp.table(traces, moments, thresholds, (debounce,), rests=rests)
+    p_all = np.concatenate([np.asarray(f["clip_probability"], dtype=np.float64) for f in folds])
     return {"per_grasp": per_grasp, "clips": clip_metrics(decisions.astype(np.float64), y, 0.5),
+            "clips_at_half": clip_metrics(p_all, y, 0.5),
             "operating_points": [f["operating_point"] for f in folds], "curve": curve}
 
 
