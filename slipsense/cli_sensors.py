@@ -50,6 +50,7 @@ def register(app: typer.Typer) -> None:
         seed: int = typer.Option(0),
         on_error: str = typer.Option("raise"),
         progress: bool = typer.Option(True),
+        overrides: Optional[Path] = typer.Option(None, help="label overrides CSV (e.g. configs/gelsight-label-overrides.csv)"),
     ):
         """Track the gel markers of real GelSight recordings (KLT) into labelled marker sequences."""
         from slipsense.atomic import check_output_file
@@ -62,7 +63,7 @@ def register(app: typer.Typer) -> None:
 
         arrays = real_marker_dataset(recordings or gelsight_recordings(), frames=frames, n_markers=n_markers,
                                      horizon=horizon, wiggle_per_video=wiggle_per_video, seed=seed,
-                                     on_error=on_error, progress=progress)
+                                     on_error=on_error, progress=progress, overrides=overrides)
         save_marker_npz(arrays, out)
         typer.echo(f"{len(arrays['y'])} windows ({int(arrays['y'].sum())} slip) from "
                    f"{len(set(arrays['groups'].tolist()))} objects -> {out}")

@@ -61,13 +61,14 @@ def replay_recordings(detector, recordings: Iterable[Any], labels: Mapping[tuple
     Args:
         detector: a :class:`~slipsense.live.SlipDetector` on video frames; ``sensors`` = cameras per run.
         recordings: :class:`~slipsense.recordings.types.Recording` s (``find_recordings``).
-        labels: ``{(object, experiment, camera): VideoLabel}``; default: ``label_recordings`` with
-            ``overrides``.
+        labels: ``{(object, experiment, camera): VideoLabel}``; default: the automatic labels with
+            ``overrides`` (:func:`slipsense.data.label_runs`).
         limit: replay at most this many runs (in sorted order).
 
     Slipped runs without a moment of slip are left out (nothing to warn of).
     """
-    from slipsense.recordings.labels import contact_signal, label_recordings
+    from slipsense.data import label_runs
+    from slipsense.recordings.labels import contact_signal
     from slipsense.recordings.video import read_video
 
     if detector.kind not in ("video", "grasp"):
@@ -77,7 +78,7 @@ def replay_recordings(detector, recordings: Iterable[Any], labels: Mapping[tuple
         runs.setdefault((r.object, r.experiment), []).append(r)
     keys = sorted(runs)[:limit] if limit is not None else sorted(runs)
     if labels is None:
-        labels = label_recordings([r for k in keys for r in runs[k]], overrides=overrides, progress=progress)
+        labels = label_runs([r for k in keys for r in runs[k]], overrides, progress=progress)
     items: Iterable = keys
     if progress:
         from tqdm import tqdm

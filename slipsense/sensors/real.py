@@ -18,22 +18,24 @@ from slipsense.errors import InputError
 
 def real_marker_dataset(recordings_dir: str | Path, frames: int = 12, n_markers: int = 32, horizon: int = 0,
                         wiggle_per_video: int = 2, seed: int = 0, on_error: str = "raise",
-                        progress: bool = True) -> dict[str, np.ndarray]:
+                        progress: bool = True, overrides: str | Path | None = None) -> dict[str, np.ndarray]:
     """Marker windows of every video under ``recordings_dir``.
 
     Returns arrays ``x`` float32 ``(N, frames, n_markers, 3)`` — per marker x, y in mm from the
     image centre and the unitless intensity depth proxy —, ``y`` int64 ``(N,)`` (1 = onset of
     slip), ``groups`` str ``(N,)`` object names, ``experiment`` int, ``camera`` str, ``start`` int
-    (first frame of the window).
+    (first frame of the window). ``overrides``: a label overrides CSV (hand labels win), as for
+    training; with ``on_error="skip"`` runs that cannot be labelled are left out with a warning.
     """
     from slipsense.recordings.clips import ClipSpec, plan_windows
     from slipsense.recordings.folders import find_recordings, validate_recordings
-    from slipsense.recordings.labels import label_recordings
+    from slipsense.data import label_runs
     from slipsense.sensors.markers import marker_sequences, track_recordings
 
     spec = ClipSpec(frames=frames, horizon=horizon, wiggle_per_video=wiggle_per_video, seed=seed)
     recs = validate_recordings(find_recordings(recordings_dir, on_error=on_error), on_error=on_error)
-    labels = label_recordings(recs, progress=progress)
+    labels = label_runs(recs, overrides, on_error=on_error, progress=progress)
+    recs = [r for r in recs if r.key in labels]
     tracks = track_recordings(recs, progress=progress)
     xs, ys, groups, exps, cams, starts = [], [], [], [], [], []
     for rec, track in zip(recs, tracks):
