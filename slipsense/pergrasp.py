@@ -25,12 +25,11 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from slipsense.recordings.labels import MIN_CONTACT as REST_MARGIN  # touching: this far above the rest floor
+from slipsense.recordings.labels import STARTUP_FRAMES as STARTUP  # camera start-up transient, never scored
+
 #: Default warning horizon: 50 frames = 2 s at 25 frames/s.
 HORIZON = 50
-#: Frames of camera start-up transient at the start of every recording (see recordings.labels).
-STARTUP = 10
-#: Contact strength above the camera's rest floor that counts as touching (recordings.labels.MIN_CONTACT).
-REST_MARGIN = 3.0
 
 #: Thresholds an operating point is chosen among: class-balanced training inflates probabilities,
 #: so the grid is dense near 1.
