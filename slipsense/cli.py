@@ -103,7 +103,7 @@ def label(
     """Find the moment of slip in every video and write it as CSV."""
     from slipsense.data import label_runs
     from slipsense.recordings.folders import find_recordings, validate_recordings
-    from slipsense.recordings.labels import read_overrides_csv, write_labels_csv
+    from slipsense.recordings.label_csv import read_overrides_csv, write_labels_csv
 
     from slipsense.atomic import check_output_file
 

@@ -300,7 +300,7 @@ def run_early_warning(checkpoint: Optional[Path], recordings: Optional[Path], ou
     from slipsense.early_warning import early_warning_table, replay_recordings, write_early_warning
     from slipsense.live import SlipDetector
     from slipsense.recordings.folders import find_recordings
-    from slipsense.recordings.labels import read_labels_csv
+    from slipsense.recordings.label_csv import read_labels_csv
 
     ths = parse_thresholds(thresholds) if isinstance(thresholds, str) else [float(t) for t in thresholds]
     if limit is not None and limit < 1:

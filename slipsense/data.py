@@ -53,7 +53,8 @@ def label_runs(recordings, overrides=None, on_error: str = "raise", progress: bo
     import warnings
 
     from slipsense.recordings.folders import SkippedInputWarning, check_on_error
-    from slipsense.recordings.labels import Overrides, apply_overrides, label_recordings, read_overrides_csv
+    from slipsense.recordings.label_csv import Overrides, apply_overrides, read_overrides_csv
+    from slipsense.recordings.labels import label_recordings
 
     check_on_error(on_error)
     runs: dict[tuple[str, int], list] = {}

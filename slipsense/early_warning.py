@@ -68,7 +68,7 @@ def replay_recordings(detector, recordings: Iterable[Any], labels: Mapping[tuple
     Slipped runs without a moment of slip are left out (nothing to warn of).
     """
     from slipsense.data import label_runs
-    from slipsense.recordings.labels import contact_signal
+    from slipsense.recordings.contact import contact_signal
     from slipsense.recordings.video import read_video
 
     if detector.kind not in ("video", "grasp"):

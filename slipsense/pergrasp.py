@@ -25,8 +25,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from slipsense.recordings.labels import MIN_CONTACT as REST_MARGIN  # touching: this far above the rest floor
-from slipsense.recordings.labels import STARTUP_FRAMES as STARTUP  # camera start-up transient, never scored
+from slipsense.recordings.contact import MIN_CONTACT as REST_MARGIN  # touching: this far above the rest floor
+from slipsense.recordings.contact import STARTUP_FRAMES as STARTUP  # camera start-up transient, never scored
 
 #: Default warning horizon: 50 frames = 2 s at 25 frames/s.
 HORIZON = 50

@@ -101,7 +101,7 @@ def _load_cached(path: Path) -> dict[str, np.ndarray] | None:
 
 
 def _decode_run(recs: Sequence[Recording], size: tuple[int, int]) -> dict[str, np.ndarray]:
-    from .labels import contact_signal
+    from .contact import contact_signal
     from .video import read_video
 
     grays, contacts = [], []
