@@ -20,7 +20,8 @@ Which exporter (torch 2.13, onnx 1.23, onnxruntime 1.31)
 ``torch.onnx.export(..., dynamo=False)`` (the TorchScript-based exporter, deprecated but still
 shipped) is tried first: it takes about a second per file. It exports ViViT, TemNet and the 3D
 ResNet. (ViViT's fused patch embedding does not export — ``addmv`` has no ONNX symbolic — and the
-straightforward one is slow on ONNX Runtime, so ViViT is exported with :func:`conv_embed_patches`,
+straightforward one is slow on ONNX Runtime, so ViViT is exported with
+:func:`slipsense.models.vivit_parts.conv_embed_patches`,
 the same function to ~1e-5.) It fails on STNet's S codecs
 (``adaptive_avg_pool1d`` whose length it cannot see with a dynamic batch), so those fall back to
 ``dynamo=True`` (``torch.export`` + onnxscript, 3-12 s per file), which handles every model here. On
@@ -30,12 +31,10 @@ Shapes other than the batch (frames, image size, markers) are fixed at export.
 from __future__ import annotations
 
 import contextlib
-import copy
 import io
 import logging
 import os
 import sys
-import types
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -43,11 +42,11 @@ from typing import Any, Iterator, Mapping
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 from torch import nn
 
 from slipsense.atomic import atomic_path
 from slipsense.errors import InputError
+from slipsense.models.base import SlipModel, window_geometry
 
 #: Opset for the TorchScript exporter (its newest well-tested one); the dynamo exporter picks its own.
 TORCHSCRIPT_OPSET = 17
@@ -77,46 +76,14 @@ def _load(source: str | Path | nn.Module) -> tuple[nn.Module, dict[str, Any], Pa
 
 
 def exportable(model: nn.Module) -> nn.Module:
-    """An eval-mode copy of ``model`` set up for tracing (ViViT: :func:`conv_embed_patches`)."""
-    m = copy.deepcopy(model).eval()
-    if getattr(m, "model_name", None) == "vivit":
-        m.fused = False
-        # an instance attribute shadows the method: encode_frames and the streaming frame part use it
-        m.embed_patches = types.MethodType(conv_embed_patches, m)
-    return m
-
-
-def conv_embed_patches(model: nn.Module, frames: torch.Tensor) -> torch.Tensor:
-    """ViViT's patch embedding written for ONNX Runtime: ``(N, C, H, W) -> (N, P, dim)``.
-
-    The same function as ``ViViT.embed_patches`` (LayerNorm over each patch, Linear, LayerNorm):
-    ``Linear(LayerNorm(p)) = (W diag(gamma)) (p - mu) / sqrt(var + eps) + (W beta + b)``. The patch
-    mean and variance are reductions over a 6-D *view* of the frames ``(N, C, Hp, ph, Wp, pw)``
-    (two-pass: centred first, as accurate as LayerNorm), and the projection of the centred frames
-    is one convolution with kernel = stride = patch. The straightforward graph instead transposes
-    every frame into patch order and normalises 4800-value rows: 1.1 ms against 0.7 ms per
-    240 x 320 frame on ONNX Runtime (one thread).
-    """
-    # sizes from the config, not frames.shape: the tracer would make them dynamic and lose the rank
-    c, (h, w), (ph, pw), (hp, wp) = model.channels, model.image_size, model.patch_size, model.grid
-    kernel, _row_sum, bias = model.fused_patch_weights()  # rows in (c p1 p2) order, + a 1/n row
-    weight = kernel[:-1].reshape(-1, c, ph, pw)  # (dim, C, ph, pw) = W diag(gamma)
-    blocks = frames.reshape(-1, c, hp, ph, wp, pw)
-    # the reductions run innermost axis first: ONNX Runtime reduces a contiguous trailing axis fast,
-    # and strided axes (1, 3, 5) at once about 3x slower (measured: frame part 0.9 -> 0.5 ms)
-    centred = blocks - blocks.mean(dim=5, keepdim=True).mean(dim=(1, 3), keepdim=True)
-    var = (centred * centred).mean(dim=5).mean(dim=(1, 3))  # (N, Hp, Wp)
-    z = F.conv2d(centred.reshape(-1, c, h, w), weight, stride=(ph, pw))  # (N, dim, Hp, Wp)
-    z = z * torch.rsqrt(var + model.patch_norm.eps).unsqueeze(1) + bias[:, None, None]
-    tokens = z.flatten(2).transpose(1, 2)  # (N, P, dim), patches row-major as in the model
-    norm = model.dim_norm
-    return F.layer_norm(tokens, norm.normalized_shape, norm.weight, norm.bias, norm.eps)
+    """An eval-mode copy of ``model`` set up for tracing (each model says how: ``SlipModel.exportable``)."""
+    if not isinstance(model, SlipModel):
+        raise InputError(None, f"{type(model).__name__} is not a slipsense model (see slipsense.models.base)")
+    return model.exportable()
 
 
 def example_inputs(model: nn.Module, geometry: Mapping[str, Any], batch: int = 2, seed: int = 0) -> dict[str, torch.Tensor]:
     """Random example inputs ``{"model", "frame", "window"}`` of the shapes each file takes."""
-    from slipsense.live import streaming_parts
-
     g = torch.Generator().manual_seed(seed)
     t = geometry["frames"]
     if geometry["kind"] == "video":
@@ -128,14 +95,14 @@ def example_inputs(model: nn.Module, geometry: Mapping[str, Any], batch: int = 2
         full = torch.randn(batch, t, m, 3, generator=g)
         frame = full[:, 0]
     out = {"model": full}
-    frame_part, _ = streaming_parts(model)
+    frame_part, _ = model.streaming_parts()
     if frame_part is None:
         out["window"] = full
     else:
         out["frame"] = frame
         with torch.no_grad():
             tokens = frame_part(full.flatten(0, 1)).unflatten(0, (batch, t))
-        if getattr(model, "model_name", None) == "vivit":
+        if model.slot_tokens:
             tokens = tokens[:, torch.arange(t), torch.arange(t)]  # frame k at slot k
         out["window"] = tokens.contiguous()
     return out
@@ -266,12 +233,10 @@ def _names(kind: str) -> dict[str, tuple[str, str]]:
 def export_streaming_parts(model: nn.Module, folder: str | Path, *, geometry: Mapping[str, Any] | None = None,
                            batch: int | None = None, verify: bool = True, prefix: str = "") -> ExportResult:
     """Write ``<prefix>frame.onnx`` (if the model has a frame part) and ``<prefix>window.onnx`` into ``folder``."""
-    from slipsense.live import streaming_parts, window_geometry
-
     geometry = geometry or window_geometry(model)
     m = exportable(model)
-    frame_part, window_part = streaming_parts(m)
-    ref_parts = dict(zip(("frame", "window"), streaming_parts(model.eval())))  # verify against the model as run
+    frame_part, window_part = m.streaming_parts()
+    ref_parts = dict(zip(("frame", "window"), model.eval().streaming_parts()))  # verify against the model as run
     examples = example_inputs(m, geometry, batch=batch or 2)
     names = _names(geometry["kind"])
     result = ExportResult()
@@ -307,8 +272,6 @@ def export_onnx(checkpoint_or_model: str | Path | nn.Module, out_path: str | Pat
     Raises:
         InputError: unreadable checkpoint, or neither exporter could export the model.
     """
-    from slipsense.live import window_geometry
-
     model, ck_info, _ = _load(checkpoint_or_model)
     geometry = window_geometry(model, info or ck_info)
     out_path = Path(out_path)
@@ -322,7 +285,7 @@ def export_onnx(checkpoint_or_model: str | Path | nn.Module, out_path: str | Pat
     result.paths["model"] = out_path
     if verify:
         result.max_abs_diff["model"] = max_abs_diff(out_path, model.eval(), examples["model"])
-    if streaming and getattr(model, "model_name", None) in ("vivit", "stnet", "temnet"):
+    if streaming and model.streaming_parts()[0] is not None:
         stem = out_path.name[: -len(".onnx")] if out_path.name.endswith(".onnx") else out_path.name
         parts = export_streaming_parts(model, out_path.parent, geometry=geometry, batch=batch, verify=verify,
                                        prefix=f"{stem}.")
@@ -400,10 +363,9 @@ def cached_streaming_parts(model: nn.Module, folder: str | Path, geometry: Mappi
 
     from slipsense.atomic import write_text
     from slipsense.errors import CacheWarning
-    from slipsense.live import streaming_parts
 
     folder = Path(folder)
-    has_frame = streaming_parts(model)[0] is not None
+    has_frame = model.streaming_parts()[0] is not None
     names = (["frame.onnx"] if has_frame else []) + ["window.onnx"]
     if precision == "int8":
         names = [n.replace(".onnx", ".int8.onnx") for n in names]
@@ -423,5 +385,5 @@ def cached_streaming_parts(model: nn.Module, folder: str | Path, geometry: Mappi
     return (paths[0] if has_frame else None), paths[-1]
 
 
-__all__ = ["ExportResult", "cached_streaming_parts", "check_parts", "conv_embed_patches", "example_inputs", "export_module", "export_onnx", "export_streaming_parts", "exportable",
+__all__ = ["ExportResult", "cached_streaming_parts", "check_parts", "example_inputs", "export_module", "export_onnx", "export_streaming_parts", "exportable",
            "max_abs_diff", "onnx_session", "quantize_int8", "run_onnx"]

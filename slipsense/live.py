@@ -60,118 +60,18 @@ import torch
 from torch import Tensor, nn
 
 from slipsense.errors import ConfigError, InputError
+from slipsense.models.base import SlipModel, window_geometry
+from slipsense.sensors.spec import GELSIGHT_MINI
 
 #: Frame rate of the GelSight recordings (frames per second): converts frames to milliseconds.
-FPS = 25.0
+FPS = GELSIGHT_MINI.fps
 #: The shipped model, relative to the checkout (the lead engineer adds the file).
 DEFAULT_CHECKPOINT = Path(__file__).resolve().parent.parent / "models" / "motionnet-gelsight.safetensors"
-#: Window length used for a 3D ResNet whose checkpoint states none (the study's 5-frame clips).
-DEFAULT_FRAMES = 5
-#: Frame size used for a video model whose checkpoint states none (GelSight Mini recordings).
-DEFAULT_IMAGE_SIZE = (240, 320)
 #: Frames per batch when replaying a recording (bounds memory: 64 frames of 240 x 320 = 59 MB float).
 REPLAY_CHUNK = 64
 COMBINE = ("max", "mean")
 BACKENDS = ("torch", "onnx")
 PRECISIONS = ("fp32", "int8")
-
-
-# ---------------------------------------------------------------------------------------------
-# The two streaming parts of each model (PyTorch modules; slipsense.export writes them as ONNX)
-# ---------------------------------------------------------------------------------------------
-
-
-class ViViTFramePart(nn.Module):
-    """One frame at every window slot: ``(N, 3, H, W)`` in [0, 1] -> ``(N, T, dim)`` spatial tokens.
-
-    Row ``t`` of the output is the frame's ``encode_frames`` token when it sits in slot ``t``.
-    """
-
-    def __init__(self, model: nn.Module):
-        super().__init__()
-        self.model = model
-
-    def forward(self, frames: Tensor) -> Tensor:
-        tokens = self.model.embed_patches(frames)  # (N, P, dim), independent of the slot
-        if self.model.positions == "factorised":  # the spatial token does not depend on the slot either
-            return self.model.encode_patches(tokens.unsqueeze(1)).expand(-1, self.model.frames, -1)
-        slots = tokens.unsqueeze(1).expand(-1, self.model.frames, -1, -1)  # (N, T, P, dim), a view
-        return self.model.encode_patches(slots)  # slot t gets pos_embedding[t]
-
-
-class ViViTWindowPart(nn.Module):
-    """Temporal transformer and head: ``(B, T, dim)`` (frame of slot t at row t) -> ``(B, classes)`` logits."""
-
-    def __init__(self, model: nn.Module):
-        super().__init__()
-        self.model = model
-
-    def forward(self, tokens: Tensor) -> Tensor:
-        return self.model.classify_frames(tokens)
-
-
-class MarkerFramePart(nn.Module):
-    """STNet/TemNet per-frame layers (S codecs, fusion): ``(N, M, 3)`` mm -> ``(N, d_model)``."""
-
-    def __init__(self, model: nn.Module):
-        super().__init__()
-        self.model = model
-
-    def forward(self, clouds: Tensor) -> Tensor:
-        m = self.model
-        x = clouds.to(m.pos_embedding.dtype).reshape(-1, 1, 3 * m.markers)  # (N, 1, 3M): each frame alone
-        if m.codecs is not None:
-            x = torch.cat((m.codecs(x), x), dim=-1)  # eq. 5 of the paper, as STNet._tokens
-        return m.fuse(x)[:, 0]
-
-
-class MarkerWindowPart(nn.Module):
-    """Frame embedding, MSA blocks and head: ``(B, T, d_model)`` -> ``(B, classes)`` logits."""
-
-    def __init__(self, model: nn.Module):
-        super().__init__()
-        self.model = model
-
-    def forward(self, tokens: Tensor) -> Tensor:
-        x = tokens + self.model.pos_embedding
-        for block in self.model.blocks:
-            x, _ = block(x)
-        return self.model._head(x)
-
-
-def streaming_parts(model: nn.Module) -> tuple[nn.Module | None, nn.Module]:
-    """``(frame_part, window_part)`` of a model; ``frame_part`` is None when nothing can be cached (3D ResNet)."""
-    name = getattr(model, "model_name", type(model).__name__)
-    if name == "vivit":
-        return ViViTFramePart(model), ViViTWindowPart(model)
-    if name in ("stnet", "temnet"):
-        if getattr(model, "relative", False):  # every frame is seen relative to its window's first one
-            return None, model
-        return MarkerFramePart(model), MarkerWindowPart(model)
-    if getattr(model, "input_kind", None) == "video":
-        return None, model
-    raise ConfigError(f"no streaming split for model {name!r}")
-
-
-def window_geometry(model: nn.Module, info: Mapping[str, Any] | None = None) -> dict[str, Any]:
-    """What one pushed frame must look like: ``{"kind", "frames", "image_size" | "markers"}``.
-
-    ``frames`` and ``image_size`` come from the model where it fixes them (ViViT, STNet), else from
-    the checkpoint's training clip spec (``info["data"]["clip_spec"]``), else the defaults
-    :data:`DEFAULT_FRAMES` / :data:`DEFAULT_IMAGE_SIZE`.
-    """
-    kind = getattr(model, "input_kind", None)
-    spec = ((info or {}).get("data") or {}).get("clip_spec") or {}
-    frames = getattr(model, "frames", None) or spec.get("frames") or DEFAULT_FRAMES
-    if kind == "video":
-        size = getattr(model, "image_size", None) or spec.get("size") or DEFAULT_IMAGE_SIZE
-        return {"kind": kind, "frames": int(frames), "image_size": (int(size[0]), int(size[1]))}
-    if kind == "markers":
-        return {"kind": kind, "frames": int(frames), "markers": int(model.markers)}
-    if kind == "grasp":
-        raise ConfigError(f"{getattr(model, 'model_name', type(model).__name__)} takes whole grasps of both sensors: "
-                          f"it has no clip window and no ONNX export yet (it streams on PyTorch in under 2 ms)")
-    raise ConfigError(f"model {getattr(model, 'model_name', type(model).__name__)!r} has no known input kind")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -304,11 +204,13 @@ class SlipDetector:
             raise ConfigError(f"debounce must be a whole number of frames in 1..1000, got {debounce!r}")
         self.precision = precision
         self.model = model.eval()
-        self.model_name = getattr(model, "model_name", type(model).__name__)
+        if not isinstance(model, SlipModel):
+            raise ConfigError(f"{type(model).__name__} is not a slipsense model (see slipsense.models.base)")
+        self.model_name = model.model_name
         self.threshold, self.sensors, self.combine, self.backend = float(threshold), int(sensors), combine, backend
         self.debounce = int(debounce)
         self._tmpdir = None
-        if getattr(model, "input_kind", None) == "grasp":  # the model streams itself over all sensors at once
+        if model.input_kind == "grasp":  # the model streams itself over all sensors at once
             self._init_grasp(model, info)
             return
         geo = window_geometry(model, info)
@@ -316,14 +218,16 @@ class SlipDetector:
         self.frames: int = geo["frames"]
         self.image_size: tuple[int, int] | None = geo.get("image_size")
         self.markers: int | None = geo.get("markers")
+        parts = model.streaming_parts()
+        self._slot_tokens = model.slot_tokens
         if backend == "torch":
-            self._runner = _TorchRunner(*streaming_parts(model))
+            self._runner = _TorchRunner(*parts)
         else:
             if onnx_dir is None:
                 self._tmpdir = tempfile.TemporaryDirectory(prefix="slipsense-onnx-")
                 onnx_dir = self._tmpdir.name
             self._runner = _OnnxRunner(*_exported_parts(model, self.geometry, Path(onnx_dir), precision))
-        self._has_frame_part = streaming_parts(model)[0] is not None
+        self._has_frame_part = parts[0] is not None
         self.reset()
 
     @classmethod
@@ -446,7 +350,7 @@ class SlipDetector:
 
     def _window(self) -> np.ndarray:
         """The window part's input from the cache: ``(S, T, ...)``."""
-        if self.model_name == "vivit":
+        if self._slot_tokens:
             # frame k of the window (k = 0 oldest) sits in slot k: its token row k
             return np.stack([tokens[:, k] for k, tokens in enumerate(self._cache)], axis=1)
         return np.stack(self._cache, axis=1)
@@ -489,7 +393,7 @@ class SlipDetector:
             chunk = REPLAY_CHUNK if self._has_frame_part else max(1, REPLAY_CHUNK // (4 * t))
             for a in range(0, len(starts), chunk):
                 rows = starts[a : a + chunk, None] + np.arange(t)[None]  # (W, T) frame indices
-                if self.model_name == "vivit":
+                if self._slot_tokens:
                     win = feats[:, rows, np.arange(t)[None]]  # (S, W, T, dim): frame rows[w, k] at slot k
                 else:
                     win = feats[:, rows]  # (S, W, T, ...)
@@ -561,11 +465,7 @@ class SlipDetector:
         if self.kind == "grasp" or not self.window_full or not 0 <= sensor < self.sensors:
             return None
         window = torch.from_numpy(np.stack([x[sensor] for x in self._inputs])[None])  # (1, T, ...)
-        if self.model_name == "vivit":
-            return self.model.cls_attention_map(window)[0, -1].numpy()
-        if self.model_name in ("stnet", "temnet"):
-            return self.model.marker_saliency(window)[0].detach().numpy()
-        return None
+        return self.model.attention(window)
 
     def close(self) -> None:
         if self._tmpdir is not None:
@@ -861,6 +761,5 @@ class AnnotatedWriter:
 
 __all__ = [
     "AnnotatedWriter", "Annotator", "DEFAULT_CHECKPOINT", "FPS", "Reading", "SlipDetector", "Trace", "alarm_at",
-    "combine_probabilities", "onnx_cache_dir", "slip_probability", "stored_operating_point", "streaming_parts",
-    "window_geometry",
+    "combine_probabilities", "onnx_cache_dir", "slip_probability", "stored_operating_point", "window_geometry",
 ]

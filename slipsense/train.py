@@ -476,11 +476,9 @@ class TrainRequest:
 
 
 def model_class(name: str):
-    from slipsense.models import _REGISTRY, available
+    from slipsense.models import model_class as registered_class
 
-    if name not in available():
-        raise ConfigError(f"unknown model {name!r}; available: {', '.join(available())}")
-    return _REGISTRY[name]
+    return registered_class(name)
 
 
 def _settings_of(cls) -> set[str] | None:

@@ -91,11 +91,9 @@ def test_streaming_vivit_equals_full_forward(vivit):
 def test_factorised_vivit_streams_one_spatial_encoding_per_frame():
     """positions="factorised": a frame's spatial token is the same in every slot, so the frame part
     runs the spatial transformer once per frame, and streaming still equals the full forward."""
-    from slipsense.live import streaming_parts
-
     model = _model("vivit", positions="factorised", **VIVIT_SMALL)
     assert model.pos_embedding.shape == (1, 1, 12, 8) and model.temporal_pos_embedding.shape == (1, 5, 8)
-    frame_part, _ = streaming_parts(model)
+    frame_part, _ = model.streaming_parts()
     calls = []
     hook = model.spatial_transformer.register_forward_hook(lambda m, args, out: calls.append(args[0].shape[0]))
     x = torch.rand(3, 3, 48, 64)

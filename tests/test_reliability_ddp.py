@@ -17,15 +17,14 @@ import torch
 import torch.nn as nn
 from torch.utils.data import Dataset
 
-from slipsense.models import register
+from slipsense.models import MarkerModel, register
 from slipsense.train import StepPlan, TrainConfig, fit, seed_everything
 
 N_ITEMS = 67
 
 
 @register("test-reliability-dropout")
-class DropNet(nn.Module):
-    input_kind = "markers"
+class DropNet(MarkerModel):
 
     def __init__(self, frames: int = 4, markers: int = 6, hidden: int = 16, dropout: float = 0.5):
         super().__init__()

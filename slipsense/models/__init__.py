@@ -3,107 +3,65 @@
     >>> from slipsense.models import build, available
     >>> model = build("vivit", frames=5)            # doctest: +SKIP
 
-Each model class declares
-
-* ``input_kind``: ``"video"`` — input ``(B, T, 3, H, W)`` float32 in [0, 1], BGR channel order as
-  OpenCV decodes — or ``"markers"`` — input ``(B, T, N, 3)`` float32 marker positions;
-* ``config()``: the keyword arguments that rebuild it (stored in every checkpoint);
-* ``forward(x) -> (B, 2)`` logits, class 1 = slip (onset of slip), class 0 = no slip (wiggle);
-* ``check_input(x)``: raises :class:`slipsense.errors.InputError` on a wrong shape or non-finite values.
+Every model subclasses a kind of :mod:`slipsense.models.base` (``VideoModel``, ``MarkerModel``,
+``GraspModel``) and declares there what the rest of slipsense needs: ``input_kind``, ``config()``
+(the keyword arguments that rebuild it, stored in every checkpoint), ``check_input(x)``,
+``forward(x)`` -> logits with class 1 = slip, and optionally its streaming parts, ONNX form,
+attention heat map and reduced precision. Nothing outside this package names a model.
 """
 from __future__ import annotations
 
 import importlib
-from typing import Any, Callable
+from typing import Any
 
 import torch.nn as nn
 
 from slipsense.errors import ConfigError
 
-_REGISTRY: dict[str, Callable[..., nn.Module]] = {}
+from slipsense.models.base import (  # noqa: F401  (re-exported: the public face of the registry)
+    MAX_PARAMETERS,
+    MAX_SETTING,
+    GraspModel,
+    MarkerModel,
+    SlipModel,
+    VideoModel,
+    build_registered,
+    check_video_values,
+    register,
+    registered,
+    window_geometry,
+)
+
 # Modules that register models on import; imported lazily so `import slipsense` stays fast.
 _MODULES = ("slipsense.models.vivit", "slipsense.models.resnet3d", "slipsense.models.stnet", "slipsense.models.motion")
 
 
-def register(name: str):
-    """Class decorator: make ``build(name, **config)`` construct this class."""
-
-    def deco(cls):
-        _REGISTRY[name] = cls
-        cls.model_name = name
-        return cls
-
-    return deco
-
-
 def _load_all() -> None:
     for mod in _MODULES:
-        try:
-            importlib.import_module(mod)
-        except ModuleNotFoundError as exc:  # a model file not written yet must not break the others
-            if exc.name != mod:
-                raise
+        importlib.import_module(mod)
 
 
 def available() -> list[str]:
     """Names of all registered models."""
     _load_all()
-    return sorted(_REGISTRY)
+    return sorted(registered())
 
 
-#: No setting of any model is an integer this large (widths, depths, heads, frames, pixels).
-MAX_SETTING = 100_000
-#: Models with more parameters are refused before their weights are allocated.
-MAX_PARAMETERS = 1_000_000_000
+def model_class(name: str) -> type:
+    """The class registered as ``name`` (ConfigError naming the available ones otherwise)."""
+    _load_all()
+    classes = registered()
+    if name not in classes:
+        raise ConfigError(f"unknown model {name!r}; available: {', '.join(sorted(classes))}")
+    return classes[name]
 
 
-def _check_sizes(name: str, config: dict[str, Any]) -> None:
-    def walk(key, v):
-        if isinstance(v, bool):
-            return
-        if isinstance(v, (int, float)) and abs(v) > MAX_SETTING and key not in ("lr", "eps"):
-            raise ConfigError(f"model {name!r}: setting {key}={v!r} is beyond {MAX_SETTING:,}")
-        if isinstance(v, (list, tuple)):
-            for x in v:
-                walk(key, x)
-
-    for key, value in config.items():
-        walk(key, value)
-
-
-def build(name: str, **config: Any) -> nn.Module:
+def build(name: str, **config: Any) -> SlipModel:
     """Build model ``name`` with keyword ``config``; unknown names or keys, settings beyond
     :data:`MAX_SETTING` and models beyond :data:`MAX_PARAMETERS` raise ConfigError (the size is
     checked on the meta device, before any weight is allocated)."""
-    import torch
-
     _load_all()
-    if name not in _REGISTRY:
-        raise ConfigError(f"unknown model {name!r}; available: {', '.join(sorted(_REGISTRY))}")
-    _check_sizes(name, config)
-    cls = _REGISTRY[name]
-    try:
-        if torch.empty(0).device.type == "meta":  # already building without memory (checkpoint checks)
-            return cls(**config)
-        with torch.device("meta"):
-            n = sum(p.numel() for p in cls(**config).parameters())
-        if n > MAX_PARAMETERS:
-            raise ConfigError(f"model {name!r}: {n:,} parameters is beyond {MAX_PARAMETERS:,}")
-        return cls(**config)
-    except TypeError as exc:
-        raise ConfigError(f"model {name!r}: {exc}") from None
-
-
-def check_video_values(x) -> None:
-    """Raise InputError unless the video tensor ``x`` is float and finite (shape checked by the model)."""
-    import torch
-
-    from slipsense.errors import InputError
-
-    if not x.dtype.is_floating_point:
-        raise InputError(None, f"video must be a float tensor in [0, 1], got dtype {x.dtype}")
-    if not bool(torch.isfinite(x).all()):
-        raise InputError(None, "video contains NaN or infinite values")
+    return build_registered(name, **config)
 
 
 def count_parameters(model: nn.Module) -> int:
@@ -126,10 +84,6 @@ def with_precision(model: nn.Module, precision: str = "float32") -> nn.Module:
         raise ConfigError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
     if precision == "float32":
         return model
-    import torch
-
-    from slipsense.models.stnet import STNet, optimize_for_inference, quantize_dynamic_int8
-
-    if not isinstance(model, STNet):
+    if not isinstance(model, SlipModel):
         raise ConfigError(f"{precision} inference is implemented for STNet and TemNet, not {type(model).__name__}")
-    return quantize_dynamic_int8(model) if precision == "int8" else optimize_for_inference(model, torch.bfloat16)
+    return model.reduced_precision(precision)

@@ -29,7 +29,7 @@ from einops import rearrange
 from torch import Tensor, nn
 
 from slipsense.errors import ConfigError, InputError
-from slipsense.models import register
+from slipsense.models.base import GraspModel, register
 
 #: Bounds on settings a checkpoint may carry (refused before anything is allocated).
 _LIMITS = {"width": 256, "features": 512, "temporal": 512, "sensors": 8, "max_lag": 250, "pixels": 512 * 512}
@@ -40,7 +40,7 @@ def _conv(cin: int, cout: int, k: int, stride: int) -> nn.Sequential:
 
 
 @register("motionnet")
-class MotionNet(nn.Module):
+class MotionNet(GraspModel):
     """Causal slip detector over grey frame differences of all sensors.
 
     Args:
@@ -54,8 +54,6 @@ class MotionNet(nn.Module):
         dropout: before the classifier.
         diff_scale: differences are multiplied by this (grey levels in [0, 1]; motion is a few %).
     """
-
-    input_kind = "grasp"
 
     def __init__(self, sensors: int = 2, image_size: Sequence[int] = (30, 40), lags: Sequence[int] = (1, 5, 25),
                  width: int = 8, features: int = 32, temporal: int = 32, dilations: Sequence[int] = (1, 2, 4, 8),

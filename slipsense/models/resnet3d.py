@@ -34,7 +34,7 @@ from einops import rearrange
 from torch import Tensor, nn
 
 from slipsense.errors import ConfigError, InputError
-from slipsense.models import check_video_values, register
+from slipsense.models.base import VideoModel, check_video_values, register
 
 #: Parameter count the study reports for its VideoResNet50 with 2 classes (the default config here).
 PAPER_PARAMETERS = 31_657_410
@@ -80,7 +80,7 @@ def _triple(value: int | Sequence[int], name: str) -> tuple[int, int, int]:
 
 
 @register("resnet3d50")
-class ResNet3D50(nn.Module):
+class ResNet3D50(VideoModel):
     """Bottleneck 3D ResNet for ``(B, T, 3, H, W)`` BGR clips in [0, 1]; logits ``(B, num_classes)``, class 1 = slip.
 
     Keyword config: ``layers=(3, 4, 6, 3)``, ``width=64``, ``stem_kernel=(3, 7, 7)``,
@@ -90,7 +90,11 @@ class ResNet3D50(nn.Module):
     pytorchvideo's pretrained weights expect, applied inside the model).
     """
 
-    input_kind = "video"
+    quick_epochs = 2
+
+    @classmethod
+    def small_config(cls) -> dict:
+        return {"layers": [1, 1, 1, 1], "width": 8, "frames": 4}
 
     def __init__(
         self,

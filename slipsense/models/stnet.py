@@ -82,7 +82,7 @@ from einops import rearrange, repeat
 from einops.layers.torch import Rearrange
 
 from slipsense.errors import ConfigError, InputError
-from slipsense.models import register
+from slipsense.models.base import MarkerModel, register
 
 POOLS = ("flatten", "mean", "last")
 ACTIVATIONS = {"relu": nn.ReLU, "gelu": nn.GELU}
@@ -197,10 +197,10 @@ class Block(nn.Module):
 # the network
 
 @register("stnet")
-class STNet(nn.Module):
+class STNet(MarkerModel):
     """STNet (``use_codecs=True``) / TemNet (``use_codecs=False``): see the module docstring."""
 
-    input_kind = "markers"
+    quick_epochs = 30
 
     def __init__(self, frames=12, markers=552, d_model=None, heads=8, blocks=5, ff_dim=2048, head_hidden=None,
                  dropout=0.1, codec_channels=16, codec_kernel=3, codec_layers=4, pool="flatten",
@@ -318,6 +318,30 @@ class STNet(nn.Module):
             return maps
         finally:
             self.train(was_training)
+
+    # the model contract (slipsense.models.base)
+
+    @classmethod
+    def small_config(cls) -> dict:
+        return dict(PRESETS["compact"], frames=4, markers=24)
+
+    def streaming_parts(self) -> tuple[nn.Module | None, nn.Module]:
+        if self.relative:  # every frame is seen relative to its window's first one: nothing to cache
+            return None, self
+        from slipsense.models.stnet_parts import MarkerFramePart, MarkerWindowPart
+
+        return MarkerFramePart(self), MarkerWindowPart(self)
+
+    def attention(self, window: torch.Tensor):
+        """Marker saliency of the window, ``(M,)``, max 1 (:meth:`marker_saliency`)."""
+        return self.marker_saliency(window)[0].detach().numpy()
+
+    def reduced_precision(self, precision: str) -> nn.Module:
+        if precision == "int8":
+            return quantize_dynamic_int8(self)
+        if precision == "bfloat16":
+            return optimize_for_inference(self, torch.bfloat16)
+        return super().reduced_precision(precision)
 
     def marker_saliency(self, x, target: int = 1, baseline: str | torch.Tensor = "first") -> torch.Tensor:
         """Relevance of each marker for class ``target`` (default 1 = slip): a (B, M) heat map.

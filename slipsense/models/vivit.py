@@ -60,7 +60,7 @@ from einops import rearrange, repeat
 from torch import Tensor, nn
 
 from slipsense.errors import ConfigError, InputError
-from slipsense.models import check_video_values, register
+from slipsense.models.base import VideoModel, check_video_values, register
 
 
 def pair(value: int | Sequence[int]) -> tuple[int, int]:
@@ -215,7 +215,7 @@ POSITIONS = ("slot", "factorised")
 
 
 @register("vivit")
-class ViViT(nn.Module):
+class ViViT(VideoModel):
     """Factorised-encoder ViViT for ``(B, T, 3, H, W)`` clips; logits ``(B, num_classes)``, class 1 = slip.
 
     Keyword config (defaults: the paper's model): ``image_size=(240, 320)``, ``patch_size=(40, 40)``,
@@ -229,7 +229,8 @@ class ViViT(nn.Module):
     False with the straightforward rearrange + LayerNorm + Linear.
     """
 
-    input_kind = "video"
+    slot_tokens = True  # the slot position embedding: a frame's spatial token depends on its slot
+    quick_epochs = 20
 
     def __init__(
         self,
@@ -488,6 +489,35 @@ class ViViT(nn.Module):
             "temporal": torch.stack(temporal, 1) if temporal else x.new_zeros(b, 0, 0, 0, 0),
         }
         return logits, attention
+
+    # the model contract (slipsense.models.base)
+
+    @classmethod
+    def small_config(cls) -> dict:
+        return {"image_size": [48, 64], "patch_size": [16, 16], "frames": 3}
+
+    def streaming_parts(self) -> tuple[nn.Module, nn.Module]:
+        from slipsense.models.vivit_parts import ViViTFramePart, ViViTWindowPart
+
+        return ViViTFramePart(self), ViViTWindowPart(self)
+
+    def exportable(self) -> nn.Module:
+        """A copy whose patch embedding is :func:`~slipsense.models.vivit_parts.conv_embed_patches`
+        (the fused path does not trace; the plain one is slow on ONNX Runtime)."""
+        import copy
+        import types
+
+        from slipsense.models.vivit_parts import conv_embed_patches
+
+        m = copy.deepcopy(self).eval()
+        m.fused = False
+        # an instance attribute shadows the method: encode_frames and the streaming frame part use it
+        m.embed_patches = types.MethodType(conv_embed_patches, m)
+        return m
+
+    def attention(self, window: Tensor):
+        """Attention rollout of the window's latest frame on the patch grid, ``(Hp, Wp)``, sums to 1."""
+        return self.cls_attention_map(window)[0, -1].numpy()
 
     # attention for heat maps
 

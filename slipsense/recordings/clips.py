@@ -30,6 +30,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from .. import config
+from ..sensors.spec import GELSIGHT_MINI
 from ..atomic import write_text, write_with
 from ..errors import ConfigError, InputError
 from .folders import SkippedInputWarning
@@ -70,7 +71,7 @@ class ClipSpec:
     frames: int = 5
     horizon: int = 0
     wiggle_per_video: int = 2
-    size: tuple[int, int] = (240, 320)
+    size: tuple[int, int] = GELSIGHT_MINI.image_size
     seed: int = 0
 
     def __post_init__(self) -> None:

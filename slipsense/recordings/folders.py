@@ -14,17 +14,18 @@ from pathlib import Path
 from typing import Iterable, Literal
 
 from ..errors import ConfigError, InputError
+from ..sensors.spec import GELSIGHT_MINI
 from .types import Recording
 from .video import probe_video
 
 OnError = Literal["raise", "skip"]
 
 #: Experiment folders are named ``exp_num_<N>`` with N a non-negative integer.
-EXPERIMENT_RE = re.compile(r"^exp_num_(\d+)$")
+EXPERIMENT_RE = re.compile(GELSIGHT_MINI.experiment_pattern)
 #: Camera videos are named ``camera_<anything>.avi``; the stem becomes ``Recording.camera``.
-CAMERA_GLOB = "camera_*.avi"
+CAMERA_GLOB = GELSIGHT_MINI.camera_glob
 #: File whose presence in an experiment folder marks a run in which the object slipped.
-SLIP_MARKER = "slip.txt"
+SLIP_MARKER = GELSIGHT_MINI.slip_marker
 
 
 class SkippedInputWarning(UserWarning):
@@ -143,7 +144,7 @@ def _object_recordings(obj_dir: Path, on_error: str) -> list[Recording]:
 def validate_recordings(
     recordings: Iterable[Recording],
     on_error: OnError = "raise",
-    expected_size: tuple[int, int] | None = (240, 320),
+    expected_size: tuple[int, int] | None = GELSIGHT_MINI.image_size,
     min_frames: int = 2,
 ) -> list[Recording]:
     """Probe each video (:func:`~slipsense.recordings.video.probe_video`, a few ms each).

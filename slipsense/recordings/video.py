@@ -29,6 +29,7 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 from ..errors import InputError  # noqa: E402
+from ..sensors.spec import GELSIGHT_MINI  # noqa: E402
 
 #: Largest accepted gap between the frame count the container states and the frames decoded.
 TRUNCATION_TOLERANCE = 1
@@ -181,7 +182,7 @@ def _check_args(expected_size: tuple[int, int] | None, min_frames: int) -> None:
 
 def read_video(
     path: str | Path,
-    expected_size: tuple[int, int] | None = (240, 320),
+    expected_size: tuple[int, int] | None = GELSIGHT_MINI.image_size,
     min_frames: int = 2,
 ) -> np.ndarray:
     """Decode a whole video into memory.
@@ -308,7 +309,7 @@ def frame_count(path: str | Path) -> int | None:
 
 def probe_video(
     path: str | Path,
-    expected_size: tuple[int, int] | None = (240, 320),
+    expected_size: tuple[int, int] | None = GELSIGHT_MINI.image_size,
     min_frames: int = 2,
 ) -> VideoInfo:
     """Check a video cheaply, without decoding it all.

@@ -16,13 +16,12 @@ import torch
 import torch.nn as nn
 from torch.utils.data import Dataset
 
-from slipsense.models import register
+from slipsense.models import MarkerModel, register
 from slipsense.train import TrainConfig, fit, seed_everything
 
 
 @register("test-tiny")
-class TinyNet(nn.Module):
-    input_kind = "markers"
+class TinyNet(MarkerModel):
 
     def __init__(self, frames: int = 4, markers: int = 6, hidden: int = 16):
         super().__init__()

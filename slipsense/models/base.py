@@ -1,0 +1,204 @@
+"""The model contract and the registry: what every slipsense model declares about itself.
+
+Code outside :mod:`slipsense.models` (training, evaluation, the live detector, ONNX export,
+experiments) only talks to a model through this contract, so a new model is one file that
+subclasses one of the three kinds below and registers itself::
+
+    @register("mynet")
+    class MyNet(VideoModel):
+        def __init__(self, frames=5, image_size=(240, 320)): ...
+        def config(self): ...          # the keyword arguments that rebuild it (stored in checkpoints)
+        def check_input(self, x): ...  # InputError on a wrong shape or non-finite values
+        def forward(self, x): ...      # (B, 2) logits, class 1 = slip
+
+The kinds:
+
+* :class:`VideoModel` — clips ``(B, T, 3, H, W)`` float32 in [0, 1], BGR as OpenCV decodes;
+* :class:`MarkerModel` — marker clouds ``(B, T, M, 3)`` float32, mm;
+* :class:`GraspModel` — whole grasps of all sensors at once, ``(B, S, N, h, w)`` grey in [0, 1],
+  logits at every frame ``(B, N, 2)``; streams itself (:meth:`GraspModel.stream`).
+
+Optional hooks, with defaults that suit a plain network: :meth:`SlipModel.streaming_parts`
+(what the live detector caches per frame), :meth:`SlipModel.exportable` (an ONNX-friendly copy),
+:meth:`SlipModel.attention` (a heat map for the live view), :meth:`SlipModel.reduced_precision`,
+:meth:`SlipModel.small_config` (the contract test's size) and :attr:`SlipModel.quick_epochs`.
+"""
+from __future__ import annotations
+
+import copy
+from typing import Any, Callable, Mapping
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+from slipsense.errors import ConfigError, InputError
+
+_REGISTRY: dict[str, type] = {}
+
+#: Window length used for a video model whose checkpoint states none (the study's 5-frame clips).
+DEFAULT_FRAMES = 5
+#: No setting of any model is an integer this large (widths, depths, heads, frames, pixels).
+MAX_SETTING = 100_000
+#: Models with more parameters are refused before their weights are allocated.
+MAX_PARAMETERS = 1_000_000_000
+
+
+class SlipModel(nn.Module):
+    """Base of every registered model; see the module notes for the contract."""
+
+    #: set by :func:`register`
+    model_name: str = ""
+    #: "video", "markers" or "grasp"
+    input_kind: str = ""
+    #: True when the frame part's output holds the frame's token at every window slot, ``(N, T, dim)``,
+    #: so a window takes row ``k`` of its ``k``-th frame (ViViT's slot position embedding)
+    slot_tokens: bool = False
+    #: epochs of the experiments' quick setting
+    quick_epochs: int = 10
+
+    def config(self) -> dict[str, Any]:
+        raise NotImplementedError(f"{type(self).__name__} must define config()")
+
+    def check_input(self, x: Tensor) -> None:
+        raise NotImplementedError(f"{type(self).__name__} must define check_input()")
+
+    @classmethod
+    def small_config(cls) -> dict[str, Any]:
+        """A small configuration for fast tests of the contract (default: the defaults)."""
+        return {}
+
+    def streaming_parts(self) -> tuple[nn.Module | None, nn.Module]:
+        """``(frame_part, window_part)``: the live detector runs ``frame_part`` once per pushed frame and
+        caches its output, then ``window_part`` on the cached window. ``frame_part`` None: nothing can
+        be cached and ``window_part`` (the model) sees the raw window."""
+        return None, self
+
+    def exportable(self) -> nn.Module:
+        """An eval-mode copy set up for ONNX tracing."""
+        return copy.deepcopy(self).eval()
+
+    def attention(self, window: Tensor) -> np.ndarray | None:
+        """Where the model looks in one window ``(1, T, ...)``, for heat maps; None when it cannot say."""
+        return None
+
+    def reduced_precision(self, precision: str) -> nn.Module:
+        """An inference copy at ``precision`` ("bfloat16" or "int8"); refused unless the model offers it."""
+        raise ConfigError(f"{precision} inference is implemented for STNet and TemNet, not {type(self).__name__}")
+
+    def window_geometry(self, spec: Mapping[str, Any]) -> dict[str, Any]:
+        """What one pushed frame must look like, ``{"kind", "frames", ...}``; ``spec`` is the checkpoint's
+        training clip spec, used where the model does not fix a size itself."""
+        raise NotImplementedError
+
+
+class VideoModel(SlipModel):
+    input_kind = "video"
+
+    def window_geometry(self, spec: Mapping[str, Any]) -> dict[str, Any]:
+        from slipsense.sensors.spec import GELSIGHT_MINI
+
+        frames = getattr(self, "frames", None) or spec.get("frames") or DEFAULT_FRAMES
+        size = getattr(self, "image_size", None) or spec.get("size") or GELSIGHT_MINI.image_size
+        return {"kind": "video", "frames": int(frames), "image_size": (int(size[0]), int(size[1]))}
+
+
+class MarkerModel(SlipModel):
+    input_kind = "markers"
+
+    def window_geometry(self, spec: Mapping[str, Any]) -> dict[str, Any]:
+        frames = getattr(self, "frames", None) or spec.get("frames") or DEFAULT_FRAMES
+        return {"kind": "markers", "frames": int(frames), "markers": int(self.markers)}
+
+
+class GraspModel(SlipModel):
+    """Sees every frame of all sensors from the start of the grasp; the live detector pushes frames to
+    :meth:`stream` instead of cutting windows."""
+
+    input_kind = "grasp"
+
+    def stream(self):
+        """A fresh incremental state with ``push(gray (S, h, w) uint8) -> probability``."""
+        raise NotImplementedError
+
+    def streaming_parts(self):
+        raise ConfigError(f"{self.model_name} takes whole grasps of both sensors: it streams itself "
+                          f"(stream()) and has no frame/window parts")
+
+    def window_geometry(self, spec: Mapping[str, Any]) -> dict[str, Any]:
+        raise ConfigError(f"{self.model_name} takes whole grasps of both sensors: it has no clip window "
+                          f"and no ONNX export yet (it streams on PyTorch in under 2 ms)")
+
+    def exportable(self) -> nn.Module:
+        self.window_geometry({})  # raises: one line, not a tracer's traceback
+        return super().exportable()
+
+
+def window_geometry(model: nn.Module, info: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """What one pushed frame must look like for ``model``: ``{"kind", "frames", "image_size" | "markers"}``.
+
+    ``frames`` and ``image_size`` come from the model where it fixes them (ViViT, STNet), else from
+    the checkpoint's training clip spec (``info["data"]["clip_spec"]``), else the defaults.
+    """
+    if not isinstance(model, SlipModel):
+        raise ConfigError(f"{type(model).__name__} is not a slipsense model (subclass slipsense.models.base)")
+    spec = ((info or {}).get("data") or {}).get("clip_spec") or {}
+    return model.window_geometry(spec)
+
+
+def register(name: str) -> Callable[[type], type]:
+    """Class decorator: make ``build(name, **config)`` construct this class (a :class:`SlipModel`)."""
+
+    def deco(cls: type) -> type:
+        if not (isinstance(cls, type) and issubclass(cls, (VideoModel, MarkerModel, GraspModel))):
+            raise TypeError(f"register({name!r}): {cls!r} must subclass VideoModel, MarkerModel or GraspModel")
+        _REGISTRY[name] = cls
+        cls.model_name = name
+        return cls
+
+    return deco
+
+
+def registered() -> dict[str, type]:
+    """``{name: class}`` of the models registered so far (see :func:`slipsense.models.available`)."""
+    return dict(_REGISTRY)
+
+
+def _check_sizes(name: str, config: Mapping[str, Any]) -> None:
+    def walk(key, v):
+        if isinstance(v, bool):
+            return
+        if isinstance(v, (int, float)) and abs(v) > MAX_SETTING and key not in ("lr", "eps"):
+            raise ConfigError(f"model {name!r}: setting {key}={v!r} is beyond {MAX_SETTING:,}")
+        if isinstance(v, (list, tuple)):
+            for x in v:
+                walk(key, x)
+
+    for key, value in config.items():
+        walk(key, value)
+
+
+def build_registered(name: str, **config: Any) -> SlipModel:
+    """Build registered model ``name``; see :func:`slipsense.models.build`."""
+    if name not in _REGISTRY:
+        raise ConfigError(f"unknown model {name!r}; available: {', '.join(sorted(_REGISTRY))}")
+    _check_sizes(name, config)
+    cls = _REGISTRY[name]
+    try:
+        if torch.empty(0).device.type == "meta":  # already building without memory (checkpoint checks)
+            return cls(**config)
+        with torch.device("meta"):
+            n = sum(p.numel() for p in cls(**config).parameters())
+        if n > MAX_PARAMETERS:
+            raise ConfigError(f"model {name!r}: {n:,} parameters is beyond {MAX_PARAMETERS:,}")
+        return cls(**config)
+    except TypeError as exc:
+        raise ConfigError(f"model {name!r}: {exc}") from None
+
+
+def check_video_values(x: Tensor) -> None:
+    """Raise InputError unless the video tensor ``x`` is float and finite (shape checked by the model)."""
+    if not x.dtype.is_floating_point:
+        raise InputError(None, f"video must be a float tensor in [0, 1], got dtype {x.dtype}")
+    if not bool(torch.isfinite(x).all()):
+        raise InputError(None, "video contains NaN or infinite values")

@@ -1,0 +1,115 @@
+"""The model contract (slipsense.models.base), checked for every registered model: a new model is
+covered by registering it (build -> forward shape -> streaming == full forward -> ONNX parity ->
+checkpoint round trip)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from slipsense.checkpoint import load_model, save_checkpoint
+from slipsense.errors import ConfigError
+from slipsense.live import SlipDetector
+from slipsense.models import SlipModel, available, build, model_class, window_geometry
+
+BUILT_IN = [name for name in available() if not name.startswith("test-")]
+
+
+def _model(name: str) -> SlipModel:
+    torch.manual_seed(0)
+    model = build(name, **model_class(name).small_config()).eval()
+    with torch.no_grad():  # move norms and biases off their initial values so parts must really agree
+        g = torch.Generator().manual_seed(1)
+        for p in model.parameters():
+            p.add_(torch.randn(p.shape, generator=g) * 0.05)
+    return model
+
+
+def _window_inputs(model: SlipModel, batch: int = 2, seed: int = 0):
+    """(uint8 or float per-frame inputs (B, T, ...) for pushing, float model input (B, T, ...))."""
+    geo = window_geometry(model)
+    rng = np.random.default_rng(seed)
+    if geo["kind"] == "video":
+        frames = rng.integers(0, 256, (batch, geo["frames"], *geo["image_size"], 3), dtype=np.uint8)
+        x = torch.from_numpy(np.moveaxis(frames, -1, 2).astype(np.float32) / 255.0)
+        return frames, x
+    clouds = rng.normal(0.0, 3.0, (batch, geo["frames"], geo["markers"], 3)).astype(np.float32)
+    return clouds, torch.from_numpy(clouds)
+
+
+def _grasp_input(model: SlipModel, frames: int = 40, seed: int = 0) -> torch.Tensor:
+    g = torch.Generator().manual_seed(seed)
+    return torch.rand(1, model.sensors, frames, *model.image_size, generator=g)
+
+
+@pytest.mark.parametrize("name", BUILT_IN)
+def test_contract_build_and_forward_shape(name):
+    model = _model(name)
+    assert isinstance(model, SlipModel) and model.model_name == name
+    assert model.input_kind in ("video", "markers", "grasp")
+    rebuilt = build(name, **model.config())  # config() rebuilds the same network
+    assert {k: v.shape for k, v in rebuilt.state_dict().items()} == {k: v.shape for k, v in model.state_dict().items()}
+    with torch.no_grad():
+        if model.input_kind == "grasp":
+            out = model(_grasp_input(model))
+            assert out.shape == (1, 40, 2)
+        else:
+            out = model(_window_inputs(model)[1])
+            assert out.shape == (2, 2)
+    assert torch.isfinite(out).all()
+
+
+@pytest.mark.parametrize("name", BUILT_IN)
+def test_contract_streaming_equals_full_forward(name):
+    model = _model(name)
+    if model.input_kind == "grasp":
+        x = _grasp_input(model, frames=40)
+        with torch.no_grad():
+            full = torch.softmax(model(x)[0], dim=-1)[:, 1].numpy()
+        stream = model.stream()
+        gray = (x[0].numpy() * 255.0).round().astype(np.uint8)  # the stream takes uint8 grey frames
+        pushed = np.array([stream.push(gray[:, t]) for t in range(gray.shape[1])])
+        with torch.no_grad():
+            requant = torch.softmax(model(torch.from_numpy(gray[None]).float() / 255.0)[0], dim=-1)[:, 1].numpy()
+        np.testing.assert_allclose(pushed, requant, atol=1e-5)
+        assert np.abs(requant - full).max() < 0.05  # only the uint8 rounding differs
+        return
+    per_frame, x = _window_inputs(model, batch=1)
+    det = SlipDetector(model)
+    readings = [det.push(per_frame[0, t]) for t in range(per_frame.shape[1])]
+    assert all(r.probability is None for r in readings[:-1])
+    with torch.no_grad():
+        full = float(torch.softmax(model(x), dim=-1)[0, 1])
+    assert abs(readings[-1].probability - full) < 1e-5
+
+
+@pytest.mark.parametrize("name", BUILT_IN)
+def test_contract_onnx_parity(name, tmp_path):
+    from slipsense.export import export_onnx
+
+    model = _model(name)
+    if model.input_kind == "grasp":
+        with pytest.raises(ConfigError, match="no ONNX export"):
+            export_onnx(model, tmp_path / "m.onnx")
+        return
+    result = export_onnx(model, tmp_path / "m.onnx")
+    assert result.max_abs_diff and max(result.max_abs_diff.values()) <= 1e-4
+    assert ("frame" in result.paths) == (model.streaming_parts()[0] is not None)
+
+
+@pytest.mark.parametrize("name", BUILT_IN)
+def test_contract_checkpoint_round_trip(name, tmp_path):
+    model = _model(name)
+    path = save_checkpoint(tmp_path / "m.safetensors", model, {"contract": True})
+    loaded, info = load_model(path, expect_model=name)
+    assert info["contract"] is True and type(loaded) is type(model)
+    x = _grasp_input(model) if model.input_kind == "grasp" else _window_inputs(model)[1]
+    with torch.no_grad():
+        assert torch.equal(loaded(x), model(x))
+
+
+def test_register_refuses_a_class_outside_the_contract():
+    from slipsense.models import register
+
+    with pytest.raises(TypeError, match="must subclass"):
+        register("test-not-a-model")(torch.nn.Linear)
