@@ -105,7 +105,7 @@ def spec_dict(spec) -> dict[str, Any]:
 
 def load_markers(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(x (N,T,M,3) float32, y (N,) int64, groups (N,))`` from a marker ``.npz`` (validated)."""
-    from slipsense.sensors.simulator import load_marker_npz
+    from slipsense.sensors.marker_npz import load_marker_npz
 
     ds = load_marker_npz(path)
     groups = getattr(ds, "groups", None)
