@@ -5,8 +5,55 @@ import json
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+import torch
+import torch.distributed as dist
+from torch import nn
+from torch.utils.data import DataLoader, Dataset, Subset
+
 from slipsense.atomic import write_text
+from slipsense.distributed import Dist
 from slipsense.errors import ConfigError, InputError
+
+
+def progress_bar(it, enabled: bool, desc: str):
+    """``it`` wrapped in a tqdm bar when ``enabled``."""
+    if not enabled:
+        return it
+    from tqdm.auto import tqdm
+
+    return tqdm(it, desc=desc, leave=False, dynamic_ncols=True)
+
+
+@torch.inference_mode()
+def predict(model: nn.Module, data: Dataset, batch_size: int = 32, device="cpu", d: Dist | None = None,
+            progress: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Slip probabilities and labels for every item of ``data`` -> ``(p (N,), y (N,))``.
+
+    Under DDP each rank predicts a strided share and the shares are gathered, so no item is
+    counted twice (a DistributedSampler would pad).
+    """
+    d = d or Dist()
+    idx = list(range(d.rank, len(data), d.world))
+    loader = DataLoader(Subset(data, idx), batch_size=batch_size, shuffle=False)
+    model.eval()
+    probs, labels = [], []
+    for x, y in progress_bar(loader, progress and d.main, "predict"):
+        logits = model(x.to(device))
+        probs.append(torch.softmax(logits.float(), dim=-1)[:, 1].cpu())
+        labels.append(y)
+    p = torch.cat(probs) if probs else torch.zeros(0)
+    y = torch.cat(labels) if labels else torch.zeros(0, dtype=torch.long)
+    if d.world > 1:
+        gathered = [None] * d.world
+        dist.all_gather_object(gathered, (idx, p.numpy(), y.numpy()))
+        order = np.concatenate([g[0] for g in gathered]).astype(np.int64)
+        p_all = np.empty(len(data), np.float32)
+        y_all = np.empty(len(data), np.int64)
+        p_all[order] = np.concatenate([g[1] for g in gathered])
+        y_all[order] = np.concatenate([g[2] for g in gathered])
+        return p_all, y_all
+    return p.numpy(), y.numpy()
 
 
 def evaluate_model(model, data, json_out: str | Path | None = None, png: str | Path | None = None,
@@ -14,7 +61,7 @@ def evaluate_model(model, data, json_out: str | Path | None = None, png: str | P
     """Metrics of ``model`` on a Dataset of ``(x, y)``: accuracy, precision, recall, F1, counts,
     confusion matrix; optionally written to ``json_out`` and drawn to ``png``."""
     from slipsense.plots import plot_confusion
-    from slipsense.train import metrics_from, predict
+    from slipsense.metrics import metrics_from
 
     if len(data) == 0:
         raise InputError(None, "nothing to evaluate: the data set is empty")

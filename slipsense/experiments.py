@@ -12,9 +12,9 @@ Every experiment writes into its folder ``OUT``:
   ``--resume`` continues them after an interruption.
 
 Settings. The default ("full") is the papers' setting: 240 x 320 clips, ViViT patches 40 x 40,
-training settings of :data:`slipsense.train.PAPER_SETTINGS` (ViViT 75 epochs, 3D ResNet-50 10,
+training settings of :func:`slipsense.train.paper_settings` (ViViT 75 epochs, 3D ResNet-50 10,
 STNet/TemNet 100). ``quick`` is a documented smaller setting for a CPU: 120 x 160 clips with
-20 x 20 patches (the same 6 x 8 patch grid) and :data:`QUICK_EPOCHS`; its outputs say "quick" in the
+20 x 20 patches (the same 6 x 8 patch grid) and each model's ``quick_epochs``; its outputs say "quick" in the
 table, the figure title and ``config.json``. ``epochs``, ``size`` (and ``patch``, ``batch_size``,
 ``lr``, per-model ``train_overrides``/``model_overrides``) override either; any override makes the
 setting "full+custom" or "quick+custom" in the outputs, with the overrides listed.
@@ -58,7 +58,6 @@ FULL_PATCH = (40, 40)
 QUICK_SIZE = (120, 160)
 QUICK_PATCH = (20, 20)
 #: Epochs of the quick setting (the paper's: vivit 75, resnet3d50 10, stnet/temnet 100).
-QUICK_EPOCHS = {"vivit": 20, "resnet3d50": 2, "stnet": 30, "temnet": 30}
 #: Simulated sequences per (object, pattern): full and quick.
 SIM_SEQUENCES = 4
 QUICK_SIM_SEQUENCES = 2
@@ -178,20 +177,23 @@ class Settings:
         return f"{base}+custom" if self.customised else base
 
     def model_config(self, name: str) -> dict[str, Any]:
-        """Per-model config overrides; vivit gets its patch size."""
+        """Per-model config overrides; a patch-based model (ViViT) gets the setting's patch size."""
+        from slipsense.models import model_class, settings_of
+
         cfg: dict[str, Any] = {}
-        if name == "vivit":
+        if "patch_size" in settings_of(model_class(name)):
             cfg["patch_size"] = list(self.vivit_patch)
         cfg.update(self.model_overrides.get(name, {}))
         return cfg
 
     def train_config(self, name: str):
         """Training settings for model ``name``: paper < quick < --epochs/--batch-size/--lr < per-model."""
-        from slipsense.train import PAPER_SETTINGS, TrainConfig
+        from slipsense.models import model_class
+        from slipsense.train import TrainConfig, paper_settings
 
-        values: dict[str, Any] = dict(PAPER_SETTINGS.get(name, {}))
-        if self.quick and name in QUICK_EPOCHS:
-            values["epochs"] = QUICK_EPOCHS[name]
+        values: dict[str, Any] = paper_settings(name)
+        if self.quick:
+            values["epochs"] = model_class(name).quick_epochs
         for key in ("epochs", "batch_size", "lr", "max_steps_per_epoch"):
             if getattr(self, key) is not None:
                 values[key] = getattr(self, key)
@@ -208,11 +210,13 @@ class Settings:
             text = "full setting (the papers')"
         if self.customised:
             text += " with overrides (so not exactly the papers')" if not self.quick else " with overrides"
+        from slipsense.models import model_class, settings_of
+
         parts = []
-        if any(m in ("vivit", "resnet3d50") for m in models):
+        if any(model_class(m).input_kind == "video" for m in models):
             h, w = self.video_size
             parts.append(f"clips {h}x{w}")
-            if "vivit" in models:
+            if any("patch_size" in settings_of(model_class(m)) for m in models):
                 parts.append("ViViT patch {}x{}".format(*self.vivit_patch))
         if models:
             parts.append("epochs " + ", ".join(f"{m} {self.train_config(m).epochs}" for m in models))
@@ -563,26 +567,25 @@ def _device_of(model):
 
 def score(model, data, batch_size: int = 32) -> dict[str, Any]:
     """Metrics of ``model`` on ``data`` (on the model's device)."""
-    from slipsense.train import metrics_from, predict
+    from slipsense.evaluate import predict
+    from slipsense.metrics import metrics_from
 
     p, y = predict(model, data, batch_size=batch_size, device=_device_of(model))
     return metrics_from(p, y)
 
 
+def _quick_epochs_text() -> str:
+    """``"resnet3d50 2, stnet 30, ..."``: the quick setting's epochs of the papers' models."""
+    from slipsense.models import available, model_class
+
+    return ", ".join(f"{n} {model_class(n).quick_epochs}" for n in available() if model_class(n).paper_training)
+
+
 def _accepted(name: str, data_config: dict[str, Any]) -> dict[str, Any]:
     """The data-implied sizes model ``name`` takes (3D ResNet-50 has no image_size: any size works)."""
-    import inspect
+    from slipsense.models import model_class, settings_of
 
-    from slipsense.train import model_class
-
-    params = inspect.signature(model_class(name).__init__).parameters
-    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
-        if name == "temnet":  # TemNet(**kwargs) forwards to STNet
-            from slipsense.models.stnet import STNet
-
-            params = inspect.signature(STNet.__init__).parameters
-        else:
-            return dict(data_config)
+    params = settings_of(model_class(name))
     return {k: v for k, v in data_config.items() if k in params}
 
 
@@ -1341,7 +1344,7 @@ def collect_results(reports: str | Path = "reports", out: str | Path = "docs/res
         "",
         "Settings: **full** = the papers' settings (240x320 clips, ViViT patch 40x40, paper epochs: ViViT 75, "
         "3D ResNet-50 10, STNet/TemNet 100). **quick** (`--quick`) = 120x160 clips, patch 20x20, epochs "
-        f"{', '.join(f'{k} {v}' for k, v in QUICK_EPOCHS.items())}, {QUICK_SIM_SEQUENCES} simulated sequences per "
+        f"{_quick_epochs_text()}, {QUICK_SIM_SEQUENCES} simulated sequences per "
         "object and pattern: smaller than the papers, labelled QUICK wherever it appears. Held-out objects: fold 0 "
         "of 5 object folds (`--fold`, `--data-seed`). Models are scored at their last epoch.",
         "",

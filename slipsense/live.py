@@ -44,20 +44,17 @@ part over all frames in batches, then every window): what :mod:`slipsense.early_
 from __future__ import annotations
 
 import collections
-import csv
 import hashlib
-import io
-import json
 import math
 import tempfile
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable, Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 import cv2
 import numpy as np
 import torch
-from torch import Tensor, nn
+from torch import nn
 
 from slipsense.errors import ConfigError, InputError
 from slipsense.models.base import SlipModel, window_geometry

@@ -1,6 +1,8 @@
 """Binary classification metrics from confusion counts (class 1 = slip)."""
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 
@@ -30,3 +32,13 @@ def scores(cm: np.ndarray) -> dict[str, float]:
         "recall": float(recall),
         "f1": float(f1),
     }
+
+
+def metrics_from(p: np.ndarray, y: np.ndarray, threshold: float = 0.5) -> dict[str, Any]:
+    """Scores, counts and the confusion matrix for probabilities ``p`` against labels ``y``."""
+    pred = (p >= threshold).astype(np.int64)
+    cm = confusion(y, pred)
+    eps = 1e-7
+    loss = float(-np.mean(np.where(y == 1, np.log(p + eps), np.log(1 - p + eps)))) if len(y) else 0.0
+    return {**scores(cm), "loss": loss, "n_clips": int(len(y)), "n_slip": int((y == 1).sum()),
+            "n_wiggle": int((y == 0).sum()), "confusion": cm.tolist(), "threshold": threshold}

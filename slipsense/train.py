@@ -21,7 +21,6 @@ import csv
 import io
 import json
 import math
-import os
 import random
 import time
 from dataclasses import asdict, dataclass, field, fields
@@ -33,12 +32,15 @@ import torch
 import torch.distributed as dist
 import torch.nn as nn
 import torch.nn.functional as F
-from torch.utils.data import DataLoader, Dataset, Subset, default_collate
+from torch.utils.data import DataLoader, Dataset, default_collate
 
 from slipsense.atomic import write_text
+from slipsense.models import available, model_class, settings_of
 from slipsense.checkpoint import load_resume_state, save_checkpoint, save_resume_state
 from slipsense.errors import ConfigError, InputError
-from slipsense.metrics import confusion, scores
+from slipsense.distributed import Dist, RankBatches, StepPlan, all_sum, micro_batch_rng, setup  # noqa: F401
+from slipsense.evaluate import predict, progress_bar
+from slipsense.metrics import metrics_from  # noqa: F401  (re-exported)
 
 
 @dataclass
@@ -86,13 +88,9 @@ class TrainConfig:
         return cls(**values)
 
 
-#: Paper training settings per model (ViViT paper III; STNet paper III).
-PAPER_SETTINGS: dict[str, dict[str, Any]] = {
-    "vivit": dict(epochs=75, batch_size=16, lr=3e-4, weight_decay=1e-4, step_size=30, gamma=0.1),
-    "resnet3d50": dict(epochs=10, batch_size=8, lr=1e-3, weight_decay=1e-4, step_size=30, gamma=0.1),
-    "stnet": dict(epochs=100, batch_size=64, lr=1e-5, weight_decay=0.0, step_size=1000, gamma=1.0),
-    "temnet": dict(epochs=100, batch_size=64, lr=1e-5, weight_decay=0.0, step_size=1000, gamma=1.0),
-}
+def paper_settings(name: str) -> dict[str, Any]:
+    """The training settings of model ``name``'s paper (ViViT paper III; STNet paper III)."""
+    return dict(model_class(name).paper_training)
 
 
 def seed_everything(seed: int) -> None:
@@ -101,92 +99,7 @@ def seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
 
 
-# --------------------------------------------------------------------------- distributed
-@dataclass
-class Dist:
-    rank: int = 0
-    world: int = 1
-    device: torch.device = field(default_factory=lambda: torch.device("cpu"))
-
-    @property
-    def main(self) -> bool:
-        return self.rank == 0
-
-
-def setup(device: str = "auto") -> Dist:
-    """Join the torchrun process group when launched by torchrun, else a 1-process world."""
-    world = int(os.environ.get("WORLD_SIZE", "1"))
-    if device == "auto":
-        device = "cuda" if torch.cuda.is_available() else "cpu"
-    if world > 1:
-        local = int(os.environ.get("LOCAL_RANK", "0"))
-        if device.startswith("cuda"):
-            torch.cuda.set_device(local)
-            device = f"cuda:{local}"
-        if not dist.is_initialized():
-            dist.init_process_group(backend="nccl" if device.startswith("cuda") else "gloo")
-        return Dist(dist.get_rank(), dist.get_world_size(), torch.device(device))
-    return Dist(0, 1, torch.device(device))
-
-
-def _all_sum(values: torch.Tensor, d: Dist) -> torch.Tensor:
-    if d.world > 1:
-        values = values.clone()
-        dist.all_reduce(values, op=dist.ReduceOp.SUM)
-    return values
-
-
-# --------------------------------------------------------------------------- evaluation
-@torch.inference_mode()
-def predict(model: nn.Module, data: Dataset, batch_size: int = 32, device="cpu", d: Dist | None = None,
-            progress: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    """Slip probabilities and labels for every item of ``data`` -> ``(p (N,), y (N,))``.
-
-    Under DDP each rank predicts a strided share and the shares are gathered, so no item is
-    counted twice (a DistributedSampler would pad).
-    """
-    d = d or Dist()
-    idx = list(range(d.rank, len(data), d.world))
-    loader = DataLoader(Subset(data, idx), batch_size=batch_size, shuffle=False)
-    model.eval()
-    probs, labels = [], []
-    for x, y in _bar(loader, progress and d.main, "predict"):
-        logits = model(x.to(device))
-        probs.append(torch.softmax(logits.float(), dim=-1)[:, 1].cpu())
-        labels.append(y)
-    p = torch.cat(probs) if probs else torch.zeros(0)
-    y = torch.cat(labels) if labels else torch.zeros(0, dtype=torch.long)
-    if d.world > 1:
-        gathered = [None] * d.world
-        dist.all_gather_object(gathered, (idx, p.numpy(), y.numpy()))
-        order = np.concatenate([g[0] for g in gathered]).astype(np.int64)
-        p_all = np.empty(len(data), np.float32)
-        y_all = np.empty(len(data), np.int64)
-        p_all[order] = np.concatenate([g[1] for g in gathered])
-        y_all[order] = np.concatenate([g[2] for g in gathered])
-        return p_all, y_all
-    return p.numpy(), y.numpy()
-
-
-def metrics_from(p: np.ndarray, y: np.ndarray, threshold: float = 0.5) -> dict[str, Any]:
-    """Scores, counts and the confusion matrix for probabilities ``p`` against labels ``y``."""
-    pred = (p >= threshold).astype(np.int64)
-    cm = confusion(y, pred)
-    eps = 1e-7
-    loss = float(-np.mean(np.where(y == 1, np.log(p + eps), np.log(1 - p + eps)))) if len(y) else 0.0
-    return {**scores(cm), "loss": loss, "n_clips": int(len(y)), "n_slip": int((y == 1).sum()),
-            "n_wiggle": int((y == 0).sum()), "confusion": cm.tolist(), "threshold": threshold}
-
-
 # --------------------------------------------------------------------------- training
-def _bar(it, enabled: bool, desc: str):
-    if not enabled:
-        return it
-    from tqdm.auto import tqdm
-
-    return tqdm(it, desc=desc, leave=False, dynamic_ncols=True)
-
-
 def _rng_state() -> dict[str, Any]:
     return {"python": random.getstate(), "numpy": np.random.get_state(), "torch": torch.get_rng_state()}
 
@@ -233,69 +146,6 @@ def restore_state(path: Path, state: dict[str, Any], model: nn.Module, optimizer
         raise InputError(path, "resume state history is not a list of metric rows")
 
 
-class StepPlan:
-    """Which items every micro-batch of every training step holds; the same for any world size.
-
-    Epoch ``e`` shuffles the ``n`` items with ``torch.randperm`` seeded ``seed + e`` (the order a
-    one-replica DistributedSampler gives). Step ``s`` takes the next ``world x batch x accumulate``
-    items of that order and cuts them into ``world x accumulate`` micro-batches of ``batch`` items
-    (the last step's may be short or empty); micro-batch ``m`` runs on rank ``m // accumulate``.
-    """
-
-    def __init__(self, n: int, batch: int, world: int = 1, accumulate: int = 1, seed: int = 0):
-        self.n, self.batch, self.world, self.accumulate, self.seed = n, batch, world, accumulate, seed
-
-    @property
-    def global_batch(self) -> int:
-        return self.world * self.batch * self.accumulate
-
-    def steps(self, epoch: int) -> list[list[list[int]]]:
-        g = torch.Generator()
-        g.manual_seed(self.seed + epoch)
-        order = torch.randperm(self.n, generator=g).tolist()
-        out = []
-        for a in range(0, self.n, self.global_batch):
-            items = order[a : a + self.global_batch]
-            out.append([items[m * self.batch : (m + 1) * self.batch] for m in range(self.world * self.accumulate)])
-        return out
-
-
-class _RankBatches:
-    """Batch sampler: this rank's non-empty micro-batches of an epoch, in order."""
-
-    def __init__(self, plan: StepPlan, rank: int):
-        self.plan, self.rank, self.epoch = plan, rank, 0
-
-    def set_epoch(self, epoch: int) -> None:
-        self.epoch = epoch
-
-    def _mine(self) -> list[list[int]]:
-        a = self.plan.accumulate
-        return [m for micro in self.plan.steps(self.epoch) for m in micro[self.rank * a : (self.rank + 1) * a] if m]
-
-    def __iter__(self):
-        return iter(self._mine())
-
-    def __len__(self) -> int:
-        return len(self._mine())
-
-
-@contextlib.contextmanager
-def micro_batch_rng(seed: int, epoch: int, step: int, micro: int, device: torch.device):
-    """Run a micro-batch with torch's generator seeded from ``(seed, epoch, step, micro)`` only.
-
-    Dropout masks (and any other random draw of the forward pass) then depend on which items are
-    computed together, never on which process computes them or on what ran before, so a torchrun
-    world and one process with ``accumulate = world`` draw the same masks, and a resumed run the
-    masks of an uninterrupted one. The generator state outside is left as it was.
-    """
-    key = int(np.random.SeedSequence([seed, epoch, step, micro]).generate_state(1, np.uint64)[0])
-    cuda = device.type == "cuda"
-    with torch.random.fork_rng(devices=[device] if cuda else [], device_type="cuda"):
-        torch.manual_seed(key)
-        yield
-
-
 def fit(model: nn.Module, train_data: Dataset, val_data: Dataset | None, cfg: TrainConfig,
         out_dir: str | Path, info: dict[str, Any] | None = None, resume: bool = False,
         extra_eval: dict[str, Dataset] | None = None,
@@ -332,7 +182,7 @@ def fit(model: nn.Module, train_data: Dataset, val_data: Dataset | None, cfg: Tr
     # item is repeated or dropped (a DistributedSampler pads with repeats), so 2 x 8 sees the
     # batches 1 x 16 sees, for any dataset size.
     plan = StepPlan(len(train_data), cfg.batch_size, d.world, cfg.accumulate, cfg.seed)
-    batches = _RankBatches(plan, d.rank)
+    batches = RankBatches(plan, d.rank)
     loader = DataLoader(train_data, batch_sampler=batches, num_workers=cfg.num_workers,
                         persistent_workers=cfg.num_workers > 0)
     info = {**(info or {}), "train": asdict(cfg), "world_size": d.world,
@@ -363,7 +213,7 @@ def fit(model: nn.Module, train_data: Dataset, val_data: Dataset | None, cfg: Tr
         steps = plan.steps(epoch)
         if cfg.max_steps_per_epoch is not None:
             steps = steps[: cfg.max_steps_per_epoch]
-        bar = _bar(steps, cfg.progress and d.main, f"epoch {epoch + 1}/{cfg.epochs}")
+        bar = progress_bar(steps, cfg.progress and d.main, f"epoch {epoch + 1}/{cfg.epochs}")
         for step, micro in enumerate(bar):
             n_global = sum(len(m) for m in micro)
             optimizer.zero_grad(set_to_none=True)
@@ -393,7 +243,7 @@ def fit(model: nn.Module, train_data: Dataset, val_data: Dataset | None, cfg: Tr
             optimizer.step()
             if bar is not steps and sums[2] > 0:
                 bar.set_postfix(loss=f"{sums[0].item() / sums[2].item():.4f}")
-        sums = _all_sum(sums, d)
+        sums = all_sum(sums, d)
         row: dict[str, Any] = {"epoch": epoch + 1, "lr": optimizer.param_groups[0]["lr"],
                                "train_loss": sums[0].item() / max(sums[2].item(), 1),
                                "train_accuracy": sums[1].item() / max(sums[2].item(), 1),
@@ -475,20 +325,6 @@ class TrainRequest:
     train_overrides: dict[str, Any] = field(default_factory=dict)
 
 
-def model_class(name: str):
-    from slipsense.models import model_class as registered_class
-
-    return registered_class(name)
-
-
-def _settings_of(cls) -> set[str] | None:
-    """Keyword settings a model class takes (None: it forwards ``**kwargs``, e.g. TemNet -> STNet)."""
-    import inspect
-
-    params = inspect.signature(cls.__init__).parameters
-    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
-        return None
-    return set(params) - {"self"}
 
 
 def build_model(name: str, preset: str | None, overrides: dict[str, Any], data_config: dict[str, Any]):
@@ -496,17 +332,17 @@ def build_model(name: str, preset: str | None, overrides: dict[str, Any], data_c
     from slipsense.models import build
 
     config: dict[str, Any] = {}
+    cls = model_class(name)
     if preset is not None:
-        from slipsense.models import stnet
-
-        if name not in ("stnet", "temnet"):
-            raise ConfigError(f"--preset is defined for stnet/temnet, not {name!r}")
-        if preset not in stnet.PRESETS:
-            raise ConfigError(f"unknown preset {preset!r}; known: {sorted(stnet.PRESETS)}")
-        config.update(stnet.PRESETS[preset])
+        if not cls.presets:
+            with_presets = [n for n in available() if model_class(n).presets]
+            raise ConfigError(f"--preset is defined for {'/'.join(with_presets)}, not {name!r}")
+        if preset not in cls.presets:
+            raise ConfigError(f"unknown preset {preset!r}; known: {sorted(cls.presets)}")
+        config.update(cls.presets[preset])
     # Data-implied sizes only where the network has such a setting (a 3D ResNet takes any T, H, W).
-    accepted = _settings_of(model_class(name))
-    config.update({k: v for k, v in data_config.items() if accepted is None or k in accepted})
+    accepted = settings_of(cls)
+    config.update({k: v for k, v in data_config.items() if k in accepted})
     config.update(overrides)
     return build(name, **config)
 
@@ -608,11 +444,11 @@ def run_training(req: TrainRequest, resume: bool = False) -> dict[str, Any]:
 
     cls = model_class(req.model)
     kind = cls.input_kind
-    accepted = _settings_of(cls)
-    unknown = sorted(set(req.model_overrides) - accepted) if accepted is not None else []
+    accepted = settings_of(cls)
+    unknown = sorted(set(req.model_overrides) - accepted)
     if unknown:  # before any data is decoded
         raise ConfigError(f"model {req.model!r} has no setting {', '.join(unknown)}; settings: {', '.join(sorted(accepted))}")
-    settings = {**PAPER_SETTINGS.get(req.model, {}), "seed": req.seed, "progress": req.progress, **req.train_overrides}
+    settings = {**paper_settings(req.model), "seed": req.seed, "progress": req.progress, **req.train_overrides}
     cfg = TrainConfig.from_dict(settings)
     train_data, test_data, split_info, data_config = prepare_data(req, kind)
     seed_everything(req.seed)

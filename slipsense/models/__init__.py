@@ -29,6 +29,7 @@ from slipsense.models.base import (  # noqa: F401  (re-exported: the public face
     check_video_values,
     register,
     registered,
+    settings_of,
     window_geometry,
 )
 

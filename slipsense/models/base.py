@@ -56,6 +56,10 @@ class SlipModel(nn.Module):
     slot_tokens: bool = False
     #: epochs of the experiments' quick setting
     quick_epochs: int = 10
+    #: the training settings of the model's paper (slipsense.train.TrainConfig keys)
+    paper_training: dict[str, Any] = {}
+    #: named configurations, e.g. the paper's size and a compact one (``slipsense train --preset``)
+    presets: dict[str, dict[str, Any]] = {}
 
     def config(self) -> dict[str, Any]:
         raise NotImplementedError(f"{type(self).__name__} must define config()")
@@ -144,6 +148,17 @@ def window_geometry(model: nn.Module, info: Mapping[str, Any] | None = None) -> 
         raise ConfigError(f"{type(model).__name__} is not a slipsense model (subclass slipsense.models.base)")
     spec = ((info or {}).get("data") or {}).get("clip_spec") or {}
     return model.window_geometry(spec)
+
+
+def settings_of(cls: type) -> set[str]:
+    """Keyword settings a model class takes; a class forwarding ``**kwargs`` takes its parent's."""
+    import inspect
+
+    for klass in cls.__mro__:
+        params = inspect.signature(klass.__init__).parameters
+        if not any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
+            return set(params) - {"self"}
+    return set()
 
 
 def register(name: str) -> Callable[[type], type]:

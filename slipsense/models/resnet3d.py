@@ -91,6 +91,7 @@ class ResNet3D50(VideoModel):
     """
 
     quick_epochs = 2
+    paper_training = dict(epochs=10, batch_size=8, lr=1e-3, weight_decay=1e-4, step_size=30, gamma=0.1)
 
     @classmethod
     def small_config(cls) -> dict:

@@ -201,6 +201,8 @@ class STNet(MarkerModel):
     """STNet (``use_codecs=True``) / TemNet (``use_codecs=False``): see the module docstring."""
 
     quick_epochs = 30
+    paper_training = dict(epochs=100, batch_size=64, lr=1e-5, weight_decay=0.0, step_size=1000, gamma=1.0)
+    presets = PRESETS
 
     def __init__(self, frames=12, markers=552, d_model=None, heads=8, blocks=5, ff_dim=2048, head_hidden=None,
                  dropout=0.1, codec_channels=16, codec_kernel=3, codec_layers=4, pool="flatten",

@@ -231,6 +231,7 @@ class ViViT(VideoModel):
 
     slot_tokens = True  # the slot position embedding: a frame's spatial token depends on its slot
     quick_epochs = 20
+    paper_training = dict(epochs=75, batch_size=16, lr=3e-4, weight_decay=1e-4, step_size=30, gamma=0.1)
 
     def __init__(
         self,
