@@ -158,7 +158,8 @@ def watch_source(source: str, checkpoint: Optional[Path], threshold: Optional[fl
     """Stream ``source`` through the detector; print a line per frame; optionally write an annotated
     GIF/video. Returns ``{"frames", "alarm_onsets", "first_alarm", "out"}``."""
     from slipsense.checkpoint import load_model
-    from slipsense.live import Annotator, AnnotatedWriter, SlipDetector, onnx_cache_dir, stored_operating_point
+    from slipsense.annotate import AnnotatedWriter, Annotator
+    from slipsense.live import SlipDetector, onnx_cache_dir, stored_operating_point
 
     from slipsense.atomic import check_output_file
 

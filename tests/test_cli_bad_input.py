@@ -182,11 +182,6 @@ def _one_error(result, *words) -> str:
 
 
 @pytest.fixture
-def cache(tmp_path, monkeypatch):
-    monkeypatch.setenv("SLIPSENSE_CACHE", str(tmp_path / "cache"))
-
-
-@pytest.fixture
 def unwritable(tmp_path):
     """A folder nothing can be created in (permission bits do not stop root: use /proc then)."""
     if os.geteuid() == 0:

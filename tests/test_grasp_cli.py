@@ -1,9 +1,6 @@
 """`slipsense grasp train|folds` and `early-warning` with a grasp detector, on small made-up recordings."""
 import json
-from pathlib import Path
 
-import cv2
-import numpy as np
 import pytest
 from typer.testing import CliRunner
 
@@ -14,31 +11,9 @@ SMALL = ["--set", "width=4", "--set", "features=8", "--set", "temporal=8", "--se
          "--size", "12x16", "--epochs", "2", "--no-progress", "--threads", "1"]
 
 
-def _video(path: Path, n: int, contact: tuple[int, int], slide: bool, seed: int) -> None:
-    rng = np.random.default_rng(seed)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    w = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"XVID"), 25, (64, 48))
-    for t in range(n):
-        f = np.full((48, 64, 3), 110, np.uint8) + rng.integers(0, 4, (48, 64, 3), dtype=np.uint8)
-        if contact[0] <= t <= contact[1]:
-            x = 16 + (max(0, t - contact[1] + 8) * 2 if slide else 0)
-            f[12:36, x : x + 24] = 200
-        w.write(f)
-    w.release()
-
-
 @pytest.fixture(scope="module")
-def grasps(tmp_path_factory):
-    """4 objects, each one run that slips (the pressed square slides, then leaves) and one that holds."""
-    root = tmp_path_factory.mktemp("grasps")
-    for i in range(4):
-        for exp, slip in ((1, True), (2, False)):
-            for cam in (0, 2):
-                _video(root / f"obj{i}" / f"exp_num_{exp}" / f"camera_{cam}.avi", 70, (20, 50 if slip else 69),
-                       slip, seed=100 * i + 10 * exp + cam)
-            if slip:
-                (root / f"obj{i}" / f"exp_num_{exp}" / "slip.txt").write_text("")
-    return root
+def grasps(grasp_recordings):
+    return grasp_recordings
 
 
 def test_grasp_train_then_early_warning(tmp_path, grasps, monkeypatch):

@@ -28,14 +28,9 @@ RESNET_TINY = dict(width=8, layers=(1, 1, 1, 1), frames=4)
 REAL_RUN = gelsight_recordings() / "avocado_real" / "exp_num_1"
 
 
-@pytest.fixture(autouse=True, scope="module")
-def one_thread():
-    """One intra-op thread: these models are tiny, and on a busy machine every parallel operation
-    waits for a descheduled worker (x10 slower); restored after this module."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+@pytest.fixture(autouse=True)
+def _one_thread(one_thread):
+    """Every test here on one torch thread (tests/conftest.py)."""
 
 
 def _model(name: str, seed: int = 0, **config):

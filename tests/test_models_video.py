@@ -11,16 +11,12 @@ from hypothesis import strategies as st
 
 from slipsense.errors import ConfigError, InputError
 from slipsense.models import available, build, count_parameters
-from slipsense.models.resnet3d import PAPER_PARAMETERS, ResNet3D50
+from slipsense.models.resnet3d import PAPER_PARAMETERS
 from slipsense.models.vivit import ViViT
 
 @pytest.fixture(autouse=True)
-def _one_thread():
-    """These tensors are small: one intra-op thread is faster, and robust on a busy machine."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+def _one_thread(one_thread):
+    """Every test here on one torch thread (tests/conftest.py)."""
 
 
 # small ViViT for most tests: 2 x 3 patches of 8 x 8, 3 frames

@@ -163,12 +163,6 @@ def _recordings(root: Path, objects=("cup", "pen"), n: int = 30, cameras=("camer
     return root
 
 
-@pytest.fixture
-def cache(tmp_path, monkeypatch):
-    monkeypatch.setenv("SLIPSENSE_CACHE", str(tmp_path / "cache"))
-    return tmp_path / "cache"
-
-
 def test_training_with_every_object_held_out_is_refused(tmp_path, cache):
     rec = _recordings(tmp_path / "rec")
     out = tmp_path / "run"

@@ -1,0 +1,163 @@
+"""The short Python API: fit a detector on recordings, judge it per grasp, run it live.
+
+    >>> import slipsense
+    >>> detector = slipsense.SlipDetector.pretrained(sensors=2)      # the shipped detector
+    >>> reading = detector.push(frame_a, frame_b)                     # doctest: +SKIP
+    >>> trained = slipsense.fit("my-recordings", "runs/mine", held_out=["mug"])   # doctest: +SKIP
+    >>> trained.held_out["per_grasp"]["warned_in_time"]               # doctest: +SKIP
+    >>> report = slipsense.evaluate(trained.checkpoint, "other-recordings")         # doctest: +SKIP
+    >>> report.summary()                                              # doctest: +SKIP
+
+Recordings folders follow the GelSight layout ``<object>/exp_num_<N>/camera_*.avi`` (+ ``slip.txt``
+in runs that slipped); see :mod:`slipsense.sensors.spec`.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+from slipsense import pergrasp
+from slipsense.config import gelsight_recordings
+from slipsense.resources import shipped_overrides
+
+
+def _recordings_folder(recordings: str | Path | None) -> Path:
+    return Path(recordings) if recordings is not None else gelsight_recordings()
+
+
+def _overrides(recordings: Path, overrides: str | Path | None | bool) -> Path | None:
+    """``True`` (default): the shipped overrides for the shared recordings, none for other folders."""
+    if overrides is True:
+        return shipped_overrides() if recordings.resolve() == gelsight_recordings().resolve() else None
+    return None if overrides is False or overrides is None else Path(overrides)
+
+
+@dataclass
+class TrainedDetector:
+    """What :func:`fit` returns.
+
+    Attributes:
+        checkpoint: the written ``detector.safetensors`` (weights, full config, operating point).
+        operating_point: ``{"threshold", "debounce", ...}`` chosen on the training objects only.
+        history: one row of training metrics per epoch.
+        held_out: per-grasp outcomes (``"per_grasp"``) and clip metrics (``"clips"``) on the
+            ``held_out`` objects, or None when none were held out.
+    """
+
+    checkpoint: Path
+    operating_point: dict[str, Any]
+    history: list[dict[str, Any]] = field(default_factory=list)
+    held_out: dict[str, Any] | None = None
+
+    def detector(self, sensors: int = 2):
+        """A live :class:`~slipsense.live.SlipDetector` on the trained checkpoint."""
+        from slipsense.live import SlipDetector
+
+        return SlipDetector.from_checkpoint(self.checkpoint, sensors=sensors)
+
+
+def fit(recordings: str | Path | None = None, out: str | Path = "runs/detector", *, model: str = "motionnet",
+          held_out: Sequence[str] = (), overrides: str | Path | None | bool = True, seed: int = 0,
+          progress: bool = True, **settings: Any) -> TrainedDetector:
+    """Train a grasp detector (both sensors, every frame) on a recordings folder.
+
+    Args:
+        recordings: the folder (default: the shared GelSight recordings, ``$SLIPSENSE_DATA``).
+        out: output folder (``detector.safetensors``, ``metrics.csv``, ``curves.png``).
+        model: a registered grasp model (``"motionnet"``, or ``"motion-energy"`` for the baseline).
+        held_out: objects kept out of training and scored per grasp at the end.
+        overrides: label overrides CSV; True = the shipped one for the shared recordings.
+        settings: training or model settings, e.g. ``epochs=5``, ``width=8``
+            (:class:`slipsense.grasp_train.GraspTrainConfig`).
+    """
+    from slipsense.grasp_train import load_grasp_data, make_config, train_detector
+
+    root = _recordings_folder(recordings)
+    cfg = make_config(model, {**settings, "seed": seed})
+    from slipsense.models import build
+
+    image_size = tuple(cfg.model_config.get("image_size") or build(model).image_size)
+    runs, labels = load_grasp_data(root, _overrides(root, overrides), image_size, progress=progress)
+    result = train_detector(runs, labels, cfg, out, held=list(held_out), progress=progress)
+    held = {k: result[k] for k in ("per_grasp", "clips") if k in result} or None
+    out = Path(out)
+    history = _read_history(out / "metrics.csv")
+    return TrainedDetector(Path(result["checkpoint"]), result["operating_point"], history, held)
+
+
+def _read_history(path: Path) -> list[dict[str, Any]]:
+    import csv
+
+    if not path.is_file():
+        return []
+    with open(path, newline="", encoding="utf-8") as f:
+        return [{k: _number(v) for k, v in row.items()} for row in csv.DictReader(f)]
+
+
+def _number(text: str) -> Any:
+    try:
+        return int(text)
+    except ValueError:
+        try:
+            return float(text)
+        except ValueError:
+            return text
+
+
+@dataclass
+class Evaluation:
+    """What :func:`evaluate` returns: every run replayed as live use would, judged per grasp.
+
+    Attributes:
+        runs: one :class:`~slipsense.early_warning.RunTrace` per replayed run (probabilities per frame).
+        threshold, debounce, horizon: the operating point and horizon (frames) the outcomes use.
+    """
+
+    runs: list[Any]
+    threshold: float
+    debounce: int
+    horizon: int = pergrasp.HORIZON
+
+    def outcomes(self) -> list[pergrasp.GraspOutcome]:
+        return [r.outcome(self.threshold, self.debounce, self.horizon) for r in self.runs]
+
+    def summary(self) -> dict[str, Any]:
+        """Slips warned in time / premature / missed, false-positive grasps, alarms at rest, lead times."""
+        return pergrasp.summarise(self.outcomes())
+
+    def to_json(self, path: str | Path) -> Path:
+        from slipsense.atomic import write_text
+
+        doc = {"threshold": self.threshold, "debounce": self.debounce, "horizon": self.horizon,
+               "summary": self.summary()}
+        write_text(path, json.dumps(doc, indent=1, default=float))
+        return Path(path)
+
+
+def evaluate(checkpoint: str | Path | None = None, recordings: str | Path | None = None, *,
+             overrides: str | Path | None | bool = True, horizon: int = pergrasp.HORIZON,
+             threshold: float | None = None, debounce: int | None = None, progress: bool = True) -> Evaluation:
+    """Replay every run of a recordings folder through a detector, both sensors from the first frame.
+
+    Args:
+        checkpoint: default: the shipped detector.
+        recordings: default: the shared GelSight recordings.
+        overrides: label overrides CSV; True = the shipped one for the shared recordings.
+        horizon: frames before the moment of slip in which an alarm counts as a warning in time.
+        threshold, debounce: default: the checkpoint's operating point.
+    """
+    from slipsense.early_warning import replay_recordings
+    from slipsense.live import SlipDetector
+    from slipsense.recordings.folders import find_recordings, validate_recordings
+
+    root = _recordings_folder(recordings)
+    detector = (SlipDetector.pretrained(sensors=2, threshold=threshold, debounce=debounce) if checkpoint is None
+                else SlipDetector.from_checkpoint(checkpoint, sensors=2, threshold=threshold, debounce=debounce))
+    recs = validate_recordings(find_recordings(root), expected_size=None)
+    runs = replay_recordings(detector, recs, progress=progress, overrides=_overrides(root, overrides))
+    return Evaluation(runs, detector.threshold, detector.debounce, horizon)
+
+
+__all__ = ["Evaluation", "TrainedDetector", "evaluate", "fit"]

@@ -1,0 +1,41 @@
+"""Files shipped inside the package: the trained detectors and the default label overrides.
+
+Found through :mod:`importlib.resources`, so they travel with ``pip install .`` and are found from
+any working folder::
+
+    >>> from slipsense.resources import shipped_model, shipped_overrides
+    >>> shipped_model().name
+    'motionnet-gelsight.safetensors'
+"""
+from __future__ import annotations
+
+from importlib.resources import files
+from pathlib import Path
+
+#: The default detector: motionnet trained on all 29 shared objects (see docs/grasp-detector.md).
+DEFAULT_MODEL = "motionnet-gelsight"
+#: The paper-faithful ViViT, kept for reproduction.
+PAPER_MODEL = "vivit-gelsight"
+
+
+def _path(*parts: str) -> Path:
+    # the package is installed as plain files (setuptools, not a zip), so this is a real path
+    return Path(str(files(__name__).joinpath(*parts)))
+
+
+def shipped_model(name: str = DEFAULT_MODEL) -> Path:
+    """Path of a shipped checkpoint: ``"motionnet-gelsight"`` (default) or ``"vivit-gelsight"``."""
+    return _path("models", f"{name}.safetensors")
+
+
+def shipped_models() -> list[str]:
+    """Names of the shipped checkpoints."""
+    return sorted(p.name[: -len(".safetensors")] for p in _path("models").glob("*.safetensors"))
+
+
+def shipped_overrides() -> Path:
+    """The hand-checked moments of slip of the shared GelSight recordings (an overrides CSV)."""
+    return _path("gelsight-label-overrides.csv")
+
+
+__all__ = ["DEFAULT_MODEL", "PAPER_MODEL", "shipped_model", "shipped_models", "shipped_overrides"]

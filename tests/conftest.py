@@ -1,0 +1,63 @@
+"""Fixtures shared by the test modules: one torch thread, a private cache, made-up grasp recordings,
+and the shared GelSight data when it is there."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from slipsense.config import gelsight_recordings
+
+#: one run of the shared recordings that the tests read a few frames of
+REAL_RUN = gelsight_recordings() / "avocado_real" / "exp_num_1"
+needs_data = pytest.mark.skipif(not (REAL_RUN / "camera_0.avi").is_file(), reason="shared GelSight data not present")
+
+
+@pytest.fixture
+def one_thread():
+    """One intra-op thread: the models under test are tiny, and on a busy machine every parallel
+    operation waits for a descheduled worker (10x slower); restored afterwards."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+@pytest.fixture
+def cache(tmp_path, monkeypatch) -> Path:
+    """A private ``SLIPSENSE_CACHE`` for the test."""
+    monkeypatch.setenv("SLIPSENSE_CACHE", str(tmp_path / "cache"))
+    return tmp_path / "cache"
+
+
+def write_grasp_video(path: Path, n: int, contact: tuple[int, int], slide: bool, seed: int) -> None:
+    """A 48 x 64 XVID video: a bright pressed square during ``contact`` (first, last frame) that
+    slides sideways over its last 8 frames when ``slide``."""
+    rng = np.random.default_rng(seed)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    w = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"XVID"), 25, (64, 48))
+    for t in range(n):
+        f = np.full((48, 64, 3), 110, np.uint8) + rng.integers(0, 4, (48, 64, 3), dtype=np.uint8)
+        if contact[0] <= t <= contact[1]:
+            x = 16 + (max(0, t - contact[1] + 8) * 2 if slide else 0)
+            f[12:36, x : x + 24] = 200
+        w.write(f)
+    w.release()
+
+
+@pytest.fixture(scope="session")
+def grasp_recordings(tmp_path_factory) -> Path:
+    """4 objects, each one run that slips (the pressed square slides, then leaves) and one that holds,
+    two cameras per run, in the GelSight folder layout."""
+    root = tmp_path_factory.mktemp("grasps")
+    for i in range(4):
+        for exp, slip in ((1, True), (2, False)):
+            for cam in (0, 2):
+                write_grasp_video(root / f"obj{i}" / f"exp_num_{exp}" / f"camera_{cam}.avi", 70,
+                                  (20, 50 if slip else 69), slip, seed=100 * i + 10 * exp + cam)
+            if slip:
+                (root / f"obj{i}" / f"exp_num_{exp}" / "slip.txt").write_text("")
+    return root

@@ -1,0 +1,64 @@
+"""The top-level Python API (slipsense/__init__.py, slipsense/api.py) and the README's quick start."""
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import slipsense
+from conftest import needs_data
+from slipsense.errors import ConfigError
+
+README = Path(__file__).resolve().parent.parent / "README.md"
+SMALL = dict(width=4, features=8, temporal=8, lags=[1, 5, 10], dilations=[1, 2, 4], chunk=16, negatives=1,
+             hard_negatives=1, image_size=[12, 16], epochs=2, inner_folds=0)
+
+
+def test_import_is_light_and_names_resolve():
+    code = "import sys, slipsense; assert 'torch' not in sys.modules; print(sorted(slipsense.__all__))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert "SlipDetector" in out and "fit" in out and "evaluate" in out
+    for name in slipsense.__all__:
+        assert getattr(slipsense, name) is not None
+    with pytest.raises(AttributeError):
+        slipsense.no_such_name  # noqa: B018
+
+
+def test_pretrained_detector_streams_made_up_frames(one_thread):
+    det = slipsense.SlipDetector.pretrained(sensors=2)
+    assert det.kind == "grasp" and 0 < det.threshold <= 1
+    frames = np.random.default_rng(0).integers(0, 256, (15, 240, 320, 3), dtype=np.uint8)
+    readings = [det.push(f, f) for f in frames]
+    assert readings[0].probability is None and readings[-1].probability is not None
+    with pytest.raises(ConfigError, match="shipped"):
+        slipsense.SlipDetector.pretrained("no-such-model")
+
+
+def test_fit_then_evaluate_return_objects(tmp_path, grasp_recordings, cache, one_thread):
+    trained = slipsense.fit(grasp_recordings, tmp_path / "det", held_out=["obj0"], progress=False, **SMALL)
+    assert trained.checkpoint.is_file() and 0 <= trained.operating_point["threshold"] <= 1
+    assert len(trained.history) == 2 and "epoch" in trained.history[0]
+    assert trained.held_out["per_grasp"]["slip_runs"] + trained.held_out["per_grasp"]["held_runs"] == 2
+    report = slipsense.evaluate(trained.checkpoint, grasp_recordings, progress=False)
+    summary = report.summary()
+    assert summary["slip_runs"] == 4 and summary["held_runs"] == 4
+    assert report.threshold == trained.operating_point["threshold"]
+    assert report.to_json(tmp_path / "eval.json").is_file()
+    assert trained.detector().sensors == 2
+
+
+def _quick_start() -> str:
+    text = README.read_text(encoding="utf-8")
+    section = text[text.index("## Python quick start"):]
+    return re.search(r"```python\n(.*?)```", section, re.S).group(1)
+
+
+@needs_data
+def test_readme_quick_start_runs(tmp_path, one_thread):
+    result = subprocess.run([sys.executable, "-c", _quick_start()], capture_output=True, text=True, cwd=tmp_path,
+                            timeout=300)
+    assert result.returncode == 0, result.stderr
