@@ -99,7 +99,7 @@ def _command_line() -> str:
 
 
 def _settings(name: str, kw: dict):
-    from slipsense.experiments import Settings
+    from slipsense.experiments.settings import Settings
 
     return Settings(
         out=kw["out"] or Path("reports") / name, seed=kw["seed"], data_seed=kw.get("data_seed", 0),
@@ -114,7 +114,7 @@ def _settings(name: str, kw: dict):
 
 
 def _source(kw: dict):
-    from slipsense.experiments import DataSource
+    from slipsense.experiments.source import DataSource
 
     overrides: Any = None if kw["no_overrides"] else (kw["overrides"] or "default")
     return DataSource(kw["recordings"], overrides=overrides, on_error=kw["on_error"], progress=kw["progress"])
@@ -161,7 +161,7 @@ def _command(name: str, train: bool, fn):
 @_experiment("params", train=False)
 def params_cmd(settings, kw):
     """Parameter count of each model at the papers' settings, against the counts the papers state."""
-    from slipsense.experiments import run_params
+    from slipsense.experiments.params import run_params
 
     return run_params(settings)["paths"]
 
@@ -174,7 +174,7 @@ def video_compare_cmd(
     inference_clips: int = typer.Option(50, help="held-out clips timed at batch 1"),
 ):
     """ViViT vs 3D ResNet-50 (ViViT paper III-B): parameters, training time, inference rate, held-out scores."""
-    from slipsense.experiments import run_video_compare
+    from slipsense.experiments.video_compare import run_video_compare
 
     return run_video_compare(settings, _source(kw), resnet_weights=resnet_weights,
                              inference_clips=inference_clips)["paths"]
@@ -187,7 +187,7 @@ def frames_cmd(
     test_fraction: float = typer.Option(0.1, help="random clip-level test share of the training objects"),
 ):
     """ViViT with 5, 4, 3, 2 frames (ViViT paper Fig. 7): train / test / held-out accuracy per epoch."""
-    from slipsense.experiments import run_frames
+    from slipsense.experiments.frames import run_frames
 
     return run_frames(settings, _source(kw), frames_list=_parse_list(frames, int, "--frames"),
                       test_fraction=test_fraction)["paths"]
@@ -200,7 +200,7 @@ def noise_cmd(
     stds: str = typer.Option("0,5,10,15,20,30,50", help="noise standard deviations (0..255 scale)"),
 ):
     """ViViT accuracy on held-out objects vs Gaussian noise std (ViViT paper Fig. 8)."""
-    from slipsense.experiments import run_noise
+    from slipsense.experiments.noise import run_noise
 
     return run_noise(settings, _source(kw), checkpoint=checkpoint, stds=_parse_list(stds, float, "--stds"))["paths"]
 
@@ -216,7 +216,7 @@ def stnet_cmd(
     frames: int = typer.Option(12, help="frames per real marker window"),
 ):
     """STNet vs TemNet (STNet paper Table II, Fig. 7) on simulated and real marker sequences."""
-    from slipsense.experiments import run_stnet
+    from slipsense.experiments.stnet import run_stnet
 
     kinds = [d.strip() for d in data.split(",") if d.strip()]
     return run_stnet(settings, _source(kw) if "real" in kinds else None, data=kinds, preset=preset,
@@ -229,7 +229,7 @@ def horizon_cmd(
     horizons: str = typer.Option("0,2,5,10", help="frames between a slip clip's end and the moment of slip"),
 ):
     """ViViT on held-out objects with clips ending 0, 2, 5, 10 frames before the slip (beyond the papers)."""
-    from slipsense.experiments import run_horizon
+    from slipsense.experiments.horizon import run_horizon
 
     values = _parse_list(horizons, int, "--horizons")
     return run_horizon(settings, _source(kw), horizons=values)["paths"]
@@ -243,7 +243,7 @@ def all_models_cmd(
     preset: str = typer.Option("compact", help="STNet/TemNet size: compact, paper, paper-ff4096"),
 ):
     """ViViT, 3D ResNet-50, STNet, TemNet on the same held-out windows (beyond the papers)."""
-    from slipsense.experiments import run_all_models
+    from slipsense.experiments.all_models import run_all_models
 
     return run_all_models(settings, _source(kw), frames=frames, n_markers=markers, preset=preset)["paths"]
 
@@ -254,7 +254,7 @@ def _results_cmd(
 ):
     """Gather every report folder under --reports into one Markdown page, one section per experiment."""
     from slipsense.atomic import check_output_file
-    from slipsense.experiments import collect_results, find_reports
+    from slipsense.experiments.results import collect_results, find_reports
 
     check_output_file(out, "--out")
     path = collect_results(reports, out)

@@ -1,0 +1,174 @@
+"""Where the experiments' data come from: :class:`DataSource` and the held-out objects.
+
+Video experiments use the GelSight recordings, labelled and cut as ``slipsense train`` does
+(:func:`slipsense.data.label_runs`, cached clips), with the shipped hand-label overrides
+(:func:`default_overrides`) when present. Held-out objects are fixed for every condition of an
+experiment: fold ``fold`` of ``folds`` object folds (:func:`slipsense.recordings.clips.object_folds`,
+seeded by ``data_seed``) of the objects that give clips at 5 frames, horizon 0 — the same objects
+``slipsense train --fold 0`` holds out (with its default ``--seed 0``, which seeds its folds).
+``data_seed`` also seeds the wiggle windows and the random clip split; ``seed`` seeds model
+initialisation, batch order and augmentation. Models are scored at their last epoch (nothing is
+selected on held-out data).
+
+Data come from a :class:`DataSource`; tests hand in an in-memory one (any object with ``objects``,
+``clips``, ``markers`` and optionally ``describe``).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from slipsense.errors import ConfigError, InputError
+from slipsense.experiments.settings import Settings
+
+FPS = 25.0  # GelSight recordings
+
+
+def default_overrides() -> Path | None:
+    """The shipped hand-label overrides (:func:`slipsense.resources.shipped_overrides`, package data;
+    ``configs/gelsight-label-overrides.csv`` of the checkout links to it), None when it is missing."""
+    from slipsense.resources import shipped_overrides
+
+    path = shipped_overrides()
+    return path if path.is_file() else None
+
+
+# =============================================================================== data
+
+class DataSource:
+    """GelSight recordings -> clips, objects and real marker sequences (the experiments' only data door).
+
+    Args:
+        recordings: the recordings folder (default ``$SLIPSENSE_DATA/gelsight-slip``).
+        overrides: hand-label CSV; ``"default"`` = the shipped one when present, None = none.
+        on_error: ``raise`` or ``skip`` bad videos and runs that cannot be labelled (as ``slipsense train``).
+    """
+
+    def __init__(self, recordings: str | Path | None = None, overrides: str | Path | None = "default",
+                 on_error: str = "raise", progress: bool = True):
+        from slipsense.config import gelsight_recordings
+
+        self.root = Path(recordings) if recordings is not None else gelsight_recordings()
+        self.overrides = default_overrides() if overrides == "default" else (Path(overrides) if overrides else None)
+        self.on_error = on_error
+        self.progress = progress
+        self._labels = None
+        self._recs = None
+
+    def describe(self) -> dict[str, Any]:
+        from slipsense.config import portable_path
+
+        return {"recordings": portable_path(self.root), "overrides": portable_path(self.overrides) if self.overrides else None,
+                "on_error": self.on_error}
+
+    def recordings(self):
+        """The validated recordings (listed once)."""
+        if self._recs is None:
+            from slipsense.recordings.folders import find_recordings, validate_recordings
+
+            recs = validate_recordings(find_recordings(self.root, on_error=self.on_error), on_error=self.on_error)
+            if not recs:
+                raise InputError(self.root, "no usable recordings")
+            self._recs = recs
+        return self._recs
+
+    def label_overrides(self):
+        """The hand labels, as :func:`slipsense.data.label_runs` takes them. A user's file is passed as
+        its path (read against the recordings: it must fit them exactly, errors name its line); of the
+        shipped file only the rows naming runs this folder holds are kept (it is written for the shared
+        recordings)."""
+        if self.overrides is None:
+            return None
+        if self.overrides != default_overrides():
+            return self.overrides
+        from slipsense.recordings.label_csv import read_overrides_csv
+
+        known: dict[tuple[str, int], list[str]] = {}
+        for r in self.recordings():
+            known.setdefault((r.object, r.experiment), []).append(r.camera)
+        rows = read_overrides_csv(self.overrides)
+        return {k: v for k, v in rows.items()
+                if k[:2] in known and (k[2] is None or k[2] in known[k[:2]])} or None
+
+    def labels(self):
+        """``{key: VideoLabel}`` of the recordings, labelled as ``slipsense train`` labels them
+        (:func:`slipsense.data.label_runs`: label cache, hand labels applied; with ``on_error="skip"``
+        a run that cannot be labelled is left out with a warning)."""
+        if self._labels is None:
+            from slipsense.data import label_runs
+
+            self._labels = label_runs(self.recordings(), overrides=self.label_overrides(), on_error=self.on_error,
+                                      progress=self.progress)
+        return self._labels
+
+    def clips(self, spec):
+        """Labelled clips (ClipSet) cut with ``spec`` (cached on disk, as ``slipsense train`` caches them)."""
+        from slipsense.recordings.clips import load_or_build_clips
+
+        labels = self.labels()
+        recordings = [r for r in self.recordings() if r.key in labels]  # runs skipped while labelling
+        clips = load_or_build_clips(recordings, labels, spec, progress=self.progress)
+        if len(clips) == 0:
+            raise InputError(self.root, "no clips could be made (no slip moments and no contact phases found)")
+        return clips
+
+    def objects(self, spec) -> list[str]:
+        """Objects that give at least one clip with ``spec`` (from the labels; no decoding)."""
+        from slipsense.recordings.clips import plan_windows
+
+        return sorted({lab.object for lab in self.labels().values() if plan_windows(lab, spec)})
+
+    def markers(self, frames: int, n_markers: int, horizon: int = 0, wiggle_per_video: int = 2,
+                seed: int = 0) -> dict[str, np.ndarray]:
+        """Real marker windows (:func:`slipsense.sensors.real.real_marker_dataset`), minus the videos
+        whose labels the overrides replace (the marker pipeline labels automatically)."""
+        from slipsense.sensors.real import real_marker_dataset
+
+        arrays = real_marker_dataset(self.root, frames=frames, n_markers=n_markers, horizon=horizon,
+                                     wiggle_per_video=wiggle_per_video, seed=seed, on_error=self.on_error,
+                                     progress=self.progress)
+        if self.overrides is not None:
+            replaced = {k for k, lab in self.labels().items() if lab.source == "override"}
+            keep = np.array([(str(g), int(e), str(c)) not in replaced
+                             for g, e, c in zip(arrays["groups"], arrays["experiment"], arrays["camera"])])
+            arrays = {k: v[keep] for k, v in arrays.items()}
+        return arrays
+
+
+def clip_spec(settings: Settings, frames: int = 5, horizon: int = 0, size: tuple[int, int] | None = None):
+    from slipsense.recordings.clips import ClipSpec
+
+    return ClipSpec(frames=frames, horizon=horizon, wiggle_per_video=settings.wiggle_per_video,
+                    size=size or settings.video_size, seed=settings.data_seed)
+
+
+def held_out_objects(source, settings: Settings) -> list[str]:
+    """The fixed held-out objects: ``settings.test_objects``, else fold ``fold`` of the objects that
+    give clips at 5 frames / horizon 0 (what ``slipsense train --fold`` holds out)."""
+    from slipsense.recordings.clips import object_folds
+
+    objects = source.objects(clip_spec(settings))
+    if settings.test_objects:
+        unknown = sorted(set(settings.test_objects) - set(objects))
+        if unknown:
+            raise ConfigError(f"--test-objects without clips: {', '.join(unknown)}")
+        return sorted(settings.test_objects)
+    if len(objects) < settings.folds:
+        raise ConfigError(f"{len(objects)} objects cannot make {settings.folds} folds; lower --folds")
+    return object_folds(objects, n_folds=settings.folds, seed=settings.data_seed)[settings.fold]
+
+
+def object_split(clips, test_objects: Sequence[str]) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """Indices of the training and held-out clips; the held-out objects present in ``clips``."""
+    from slipsense.recordings.clips import split_by_object
+
+    present = sorted(set(test_objects) & set(clips.objects))
+    if not present:
+        raise ConfigError(f"none of the held-out objects {list(test_objects)} has clips here")
+    tr, te = split_by_object(clips, present)
+    if len(tr) == 0:
+        raise ConfigError("no training clips left after holding objects out")
+    return tr, te, present
+
