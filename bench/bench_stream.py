@@ -16,7 +16,7 @@ not depend on them) and random inputs of the real sizes:
 
 ``torch`` and ``onnx`` (ONNX Runtime, CPU provider) run the same two parts; both get ``--threads``
 intra-op threads. ``onnx int8``: the same ONNX parts with int8 dynamically quantized matrix
-products (``precision="int8"``; not for the 3D ResNet, whose convolutions it would not touch). The backends are timed in interleaved rounds (the machine may be shared), each
+products (``dtype="int8"``; not for the 3D ResNet, whose convolutions it would not touch). The backends are timed in interleaved rounds (the machine may be shared), each
 push timed on its own; p50 / p99 are over all timed pushes. ``whole window`` is the reference
 without the streaming split: ``model(window)`` on every push (PyTorch). Targets (issue 6): per-frame
 p99 <= 2 ms for ViViT and <= 30 ms for the paper-size STNet.
@@ -147,7 +147,7 @@ def main(argv=None) -> int:
                                          onnx_dir=Path(tmp) / case["name"].replace(" ", "-"))}
             export_s = time.perf_counter() - t0
             if case["name"] != "resnet3d50":  # a 3D ResNet has no split: whole window = streaming
-                dets["onnx int8"] = SlipDetector(model, backend="onnx", precision="int8", info=case.get("info"),
+                dets["onnx int8"] = SlipDetector(model, backend="onnx", dtype="int8", info=case.get("info"),
                                                  onnx_dir=Path(tmp) / case["name"].replace(" ", "-"))
                 dets["whole window"] = WholeWindow(dets["torch"])
             frames = frame_source(case["kind"], n=max(16, dets["torch"].frames + 4))

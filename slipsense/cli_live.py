@@ -154,7 +154,7 @@ def _camera_source(index: int) -> Source:
 
 def watch_source(source: str, checkpoint: Optional[Path], threshold: Optional[float] = None, out: Optional[Path] = None,
                  combine: str = "max", backend: str = "torch", max_frames: Optional[int] = None,
-                 heatmap: bool = True, echo=typer.echo, quiet: bool = False, precision: str = "fp32") -> dict[str, Any]:
+                 heatmap: bool = True, echo=typer.echo, quiet: bool = False, dtype: str = "float32") -> dict[str, Any]:
     """Stream ``source`` through the detector; print a line per frame; optionally write an annotated
     GIF/video. Returns ``{"frames", "alarm_onsets", "first_alarm", "out"}``."""
     from slipsense.checkpoint import load_model
@@ -171,7 +171,7 @@ def watch_source(source: str, checkpoint: Optional[Path], threshold: Optional[fl
     threshold, debounce = stored_operating_point(ckpt, info, threshold, None)
     src = open_source(source, model.input_kind, getattr(model, "markers", None))
     det = SlipDetector(model, threshold=threshold, sensors=src.sensors, combine=combine, backend=backend, info=info,
-                       onnx_dir=onnx_cache_dir(ckpt) if backend == "onnx" else None, precision=precision,
+                       onnx_dir=onnx_cache_dir(ckpt) if backend == "onnx" else None, dtype=dtype,
                        debounce=debounce)
     annot = Annotator(det.threshold, det.sensors) if out is not None else None
     writer = AnnotatedWriter(out) if out is not None else None
@@ -232,7 +232,7 @@ def register(app: typer.Typer) -> None:
         out: Optional[Path] = typer.Option(None, help="annotated output: .gif, .mp4 or .avi"),
         combine: str = typer.Option("max", help="two sensors: max or mean of their probabilities"),
         backend: str = typer.Option("torch", help="torch or onnx (ONNX Runtime)"),
-        precision: str = typer.Option("fp32", help="fp32, or int8 with --backend onnx (quantized products)"),
+        dtype: str = typer.Option("float32", help="float32, or int8 with --backend onnx (quantized products)"),
         max_frames: Optional[int] = typer.Option(None, help="stop after this many frames"),
         heatmap: bool = typer.Option(True, help="draw the attention / saliency heat map in --out"),
         quiet: bool = typer.Option(False, help="print only alarm onsets and the summary"),
@@ -241,7 +241,7 @@ def register(app: typer.Typer) -> None:
         """Stream a video, an experiment folder or a camera through a slip detector."""
         _set_threads(threads)
         watch_source(source, checkpoint, threshold, out, combine, backend, max_frames, heatmap, quiet=quiet,
-                     precision=precision)
+                     dtype=dtype)
 
     @app.command("early-warning")
     @friendly
@@ -258,7 +258,7 @@ def register(app: typer.Typer) -> None:
         labels: Optional[Path] = typer.Option(None, help="labels CSV (slipsense label) instead of automatic labels"),
         combine: str = typer.Option("max", help="max or mean of the two cameras' probabilities"),
         backend: str = typer.Option("torch", help="torch or onnx"),
-        precision: str = typer.Option("fp32", help="fp32, or int8 with --backend onnx"),
+        dtype: str = typer.Option("float32", help="float32, or int8 with --backend onnx"),
         limit: Optional[int] = typer.Option(None, help="replay only the first N runs"),
         fps: float = typer.Option(25.0, help="frame rate, for lead times in ms"),
         on_error: str = typer.Option("raise", help="raise or skip bad recordings folders"),
@@ -268,7 +268,7 @@ def register(app: typer.Typer) -> None:
         """Per-grasp early warning: slips warned in time, premature, missed; grasps that held yet alarmed."""
         _set_threads(threads)
         summary = run_early_warning(checkpoint, recordings, out, thresholds, labels, combine, backend, limit, fps,
-                                    on_error, progress, precision, horizon=horizon, debounce=debounce,
+                                    on_error, progress, dtype, horizon=horizon, debounce=debounce,
                                     overrides=overrides)
         typer.echo(summary)
 
@@ -294,7 +294,7 @@ def register(app: typer.Typer) -> None:
 def run_early_warning(checkpoint: Optional[Path], recordings: Optional[Path], out: Path,
                       thresholds: str | Sequence[float] = DEFAULT_THRESHOLDS, labels: Optional[Path] = None,
                       combine: str = "max", backend: str = "torch", limit: Optional[int] = None, fps: float = 25.0,
-                      on_error: str = "raise", progress: bool = True, precision: str = "fp32", horizon: int = 50,
+                      on_error: str = "raise", progress: bool = True, dtype: str = "float32", horizon: int = 50,
                       debounce: Optional[int] = None, overrides: Optional[Path] = None) -> str:
     """The ``early-warning`` command as a function; returns the summary text it prints."""
     from slipsense.config import gelsight_recordings
@@ -326,7 +326,7 @@ def run_early_warning(checkpoint: Optional[Path], recordings: Optional[Path], ou
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # a checkpoint without a threshold: the table covers thresholds anyway
         det = SlipDetector.from_checkpoint(ckpt, sensors=counts[0], combine=combine, backend=backend,
-                                           precision=precision, debounce=debounce)
+                                           dtype=dtype, debounce=debounce)
     if det.threshold not in ths:
         ths = sorted(ths + [det.threshold])
     try:
@@ -334,7 +334,7 @@ def run_early_warning(checkpoint: Optional[Path], recordings: Optional[Path], ou
     finally:
         det.close()
     meta = {"checkpoint": str(ckpt), "model": det.model_name, "recordings": str(root), "combine": combine,
-            "backend": backend, "precision": precision, "sensors": det.sensors,
+            "backend": backend, "dtype": dtype, "sensors": det.sensors,
             "operating_point": {"threshold": det.threshold, "debounce": det.debounce}}
     paths = write_early_warning(runs, ths, out, debounce=det.debounce, horizon=horizon, fps=fps, meta=meta)
     rows = early_warning_table(runs, ths, det.debounce, horizon, fps)

@@ -83,10 +83,10 @@ def evaluate_checkpoint(checkpoint: str | Path, recordings=None, split=None, mar
     Exactly one of ``recordings`` (every clip of that folder: zero-shot on unseen objects),
     ``split`` (a run's ``split.json``: its held-out part) or ``markers`` (an ``.npz``) is given.
     Clips are made with the clip settings stored in the checkpoint. ``dtype`` ("float32",
-    "bfloat16", "int8"; see :func:`slipsense.models.with_precision`) scores a reduced-precision
+    "bfloat16", "int8"; see :func:`slipsense.models.at_dtype`) scores a reduced-precision
     inference copy of the model instead, to compare its F1 with float32's.
     """
-    from slipsense.models import with_precision
+    from slipsense.models import at_dtype
 
     from slipsense.checkpoint import load_model
     from slipsense.config import resolve_path
@@ -102,7 +102,7 @@ def evaluate_checkpoint(checkpoint: str | Path, recordings=None, split=None, mar
         raise ConfigError(f"--noise-std must be a finite number >= 0, got {noise_std!r}")
     model, info = load_model(checkpoint)
     kind = model.input_kind
-    model = with_precision(model.eval(), dtype)
+    model = at_dtype(model.eval(), dtype)
     from slipsense.config import portable_path
 
     extra: dict[str, Any] = {"checkpoint": portable_path(checkpoint), "model": info["model"], "noise_std": noise_std,

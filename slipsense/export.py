@@ -311,14 +311,14 @@ def _file_sha256(path: Path) -> str:
     return h.hexdigest()
 
 
-def _parts_key(model: nn.Module, geometry: Mapping[str, Any], precision: str) -> dict[str, Any]:
+def _parts_key(model: nn.Module, geometry: Mapping[str, Any], dtype: str) -> dict[str, Any]:
     import json
 
     from slipsense import __version__
 
     config = model.config() if hasattr(model, "config") else {}
     return json.loads(json.dumps({"model": getattr(model, "model_name", type(model).__name__), "config": config,
-                                  "geometry": dict(geometry), "precision": precision, "slipsense": __version__,
+                                  "geometry": dict(geometry), "dtype": dtype, "slipsense": __version__,
                                   "torch": torch.__version__}, default=str))
 
 
@@ -351,11 +351,11 @@ def check_parts(folder: str | Path, names: list[str], key: Mapping[str, Any]) ->
 
 
 def cached_streaming_parts(model: nn.Module, folder: str | Path, geometry: Mapping[str, Any],
-                           precision: str = "fp32") -> tuple[Path | None, Path]:
+                           dtype: str = "float32") -> tuple[Path | None, Path]:
     """The model's streaming parts as ONNX files in ``folder``, exported unless a verified copy is
-    there: ``(frame.onnx or None, window.onnx)``, their ``*.int8.onnx`` copies for ``precision="int8"``.
+    there: ``(frame.onnx or None, window.onnx)``, their ``*.int8.onnx`` copies for ``dtype="int8"``.
 
-    ``folder/parts.json`` (written last) records the model's name, config, geometry, precision, the
+    ``folder/parts.json`` (written last) records the model's name, config, geometry, dtype, the
     library versions and each file's sha256; files that do not match it (damaged, half written,
     from another checkpoint) are exported again with a :class:`~slipsense.errors.CacheWarning`.
     """
@@ -367,16 +367,16 @@ def cached_streaming_parts(model: nn.Module, folder: str | Path, geometry: Mappi
     folder = Path(folder)
     has_frame = model.streaming_parts()[0] is not None
     names = (["frame.onnx"] if has_frame else []) + ["window.onnx"]
-    if precision == "int8":
+    if dtype == "int8":
         names = [n.replace(".onnx", ".int8.onnx") for n in names]
-    key = _parts_key(model, geometry, precision)
+    key = _parts_key(model, geometry, dtype)
     why = check_parts(folder, names, key)
     if why is not None:
         if why != "no manifest":
             warnings.warn(f"{folder}: cached ONNX parts unusable ({why}); exporting again", CacheWarning, stacklevel=2)
         (folder / PARTS_MANIFEST).unlink(missing_ok=True)
         export_streaming_parts(model, folder, geometry=geometry, verify=False)
-        if precision == "int8":
+        if dtype == "int8":
             for src in (["frame.onnx"] if has_frame else []) + ["window.onnx"]:
                 quantize_int8(folder / src, folder / src.replace(".onnx", ".int8.onnx"))
         manifest = {"format": PARTS_FORMAT, "key": key, "files": {n: _file_sha256(folder / n) for n in names}}

@@ -68,7 +68,7 @@ DEFAULT_CHECKPOINT = shipped_model()
 REPLAY_CHUNK = 64
 COMBINE = ("max", "mean")
 BACKENDS = ("torch", "onnx")
-PRECISIONS = ("fp32", "int8")
+DTYPES = ("float32", "int8")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -181,7 +181,7 @@ class SlipDetector:
         sensors: frames per push (1, or 2 for both fingers).
         combine: ``"max"`` (default: alarm when either sensor sees slip) or ``"mean"``.
         backend: ``"torch"`` or ``"onnx"`` (ONNX Runtime; the parts are exported on first use).
-        precision: ``"fp32"`` (default) or, with ``backend="onnx"``, ``"int8"``: the exported parts'
+        dtype: ``"float32"`` (default) or, with ``backend="onnx"``, ``"int8"``: the exported parts'
             matrix products dynamically quantized to int8 weights (``onnxruntime.quantization``).
             A quarter of the weight bytes: what makes the paper-size STNet fast on a CPU, at the cost
             of probabilities that differ slightly from the float model's.
@@ -195,11 +195,11 @@ class SlipDetector:
 
     def __init__(self, model: nn.Module, *, threshold: float = 0.5, sensors: int = 1, combine: str = "max",
                  backend: str = "torch", info: Mapping[str, Any] | None = None, onnx_dir: str | Path | None = None,
-                 precision: str = "fp32", debounce: int = 1):
-        _check_settings(threshold, sensors, combine, backend, precision)
+                 dtype: str = "float32", debounce: int = 1):
+        _check_settings(threshold, sensors, combine, backend, dtype)
         if isinstance(debounce, bool) or not isinstance(debounce, (int, np.integer)) or not 1 <= debounce <= 1000:
             raise ConfigError(f"debounce must be a whole number of frames in 1..1000, got {debounce!r}")
-        self.precision = precision
+        self.dtype = dtype
         self.model = model.eval()
         if not isinstance(model, SlipModel):
             raise ConfigError(f"{type(model).__name__} is not a slipsense model (see slipsense.models.base)")
@@ -223,14 +223,14 @@ class SlipDetector:
             if onnx_dir is None:
                 self._tmpdir = tempfile.TemporaryDirectory(prefix="slipsense-onnx-")
                 onnx_dir = self._tmpdir.name
-            self._runner = _OnnxRunner(*_exported_parts(model, self.geometry, Path(onnx_dir), precision))
+            self._runner = _OnnxRunner(*_exported_parts(model, self.geometry, Path(onnx_dir), dtype))
         self._has_frame_part = parts[0] is not None
         self.reset()
 
     @classmethod
     def from_checkpoint(cls, path: str | Path, threshold: float | None = None, sensors: int = 1, combine: str = "max",
                         backend: str = "torch", onnx_dir: str | Path | None = None,
-                        precision: str = "fp32", debounce: int | None = None) -> "SlipDetector":
+                        dtype: str = "float32", debounce: int | None = None) -> "SlipDetector":
         """Load a checkpoint (:func:`slipsense.checkpoint.load_model`) into a detector.
 
         ``threshold`` / ``debounce`` default to the operating point stored in the checkpoint (chosen
@@ -243,11 +243,11 @@ class SlipDetector:
 
         model, info = load_model(path)
         threshold, debounce = stored_operating_point(path, info, threshold, debounce)
-        _check_settings(threshold, sensors, combine, backend, precision)
+        _check_settings(threshold, sensors, combine, backend, dtype)
         if backend == "onnx" and onnx_dir is None:
             onnx_dir = onnx_cache_dir(Path(path))
         return cls(model, threshold=threshold, sensors=sensors, combine=combine, backend=backend, info=info,
-                   onnx_dir=onnx_dir, precision=precision, debounce=debounce)
+                   onnx_dir=onnx_dir, dtype=dtype, debounce=debounce)
 
     @classmethod
     def pretrained(cls, name: str = "motionnet-gelsight", **kwargs: Any) -> "SlipDetector":
@@ -263,7 +263,7 @@ class SlipDetector:
     def _init_grasp(self, model: nn.Module, info: Mapping[str, Any] | None) -> None:
         from slipsense.pergrasp import STARTUP
 
-        if self.backend != "torch" or self.precision != "fp32":
+        if self.backend != "torch" or self.dtype != "float32":
             raise ConfigError(f"{self.model_name} streams on PyTorch in float32 (backend='torch'): it needs "
                               f"no more to stay under 2 ms per push")
         if self.sensors != model.sensors:
@@ -501,7 +501,7 @@ def stored_operating_point(path: str | Path, info: Mapping[str, Any], threshold:
     return threshold, debounce
 
 
-def _check_settings(threshold: Any, sensors: Any, combine: str, backend: str, precision: str = "fp32") -> None:
+def _check_settings(threshold: Any, sensors: Any, combine: str, backend: str, dtype: str = "float32") -> None:
     try:
         ok = 0.0 <= float(threshold) <= 1.0
     except (TypeError, ValueError):
@@ -514,10 +514,10 @@ def _check_settings(threshold: Any, sensors: Any, combine: str, backend: str, pr
         raise ConfigError(f"combine must be one of {COMBINE}, got {combine!r}")
     if backend not in BACKENDS:
         raise ConfigError(f"backend must be one of {BACKENDS}, got {backend!r}")
-    if precision not in PRECISIONS:
-        raise ConfigError(f"precision must be one of {PRECISIONS}, got {precision!r}")
-    if precision == "int8" and backend != "onnx":
-        raise ConfigError("precision 'int8' needs backend 'onnx' (ONNX Runtime dynamic quantization)")
+    if dtype not in DTYPES:
+        raise ConfigError(f"dtype must be one of {DTYPES}, got {dtype!r}")
+    if dtype == "int8" and backend != "onnx":
+        raise ConfigError("dtype 'int8' needs backend 'onnx' (ONNX Runtime dynamic quantization)")
 
 
 def _check_image(frame: Any, where: str, size: tuple[int, int]) -> np.ndarray:
@@ -582,13 +582,13 @@ def onnx_cache_dir(checkpoint: Path) -> Path:
 
 
 def _exported_parts(model: nn.Module, geometry: Mapping[str, Any], folder: Path,
-                    precision: str = "fp32") -> tuple[Path | None, Path]:
+                    dtype: str = "float32") -> tuple[Path | None, Path]:
     """The model's streaming parts as ONNX files in ``folder``, exported unless a verified copy is
-    there (:func:`slipsense.export.cached_streaming_parts`); ``precision="int8"``: their dynamically
+    there (:func:`slipsense.export.cached_streaming_parts`); ``dtype="int8"``: their dynamically
     quantized copies."""
     from slipsense.export import cached_streaming_parts
 
-    return cached_streaming_parts(model, folder, geometry, precision)
+    return cached_streaming_parts(model, folder, geometry, dtype)
 
 
 __all__ = [

@@ -12,7 +12,7 @@ from slipsense.checkpoint import save_checkpoint
 from slipsense.cli import app
 from slipsense.errors import ConfigError
 from slipsense.evaluate import evaluate_checkpoint
-from slipsense.models import build, with_precision
+from slipsense.models import build, at_dtype
 
 runner = CliRunner()
 
@@ -47,7 +47,7 @@ def test_dtype_errors(stnet_and_markers):
                                  "--dtype", "float16", "--json", str(root / "x.json")])
     assert result.exit_code == 2 and "float16" in result.output
     vivit = build("vivit", image_size=(32, 32), patch_size=(16, 16), frames=2).eval()
-    assert with_precision(vivit, "float32") is vivit
+    assert at_dtype(vivit, "float32") is vivit
     for dtype in ("bfloat16", "int8"):
         with pytest.raises(ConfigError, match="STNet and TemNet"):
-            with_precision(vivit, dtype)
+            at_dtype(vivit, dtype)

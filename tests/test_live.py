@@ -222,7 +222,7 @@ def test_bad_frames_raise_input_error(vivit):
 
 def test_settings_are_checked(vivit):
     for kwargs in (dict(threshold=1.5), dict(sensors=0), dict(combine="min"), dict(backend="tensorrt"),
-                   dict(precision="int4"), dict(precision="int8")):  # int8 needs the onnx backend
+                   dict(dtype="int4"), dict(dtype="int8")):  # int8 needs the onnx backend
         with pytest.raises(ConfigError):
             SlipDetector(vivit, **kwargs)
 
@@ -494,7 +494,7 @@ def test_onnx_backend_from_checkpoint_caches_parts(tmp_path, vivit_ckpt, monkeyp
 @needs_ort
 def test_onnx_int8_backend_stays_close(tmp_path):
     model = _model("stnet", **STNET_SMALL)
-    dets = [SlipDetector(model), SlipDetector(model, backend="onnx", precision="int8", onnx_dir=tmp_path)]
+    dets = [SlipDetector(model), SlipDetector(model, backend="onnx", dtype="int8", onnx_dir=tmp_path)]
     assert (tmp_path / "window.int8.onnx").is_file() and (tmp_path / "frame.int8.onnx").is_file()
     rng = np.random.default_rng(1)
     for _ in range(6):

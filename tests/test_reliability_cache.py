@@ -224,4 +224,4 @@ def test_onnx_parts_cache_is_verified(tmp_path, monkeypatch):
     with pytest.warns(CacheWarning, match="another model"):
         export.cached_streaming_parts(other, folder, window_geometry(other))
     assert len(calls) == 3
-    assert export.check_parts(folder, ["frame.onnx", "window.onnx"], export._parts_key(other, window_geometry(other), "fp32")) is None
+    assert export.check_parts(folder, ["frame.onnx", "window.onnx"], export._parts_key(other, window_geometry(other), "float32")) is None

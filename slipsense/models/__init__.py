@@ -70,21 +70,21 @@ def count_parameters(model: nn.Module) -> int:
     return sum(p.numel() for p in model.parameters() if p.requires_grad)
 
 
-#: inference precisions :func:`with_precision` offers
-PRECISIONS = ("float32", "bfloat16", "int8")
+#: number formats :func:`at_dtype` offers for inference
+DTYPES = ("float32", "bfloat16", "int8")
 
 
-def with_precision(model: nn.Module, precision: str = "float32") -> nn.Module:
-    """``model`` for CPU inference at ``precision``: "float32" (unchanged), "int8" (a copy with every
+def at_dtype(model: nn.Module, dtype: str = "float32") -> nn.Module:
+    """``model`` for CPU inference with ``dtype`` weights: "float32" (unchanged), "int8" (a copy with every
     nn.Linear dynamically quantized: int8 weights, activations quantized per batch) or "bfloat16"
     (a copy with bf16 weights packed for oneDNN, float32 in and out). Reduced precision is offered for
     STNet and TemNet, whose time goes to streaming ~0.5 GB of Linear weights; ViViT (67 k parameters)
     and the 3D ResNet-50 (convolutions) gain nothing from it. The copies are inference-only: call
     them under ``torch.inference_mode()``."""
-    if precision not in PRECISIONS:
-        raise ConfigError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
-    if precision == "float32":
+    if dtype not in DTYPES:
+        raise ConfigError(f"dtype must be one of {', '.join(DTYPES)}, got {dtype!r}")
+    if dtype == "float32":
         return model
     if not isinstance(model, SlipModel):
-        raise ConfigError(f"{precision} inference is implemented for STNet and TemNet, not {type(model).__name__}")
-    return model.reduced_precision(precision)
+        raise ConfigError(f"{dtype} inference is implemented for STNet and TemNet, not {type(model).__name__}")
+    return model.reduced_precision(dtype)
