@@ -192,7 +192,7 @@ def evaluate(
 ):
     """Evaluate a checkpoint: accuracy, precision, recall, F1 and a confusion matrix."""
     from slipsense.atomic import check_output_file
-    from slipsense.evaluate import evaluate_checkpoint
+    from slipsense.evaluation import evaluate_checkpoint
 
     check_nonnegative(noise_std, "--noise-std")
     check_output_file(json_out, "--json")

@@ -39,7 +39,7 @@ from slipsense.models import available, model_class, settings_of
 from slipsense.checkpoint import load_resume_state, save_checkpoint, save_resume_state
 from slipsense.errors import ConfigError, InputError
 from slipsense.distributed import Dist, RankBatches, StepPlan, all_sum, micro_batch_rng, setup  # noqa: F401
-from slipsense.evaluate import predict, progress_bar
+from slipsense.evaluation import predict, progress_bar
 from slipsense.metrics import metrics_from  # noqa: F401  (re-exported)
 
 
@@ -440,7 +440,7 @@ def check_same_split(path: Path, split_info: dict[str, Any]) -> None:
 def run_training(req: TrainRequest, resume: bool = False) -> dict[str, Any]:
     """Prepare data, build and train the model, then evaluate ``last.safetensors`` on the held-out
     part; returns the evaluation metrics (rank 0) or ``{}`` (other ranks)."""
-    from slipsense.evaluate import evaluate_model
+    from slipsense.evaluation import evaluate_model
 
     cls = model_class(req.model)
     kind = cls.input_kind

@@ -62,3 +62,14 @@ def test_readme_quick_start_runs(tmp_path, one_thread):
     result = subprocess.run([sys.executable, "-c", _quick_start()], capture_output=True, text=True, cwd=tmp_path,
                             timeout=300)
     assert result.returncode == 0, result.stderr
+
+
+def test_api_names_survive_importing_every_module():
+    """slipsense.fit / slipsense.evaluate are functions even after every submodule is imported (no
+    submodule shares their names)."""
+    import pkgutil
+
+    for mod in pkgutil.walk_packages(slipsense.__path__, "slipsense."):
+        __import__(mod.name)
+    assert callable(slipsense.fit) and callable(slipsense.evaluate) and callable(slipsense.SlipDetector)
+    assert not isinstance(slipsense.evaluate, type(slipsense))

@@ -11,7 +11,7 @@ from typer.testing import CliRunner
 from slipsense.checkpoint import save_checkpoint
 from slipsense.cli import app
 from slipsense.errors import ConfigError
-from slipsense.evaluate import evaluate_checkpoint
+from slipsense.evaluation import evaluate_checkpoint
 from slipsense.models import build, at_dtype
 
 runner = CliRunner()

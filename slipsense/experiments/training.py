@@ -23,7 +23,7 @@ def _device_of(model):
 
 def score(model, data, batch_size: int = 32) -> dict[str, Any]:
     """Metrics of ``model`` on ``data`` (on the model's device)."""
-    from slipsense.evaluate import predict
+    from slipsense.evaluation import predict
     from slipsense.metrics import metrics_from
 
     p, y = predict(model, data, batch_size=batch_size, device=_device_of(model))
