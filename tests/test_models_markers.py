@@ -10,8 +10,8 @@ from hypothesis import strategies as st
 
 from slipsense.errors import ConfigError, InputError
 from slipsense.models import available, build, count_parameters
-from slipsense.models.stnet import (PRESETS, STNet, TemNet, build_preset, count_parameters_for, flops_per_sample,
-                                    optimize_for_inference, quantize_dynamic_int8)
+from slipsense.models.stnet import PRESETS, STNet, TemNet, build_preset, count_parameters_for, flops_per_sample
+from slipsense.models.stnet_fast import optimize_for_inference, quantize_dynamic_int8
 
 # small but complete: codecs, fusion, frame embedding, 2 blocks, flatten head
 SMALL = dict(frames=4, markers=10, d_model=16, heads=4, blocks=2, ff_dim=24, dropout=0.0, codec_channels=4)
@@ -297,7 +297,7 @@ def test_upsample_conv_equals_upsample_then_conv1d():
 
 
 def test_frame_sum_head_matches_flat_linear():
-    from slipsense.models.stnet import FrameSumLinear
+    from slipsense.models.stnet_fast import FrameSumLinear
     torch.manual_seed(0)
     model = build("stnet", **{**SMALL, "head_hidden": 64}).eval()
     fast = optimize_for_inference(model)

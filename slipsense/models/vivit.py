@@ -594,31 +594,6 @@ class ViViT(VideoModel):
         if self.positions != "slot":
             raise ConfigError("load_reference_state_dict: vit-pytorch's ViViT has per-slot positions; this model has "
                               f"positions={self.positions!r}")
-        self.load_state_dict({_rename_reference_key(k): v for k, v in sd.items()}, strict=True)
+        from slipsense.models.vivit_reference import reference_key
 
-
-_REFERENCE_RENAMES = (
-    ("to_patch_embedding.1.", "patch_norm."),
-    ("to_patch_embedding.2.", "patch_to_dim."),
-    ("to_patch_embedding.3.", "dim_norm."),
-    ("spatial_cls_token", "spatial_cls"),
-    ("temporal_cls_token", "temporal_cls"),
-    ("mlp_head.", "head."),
-)
-
-
-def _rename_reference_key(key: str) -> str:
-    for old, new in _REFERENCE_RENAMES:
-        if key.startswith(old):
-            return new + key[len(old):]
-    parts = key.split(".")
-    # {spatial,temporal}_transformer.layers.{i}.{0: attention, 1: feed-forward}.<...>
-    if len(parts) >= 5 and parts[0].endswith("_transformer") and parts[1] == "layers":
-        rest = ".".join(parts[4:])
-        if parts[3] == "0":
-            rest = rest.replace("to_out.0.", "to_out.")
-        elif parts[3] == "1":
-            rest = {"net.0.weight": "norm.weight", "net.0.bias": "norm.bias", "net.1.weight": "fc1.weight",
-                    "net.1.bias": "fc1.bias", "net.4.weight": "fc2.weight", "net.4.bias": "fc2.bias"}.get(rest, rest)
-        return ".".join(parts[:4] + [rest])
-    return key
+        self.load_state_dict({reference_key(k): v for k, v in sd.items()}, strict=True)
