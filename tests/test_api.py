@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 import slipsense
+import slipsense.resources
 from conftest import needs_data
 from slipsense.errors import ConfigError
 
@@ -73,3 +74,20 @@ def test_api_names_survive_importing_every_module():
         __import__(mod.name)
     assert callable(slipsense.fit) and callable(slipsense.evaluate) and callable(slipsense.SlipDetector)
     assert not isinstance(slipsense.evaluate, type(slipsense))
+
+
+def test_wheel_carries_the_shipped_detectors_and_overrides(tmp_path):
+    """`pip install .` (not editable) must bring the package data: build the wheel and look inside."""
+    import zipfile
+
+    root = README.parent
+    build = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w",
+                            str(tmp_path), str(root)], capture_output=True, text=True, timeout=300)
+    if build.returncode != 0 and "No module named" in build.stderr:
+        pytest.skip(f"cannot build a wheel here: {build.stderr.strip().splitlines()[-1]}")
+    assert build.returncode == 0, build.stderr
+    wheel = next(tmp_path.glob("slipsense-*.whl"))
+    names = set(zipfile.ZipFile(wheel).namelist())
+    for name in slipsense.resources.shipped_models():
+        assert f"slipsense/resources/models/{name}.safetensors" in names
+    assert "slipsense/resources/gelsight-label-overrides.csv" in names
