@@ -7,6 +7,7 @@ up. Usage::
 
     python bench/bench_data.py [--size 120x160] [--batches 20] [--workers 2]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -32,9 +33,12 @@ def main() -> None:
     from slipsense.recordings.clips import ClipSpec
 
     t0 = time.perf_counter()
-    clips, _ = gelsight_clips(gelsight_recordings(), ClipSpec(size=(h, w)),
-                              overrides="configs/gelsight-label-overrides.csv", progress=False)
-    print(f"clip set: {len(clips)} clips of {tuple(clips.x.shape[1:])} prepared/loaded in {time.perf_counter() - t0:.1f} s")
+    clips, _ = gelsight_clips(
+        gelsight_recordings(), ClipSpec(size=(h, w)), overrides="configs/gelsight-label-overrides.csv", progress=False
+    )
+    print(
+        f"clip set: {len(clips)} clips of {tuple(clips.x.shape[1:])} prepared/loaded in {time.perf_counter() - t0:.1f} s"
+    )
     data = ClipDataset(clips, AugmentConfig(), seed=0)
     # Augmented copies (second half) cost the most: load from there.
     sub = torch.utils.data.Subset(data, range(len(clips), len(data)))
@@ -65,7 +69,7 @@ def main() -> None:
         loss.backward()
         opt.step()
     train_rate = 16 * args.batches / (time.perf_counter() - t)
-    print(f"\n| stage | clips/s | load / train |\n|---|---:|---:|")
+    print("\n| stage | clips/s | load / train |\n|---|---:|---:|")
     for name, rate in rows:
         print(f"| {name} | {rate:.0f} | {rate / train_rate:.2f} |")
     print(f"| train ViViT {h}x{w} (batch 16) | {train_rate:.0f} | 1.00 |")

@@ -29,6 +29,7 @@ what the code does when the cores are free), "median" is over all calls (what it
 load of the moment). Bounds: weight bytes / measured read bandwidth (batch 1 must stream every weight
 once per sample) and analytic FLOPs / measured big-matmul GFLOP/s.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -41,7 +42,7 @@ import sys
 import time
 from pathlib import Path
 
-if "--no-thp" not in sys.argv:                 # must precede the first torch allocation
+if "--no-thp" not in sys.argv:  # must precede the first torch allocation
     os.environ.setdefault("THP_MEM_ALLOC_ENABLE", "1")
 
 import torch  # noqa: E402
@@ -56,6 +57,7 @@ from slipsense.models.stnet_fast import onednn_packing_available, optimize_for_i
 
 
 # --- reference ports ------------------------------------------------------------------------------
+
 
 class NaiveHead(nn.Module):
     """One attention head, the way Fig. 4 draws it."""
@@ -98,8 +100,22 @@ class NaiveMSA(nn.Module):
 class PortSTNet(nn.Module):
     """STNet as a straightforward port; ``encoder="naive"`` or ``"torch"`` (nn.TransformerEncoder)."""
 
-    def __init__(self, frames, markers, d_model, heads, blocks, ff_dim, head_hidden, dropout, codec_channels,
-                 codec_kernel, codec_layers, encoder="naive", **_):
+    def __init__(
+        self,
+        frames,
+        markers,
+        d_model,
+        heads,
+        blocks,
+        ff_dim,
+        head_hidden,
+        dropout,
+        codec_channels,
+        codec_kernel,
+        codec_layers,
+        encoder="naive",
+        **_,
+    ):
         super().__init__()
         d_in = markers * 3
         p = codec_kernel // 2
@@ -107,9 +123,12 @@ class PortSTNet(nn.Module):
         for i in range(codec_layers):
             enc += [nn.Conv1d(1 if i == 0 else codec_channels, codec_channels, codec_kernel, 2, p), nn.LeakyReLU(0.01)]
         self.encoder = nn.Sequential(*enc)
-        self.decoder = nn.Sequential(nn.Upsample(scale_factor=2 ** codec_layers),
-                                     nn.Conv1d(codec_channels, 1, codec_kernel, padding=p),
-                                     nn.AdaptiveAvgPool1d(d_in), nn.LeakyReLU(0.01))
+        self.decoder = nn.Sequential(
+            nn.Upsample(scale_factor=2**codec_layers),
+            nn.Conv1d(codec_channels, 1, codec_kernel, padding=p),
+            nn.AdaptiveAvgPool1d(d_in),
+            nn.LeakyReLU(0.01),
+        )
         self.fc_fusion = nn.Linear(2 * d_in, d_model)
         self.embedding = nn.Parameter(torch.zeros(1, frames, d_model))
         self.kind = encoder
@@ -119,8 +138,9 @@ class PortSTNet(nn.Module):
             layer = nn.TransformerEncoderLayer(d_model, heads, ff_dim, dropout, batch_first=True)
             self.msa = nn.TransformerEncoder(layer, blocks, enable_nested_tensor=False)
         if head_hidden:
-            self.fc = nn.Sequential(nn.Linear(frames * d_model, head_hidden), nn.ReLU(), nn.Dropout(dropout),
-                                    nn.Linear(head_hidden, 2))
+            self.fc = nn.Sequential(
+                nn.Linear(frames * d_model, head_hidden), nn.ReLU(), nn.Dropout(dropout), nn.Linear(head_hidden, 2)
+            )
         else:
             self.fc = nn.Linear(frames * d_model, 2)
 
@@ -128,8 +148,8 @@ class PortSTNet(nn.Module):
         B, T = x.shape[0], x.shape[1]
         x = x.reshape(B, T, -1)
         S = []
-        for i in range(T):                                   # S codecs frame by frame
-            S.append(self.decoder(self.encoder(x[:, i:i + 1, :])))
+        for i in range(T):  # S codecs frame by frame
+            S.append(self.decoder(self.encoder(x[:, i : i + 1, :])))
         S = torch.cat(S, dim=1)
         a = self.fc_fusion(torch.cat([S, x], dim=2)) + self.embedding
         if self.kind == "naive":
@@ -143,7 +163,7 @@ class PortSTNet(nn.Module):
     def load_from(self, net):
         """Copy an slipsense STNet's weights (same function, different layout)."""
         self.encoder.load_state_dict(net.codecs.encoder.state_dict())
-        self.decoder[1].weight.copy_(net.codecs.decoder[0].weight)       # Upsample + Conv1d
+        self.decoder[1].weight.copy_(net.codecs.decoder[0].weight)  # Upsample + Conv1d
         self.decoder[1].bias.copy_(net.codecs.decoder[0].bias)
         self.fc_fusion.load_state_dict(net.fuse.state_dict())
         self.embedding.copy_(net.pos_embedding)
@@ -173,6 +193,7 @@ class PortSTNet(nn.Module):
 
 # --- machine ----------------------------------------------------------------------------------------
 
+
 def _best(fn, reps):
     fn()
     times = []
@@ -184,20 +205,21 @@ def _best(fn, reps):
 
 
 def machine(quick):
-    big = torch.empty(128 * 2 ** 20)                       # 512 MiB, far beyond the caches
+    big = torch.empty(128 * 2**20)  # 512 MiB, far beyond the caches
     big.normal_()
     dst = torch.empty_like(big)
     nbytes = big.numel() * 4
-    read = nbytes / _best(lambda: big.sum(), 3 if quick else 6) / 1e9
-    copy = 2 * nbytes / _best(lambda: dst.copy_(big), 3 if quick else 6) / 1e9
+    read = nbytes / _best(big.sum, 3 if quick else 6) / 1e9
+    copy = 2 * nbytes / _best(lambda: dst.copy_(big), 3 if quick else 6) / 1e9  # noqa: F821 (deleted below)
     del big, dst
     n = 2048
     a, b = torch.randn(n, n), torch.randn(n, n)
-    gflops = 2 * n ** 3 / _best(lambda: a @ b, 3 if quick else 6) / 1e9
+    gflops = 2 * n**3 / _best(lambda: a @ b, 3 if quick else 6) / 1e9
     return dict(read_gbs=read, copy_gbs=copy, matmul_gflops=gflops)
 
 
 # --- timing -----------------------------------------------------------------------------------------
+
 
 def time_variants(variants, x, seconds, calls, min_rounds=2):
     """Interleaved rounds of ``calls`` calls per variant, for ``seconds`` (at least ``min_rounds``);
@@ -205,7 +227,7 @@ def time_variants(variants, x, seconds, calls, min_rounds=2):
     per_call = {k: [] for k in variants}
     best_round = {k: math.inf for k in variants}
     with torch.inference_mode():
-        for m in variants.values():                            # warm-up (oneDNN primitive creation)
+        for m in variants.values():  # warm-up (oneDNN primitive creation)
             m(x)
         start, rounds = time.perf_counter(), 0
         while rounds < min_rounds or time.perf_counter() - start < seconds:
@@ -243,7 +265,7 @@ def main(argv=None):
     probes = [machine(args.quick)]
     x1 = torch.randn(1, 12, 552, 3)
     x64 = torch.randn(64, 12, 552, 3)
-    budget = 0.4 if args.quick else 1.0                   # x the seconds below
+    budget = 0.4 if args.quick else 1.0  # x the seconds below
     rows = []
     # without oneDNN bf16 packing (AVX2-only CPUs) bf16 matmuls are emulated: not worth timing
     bf16 = onednn_packing_available(torch.bfloat16)
@@ -259,13 +281,22 @@ def main(argv=None):
         r64 = time_variants(variants, x64, seconds64 * budget, calls64)
         cfg = PRESETS[preset]
         for k in variants:
-            rows.append(dict(preset=preset, model=k, params=count_parameters(ref_model),
-                             gflop=flops_per_sample(cfg) / 1e9, weight_mb=weight_bytes(ref_model) / 1e6,
-                             b1_best=r1[k]["best"], b1_median=r1[k]["median"],
-                             b64_best=r64[k]["best"], b64_median=r64[k]["median"],
-                             x_base_b1=r1[k]["best"] / r1[base]["best"] if base in r1 else None,
-                             x_base_b64=r64[k]["best"] / r64[base]["best"] if base in r64 else None,
-                             max_logit_diff=diffs[k]))
+            rows.append(
+                dict(
+                    preset=preset,
+                    model=k,
+                    params=count_parameters(ref_model),
+                    gflop=flops_per_sample(cfg) / 1e9,
+                    weight_mb=weight_bytes(ref_model) / 1e6,
+                    b1_best=r1[k]["best"],
+                    b1_median=r1[k]["median"],
+                    b64_best=r64[k]["best"],
+                    b64_median=r64[k]["median"],
+                    x_base_b1=r1[k]["best"] / r1[base]["best"] if base in r1 else None,
+                    x_base_b64=r64[k]["best"] / r64[base]["best"] if base in r64 else None,
+                    max_logit_diff=diffs[k],
+                )
+            )
 
     # the paper preset: ports vs ours
     cfg = PRESETS["paper"]
@@ -282,7 +313,7 @@ def main(argv=None):
     run("paper", variants, "port: naive", 30, 3, 60, 1)
     del variants, net
 
-    if not args.no_ff4096:                  # the other ~129 M reading: 3.1 GFLOP/sample
+    if not args.no_ff4096:  # the other ~129 M reading: 3.1 GFLOP/sample
         net = build_preset("paper-ff4096").eval()
         variants = {"STNet": net, "STNet packed": optimize_for_inference(net)}
         if bf16:
@@ -299,7 +330,7 @@ def main(argv=None):
     mach = {k: max(p[k] for p in probes) for k in probes[0]}
     paper = PRESETS["paper"]
     p_bytes = next(r["weight_mb"] for r in rows if r["preset"] == "paper") * 1e6
-    bw_bound = mach["read_gbs"] * 1e9 / p_bytes                    # batch-1 samples/s
+    bw_bound = mach["read_gbs"] * 1e9 / p_bytes  # batch-1 samples/s
     fl_bound = mach["matmul_gflops"] * 1e9 / flops_per_sample(paper)
     thp = "on" if os.environ.get("THP_MEM_ALLOC_ENABLE") == "1" else "off"
     lines = [
@@ -314,8 +345,10 @@ def main(argv=None):
     ]
     for preset in dict.fromkeys(r["preset"] for r in rows):
         r = next(r for r in rows if r["preset"] == preset)
-        lines.append(f"| {preset} | {r['params']:,} | {r['weight_mb']:.0f} MB | {r['gflop']:.3f} | "
-                     f"{mach['read_gbs'] * 1e3 / r['weight_mb']:.1f}/s | {mach['matmul_gflops'] / r['gflop']:.1f}/s |")
+        lines.append(
+            f"| {preset} | {r['params']:,} | {r['weight_mb']:.0f} MB | {r['gflop']:.3f} | "
+            f"{mach['read_gbs'] * 1e3 / r['weight_mb']:.1f}/s | {mach['matmul_gflops'] / r['gflop']:.1f}/s |"
+        )
     lines += [
         "",
         "| preset | model | b1 best | b1 median | b64 best | b64 median | b1 speed-up | b64 speed-up | logit error |",
@@ -323,22 +356,43 @@ def main(argv=None):
     ]
     f = lambda v, fmt: "" if v is None else format(v, fmt)  # noqa: E731
     for r in rows:
-        lines.append(f"| {r['preset']} | {r['model']} | {r['b1_best']:.1f} | {r['b1_median']:.1f} | "
-                     f"{r['b64_best']:.1f} | {r['b64_median']:.1f} | {f(r['x_base_b1'], '.2f')} | "
-                     f"{f(r['x_base_b64'], '.2f')} | {f(r['max_logit_diff'], '.2g')} |")
-    lines += ["", "samples/s. speed-up: vs port: naive (paper), vs plain STNet (other presets). logit error: "
-              "max |logits - STNet float32 logits| / max |STNet logits| on 8 random samples. "
-              "bounds: weights / read bandwidth, FLOPs / matmul GFLOP/s."
-              + ("" if bf16 else " bf16 rows left out: this CPU cannot pack bf16 weights for oneDNN "
-                 "(it needs AVX-512 BW/VL/DQ or AVX-NE-CONVERT)."),
-              f"bench took {time.time() - t_start:.0f} s"]
+        lines.append(
+            f"| {r['preset']} | {r['model']} | {r['b1_best']:.1f} | {r['b1_median']:.1f} | "
+            f"{r['b64_best']:.1f} | {r['b64_median']:.1f} | {f(r['x_base_b1'], '.2f')} | "
+            f"{f(r['x_base_b64'], '.2f')} | {f(r['max_logit_diff'], '.2g')} |"
+        )
+    lines += [
+        "",
+        "samples/s. speed-up: vs port: naive (paper), vs plain STNet (other presets). logit error: "
+        "max |logits - STNet float32 logits| / max |STNet logits| on 8 random samples. "
+        "bounds: weights / read bandwidth, FLOPs / matmul GFLOP/s."
+        + (
+            ""
+            if bf16
+            else " bf16 rows left out: this CPU cannot pack bf16 weights for oneDNN "
+            "(it needs AVX-512 BW/VL/DQ or AVX-NE-CONVERT)."
+        ),
+        f"bench took {time.time() - t_start:.0f} s",
+    ]
     table = "\n".join(lines)
     print(table)
     if args.out:
         args.out.write_text(table + "\n")
     if args.json:
-        args.json.write_text(json.dumps(dict(machine=mach, probes=probes, load=load, thp=thp, bw_bound_paper_b1=bw_bound,
-                                             flops_bound_paper=fl_bound, rows=rows), indent=1))
+        args.json.write_text(
+            json.dumps(
+                dict(
+                    machine=mach,
+                    probes=probes,
+                    load=load,
+                    thp=thp,
+                    bw_bound_paper_b1=bw_bound,
+                    flops_bound_paper=fl_bound,
+                    rows=rows,
+                ),
+                indent=1,
+            )
+        )
 
 
 if __name__ == "__main__":

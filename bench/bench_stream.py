@@ -21,6 +21,7 @@ push timed on its own; p50 / p99 are over all timed pushes. ``whole window`` is 
 without the streaming split: ``model(window)`` on every push (PyTorch). Targets (issue 6): per-frame
 p99 <= 2 ms for ViViT and <= 30 ms for the paper-size STNet.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -53,14 +54,31 @@ def cases(quick: bool) -> list[dict]:
     scale = 0.4 if quick else 1.0
     return [
         dict(name="vivit", build=lambda: build("vivit"), kind="video", pushes=int(400 * scale)),
-        dict(name="vivit factorised", build=lambda: build("vivit", positions="factorised"), kind="video",
-             pushes=int(400 * scale)),
-        dict(name="resnet3d50", build=lambda: build("resnet3d50", frames=5), kind="video", pushes=max(4, int(12 * scale)),
-             info={"data": {"clip_spec": {"frames": 5, "size": [240, 320]}}}),
-        dict(name="stnet paper", build=lambda: build("stnet", **PRESETS["paper"]), kind="markers",
-             pushes=max(6, int(30 * scale))),
-        dict(name="stnet compact", build=lambda: build("stnet", **PRESETS["compact"]), kind="markers",
-             pushes=int(300 * scale)),
+        dict(
+            name="vivit factorised",
+            build=lambda: build("vivit", positions="factorised"),
+            kind="video",
+            pushes=int(400 * scale),
+        ),
+        dict(
+            name="resnet3d50",
+            build=lambda: build("resnet3d50", frames=5),
+            kind="video",
+            pushes=max(4, int(12 * scale)),
+            info={"data": {"clip_spec": {"frames": 5, "size": [240, 320]}}},
+        ),
+        dict(
+            name="stnet paper",
+            build=lambda: build("stnet", **PRESETS["paper"]),
+            kind="markers",
+            pushes=max(6, int(30 * scale)),
+        ),
+        dict(
+            name="stnet compact",
+            build=lambda: build("stnet", **PRESETS["compact"]),
+            kind="markers",
+            pushes=int(300 * scale),
+        ),
     ]
 
 
@@ -71,7 +89,9 @@ def frame_source(kind: str, markers: int = 552, n: int = 16, seed: int = 0) -> l
     return [rng.normal(size=(markers, 3)).astype(np.float32) for _ in range(n)]
 
 
-def time_pushes(detectors: dict[str, object], frames: list[np.ndarray], pushes: int, rounds: int) -> dict[str, list[float]]:
+def time_pushes(
+    detectors: dict[str, object], frames: list[np.ndarray], pushes: int, rounds: int
+) -> dict[str, list[float]]:
     """Seconds per push for each detector (or callable), in ``rounds`` interleaved rounds."""
     times: dict[str, list[float]] = {k: [] for k in detectors}
     per_round = max(1, pushes // rounds)
@@ -104,7 +124,7 @@ class WholeWindow:
 
     def __call__(self, frame):
         x = self.det._prepare(frame, 0, 0)
-        self.window = (self.window + [x])[-self.frames:]
+        self.window = (self.window + [x])[-self.frames :]
         if len(self.window) == self.frames:
             with torch.no_grad():
                 return self.model(torch.from_numpy(np.stack(self.window)[None]))
@@ -120,7 +140,9 @@ def main(argv=None) -> int:
     parser.add_argument("--threads", type=int, default=2, help="intra-op threads for torch and ONNX Runtime")
     parser.add_argument("--rounds", type=int, default=4)
     parser.add_argument("--quick", action="store_true", help="fewer pushes (about a minute in all)")
-    parser.add_argument("--models", nargs="+", help="subset: vivit 'vivit factorised' resnet3d50 'stnet paper' 'stnet compact'")
+    parser.add_argument(
+        "--models", nargs="+", help="subset: vivit 'vivit factorised' resnet3d50 'stnet paper' 'stnet compact'"
+    )
     parser.add_argument("--out", type=Path, help="also write the Markdown report here")
     parser.add_argument("--json", type=Path, help="also write the numbers as JSON here")
     args = parser.parse_args(argv)
@@ -142,13 +164,21 @@ def main(argv=None) -> int:
                 continue
             model = case["build"]().eval()
             t0 = time.perf_counter()
-            dets = {"torch": SlipDetector(model, backend="torch", info=case.get("info")),
-                    "onnx": SlipDetector(model, backend="onnx", info=case.get("info"),
-                                         onnx_dir=Path(tmp) / case["name"].replace(" ", "-"))}
+            dets = {
+                "torch": SlipDetector(model, backend="torch", info=case.get("info")),
+                "onnx": SlipDetector(
+                    model, backend="onnx", info=case.get("info"), onnx_dir=Path(tmp) / case["name"].replace(" ", "-")
+                ),
+            }
             export_s = time.perf_counter() - t0
             if case["name"] != "resnet3d50":  # a 3D ResNet has no split: whole window = streaming
-                dets["onnx int8"] = SlipDetector(model, backend="onnx", dtype="int8", info=case.get("info"),
-                                                 onnx_dir=Path(tmp) / case["name"].replace(" ", "-"))
+                dets["onnx int8"] = SlipDetector(
+                    model,
+                    backend="onnx",
+                    dtype="int8",
+                    info=case.get("info"),
+                    onnx_dir=Path(tmp) / case["name"].replace(" ", "-"),
+                )
                 dets["whole window"] = WholeWindow(dets["torch"])
             frames = frame_source(case["kind"], n=max(16, dets["torch"].frames + 4))
             # check the backends agree before timing them
@@ -158,13 +188,23 @@ def main(argv=None) -> int:
             diff = abs(a.probability - b.probability)
             diff8 = None if q is None else abs(a.probability - q.probability)
             times = time_pushes(dets, frames, case["pushes"], args.rounds)
-            row = dict(model=case["name"], params=count_parameters(model), frames=dets["torch"].frames,
-                       export_s=export_s, prob_diff=diff, prob_diff_int8=diff8)
+            row = dict(
+                model=case["name"],
+                params=count_parameters(model),
+                frames=dets["torch"].frames,
+                export_s=export_s,
+                prob_diff=diff,
+                prob_diff_int8=diff8,
+            )
             for name, ts in times.items():
                 row[name] = {"p50_ms": percentile_ms(ts, 50), "p99_ms": percentile_ms(ts, 99), "n": len(ts)}
             rows.append(row)
-            print(f"{case['name']}: " + ", ".join(f"{k} p50 {v['p50_ms']:.3f} ms" for k, v in row.items()
-                                                  if isinstance(v, dict)), file=sys.stderr, flush=True)
+            print(
+                f"{case['name']}: "
+                + ", ".join(f"{k} p50 {v['p50_ms']:.3f} ms" for k, v in row.items() if isinstance(v, dict)),
+                file=sys.stderr,
+                flush=True,
+            )
             for d in dets.values():
                 if hasattr(d, "close"):
                     d.close()
@@ -199,7 +239,8 @@ def main(argv=None) -> int:
             f"| {r['model']} | {r['params']:,} | {r['frames']} | {t['p50_ms']:.3f} ms | {t['p99_ms']:.3f} ms | "
             f"{o['p50_ms']:.3f} ms | {o['p99_ms']:.3f} ms | {t['p50_ms'] / o['p50_ms']:.2f}x | "
             f"{ms(q and q['p50_ms'])} | {ms(q and q['p99_ms'])} | {ms(whole and whole['p50_ms'])} | {tgt} | "
-            f"{r['prob_diff']:.1e} / {d8} |")
+            f"{r['prob_diff']:.1e} / {d8} |"
+        )
     counts = ", ".join(f"{r['model']} {r['torch']['n']}" for r in rows)
     lines += ["", f"Pushes timed per backend: {counts}."]
     report = "\n".join(lines)

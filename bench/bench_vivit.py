@@ -26,6 +26,7 @@ the table shows the median over rounds. With one thread the clock is the thread'
 cache and memory-bandwidth contention still do. vit-pytorch is loaded from its ``vivit.py`` file (the
 package ``__init__`` imports torchvision).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -43,8 +44,17 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from slipsense.models import count_parameters  # noqa: E402
 from slipsense.models.vivit import ViViT  # noqa: E402
 
-PAPER = dict(image_size=(240, 320), image_patch_size=(40, 40), frames=5, num_classes=2, dim=8, spatial_depth=2,
-             temporal_depth=2, heads=2, mlp_dim=8)
+PAPER = dict(
+    image_size=(240, 320),
+    image_patch_size=(40, 40),
+    frames=5,
+    num_classes=2,
+    dim=8,
+    spatial_depth=2,
+    temporal_depth=2,
+    heads=2,
+    mlp_dim=8,
+)
 
 
 def load_reference_class():
@@ -126,10 +136,12 @@ def breakdown(ours: ViViT, rounds: int, round_time: float, warmup: int, clock, g
     cycle = iter(range(1 << 62))
     kernel = ours.fused_patch_weights()[0].contiguous()
     patches = torch.rand(kernel.shape[1], 5 * ours.grid[0] * ours.grid[1], generator=gen).t().contiguous().t()
-    fns = {"embed": lambda: ours.embed_patches(frames),
-           "transformers": lambda: ours.classify_frames(ours.encode_patches(tokens)),
-           "read_clip_from_memory": lambda: pool[next(cycle) % 16].sum(),
-           "projection_gemm": lambda: kernel @ patches}
+    fns = {
+        "embed": lambda: ours.embed_patches(frames),
+        "transformers": lambda: ours.classify_frames(ours.encode_patches(tokens)),
+        "read_clip_from_memory": lambda: pool[next(cycle) % 16].sum(),
+        "projection_gemm": lambda: kernel @ patches,
+    }
     times = time_models(fns, rounds, round_time, warmup, clock)
     parts = {k: statistics.median(v) * 1e3 for k, v in times.items()}
     parts["gemm_mflop"] = 2 * kernel.shape[0] * kernel.shape[1] * patches.shape[1] / 1e6
@@ -143,9 +155,13 @@ def main(argv=None) -> int:
     parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1)")
     parser.add_argument("--rounds", type=int, default=15)
     parser.add_argument("--round-time", type=float, default=0.1, help="seconds per model per round")
-    parser.add_argument("--clock", choices=("cpu", "wall"), default=None,
-                        help="cpu: this thread's CPU time (default with 1 thread: immune to time slices lost "
-                             "to other processes); wall: elapsed time (default with more threads)")
+    parser.add_argument(
+        "--clock",
+        choices=("cpu", "wall"),
+        default=None,
+        help="cpu: this thread's CPU time (default with 1 thread: immune to time slices lost "
+        "to other processes); wall: elapsed time (default with more threads)",
+    )
     parser.add_argument("--warmup", type=int, default=3)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, help="also write the Markdown report here")
@@ -170,27 +186,43 @@ def main(argv=None) -> int:
     with torch.inference_mode():
         check = torch.rand(2, 5, 3, 240, 320, generator=gen)
         max_diff = (ours(check) - ref_frame(check.permute(0, 2, 1, 3, 4))).abs().max().item()
-        onnx_diff = None if onnx_run is None else float((torch.from_numpy(onnx_run(check.numpy())) - ours(check)).abs().max())
+        onnx_diff = (
+            None if onnx_run is None else float((torch.from_numpy(onnx_run(check.numpy())) - ours(check)).abs().max())
+        )
         for batch in args.batches:
             x = torch.rand(batch, 5, 3, 240, 320, generator=gen)
             x_ref = x.permute(0, 2, 1, 3, 4).contiguous()
-            fns = {"ours": lambda: ours(x), "ref-frame": lambda: ref_frame(x_ref),
-                   "ref-tubelet": lambda: ref_tubelet(x_ref)}
+            fns = {
+                "ours": lambda: ours(x),
+                "ref-frame": lambda: ref_frame(x_ref),
+                "ref-tubelet": lambda: ref_tubelet(x_ref),
+            }
             if onnx_run is not None:
                 x_np = x.numpy()
                 fns["ours-onnx"] = lambda: onnx_run(x_np)
             times = time_models(fns, args.rounds, args.round_time, args.warmup, clock)
             med = {k: statistics.median(v) for k, v in times.items()}
             best = {k: min(v) for k, v in times.items()}
-            for case, mine, ref in (("a", "ours", "ref-frame"), ("b", "ours", "ref-tubelet"),
-                                    ("c", "ours-onnx", "ref-frame")):
+            for case, mine, ref in (
+                ("a", "ours", "ref-frame"),
+                ("b", "ours", "ref-tubelet"),
+                ("c", "ours-onnx", "ref-frame"),
+            ):
                 if mine not in med:  # no ONNX Runtime
                     continue
-                results.append(dict(
-                    case=case, reference=ref, batch=batch,
-                    ours_clips_s=batch / med[mine], ref_clips_s=batch / med[ref], ratio=med[ref] / med[mine],
-                    ours_ms=med[mine] * 1e3, ref_ms=med[ref] * 1e3, best_ratio=best[ref] / best[mine],
-                ))
+                results.append(
+                    dict(
+                        case=case,
+                        reference=ref,
+                        batch=batch,
+                        ours_clips_s=batch / med[mine],
+                        ref_clips_s=batch / med[ref],
+                        ratio=med[ref] / med[mine],
+                        ours_ms=med[mine] * 1e3,
+                        ref_ms=med[ref] * 1e3,
+                        best_ratio=best[ref] / best[mine],
+                    )
+                )
         parts = breakdown(ours, args.rounds, args.round_time, args.warmup, clock, gen) if 1 in args.batches else {}
         profiles = {}
         if args.profile:
@@ -200,19 +232,33 @@ def main(argv=None) -> int:
             profiles["ours"] = profile_table(lambda: ours(x1))
     load_after = os.getloadavg()
 
-    env = dict(torch=torch.__version__, threads=args.threads, cpu=cpu_name(), cores=os.cpu_count(),
-               load_before=[round(v, 2) for v in load_before], load_after=[round(v, 2) for v in load_after],
-               rounds=args.rounds, round_time=args.round_time, clock=clock_name)
-    params = {"ours": count_parameters(ours), "ref-frame": count_parameters(ref_frame),
-              "ref-tubelet": count_parameters(ref_tubelet)}
+    env = dict(
+        torch=torch.__version__,
+        threads=args.threads,
+        cpu=cpu_name(),
+        cores=os.cpu_count(),
+        load_before=[round(v, 2) for v in load_before],
+        load_after=[round(v, 2) for v in load_after],
+        rounds=args.rounds,
+        round_time=args.round_time,
+        clock=clock_name,
+    )
+    params = {
+        "ours": count_parameters(ours),
+        "ref-frame": count_parameters(ref_frame),
+        "ref-tubelet": count_parameters(ref_tubelet),
+    }
     lines = [
         "# ViViT CPU inference: slipsense vs vit-pytorch",
         "",
         f"Paper configuration, eval mode, `torch.inference_mode`, {args.threads} thread(s), torch {torch.__version__}, "
         f"{env['cpu']} ({env['cores']} cores; load average {load_before[0]:.2f} before, {load_after[0]:.2f} after).",
         f"Median of {args.rounds} interleaved rounds of >= {args.round_time:g} s per model, timed by "
-        + ("this thread's CPU time (time lost to other processes not counted)." if clock_name == "cpu"
-           else "wall-clock time."),
+        + (
+            "this thread's CPU time (time lost to other processes not counted)."
+            if clock_name == "cpu"
+            else "wall-clock time."
+        ),
         "",
         f"Parameters: ours {params['ours']:,}; vit-pytorch per-frame {params['ref-frame']:,}; "
         f"vit-pytorch tubelet {params['ref-tubelet']:,}.",
@@ -224,30 +270,45 @@ def main(argv=None) -> int:
         "|---|---|---|---:|---:|---:|---:|---:|",
     ]
     for r in results:
-        desc = {"a": "(a) same network", "b": "(b) study's setting", "c": "(c) same network, ours on ONNX Runtime"}[r["case"]]
-        ref_desc = ("vit-pytorch, frame_patch_size=5 (tubelet)" if r["case"] == "b"
-                    else "vit-pytorch, frame_patch_size=1")
+        desc = {"a": "(a) same network", "b": "(b) study's setting", "c": "(c) same network, ours on ONNX Runtime"}[
+            r["case"]
+        ]
+        ref_desc = (
+            "vit-pytorch, frame_patch_size=5 (tubelet)" if r["case"] == "b" else "vit-pytorch, frame_patch_size=1"
+        )
         ours_desc = "per-frame, ONNX Runtime" if r["case"] == "c" else "per-frame"
-        lines.append(f"| {desc} | {ours_desc} | {ref_desc} | {r['batch']} | {r['ours_clips_s']:.1f} | "
-                     f"{r['ref_clips_s']:.1f} | {r['ratio']:.1f}x | {r['best_ratio']:.1f}x |")
-    lines += ["", "(b) compares our per-frame model with the study's tubelet model: different networks "
-                  "(the tubelet one sees each 40 x 40 x 5 block as one token)."]
+        lines.append(
+            f"| {desc} | {ours_desc} | {ref_desc} | {r['batch']} | {r['ours_clips_s']:.1f} | "
+            f"{r['ref_clips_s']:.1f} | {r['ratio']:.1f}x | {r['best_ratio']:.1f}x |"
+        )
+    lines += [
+        "",
+        "(b) compares our per-frame model with the study's tubelet model: different networks "
+        "(the tubelet one sees each 40 x 40 x 5 block as one token).",
+    ]
     if parts:
         ref_ms = next(r["ref_ms"] for r in results if r["batch"] == 1 and r["case"] == "a")
         ours_ms = next(r["ours_ms"] for r in results if r["batch"] == 1 and r["case"] == "a")
-        lines += ["", "## Where the time goes, batch 1", "",
-                  f"Our clip takes {ours_ms:.2f} ms; 10x vit-pytorch (per-frame) would be {ref_ms / 10:.2f} ms.", "",
-                  "| part (ms per clip) | median |", "|---|---:|",
-                  f"| ours: patch embedding of 5 frames | {parts['embed']:.2f} |",
-                  f"| ours: spatial + temporal transformers and head | {parts['transformers']:.2f} |",
-                  f"| floor: read one clip ({parts['clip_mb']:.1f} MB) from memory once "
-                  f"| {parts['read_clip_from_memory']:.2f} |",
-                  f"| floor: the patch projection product alone ({parts['gemm_mflop']:.1f} MFLOP, operands in cache) "
-                  f"| {parts['projection_gemm']:.2f} |",
-                  "", "The embedding is bound by memory traffic: the clip must be read, its patches gathered and "
-                  "their statistics taken. The projection product alone costs the second floor (the clip read "
-                  "can at best overlap it), leaving the rest of a 10x budget to the two transformers, some 60 "
-                  "small operators with a fixed cost per call."]
+        lines += [
+            "",
+            "## Where the time goes, batch 1",
+            "",
+            f"Our clip takes {ours_ms:.2f} ms; 10x vit-pytorch (per-frame) would be {ref_ms / 10:.2f} ms.",
+            "",
+            "| part (ms per clip) | median |",
+            "|---|---:|",
+            f"| ours: patch embedding of 5 frames | {parts['embed']:.2f} |",
+            f"| ours: spatial + temporal transformers and head | {parts['transformers']:.2f} |",
+            f"| floor: read one clip ({parts['clip_mb']:.1f} MB) from memory once "
+            f"| {parts['read_clip_from_memory']:.2f} |",
+            f"| floor: the patch projection product alone ({parts['gemm_mflop']:.1f} MFLOP, operands in cache) "
+            f"| {parts['projection_gemm']:.2f} |",
+            "",
+            "The embedding is bound by memory traffic: the clip must be read, its patches gathered and "
+            "their statistics taken. The projection product alone costs the second floor (the clip read "
+            "can at best overlap it), leaving the rest of a 10x budget to the two transformers, some 60 "
+            "small operators with a fixed cost per call.",
+        ]
     for name, table in profiles.items():
         lines += ["", f"## torch.profiler, {name}, batch 1 (10 calls)", "", "```", table.rstrip(), "```"]
     report = "\n".join(lines) + "\n"
@@ -255,9 +316,12 @@ def main(argv=None) -> int:
     if args.out:
         args.out.write_text(report)
     if args.json:
-        args.json.write_text(json.dumps(dict(env=env, parameters=params, max_abs_diff=max_diff, results=results,
-                                             parts_ms=parts),
-                                        indent=2) + "\n")
+        args.json.write_text(
+            json.dumps(
+                dict(env=env, parameters=params, max_abs_diff=max_diff, results=results, parts_ms=parts), indent=2
+            )
+            + "\n"
+        )
     return 0
 
 

@@ -3,6 +3,7 @@ the moment of slip (every other frame), to see what precedes a slip in the recor
 
     .venv/bin/python scripts/inspect_slips.py [--limit N]
 """
+
 import argparse
 
 import numpy as np

@@ -7,6 +7,7 @@
 
 The names below are imported on first use, so ``import slipsense`` stays fast (no torch until needed).
 """
+
 from __future__ import annotations
 
 import importlib

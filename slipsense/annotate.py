@@ -1,5 +1,6 @@
 """Annotated pictures for ``slipsense watch --out``: sensor frames with heat maps, the probability
 trace with its threshold line, the alarm banner; written as GIF or MP4."""
+
 from __future__ import annotations
 
 import collections
@@ -29,8 +30,13 @@ class Annotator:
         self.threshold, self.sensors, self.fps, self.panel_height = threshold, sensors, fps, panel_height
         self.history: collections.deque[float] = collections.deque(maxlen=int(TRACE_SECONDS * fps))
 
-    def draw(self, frames: Sequence[np.ndarray], reading: Reading, heatmaps: Sequence[np.ndarray | None] = (),
-             clouds: Sequence[np.ndarray | None] = ()) -> np.ndarray:
+    def draw(
+        self,
+        frames: Sequence[np.ndarray],
+        reading: Reading,
+        heatmaps: Sequence[np.ndarray | None] = (),
+        clouds: Sequence[np.ndarray | None] = (),
+    ) -> np.ndarray:
         """``frames``: per sensor a BGR image or None (marker-only sensors); ``heatmaps``: per sensor
         a patch-grid map ``(Hp, Wp)``, a per-marker map ``(M,)`` or None; ``clouds``: per sensor the
         ``(M, 3)`` cloud the marker map refers to (its x, y are drawn)."""
@@ -107,8 +113,16 @@ class Annotator:
             cv2.polylines(img, [np.array(pts, np.int32)], False, (160, 60, 0), 2, cv2.LINE_AA)
         elif pts:
             cv2.circle(img, pts[0], 2, (160, 60, 0), -1)
-        cv2.putText(img, f"slip probability (last {TRACE_SECONDS:g} s), threshold {self.threshold:g}",
-                    (left + 4, top + 12), cv2.FONT_HERSHEY_SIMPLEX, 0.35, (80, 80, 80), 1, cv2.LINE_AA)
+        cv2.putText(
+            img,
+            f"slip probability (last {TRACE_SECONDS:g} s), threshold {self.threshold:g}",
+            (left + 4, top + 12),
+            cv2.FONT_HERSHEY_SIMPLEX,
+            0.35,
+            (80, 80, 80),
+            1,
+            cv2.LINE_AA,
+        )
         return img
 
 
@@ -144,7 +158,9 @@ class AnnotatedWriter:
             return
         if self._writer is None:
             self.path.parent.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(prefix=f".{self.path.stem}.", suffix=f".tmp{self.path.suffix}", dir=self.path.parent)
+            fd, tmp = tempfile.mkstemp(
+                prefix=f".{self.path.stem}.", suffix=f".tmp{self.path.suffix}", dir=self.path.parent
+            )
             import os
 
             os.close(fd)
@@ -166,8 +182,12 @@ class AnnotatedWriter:
             from slipsense.atomic import write_with
 
             first, rest = self._frames[0], self._frames[1:]
-            write_with(self.path, lambda tmp: first.save(tmp, format="GIF", save_all=True, append_images=rest,
-                                                         duration=int(round(1000 / self.fps)), loop=0))
+            write_with(
+                self.path,
+                lambda tmp: first.save(
+                    tmp, format="GIF", save_all=True, append_images=rest, duration=int(round(1000 / self.fps)), loop=0
+                ),
+            )
             self._frames = []
             return self.path
         if self._writer is None:
@@ -184,5 +204,3 @@ class AnnotatedWriter:
         if self._tmp is not None and self._tmp.exists():
             self._tmp.unlink()
         self._frames = []
-
-

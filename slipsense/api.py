@@ -11,6 +11,7 @@
 Recordings folders follow the GelSight layout ``<object>/exp_num_<N>/camera_*.avi`` (+ ``slip.txt``
 in runs that slipped); see :mod:`slipsense.sensors.spec`.
 """
+
 from __future__ import annotations
 
 import json
@@ -58,9 +59,17 @@ class TrainedDetector:
         return SlipDetector.from_checkpoint(self.checkpoint, sensors=sensors)
 
 
-def fit(recordings: str | Path | None = None, out: str | Path = "runs/detector", *, model: str = "motionnet",
-          held_out: Sequence[str] = (), overrides: str | Path | None | bool = True, seed: int = 0,
-          progress: bool = True, **settings: Any) -> TrainedDetector:
+def fit(
+    recordings: str | Path | None = None,
+    out: str | Path = "runs/detector",
+    *,
+    model: str = "motionnet",
+    held_out: Sequence[str] = (),
+    overrides: str | Path | None | bool = True,
+    seed: int = 0,
+    progress: bool = True,
+    **settings: Any,
+) -> TrainedDetector:
     """Train a grasp detector (both sensors, every frame) on a recordings folder.
 
     Args:
@@ -130,15 +139,26 @@ class Evaluation:
     def to_json(self, path: str | Path) -> Path:
         from slipsense.atomic import write_text
 
-        doc = {"threshold": self.threshold, "debounce": self.debounce, "horizon": self.horizon,
-               "summary": self.summary()}
+        doc = {
+            "threshold": self.threshold,
+            "debounce": self.debounce,
+            "horizon": self.horizon,
+            "summary": self.summary(),
+        }
         write_text(path, json.dumps(doc, indent=1, default=float))
         return Path(path)
 
 
-def evaluate(checkpoint: str | Path | None = None, recordings: str | Path | None = None, *,
-             overrides: str | Path | None | bool = True, horizon: int = pergrasp.HORIZON,
-             threshold: float | None = None, debounce: int | None = None, progress: bool = True) -> Evaluation:
+def evaluate(
+    checkpoint: str | Path | None = None,
+    recordings: str | Path | None = None,
+    *,
+    overrides: str | Path | None | bool = True,
+    horizon: int = pergrasp.HORIZON,
+    threshold: float | None = None,
+    debounce: int | None = None,
+    progress: bool = True,
+) -> Evaluation:
     """Replay every run of a recordings folder through a detector, both sensors from the first frame.
 
     Args:
@@ -153,8 +173,11 @@ def evaluate(checkpoint: str | Path | None = None, recordings: str | Path | None
     from slipsense.recordings.folders import find_recordings, validate_recordings
 
     root = _recordings_folder(recordings)
-    detector = (SlipDetector.pretrained(sensors=2, threshold=threshold, debounce=debounce) if checkpoint is None
-                else SlipDetector.from_checkpoint(checkpoint, sensors=2, threshold=threshold, debounce=debounce))
+    detector = (
+        SlipDetector.pretrained(sensors=2, threshold=threshold, debounce=debounce)
+        if checkpoint is None
+        else SlipDetector.from_checkpoint(checkpoint, sensors=2, threshold=threshold, debounce=debounce)
+    )
     recs = validate_recordings(find_recordings(root), expected_size=None)
     runs = replay_recordings(detector, recs, progress=progress, overrides=_overrides(root, overrides))
     return Evaluation(runs, detector.threshold, detector.debounce, horizon)

@@ -3,6 +3,7 @@
 Checkpoints, caches and reports all go through here, so a run killed at any moment leaves every
 file it had written before intact.
 """
+
 from __future__ import annotations
 
 import contextlib

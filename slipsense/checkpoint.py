@@ -4,6 +4,7 @@ A checkpoint rebuilds its model with no other file: ``load_model(path)``. Traini
 ``--resume`` (optimizer, scheduler, RNG, epoch) lives beside it in ``resume.pt``: also a safetensors
 file (tensors + JSON), never a pickle, so a run folder from elsewhere cannot run code when resumed.
 """
+
 from __future__ import annotations
 
 import json
@@ -64,8 +65,9 @@ def read_info(path: str | Path) -> dict[str, Any]:
     if not isinstance(info["model"], str):
         raise InputError(path, f"checkpoint model name must be a string, got {type(info['model']).__name__}")
     if not isinstance(info["model_config"], dict):
-        raise InputError(path, f"checkpoint model_config must be a mapping of settings, got a "
-                               f"{type(info['model_config']).__name__}")
+        raise InputError(
+            path, f"checkpoint model_config must be a mapping of settings, got a {type(info['model_config']).__name__}"
+        )
     return info
 
 
@@ -100,8 +102,10 @@ def _check_config_bounds(path: Path, config: dict[str, Any], shapes: dict[str, t
             return
         if isinstance(v, (int, float)):
             if not math.isfinite(v) or abs(v) > limit:
-                raise InputError(path, f"checkpoint setting {key}={v!r} is out of range (at most {limit} for the "
-                                       f"weights this file holds)")
+                raise InputError(
+                    path,
+                    f"checkpoint setting {key}={v!r} is out of range (at most {limit} for the weights this file holds)",
+                )
             return
         if isinstance(v, (list, tuple)):
             if len(v) > limit:
@@ -165,10 +169,14 @@ def load_model(path: str | Path, expect_model: str | None = None) -> tuple[nn.Mo
         raise InputError(path, f"checkpoint weights are unreadable ({type(exc).__name__}: {exc})") from None
     missing, unexpected = _diff_keys(model.state_dict(), state)
     if missing or unexpected:
-        raise InputError(path, f"weights do not fit model {info['model']!r}: missing {missing[:3]}, unexpected {unexpected[:3]}")
+        raise InputError(
+            path, f"weights do not fit model {info['model']!r}: missing {missing[:3]}, unexpected {unexpected[:3]}"
+        )
     for key, ref in model.state_dict().items():
         if state[key].shape != ref.shape:
-            raise InputError(path, f"weight {key} has shape {tuple(state[key].shape)}, model expects {tuple(ref.shape)}")
+            raise InputError(
+                path, f"weight {key} has shape {tuple(state[key].shape)}, model expects {tuple(ref.shape)}"
+            )
         if state[key].is_floating_point() and not torch.isfinite(state[key]).all():
             raise InputError(path, f"weight {key} contains NaN or inf")
     model.load_state_dict(state)
@@ -278,15 +286,24 @@ def save_resume_state(path: str | Path, state: dict[str, Any]) -> None:
 
     tensors: dict[str, torch.Tensor] = {}
     tree = _encode(state, tensors)
-    meta = {RESUME_KEY: json.dumps({"format": RESUME_FORMAT, "state": tree}, allow_nan=False),
-            "slipsense_version": __version__}
+    meta = {
+        RESUME_KEY: json.dumps({"format": RESUME_FORMAT, "state": tree}, allow_nan=False),
+        "slipsense_version": __version__,
+    }
     with atomic_path(path) as tmp:
         save_file(tensors, str(tmp), metadata=meta)
 
 
 #: What a resume state holds, and the type each entry must have.
-RESUME_ENTRIES = {"model": dict, "optimizer": dict, "scheduler": dict, "rng": dict, "history": list,
-                  "best": (int, float), "epoch": int}
+RESUME_ENTRIES = {
+    "model": dict,
+    "optimizer": dict,
+    "scheduler": dict,
+    "rng": dict,
+    "history": list,
+    "best": (int, float),
+    "epoch": int,
+}
 
 
 def load_resume_state(path: str | Path) -> dict[str, Any]:
@@ -307,8 +324,11 @@ def load_resume_state(path: str | Path) -> dict[str, Any]:
     is_safetensors = len(head) == 9 and head[8:9] == b"{" and int.from_bytes(head[:8], "little") < path.stat().st_size
     if not is_safetensors:
         if head[:4] == b"PK\x03\x04" or head[:1] == b"\x80":
-            raise InputError(path, "resume state is a pickle (torch.save format), which is never loaded because "
-                                   "unpickling can run code; delete it and train again without --resume")
+            raise InputError(
+                path,
+                "resume state is a pickle (torch.save format), which is never loaded because "
+                "unpickling can run code; delete it and train again without --resume",
+            )
         raise InputError(path, "resume state is not a slipsense resume file (not safetensors)")
     try:
         with safe_open(str(path), framework="pt") as fh:
@@ -321,8 +341,9 @@ def load_resume_state(path: str | Path) -> dict[str, Any]:
     try:
         doc = json.loads(meta[RESUME_KEY])
         if not isinstance(doc, dict) or doc.get("format") != RESUME_FORMAT:
-            raise ValueError(f"format {doc.get('format') if isinstance(doc, dict) else doc!r}, "
-                             f"expected {RESUME_FORMAT}")
+            raise ValueError(
+                f"format {doc.get('format') if isinstance(doc, dict) else doc!r}, expected {RESUME_FORMAT}"
+            )
         state = _decode(doc.get("state"), tensors)
     except (ValueError, TypeError, RecursionError) as exc:
         raise InputError(path, f"resume state is malformed ({exc})") from None

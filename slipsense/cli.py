@@ -1,9 +1,9 @@
 """The ``slipsense`` command line. Every command turns a bad input into one line and exit code 2."""
+
 from __future__ import annotations
 
 import functools
 import json
-import sys
 import warnings
 from pathlib import Path
 from typing import Any, List, Optional
@@ -12,8 +12,12 @@ import typer
 
 from slipsense.errors import ConfigError, SlipsenseError
 
-app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
-                  help="Slip detection and prediction from vision-based tactile sensors.")
+app = typer.Typer(
+    add_completion=False,
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    help="Slip detection and prediction from vision-based tactile sensors.",
+)
 
 
 def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> str:
@@ -133,7 +137,9 @@ def train(
     horizon: int = typer.Option(0, help="slip clips end this many frames before the moment of slip"),
     size: Optional[str] = typer.Option(None, help="clip size HxW (default 240x320)"),
     wiggle_per_video: int = typer.Option(2, help="wiggle windows drawn from each non-slip video"),
-    split: str = typer.Option("objects", help="objects: leave objects out; clips: random 90/10 by clip; all: train on everything"),
+    split: str = typer.Option(
+        "objects", help="objects: leave objects out; clips: random 90/10 by clip; all: train on everything"
+    ),
     test_objects: Optional[str] = typer.Option(None, help="comma-separated held-out objects"),
     fold: Optional[int] = typer.Option(None, help="hold out fold k of --folds object folds"),
     folds: int = typer.Option(5),
@@ -141,9 +147,12 @@ def train(
     augment: bool = typer.Option(True, help="append the paper's transformed copies to the training set"),
     epochs: Optional[int] = typer.Option(None),
     batch_size: Optional[int] = typer.Option(None, help="per process; under torchrun the global batch is world x this"),
-    accumulate: Optional[int] = typer.Option(None, help="micro-batches per process per step (global batch: world x "
-                                                         "batch size x this); 1 process x accumulate N draws the "
-                                                         "dropout masks of N processes"),
+    accumulate: Optional[int] = typer.Option(
+        None,
+        help="micro-batches per process per step (global batch: world x "
+        "batch size x this); 1 process x accumulate N draws the "
+        "dropout masks of N processes",
+    ),
     lr: Optional[float] = typer.Option(None),
     weight_decay: Optional[float] = typer.Option(None),
     seed: int = typer.Option(0),
@@ -162,15 +171,40 @@ def train(
     check_seed(seed)
     check_output_dir(out, "--out")
     req = TrainRequest(
-        model=model, recordings=recordings, markers=markers, out=out, preset=preset, model_overrides=_parse_sets(set_),
-        frames=frames, horizon=horizon, size=parse_hw(size), wiggle_per_video=wiggle_per_video, split=split,
-        test_objects=[o for o in (test_objects or "").split(",") if o], fold=fold, folds=folds,
-        test_fraction=test_fraction, augment=augment, seed=seed, on_error=on_error, overrides=overrides,
+        model=model,
+        recordings=recordings,
+        markers=markers,
+        out=out,
+        preset=preset,
+        model_overrides=_parse_sets(set_),
+        frames=frames,
+        horizon=horizon,
+        size=parse_hw(size),
+        wiggle_per_video=wiggle_per_video,
+        split=split,
+        test_objects=[o for o in (test_objects or "").split(",") if o],
+        fold=fold,
+        folds=folds,
+        test_fraction=test_fraction,
+        augment=augment,
+        seed=seed,
+        on_error=on_error,
+        overrides=overrides,
         progress=progress,
-        train_overrides={k: v for k, v in dict(epochs=epochs, batch_size=batch_size, accumulate=accumulate, lr=lr,
-                                               weight_decay=weight_decay,
-                                               num_workers=workers, device=device,
-                                               max_steps_per_epoch=max_steps_per_epoch).items() if v is not None},
+        train_overrides={
+            k: v
+            for k, v in dict(
+                epochs=epochs,
+                batch_size=batch_size,
+                accumulate=accumulate,
+                lr=lr,
+                weight_decay=weight_decay,
+                num_workers=workers,
+                device=device,
+                max_steps_per_epoch=max_steps_per_epoch,
+            ).items()
+            if v is not None
+        },
     )
     run_training(req, resume=resume)
 
@@ -197,10 +231,22 @@ def evaluate(
     check_nonnegative(noise_std, "--noise-std")
     check_output_file(json_out, "--json")
     check_output_file(png, "--png")
-    m = evaluate_checkpoint(checkpoint, recordings=recordings, split=split, markers=markers, json_out=json_out,
-                            png=png, noise_std=noise_std, on_error=on_error, overrides=overrides,
-                            progress=progress, dtype=dtype)
-    typer.echo(json.dumps({k: m[k] for k in ("accuracy", "precision", "recall", "f1", "n_clips", "n_slip", "n_wiggle")}))
+    m = evaluate_checkpoint(
+        checkpoint,
+        recordings=recordings,
+        split=split,
+        markers=markers,
+        json_out=json_out,
+        png=png,
+        noise_std=noise_std,
+        on_error=on_error,
+        overrides=overrides,
+        progress=progress,
+        dtype=dtype,
+    )
+    typer.echo(
+        json.dumps({k: m[k] for k in ("accuracy", "precision", "recall", "f1", "n_clips", "n_slip", "n_wiggle")})
+    )
 
 
 @app.command()

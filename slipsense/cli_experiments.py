@@ -4,6 +4,7 @@ Each command writes ``<name>.csv``, ``<name>.png``, ``<name>.md`` and ``config.j
 (default ``reports/<name>``); ``--quick`` is the documented smaller setting (120x160 clips, patch
 20x20, fewer epochs), labelled as such in every output.
 """
+
 import functools
 import inspect
 import shlex
@@ -15,8 +16,10 @@ import typer
 
 from slipsense.errors import ConfigError
 
-HELP = ("Run the papers' experiments (and two beyond them) into report folders; "
-        "`results` gathers them into docs/results.md.")
+HELP = (
+    "Run the papers' experiments (and two beyond them) into report folders; "
+    "`results` gathers them into docs/results.md."
+)
 P = inspect.Parameter
 _DEFINITIONS: list = []  # (name, train, fn), turned into commands by register()
 
@@ -28,29 +31,49 @@ def _opt(name: str, annotation, default, *decls: str, help: str = ""):
 #: Options every experiment takes (params only the first group).
 BASE_OPTIONS = [
     _opt("out", Optional[Path], None, help="report folder (default reports/<experiment>)"),
-    _opt("quick", bool, False, "--quick", help="the documented smaller setting: 120x160 clips, patch 20x20, "
-                                               "fewer epochs (labelled QUICK in every output)"),
+    _opt(
+        "quick",
+        bool,
+        False,
+        "--quick",
+        help="the documented smaller setting: 120x160 clips, patch 20x20, "
+        "fewer epochs (labelled QUICK in every output)",
+    ),
     _opt("seed", int, 0, help="seed of model initialisation, batch order and augmentation"),
     _opt("size", Optional[str], None, help="clip size HxW (default 240x320; --quick 120x160)"),
     _opt("patch", Optional[str], None, help="ViViT patch HxW (default: the 6x8 grid, 40x40 at 240x320)"),
-    _opt("set_", Optional[List[str]], None, "--set",
-         help="model config MODEL.KEY=VALUE, e.g. --set vivit.dim=16 (repeatable)"),
+    _opt(
+        "set_",
+        Optional[List[str]],
+        None,
+        "--set",
+        help="model config MODEL.KEY=VALUE, e.g. --set vivit.dim=16 (repeatable)",
+    ),
     _opt("progress", bool, True, "--progress/--no-progress", help="progress bars and per-epoch lines"),
 ]
 TRAIN_OPTIONS = [
     _opt("epochs", Optional[int], None, help="epochs for every model (default: the paper's; --quick fewer)"),
     _opt("batch_size", Optional[int], None, help="batch size for every model (default: the paper's)"),
     _opt("lr", Optional[float], None, help="learning rate for every model (default: the paper's)"),
-    _opt("train_set", Optional[List[str]], None, "--train-set",
-         help="training setting MODEL.KEY=VALUE, e.g. --train-set stnet.lr=1e-4 (repeatable)"),
+    _opt(
+        "train_set",
+        Optional[List[str]],
+        None,
+        "--train-set",
+        help="training setting MODEL.KEY=VALUE, e.g. --train-set stnet.lr=1e-4 (repeatable)",
+    ),
     _opt("data_seed", int, 0, help="seed of the object folds, wiggle windows and random clip splits"),
     _opt("fold", int, 0, help="held-out object fold"),
     _opt("folds", int, 5, help="number of object folds"),
     _opt("test_objects", Optional[str], None, help="comma-separated held-out objects (instead of --fold)"),
     _opt("augment", bool, True, "--augment/--no-augment", help="append the paper's transformed training copies"),
     _opt("recordings", Optional[Path], None, help="GelSight recordings folder (default $SLIPSENSE_DATA/gelsight-slip)"),
-    _opt("overrides", Optional[Path], None,
-         help="hand-label CSV (default: the shipped configs/gelsight-label-overrides.csv)"),
+    _opt(
+        "overrides",
+        Optional[Path],
+        None,
+        help="hand-label CSV (default: the shipped configs/gelsight-label-overrides.csv)",
+    ),
     _opt("no_overrides", bool, False, "--no-overrides", help="use the automatic labels only"),
     _opt("on_error", str, "raise", help="raise: stop at a bad video; skip: warn and leave it out"),
     _opt("device", str, "auto", help="auto, cpu, cuda, cuda:1..."),
@@ -102,15 +125,28 @@ def _settings(name: str, kw: dict):
     from slipsense.experiments.settings import Settings
 
     return Settings(
-        out=kw["out"] or Path("reports") / name, seed=kw["seed"], data_seed=kw.get("data_seed", 0),
-        quick=kw["quick"], epochs=kw.get("epochs"), size=_parse_pair(kw["size"], "--size"),
-        patch=_parse_pair(kw["patch"], "--patch"), batch_size=kw.get("batch_size"), lr=kw.get("lr"),
-        device=kw.get("device", "auto"), workers=kw.get("workers", 0), fold=kw.get("fold", 0),
-        folds=kw.get("folds", 5), test_objects=[o for o in (kw.get("test_objects") or "").split(",") if o],
-        augment=kw.get("augment", True), max_steps_per_epoch=kw.get("max_steps_per_epoch"),
+        out=kw["out"] or Path("reports") / name,
+        seed=kw["seed"],
+        data_seed=kw.get("data_seed", 0),
+        quick=kw["quick"],
+        epochs=kw.get("epochs"),
+        size=_parse_pair(kw["size"], "--size"),
+        patch=_parse_pair(kw["patch"], "--patch"),
+        batch_size=kw.get("batch_size"),
+        lr=kw.get("lr"),
+        device=kw.get("device", "auto"),
+        workers=kw.get("workers", 0),
+        fold=kw.get("fold", 0),
+        folds=kw.get("folds", 5),
+        test_objects=[o for o in (kw.get("test_objects") or "").split(",") if o],
+        augment=kw.get("augment", True),
+        max_steps_per_epoch=kw.get("max_steps_per_epoch"),
         model_overrides=_parse_model_sets(kw["set_"], "--set"),
         train_overrides=_parse_model_sets(kw.get("train_set"), "--train-set"),
-        resume=kw.get("resume", False), progress=kw["progress"], command=_command_line())
+        resume=kw.get("resume", False),
+        progress=kw["progress"],
+        command=_command_line(),
+    )
 
 
 def _source(kw: dict):
@@ -168,34 +204,40 @@ def params_cmd(settings, kw):
 
 @_experiment("video-compare")
 def video_compare_cmd(
-    settings, kw,
-    resnet_weights: Optional[Path] = typer.Option(None, help="start the 3D ResNet-50 from these weights "
-                                                             "(.safetensors/.pt; pytorchvideo names accepted)"),
+    settings,
+    kw,
+    resnet_weights: Optional[Path] = typer.Option(
+        None, help="start the 3D ResNet-50 from these weights (.safetensors/.pt; pytorchvideo names accepted)"
+    ),
     inference_clips: int = typer.Option(50, help="held-out clips timed at batch 1"),
 ):
     """ViViT vs 3D ResNet-50 (ViViT paper III-B): parameters, training time, inference rate, held-out scores."""
     from slipsense.experiments.video_compare import run_video_compare
 
-    return run_video_compare(settings, _source(kw), resnet_weights=resnet_weights,
-                             inference_clips=inference_clips)["paths"]
+    return run_video_compare(settings, _source(kw), resnet_weights=resnet_weights, inference_clips=inference_clips)[
+        "paths"
+    ]
 
 
 @_experiment("frames")
 def frames_cmd(
-    settings, kw,
+    settings,
+    kw,
     frames: str = typer.Option("5,4,3,2", help="clip lengths to compare"),
     test_fraction: float = typer.Option(0.1, help="random clip-level test share of the training objects"),
 ):
     """ViViT with 5, 4, 3, 2 frames (ViViT paper Fig. 7): train / test / held-out accuracy per epoch."""
     from slipsense.experiments.frames import run_frames
 
-    return run_frames(settings, _source(kw), frames_list=_parse_list(frames, int, "--frames"),
-                      test_fraction=test_fraction)["paths"]
+    return run_frames(
+        settings, _source(kw), frames_list=_parse_list(frames, int, "--frames"), test_fraction=test_fraction
+    )["paths"]
 
 
 @_experiment("noise")
 def noise_cmd(
-    settings, kw,
+    settings,
+    kw,
     checkpoint: Optional[Path] = typer.Option(None, help="a trained ViViT .safetensors (default: train one here)"),
     stds: str = typer.Option("0,5,10,15,20,30,50", help="noise standard deviations (0..255 scale)"),
 ):
@@ -207,11 +249,13 @@ def noise_cmd(
 
 @_experiment("stnet")
 def stnet_cmd(
-    settings, kw,
+    settings,
+    kw,
     data: str = typer.Option("sim,real", help="sim (simulated sensor), real (tracked GelSight markers) or both"),
     preset: str = typer.Option("compact", help="STNet/TemNet size: compact (CPU), paper, paper-ff4096"),
-    sim_sequences: Optional[int] = typer.Option(None, help="simulated sequences per object and pattern "
-                                                           "(default 4; --quick 2)"),
+    sim_sequences: Optional[int] = typer.Option(
+        None, help="simulated sequences per object and pattern (default 4; --quick 2)"
+    ),
     markers: int = typer.Option(32, help="tracked markers per frame for real data"),
     frames: int = typer.Option(12, help="frames per real marker window"),
 ):
@@ -219,13 +263,21 @@ def stnet_cmd(
     from slipsense.experiments.stnet import run_stnet
 
     kinds = [d.strip() for d in data.split(",") if d.strip()]
-    return run_stnet(settings, _source(kw) if "real" in kinds else None, data=kinds, preset=preset,
-                     sim_sequences=sim_sequences, n_markers=markers, frames=frames)["paths"]
+    return run_stnet(
+        settings,
+        _source(kw) if "real" in kinds else None,
+        data=kinds,
+        preset=preset,
+        sim_sequences=sim_sequences,
+        n_markers=markers,
+        frames=frames,
+    )["paths"]
 
 
 @_experiment("horizon")
 def horizon_cmd(
-    settings, kw,
+    settings,
+    kw,
     horizons: str = typer.Option("0,2,5,10", help="frames between a slip clip's end and the moment of slip"),
 ):
     """ViViT on held-out objects with clips ending 0, 2, 5, 10 frames before the slip (beyond the papers)."""
@@ -237,7 +289,8 @@ def horizon_cmd(
 
 @_experiment("all-models")
 def all_models_cmd(
-    settings, kw,
+    settings,
+    kw,
     frames: int = typer.Option(5, help="frames per window (clips and marker sequences alike)"),
     markers: int = typer.Option(32, help="tracked markers per frame for STNet/TemNet"),
     preset: str = typer.Option("compact", help="STNet/TemNet size: compact, paper, paper-ff4096"),

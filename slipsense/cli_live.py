@@ -1,4 +1,5 @@
 """Commands for live detection: ``watch``, ``early-warning`` and ``export`` (registered by slipsense.cli)."""
+
 from __future__ import annotations
 
 import warnings
@@ -26,8 +27,10 @@ def parse_thresholds(text: str) -> list[float]:
     return values
 
 
-THREADS_HELP = ("intra-op threads for torch and ONNX Runtime (default: torch's). Use 1 on a busy machine: the "
-                "small per-frame operations then wait for no descheduled worker thread")
+THREADS_HELP = (
+    "intra-op threads for torch and ONNX Runtime (default: torch's). Use 1 on a busy machine: the "
+    "small per-frame operations then wait for no descheduled worker thread"
+)
 
 
 def _set_threads(threads: Optional[int]) -> None:
@@ -95,13 +98,17 @@ def open_source(source: str, kind: str, markers: int | None = None) -> Source:
     if path.is_file():
         if path.suffix.lower() == ".npy":
             if kind != "markers":
-                raise InputError(path, "a marker .npy needs a marker model (stnet, temnet); this checkpoint takes video")
+                raise InputError(
+                    path, "a marker .npy needs a marker model (stnet, temnet); this checkpoint takes video"
+                )
             return _npy_source(path, markers)
         return _array_source(str(path), [read_video(path, expected_size=None, min_frames=1)], [path], kind, markers)
     if source.strip().isdigit():
         if kind not in ("video", "grasp"):
-            raise InputError(None, f"camera {source}: live cameras need a video model; marker models take a "
-                                   f"video file or a marker .npy")
+            raise InputError(
+                None,
+                f"camera {source}: live cameras need a video model; marker models take a video file or a marker .npy",
+            )
         return _camera_source(int(source))
     raise InputError(path, "no such file or folder (nor a camera index)")
 
@@ -152,9 +159,19 @@ def _camera_source(index: int) -> Source:
 # ---------------------------------------------------------------------------------------------
 
 
-def watch_source(source: str, checkpoint: Optional[Path], threshold: Optional[float] = None, out: Optional[Path] = None,
-                 combine: str = "max", backend: str = "torch", max_frames: Optional[int] = None,
-                 heatmap: bool = True, echo=typer.echo, quiet: bool = False, dtype: str = "float32") -> dict[str, Any]:
+def watch_source(
+    source: str,
+    checkpoint: Optional[Path],
+    threshold: Optional[float] = None,
+    out: Optional[Path] = None,
+    combine: str = "max",
+    backend: str = "torch",
+    max_frames: Optional[int] = None,
+    heatmap: bool = True,
+    echo=typer.echo,
+    quiet: bool = False,
+    dtype: str = "float32",
+) -> dict[str, Any]:
     """Stream ``source`` through the detector; print a line per frame; optionally write an annotated
     GIF/video. Returns ``{"frames", "alarm_onsets", "first_alarm", "out"}``."""
     from slipsense.checkpoint import load_model
@@ -170,9 +187,17 @@ def watch_source(source: str, checkpoint: Optional[Path], threshold: Optional[fl
     model, info = load_model(ckpt)
     threshold, debounce = stored_operating_point(ckpt, info, threshold, None)
     src = open_source(source, model.input_kind, getattr(model, "markers", None))
-    det = SlipDetector(model, threshold=threshold, sensors=src.sensors, combine=combine, backend=backend, info=info,
-                       onnx_dir=onnx_cache_dir(ckpt) if backend == "onnx" else None, dtype=dtype,
-                       debounce=debounce)
+    det = SlipDetector(
+        model,
+        threshold=threshold,
+        sensors=src.sensors,
+        combine=combine,
+        backend=backend,
+        info=info,
+        onnx_dir=onnx_cache_dir(ckpt) if backend == "onnx" else None,
+        dtype=dtype,
+        debounce=debounce,
+    )
     annot = Annotator(det.threshold, det.sensors) if out is not None else None
     writer = AnnotatedWriter(out) if out is not None else None
     onsets: list[int] = []
@@ -203,10 +228,17 @@ def watch_source(source: str, checkpoint: Optional[Path], threshold: Optional[fl
         src.close()
         det.close()
     written = writer.close() if writer is not None else None
-    summary = {"frames": n, "alarm_onsets": onsets, "first_alarm": onsets[0] if onsets else None,
-               "out": None if written is None else str(written)}
-    echo(f"{n} frames, {len(onsets)} alarm onset(s)" + (f", first at frame {onsets[0]}" if onsets else "")
-         + (f" -> {written}" if written else ""))
+    summary = {
+        "frames": n,
+        "alarm_onsets": onsets,
+        "first_alarm": onsets[0] if onsets else None,
+        "out": None if written is None else str(written),
+    }
+    echo(
+        f"{n} frames, {len(onsets)} alarm onset(s)"
+        + (f", first at frame {onsets[0]}" if onsets else "")
+        + (f" -> {written}" if written else "")
+    )
     return summary
 
 
@@ -224,11 +256,17 @@ def register(app: typer.Typer) -> None:
     @app.command()
     @friendly
     def watch(
-        source: str = typer.Argument(..., help="video file, recordings experiment folder (camera_*.avi as sensors), "
-                                               "marker .npy, or camera index (0, 1, ...)"),
-        checkpoint: Optional[Path] = typer.Option(None, help="checkpoint (default: the shipped detector, models/motionnet-gelsight.safetensors)"),
-        threshold: Optional[float] = typer.Option(None, help="alarm when the slip probability is >= this "
-                                                  "(default: the checkpoint's operating point)"),
+        source: str = typer.Argument(
+            ...,
+            help="video file, recordings experiment folder (camera_*.avi as sensors), "
+            "marker .npy, or camera index (0, 1, ...)",
+        ),
+        checkpoint: Optional[Path] = typer.Option(
+            None, help="checkpoint (default: the shipped detector, models/motionnet-gelsight.safetensors)"
+        ),
+        threshold: Optional[float] = typer.Option(
+            None, help="alarm when the slip probability is >= this (default: the checkpoint's operating point)"
+        ),
         out: Optional[Path] = typer.Option(None, help="annotated output: .gif, .mp4 or .avi"),
         combine: str = typer.Option("max", help="two sensors: max or mean of their probabilities"),
         backend: str = typer.Option("torch", help="torch or onnx (ONNX Runtime)"),
@@ -240,20 +278,26 @@ def register(app: typer.Typer) -> None:
     ):
         """Stream a video, an experiment folder or a camera through a slip detector."""
         _set_threads(threads)
-        watch_source(source, checkpoint, threshold, out, combine, backend, max_frames, heatmap, quiet=quiet,
-                     dtype=dtype)
+        watch_source(
+            source, checkpoint, threshold, out, combine, backend, max_frames, heatmap, quiet=quiet, dtype=dtype
+        )
 
     @app.command("early-warning")
     @friendly
     def early_warning(
         checkpoint: Optional[Path] = typer.Option(None, help="video-model checkpoint (default: the shipped detector)"),
-        recordings: Optional[Path] = typer.Option(None, help="recordings folder (default: $SLIPSENSE_DATA/gelsight-slip)"),
+        recordings: Optional[Path] = typer.Option(
+            None, help="recordings folder (default: $SLIPSENSE_DATA/gelsight-slip)"
+        ),
         out: Path = typer.Option(..., help="output folder for CSV, JSON and PNGs"),
-        thresholds: str = typer.Option(DEFAULT_THRESHOLDS, help="comma-separated alarm thresholds (the "
-                                       "checkpoint's own operating point is always added)"),
+        thresholds: str = typer.Option(
+            DEFAULT_THRESHOLDS,
+            help="comma-separated alarm thresholds (the checkpoint's own operating point is always added)",
+        ),
         horizon: int = typer.Option(50, help="frames before the moment of slip in which a first alarm is in time"),
-        debounce: Optional[int] = typer.Option(None, help="frames in a row above the threshold before an alarm "
-                                               "(default: the checkpoint's)"),
+        debounce: Optional[int] = typer.Option(
+            None, help="frames in a row above the threshold before an alarm (default: the checkpoint's)"
+        ),
         overrides: Optional[Path] = typer.Option(None, help="label overrides CSV (object,experiment,camera,moment)"),
         labels: Optional[Path] = typer.Option(None, help="labels CSV (slipsense label) instead of automatic labels"),
         combine: str = typer.Option("max", help="max or mean of the two cameras' probabilities"),
@@ -267,9 +311,23 @@ def register(app: typer.Typer) -> None:
     ):
         """Per-grasp early warning: slips warned in time, premature, missed; grasps that held yet alarmed."""
         _set_threads(threads)
-        summary = run_early_warning(checkpoint, recordings, out, thresholds, labels, combine, backend, limit, fps,
-                                    on_error, progress, dtype, horizon=horizon, debounce=debounce,
-                                    overrides=overrides)
+        summary = run_early_warning(
+            checkpoint,
+            recordings,
+            out,
+            thresholds,
+            labels,
+            combine,
+            backend,
+            limit,
+            fps,
+            on_error,
+            progress,
+            dtype,
+            horizon=horizon,
+            debounce=debounce,
+            overrides=overrides,
+        )
         typer.echo(summary)
 
     @app.command("export")
@@ -287,15 +345,30 @@ def register(app: typer.Typer) -> None:
         result = export_onnx(_checkpoint(checkpoint), out, batch=batch, streaming=streaming, verify=verify)
         for key, path in result.paths.items():
             diff = result.max_abs_diff.get(key)
-            typer.echo(f"{key:6s} {path}  ({result.exporter[key]} exporter"
-                       + ("" if diff is None else f", max |onnx - torch| = {diff:.2e}") + ")")
+            typer.echo(
+                f"{key:6s} {path}  ({result.exporter[key]} exporter"
+                + ("" if diff is None else f", max |onnx - torch| = {diff:.2e}")
+                + ")"
+            )
 
 
-def run_early_warning(checkpoint: Optional[Path], recordings: Optional[Path], out: Path,
-                      thresholds: str | Sequence[float] = DEFAULT_THRESHOLDS, labels: Optional[Path] = None,
-                      combine: str = "max", backend: str = "torch", limit: Optional[int] = None, fps: float = 25.0,
-                      on_error: str = "raise", progress: bool = True, dtype: str = "float32", horizon: int = 50,
-                      debounce: Optional[int] = None, overrides: Optional[Path] = None) -> str:
+def run_early_warning(
+    checkpoint: Optional[Path],
+    recordings: Optional[Path],
+    out: Path,
+    thresholds: str | Sequence[float] = DEFAULT_THRESHOLDS,
+    labels: Optional[Path] = None,
+    combine: str = "max",
+    backend: str = "torch",
+    limit: Optional[int] = None,
+    fps: float = 25.0,
+    on_error: str = "raise",
+    progress: bool = True,
+    dtype: str = "float32",
+    horizon: int = 50,
+    debounce: Optional[int] = None,
+    overrides: Optional[Path] = None,
+) -> str:
     """The ``early-warning`` command as a function; returns the summary text it prints."""
     from slipsense.config import gelsight_recordings
     from slipsense.early_warning import early_warning_table, replay_recordings, write_early_warning
@@ -325,31 +398,49 @@ def run_early_warning(checkpoint: Optional[Path], recordings: Optional[Path], ou
     lab = read_labels_csv(labels) if labels is not None else None
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # a checkpoint without a threshold: the table covers thresholds anyway
-        det = SlipDetector.from_checkpoint(ckpt, sensors=counts[0], combine=combine, backend=backend,
-                                           dtype=dtype, debounce=debounce)
+        det = SlipDetector.from_checkpoint(
+            ckpt, sensors=counts[0], combine=combine, backend=backend, dtype=dtype, debounce=debounce
+        )
     if det.threshold not in ths:
         ths = sorted(ths + [det.threshold])
     try:
         runs = replay_recordings(det, recs, lab, progress=progress, limit=limit, overrides=overrides)
     finally:
         det.close()
-    meta = {"checkpoint": str(ckpt), "model": det.model_name, "recordings": str(root), "combine": combine,
-            "backend": backend, "dtype": dtype, "sensors": det.sensors,
-            "operating_point": {"threshold": det.threshold, "debounce": det.debounce}}
+    meta = {
+        "checkpoint": str(ckpt),
+        "model": det.model_name,
+        "recordings": str(root),
+        "combine": combine,
+        "backend": backend,
+        "dtype": dtype,
+        "sensors": det.sensors,
+        "operating_point": {"threshold": det.threshold, "debounce": det.debounce},
+    }
     paths = write_early_warning(runs, ths, out, debounce=det.debounce, horizon=horizon, fps=fps, meta=meta)
     rows = early_warning_table(runs, ths, det.debounce, horizon, fps)
     slips = sum(r.slipped for r in runs)
-    lines = [f"{slips} slip runs, {len(runs) - slips} runs that held; horizon {horizon} frames, "
-             f"debounce {det.debounce}",
-             "threshold  warned in time  premature  missed  median lead (ms)  false-positive grasps  alarm at rest"]
+    lines = [
+        f"{slips} slip runs, {len(runs) - slips} runs that held; horizon {horizon} frames, debounce {det.debounce}",
+        "threshold  warned in time  premature  missed  median lead (ms)  false-positive grasps  alarm at rest",
+    ]
     for row in rows:
         mark = "  <- checkpoint's operating point" if row["threshold"] == det.threshold else ""
-        lines.append(f"{row['threshold']:9.3g}  {row['warned']:>6d}/{row['slip_runs']:<7d} {row['premature']:>9d}  "
-                     f"{row['missed']:>6d}  {row['median_lead_ms']:16.0f}  {row['false_positive_grasps']:>11d}/"
-                     f"{row['held_runs']:<9d} {row['runs_alarming_at_rest']:>13d}{mark}")
+        lines.append(
+            f"{row['threshold']:9.3g}  {row['warned']:>6d}/{row['slip_runs']:<7d} {row['premature']:>9d}  "
+            f"{row['missed']:>6d}  {row['median_lead_ms']:16.0f}  {row['false_positive_grasps']:>11d}/"
+            f"{row['held_runs']:<9d} {row['runs_alarming_at_rest']:>13d}{mark}"
+        )
     lines.append("-> " + ", ".join(str(p) for p in paths.values()))
     return "\n".join(lines)
 
 
-__all__ = ["DEFAULT_THRESHOLDS", "Source", "open_source", "parse_thresholds", "register", "run_early_warning",
-           "watch_source"]
+__all__ = [
+    "DEFAULT_THRESHOLDS",
+    "Source",
+    "open_source",
+    "parse_thresholds",
+    "register",
+    "run_early_warning",
+    "watch_source",
+]

@@ -1,4 +1,5 @@
 """Commands for the marker path: simulate a binocular sensor, turn real recordings into marker sequences."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -50,7 +51,9 @@ def register(app: typer.Typer) -> None:
         seed: int = typer.Option(0),
         on_error: str = typer.Option("raise"),
         progress: bool = typer.Option(True),
-        overrides: Optional[Path] = typer.Option(None, help="label overrides CSV (e.g. configs/gelsight-label-overrides.csv)"),
+        overrides: Optional[Path] = typer.Option(
+            None, help="label overrides CSV (e.g. configs/gelsight-label-overrides.csv)"
+        ),
     ):
         """Track the gel markers of real GelSight recordings (KLT) into labelled marker sequences."""
         from slipsense.atomic import check_output_file
@@ -61,9 +64,19 @@ def register(app: typer.Typer) -> None:
         check_seed(seed)
         check_output_file(out, "--out")
 
-        arrays = real_marker_dataset(recordings or gelsight_recordings(), frames=frames, n_markers=n_markers,
-                                     horizon=horizon, wiggle_per_video=wiggle_per_video, seed=seed,
-                                     on_error=on_error, progress=progress, overrides=overrides)
+        arrays = real_marker_dataset(
+            recordings or gelsight_recordings(),
+            frames=frames,
+            n_markers=n_markers,
+            horizon=horizon,
+            wiggle_per_video=wiggle_per_video,
+            seed=seed,
+            on_error=on_error,
+            progress=progress,
+            overrides=overrides,
+        )
         save_marker_npz(arrays, out)
-        typer.echo(f"{len(arrays['y'])} windows ({int(arrays['y'].sum())} slip) from "
-                   f"{len(set(arrays['groups'].tolist()))} objects -> {out}")
+        typer.echo(
+            f"{len(arrays['y'])} windows ({int(arrays['y'].sum())} slip) from "
+            f"{len(set(arrays['groups'].tolist()))} objects -> {out}"
+        )

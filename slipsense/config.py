@@ -1,4 +1,5 @@
 """Where the data lives: one setting, the ``SLIPSENSE_DATA`` environment variable."""
+
 from __future__ import annotations
 
 import os
@@ -47,5 +48,5 @@ def resolve_path(stored: str | Path) -> Path:
     s = str(stored)
     prefix = f"${DATA_ENV}/"
     if s.startswith(prefix):
-        return data_root() / s[len(prefix):]
+        return data_root() / s[len(prefix) :]
     return Path(s)

@@ -7,6 +7,7 @@ Two kinds of data, matching the models' ``input_kind``:
 * ``markers``: an ``.npz`` of marker-cloud sequences (``x`` (N, T, M, 3), ``y`` (N,), optional
   ``groups`` (N,)) -> :class:`~slipsense.datasets.MarkerDataset`.
 """
+
 from __future__ import annotations
 
 from dataclasses import asdict
@@ -18,8 +19,13 @@ import numpy as np
 from slipsense.errors import ConfigError, InputError
 
 
-def gelsight_clips(recordings_dir: str | Path, spec, on_error: str = "raise", overrides: str | Path | None = None,
-                   progress: bool = True):
+def gelsight_clips(
+    recordings_dir: str | Path,
+    spec,
+    on_error: str = "raise",
+    overrides: str | Path | None = None,
+    progress: bool = True,
+):
     """Labelled clips of every video under ``recordings_dir`` (labels and clips are cached).
 
     Returns ``(clipset, labels)``; ``spec`` is a :class:`~slipsense.recordings.clips.ClipSpec`.
@@ -78,7 +84,11 @@ def label_runs(recordings, overrides=None, on_error: str = "raise", progress: bo
             warnings.warn(f"{exc}; run skipped", SkippedInputWarning, stacklevel=2)
             skipped.add(key)
     if ov:
-        ov = ov.without_runs(skipped) if isinstance(ov, Overrides) else {k: v for k, v in ov.items() if k[:2] not in skipped}
+        ov = (
+            ov.without_runs(skipped)
+            if isinstance(ov, Overrides)
+            else {k: v for k, v in ov.items() if k[:2] not in skipped}
+        )
         labels = apply_overrides(labels, ov)
     return dict(sorted(labels.items()))
 

@@ -3,6 +3,7 @@
 Both yield ``(x, y)`` with ``x`` float32 in the layout the models take and ``y`` an int64 label
 (1 = slip / onset of slip, 0 = no slip / wiggle).
 """
+
 from __future__ import annotations
 
 import numpy as np

@@ -5,6 +5,7 @@ GPU); :func:`setup` joins them. :class:`StepPlan` gives every world size the sam
 and :func:`micro_batch_rng` the same dropout masks, so N processes train like one process with
 ``accumulate = N`` (tests/test_reliability_ddp.py).
 """
+
 from __future__ import annotations
 
 import contextlib

@@ -10,6 +10,7 @@ An earlier version of this report counted an alarm held since the grasp as a war
 false alarms as rising edges, so that a detector always on scored well; the tests now hold the
 opposite.
 """
+
 from __future__ import annotations
 
 import csv
@@ -41,21 +42,39 @@ class RunTrace:
     probability: np.ndarray  # (N,) combined; NaN where the detector gives no answer yet
     rest: np.ndarray | None = field(default=None, repr=False)  # (N,) bool: no sensor touched
 
-    def outcome(self, threshold: float, debounce: int = 1, horizon: int = pergrasp.HORIZON,
-                startup: int = pergrasp.STARTUP) -> pergrasp.GraspOutcome:
+    def outcome(
+        self, threshold: float, debounce: int = 1, horizon: int = pergrasp.HORIZON, startup: int = pergrasp.STARTUP
+    ) -> pergrasp.GraspOutcome:
         alarm = pergrasp.debounce(self.probability, threshold, debounce)
         return pergrasp.grasp_outcome(alarm, self.moment_of_slip, horizon, startup, self.rest)
 
 
-def early_warning_table(runs: Sequence[RunTrace], thresholds: Sequence[float], debounce: int = 1,
-                        horizon: int = pergrasp.HORIZON, fps: float = 25.0) -> list[dict[str, Any]]:
+def early_warning_table(
+    runs: Sequence[RunTrace],
+    thresholds: Sequence[float],
+    debounce: int = 1,
+    horizon: int = pergrasp.HORIZON,
+    fps: float = 25.0,
+) -> list[dict[str, Any]]:
     """One row (:data:`EARLY_WARNING_COLUMNS`) per threshold, pooled over ``runs``."""
-    return [{"threshold": float(th), "debounce": int(debounce),
-             **pergrasp.summarise([r.outcome(th, debounce, horizon) for r in runs], fps)} for th in thresholds]
+    return [
+        {
+            "threshold": float(th),
+            "debounce": int(debounce),
+            **pergrasp.summarise([r.outcome(th, debounce, horizon) for r in runs], fps),
+        }
+        for th in thresholds
+    ]
 
 
-def replay_recordings(detector, recordings: Iterable[Any], labels: Mapping[tuple, Any] | None = None,
-                      progress: bool = True, limit: int | None = None, overrides=None) -> list[RunTrace]:
+def replay_recordings(
+    detector,
+    recordings: Iterable[Any],
+    labels: Mapping[tuple, Any] | None = None,
+    progress: bool = True,
+    limit: int | None = None,
+    overrides=None,
+) -> list[RunTrace]:
     """Replay every run (all cameras of an experiment as the detector's sensors) through ``detector``.
 
     Args:
@@ -88,8 +107,10 @@ def replay_recordings(detector, recordings: Iterable[Any], labels: Mapping[tuple
     for key in items:
         cams = sorted(runs[key], key=lambda r: r.camera)
         if len(cams) != detector.sensors:
-            raise InputError(cams[0].path.parent, f"run has {len(cams)} camera video(s), the detector takes "
-                                                  f"{detector.sensors} sensor(s)")
+            raise InputError(
+                cams[0].path.parent,
+                f"run has {len(cams)} camera video(s), the detector takes {detector.sensors} sensor(s)",
+            )
         labs = []
         for r in cams:
             if r.key not in labels:
@@ -102,17 +123,24 @@ def replay_recordings(detector, recordings: Iterable[Any], labels: Mapping[tuple
         videos = [read_video(r.path, expected_size=None, min_frames=1) for r in cams]
         n = len(videos[0])
         if any(len(v) != n for v in videos):
-            raise InputError(cams[0].path.parent, f"the cameras of this run differ in frame count: "
-                                                  f"{[len(v) for v in videos]}")
+            raise InputError(
+                cams[0].path.parent, f"the cameras of this run differ in frame count: {[len(v) for v in videos]}"
+            )
         trace = detector.replay(*videos)
         rest = pergrasp.rest_mask(np.stack([contact_signal(v) for v in videos])) if n > 1 else None
         out.append(RunTrace(key[0], key[1], slipped, moment, n, trace.probability, rest))
     return out
 
 
-def write_early_warning(runs: Sequence[RunTrace], thresholds: Sequence[float], out_dir: str | Path,
-                        debounce: int = 1, horizon: int = pergrasp.HORIZON, fps: float = 25.0,
-                        meta: Mapping[str, Any] | None = None) -> dict[str, Path]:
+def write_early_warning(
+    runs: Sequence[RunTrace],
+    thresholds: Sequence[float],
+    out_dir: str | Path,
+    debounce: int = 1,
+    horizon: int = pergrasp.HORIZON,
+    fps: float = 25.0,
+    meta: Mapping[str, Any] | None = None,
+) -> dict[str, Path]:
     """Write ``early_warning.csv``, ``early_warning.json`` (table, definitions, every run's outcome
     per threshold and its trace) and ``early_warning.png`` (slips warned in time against grasps
     that held yet alarmed, one point per threshold) into ``out_dir``."""
@@ -125,12 +153,18 @@ def write_early_warning(runs: Sequence[RunTrace], thresholds: Sequence[float], o
     writer.writeheader()
     for row in rows:
         writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in row.items()})
-    paths = {"csv": out_dir / "early_warning.csv", "json": out_dir / "early_warning.json",
-             "png": out_dir / "early_warning.png"}
+    paths = {
+        "csv": out_dir / "early_warning.csv",
+        "json": out_dir / "early_warning.json",
+        "png": out_dir / "early_warning.png",
+    }
     atomic.write_text(paths["csv"], buf.getvalue())
     doc = {
         **(dict(meta) if meta else {}),
-        "fps": fps, "horizon_frames": horizon, "debounce": debounce, "startup_frames": pergrasp.STARTUP,
+        "fps": fps,
+        "horizon_frames": horizon,
+        "debounce": debounce,
+        "startup_frames": pergrasp.STARTUP,
         "thresholds": [float(t) for t in thresholds],
         "definitions": {
             "warned": "slip run whose first alarm after the start-up falls in moment-horizon..moment",
@@ -141,13 +175,19 @@ def write_early_warning(runs: Sequence[RunTrace], thresholds: Sequence[float], o
             "score": "warned_rate - false_positive_rate",
         },
         "table": [_json_safe(r) for r in rows],
-        "runs": [{
-            "object": r.object, "experiment": r.experiment, "slipped": r.slipped, "moment_of_slip": r.moment_of_slip,
-            "n_frames": r.n_frames,
-            "outcome": {f"{t:g}": r.outcome(t, debounce, horizon).outcome for t in thresholds},
-            "first_alarm": {f"{t:g}": r.outcome(t, debounce, horizon).first_alarm for t in thresholds},
-            "probability": [None if math.isnan(p) else round(float(p), 5) for p in r.probability],
-        } for r in runs],
+        "runs": [
+            {
+                "object": r.object,
+                "experiment": r.experiment,
+                "slipped": r.slipped,
+                "moment_of_slip": r.moment_of_slip,
+                "n_frames": r.n_frames,
+                "outcome": {f"{t:g}": r.outcome(t, debounce, horizon).outcome for t in thresholds},
+                "first_alarm": {f"{t:g}": r.outcome(t, debounce, horizon).first_alarm for t in thresholds},
+                "probability": [None if math.isnan(p) else round(float(p), 5) for p in r.probability],
+            }
+            for r in runs
+        ],
     }
     atomic.write_text(paths["json"], json.dumps(doc, indent=1))
     plot_tradeoff(rows, paths["png"])

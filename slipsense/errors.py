@@ -1,4 +1,5 @@
 """Errors that reach a user as one line: the file (or setting) and what is wrong with it."""
+
 from __future__ import annotations
 
 from pathlib import Path

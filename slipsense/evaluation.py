@@ -1,4 +1,5 @@
 """Evaluation: a checkpoint against labelled data, to JSON and a confusion-matrix picture."""
+
 from __future__ import annotations
 
 import json
@@ -26,8 +27,9 @@ def progress_bar(it, enabled: bool, desc: str):
 
 
 @torch.inference_mode()
-def predict(model: nn.Module, data: Dataset, batch_size: int = 32, device="cpu", d: Dist | None = None,
-            progress: bool = False) -> tuple[np.ndarray, np.ndarray]:
+def predict(
+    model: nn.Module, data: Dataset, batch_size: int = 32, device="cpu", d: Dist | None = None, progress: bool = False
+) -> tuple[np.ndarray, np.ndarray]:
     """Slip probabilities and labels for every item of ``data`` -> ``(p (N,), y (N,))``.
 
     Under DDP each rank predicts a strided share and the shares are gathered, so no item is
@@ -56,8 +58,15 @@ def predict(model: nn.Module, data: Dataset, batch_size: int = 32, device="cpu",
     return p.numpy(), y.numpy()
 
 
-def evaluate_model(model, data, json_out: str | Path | None = None, png: str | Path | None = None,
-                   extra: dict[str, Any] | None = None, batch_size: int = 32, progress: bool = False) -> dict[str, Any]:
+def evaluate_model(
+    model,
+    data,
+    json_out: str | Path | None = None,
+    png: str | Path | None = None,
+    extra: dict[str, Any] | None = None,
+    batch_size: int = 32,
+    progress: bool = False,
+) -> dict[str, Any]:
     """Metrics of ``model`` on a Dataset of ``(x, y)``: accuracy, precision, recall, F1, counts,
     confusion matrix; optionally written to ``json_out`` and drawn to ``png``."""
     from slipsense.plots import plot_confusion
@@ -75,9 +84,19 @@ def evaluate_model(model, data, json_out: str | Path | None = None, png: str | P
     return m
 
 
-def evaluate_checkpoint(checkpoint: str | Path, recordings=None, split=None, markers=None, json_out=None, png=None,
-                        noise_std: float = 0.0, on_error: str = "raise", overrides=None, progress: bool = True,
-                        dtype: str = "float32") -> dict[str, Any]:
+def evaluate_checkpoint(
+    checkpoint: str | Path,
+    recordings=None,
+    split=None,
+    markers=None,
+    json_out=None,
+    png=None,
+    noise_std: float = 0.0,
+    on_error: str = "raise",
+    overrides=None,
+    progress: bool = True,
+    dtype: str = "float32",
+) -> dict[str, Any]:
     """Run the whole pipeline a checkpoint needs on one data source and score it.
 
     Exactly one of ``recordings`` (every clip of that folder: zero-shot on unseen objects),
@@ -105,8 +124,12 @@ def evaluate_checkpoint(checkpoint: str | Path, recordings=None, split=None, mar
     model = at_dtype(model.eval(), dtype)
     from slipsense.config import portable_path
 
-    extra: dict[str, Any] = {"checkpoint": portable_path(checkpoint), "model": info["model"], "noise_std": noise_std,
-                             "inference_dtype": dtype}
+    extra: dict[str, Any] = {
+        "checkpoint": portable_path(checkpoint),
+        "model": info["model"],
+        "noise_std": noise_std,
+        "inference_dtype": dtype,
+    }
     if kind == "video":
         if markers is not None:
             raise InputError(checkpoint, "this checkpoint holds a video model; use --recordings or --split")
@@ -117,21 +140,27 @@ def evaluate_checkpoint(checkpoint: str | Path, recordings=None, split=None, mar
                 spec = clip_spec_from(split_info)
             except ConfigError as exc:
                 raise InputError(split, str(exc)) from None
-            clips, _ = gelsight_clips(resolve_path(split_info["recordings"]), spec,
-                                      on_error=split_info.get("on_error") or on_error,
-                                      overrides=split_info.get("overrides") and resolve_path(split_info["overrides"]),
-                                      progress=progress)
+            clips, _ = gelsight_clips(
+                resolve_path(split_info["recordings"]),
+                spec,
+                on_error=split_info.get("on_error") or on_error,
+                overrides=split_info.get("overrides") and resolve_path(split_info["overrides"]),
+                progress=progress,
+            )
             idx = split_info["test_indices"]
             if max(idx) >= len(clips):
-                raise InputError(split, f"test index {max(idx)} is out of range: the clips rebuilt from its "
-                                        f"recordings are {len(clips)}")
+                raise InputError(
+                    split,
+                    f"test index {max(idx)} is out of range: the clips rebuilt from its recordings are {len(clips)}",
+                )
             clips = clips.subset(idx)
             extra.update(split=portable_path(split), test_objects=split_info.get("test_objects"))
         else:
             if "clip_spec" not in data_info:
                 raise InputError(checkpoint, "checkpoint has no clip settings (data.clip_spec)")
-            clips, _ = gelsight_clips(recordings, clip_spec_from(data_info), on_error=on_error, overrides=overrides,
-                                      progress=progress)
+            clips, _ = gelsight_clips(
+                recordings, clip_spec_from(data_info), on_error=on_error, overrides=overrides, progress=progress
+            )
             extra.update(recordings=portable_path(recordings), objects=sorted(set(clips.objects)))
         data = ClipDataset(clips, noise_std=noise_std, seed=0)
     else:
@@ -142,8 +171,9 @@ def evaluate_checkpoint(checkpoint: str | Path, recordings=None, split=None, mar
             x, y, _ = load_markers(resolve_path(split_info["markers"]))
             idx = split_info["test_indices"]
             if max(idx) >= len(y):
-                raise InputError(split, f"test index {max(idx)} is out of range: {split_info['markers']} holds "
-                                        f"{len(y)} samples")
+                raise InputError(
+                    split, f"test index {max(idx)} is out of range: {split_info['markers']} holds {len(y)} samples"
+                )
             x, y = x[idx], y[idx]
         else:
             x, y, _ = load_markers(markers)
@@ -196,8 +226,11 @@ def _read_split(path, kind: str | None = None) -> dict[str, Any]:
     if not isinstance(idx, list) or not all(isinstance(i, int) and not isinstance(i, bool) for i in idx):
         raise InputError(path, "test_indices must be a list of integers")
     if not idx:
-        raise InputError(path, "the split holds no test items (test_indices is empty; a run trained with "
-                               "--split all has no held-out part): nothing to evaluate")
+        raise InputError(
+            path,
+            "the split holds no test items (test_indices is empty; a run trained with "
+            "--split all has no held-out part): nothing to evaluate",
+        )
     if min(idx) < 0:
         raise InputError(path, f"test_indices holds a negative index ({min(idx)})")
     if len(set(idx)) != len(idx):

@@ -28,6 +28,7 @@ the same function to ~1e-5.) It fails on STNet's S codecs
 the shared GelSight clips ONNX Runtime matches PyTorch to ~1e-6 (tests require <= 1e-4).
 Shapes other than the batch (frames, image size, markers) are fixed at export.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -82,7 +83,9 @@ def exportable(model: nn.Module) -> nn.Module:
     return model.exportable()
 
 
-def example_inputs(model: nn.Module, geometry: Mapping[str, Any], batch: int = 2, seed: int = 0) -> dict[str, torch.Tensor]:
+def example_inputs(
+    model: nn.Module, geometry: Mapping[str, Any], batch: int = 2, seed: int = 0
+) -> dict[str, torch.Tensor]:
     """Random example inputs ``{"model", "frame", "window"}`` of the shapes each file takes."""
     g = torch.Generator().manual_seed(seed)
     t = geometry["frames"]
@@ -108,8 +111,14 @@ def example_inputs(model: nn.Module, geometry: Mapping[str, Any], batch: int = 2
     return out
 
 
-def export_module(module: nn.Module, example: torch.Tensor, path: str | Path, input_name: str, output_name: str,
-                  batch: int | None = None) -> str:
+def export_module(
+    module: nn.Module,
+    example: torch.Tensor,
+    path: str | Path,
+    input_name: str,
+    output_name: str,
+    batch: int | None = None,
+) -> str:
     """Export ``module(example)`` to ``path`` (atomically); returns the exporter that worked.
 
     ``batch=None`` makes axis 0 dynamic; an int fixes it (the example is cut or repeated to it).
@@ -126,15 +135,29 @@ def export_module(module: nn.Module, example: torch.Tensor, path: str | Path, in
             with atomic_path(path) as tmp, torch.no_grad(), _quiet():
                 if exporter == "torchscript":
                     torch.onnx.export(
-                        module, (example,), str(tmp), dynamo=False, opset_version=TORCHSCRIPT_OPSET,
-                        input_names=[input_name], output_names=[output_name], do_constant_folding=True,
-                        dynamic_axes=None if batch is not None else {input_name: {0: "batch"}, output_name: {0: "batch"}},
+                        module,
+                        (example,),
+                        str(tmp),
+                        dynamo=False,
+                        opset_version=TORCHSCRIPT_OPSET,
+                        input_names=[input_name],
+                        output_names=[output_name],
+                        do_constant_folding=True,
+                        dynamic_axes=None
+                        if batch is not None
+                        else {input_name: {0: "batch"}, output_name: {0: "batch"}},
                     )
                 else:
                     shapes = None if batch is not None else ({0: torch.export.Dim("batch", min=1, max=65536)},)
                     program = torch.onnx.export(
-                        module, (example,), dynamo=True, input_names=[input_name], output_names=[output_name],
-                        dynamic_shapes=shapes, optimize=True, verbose=False,
+                        module,
+                        (example,),
+                        dynamo=True,
+                        input_names=[input_name],
+                        output_names=[output_name],
+                        dynamic_shapes=shapes,
+                        optimize=True,
+                        verbose=False,
                     )
                     program.save(str(tmp), external_data=False)
             return exporter
@@ -205,7 +228,9 @@ def onnx_session(path: str | Path, threads: int | None = None):
     try:
         return ort.InferenceSession(str(path), sess_options=opts, providers=["CPUExecutionProvider"])
     except Exception as exc:
-        raise InputError(path, f"ONNX Runtime cannot load it ({type(exc).__name__}: {' '.join(str(exc).split())[:200]})") from None
+        raise InputError(
+            path, f"ONNX Runtime cannot load it ({type(exc).__name__}: {' '.join(str(exc).split())[:200]})"
+        ) from None
 
 
 def run_onnx(session, x: np.ndarray | torch.Tensor) -> np.ndarray:
@@ -230,8 +255,15 @@ def _names(kind: str) -> dict[str, tuple[str, str]]:
     }
 
 
-def export_streaming_parts(model: nn.Module, folder: str | Path, *, geometry: Mapping[str, Any] | None = None,
-                           batch: int | None = None, verify: bool = True, prefix: str = "") -> ExportResult:
+def export_streaming_parts(
+    model: nn.Module,
+    folder: str | Path,
+    *,
+    geometry: Mapping[str, Any] | None = None,
+    batch: int | None = None,
+    verify: bool = True,
+    prefix: str = "",
+) -> ExportResult:
     """Write ``<prefix>frame.onnx`` (if the model has a frame part) and ``<prefix>window.onnx`` into ``folder``."""
     geometry = geometry or window_geometry(model)
     m = exportable(model)
@@ -254,8 +286,15 @@ def export_streaming_parts(model: nn.Module, folder: str | Path, *, geometry: Ma
     return result
 
 
-def export_onnx(checkpoint_or_model: str | Path | nn.Module, out_path: str | Path, batch: int | None = None, *,
-                streaming: bool = True, verify: bool = True, info: Mapping[str, Any] | None = None) -> ExportResult:
+def export_onnx(
+    checkpoint_or_model: str | Path | nn.Module,
+    out_path: str | Path,
+    batch: int | None = None,
+    *,
+    streaming: bool = True,
+    verify: bool = True,
+    info: Mapping[str, Any] | None = None,
+) -> ExportResult:
     """Export a checkpoint (or a model) to ONNX: the whole model at ``out_path`` and, with
     ``streaming`` and a model that has them (ViViT, STNet, TemNet), the live detector's two parts
     beside it as ``<stem>.frame.onnx`` and ``<stem>.window.onnx``.
@@ -287,8 +326,9 @@ def export_onnx(checkpoint_or_model: str | Path | nn.Module, out_path: str | Pat
         result.max_abs_diff["model"] = max_abs_diff(out_path, model.eval(), examples["model"])
     if streaming and model.streaming_parts()[0] is not None:
         stem = out_path.name[: -len(".onnx")] if out_path.name.endswith(".onnx") else out_path.name
-        parts = export_streaming_parts(model, out_path.parent, geometry=geometry, batch=batch, verify=verify,
-                                       prefix=f"{stem}.")
+        parts = export_streaming_parts(
+            model, out_path.parent, geometry=geometry, batch=batch, verify=verify, prefix=f"{stem}."
+        )
         result.paths.update(parts.paths)
         result.exporter.update(parts.exporter)
         result.max_abs_diff.update(parts.max_abs_diff)
@@ -317,9 +357,19 @@ def _parts_key(model: nn.Module, geometry: Mapping[str, Any], dtype: str) -> dic
     from slipsense import __version__
 
     config = model.config() if hasattr(model, "config") else {}
-    return json.loads(json.dumps({"model": getattr(model, "model_name", type(model).__name__), "config": config,
-                                  "geometry": dict(geometry), "dtype": dtype, "slipsense": __version__,
-                                  "torch": torch.__version__}, default=str))
+    return json.loads(
+        json.dumps(
+            {
+                "model": getattr(model, "model_name", type(model).__name__),
+                "config": config,
+                "geometry": dict(geometry),
+                "dtype": dtype,
+                "slipsense": __version__,
+                "torch": torch.__version__,
+            },
+            default=str,
+        )
+    )
 
 
 def check_parts(folder: str | Path, names: list[str], key: Mapping[str, Any]) -> str | None:
@@ -350,8 +400,9 @@ def check_parts(folder: str | Path, names: list[str], key: Mapping[str, Any]) ->
     return None
 
 
-def cached_streaming_parts(model: nn.Module, folder: str | Path, geometry: Mapping[str, Any],
-                           dtype: str = "float32") -> tuple[Path | None, Path]:
+def cached_streaming_parts(
+    model: nn.Module, folder: str | Path, geometry: Mapping[str, Any], dtype: str = "float32"
+) -> tuple[Path | None, Path]:
     """The model's streaming parts as ONNX files in ``folder``, exported unless a verified copy is
     there: ``(frame.onnx or None, window.onnx)``, their ``*.int8.onnx`` copies for ``dtype="int8"``.
 
@@ -385,5 +436,17 @@ def cached_streaming_parts(model: nn.Module, folder: str | Path, geometry: Mappi
     return (paths[0] if has_frame else None), paths[-1]
 
 
-__all__ = ["ExportResult", "cached_streaming_parts", "check_parts", "example_inputs", "export_module", "export_onnx", "export_streaming_parts", "exportable",
-           "max_abs_diff", "onnx_session", "quantize_int8", "run_onnx"]
+__all__ = [
+    "ExportResult",
+    "cached_streaming_parts",
+    "check_parts",
+    "example_inputs",
+    "export_module",
+    "export_onnx",
+    "export_streaming_parts",
+    "exportable",
+    "max_abs_diff",
+    "onnx_session",
+    "quantize_int8",
+    "run_onnx",
+]

@@ -9,6 +9,7 @@ always-wiggle baseline and balanced accuracy beside every accuracy.
 Each finished fold is written at once (``fold<k>.json``, atomically); a rerun with the same
 config skips the folds already done, so a killed run continues where it stopped.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -19,7 +20,7 @@ import time
 from pathlib import Path
 from typing import Any, Sequence
 
-from slipsense import atomic, pergrasp
+from slipsense import atomic
 from slipsense.grasp_train import GraspTrainConfig, evaluate_fold, object_split, pool_folds
 from slipsense.recordings.runs import GraspRun, runs_summary
 
@@ -29,8 +30,16 @@ def _config_key(cfg: GraspTrainConfig, folds: int, objects: Sequence[str]) -> st
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
-def run_folds(runs: Sequence[GraspRun], labels: dict, cfg: GraspTrainConfig, out, folds: int = 5,
-              meta: dict[str, Any] | None = None, progress: bool = True, echo=print) -> dict[str, Any]:
+def run_folds(
+    runs: Sequence[GraspRun],
+    labels: dict,
+    cfg: GraspTrainConfig,
+    out,
+    folds: int = 5,
+    meta: dict[str, Any] | None = None,
+    progress: bool = True,
+    echo=print,
+) -> dict[str, Any]:
     """Run (or resume) the leave-objects-out evaluation into ``out``; returns the pooled report."""
     out = Path(out)
     usable = [r for r in runs if r.usable]
@@ -42,28 +51,42 @@ def run_folds(runs: Sequence[GraspRun], labels: dict, cfg: GraspTrainConfig, out
         done = _load_fold(path, key)
         if done is None:
             t0 = time.perf_counter()
-            done = {"config_key": key, "fold": k, **evaluate_fold(runs, cfg, labels, held, progress=progress),
-                    "seconds": round(time.perf_counter() - t0, 1)}
+            done = {
+                "config_key": key,
+                "fold": k,
+                **evaluate_fold(runs, cfg, labels, held, progress=progress),
+                "seconds": round(time.perf_counter() - t0, 1),
+            }
             atomic.write_text(path, json.dumps(done))
         g, c = done["per_grasp"], done["clips"]
-        echo(f"fold {k} ({', '.join(held)}): warned {g['warned']}/{g['slip_runs']}, false-positive grasps "
-             f"{g['false_positive_grasps']}/{g['held_runs']}, clip F1 {c['f1']:.3f} at threshold "
-             f"{done['operating_point']['threshold']:g} x{done['operating_point']['debounce']}")
+        echo(
+            f"fold {k} ({', '.join(held)}): warned {g['warned']}/{g['slip_runs']}, false-positive grasps "
+            f"{g['false_positive_grasps']}/{g['held_runs']}, clip F1 {c['f1']:.3f} at threshold "
+            f"{done['operating_point']['threshold']:g} x{done['operating_point']['debounce']}"
+        )
         results.append(done)
     pooled = pool_folds(results)
     report = {
-        **(meta or {}), "config": cfg.to_dict(), "folds": folds, "data": runs_summary(runs),
+        **(meta or {}),
+        "config": cfg.to_dict(),
+        "folds": folds,
+        "data": runs_summary(runs),
         "machine": {"cpu": platform.processor() or platform.machine(), "python": platform.python_version()},
-        "pooled": {k: v for k, v in pooled.items() if k != "curve"}, "curve": pooled["curve"],
-        "per_fold": [{k: f[k] for k in ("fold", "objects", "operating_point", "per_grasp", "clips", "seconds")}
-                     for f in results],
+        "pooled": {k: v for k, v in pooled.items() if k != "curve"},
+        "curve": pooled["curve"],
+        "per_fold": [
+            {k: f[k] for k in ("fold", "objects", "operating_point", "per_grasp", "clips", "seconds")} for f in results
+        ],
     }
     atomic.write_text(out / "folds.json", json.dumps(_json_safe(report), indent=1))
     atomic.write_text(out / "README.md", summary_markdown(report))
     from slipsense.early_warning import plot_tradeoff
 
-    plot_tradeoff(pooled["curve"], out / "tradeoff.png",
-                  title=f"{cfg.model}: {folds} folds by object, pooled (labels: thresholds)")
+    plot_tradeoff(
+        pooled["curve"],
+        out / "tradeoff.png",
+        title=f"{cfg.model}: {folds} folds by object, pooled (labels: thresholds)",
+    )
     return report
 
 
@@ -117,10 +140,12 @@ def summary_markdown(report: dict[str, Any]) -> str:
         "| threshold | clips | slip clips | accuracy | balanced accuracy | always-wiggle accuracy | precision | recall "
         "| F1 |",
         "|---|---:|---:|---:|---:|---:|---:|---:|---:|",
-        *[f"| {name} | {c['clips']} | {c['slip_clips']} | {_pct(c['accuracy'])} | {_pct(c['balanced_accuracy'])} | "
-          f"{_pct(c['always_wiggle_accuracy'])} | {_pct(c['precision'])} | {_pct(c['recall'])} | {_pct(c['f1'])} |"
-          for name, c in (("each fold's operating point", c), ("0.5", report["pooled"].get("clips_at_half")))
-          if c is not None],
+        *[
+            f"| {name} | {c['clips']} | {c['slip_clips']} | {_pct(c['accuracy'])} | {_pct(c['balanced_accuracy'])} | "
+            f"{_pct(c['always_wiggle_accuracy'])} | {_pct(c['precision'])} | {_pct(c['recall'])} | {_pct(c['f1'])} |"
+            for name, c in (("each fold's operating point", c), ("0.5", report["pooled"].get("clips_at_half")))
+            if c is not None
+        ],
         "",
         "## Folds",
         "",
@@ -129,8 +154,10 @@ def summary_markdown(report: dict[str, Any]) -> str:
     ]
     for f in report["per_fold"]:
         fg, op = f["per_grasp"], f["operating_point"]
-        lines.append(f"| {f['fold']} | {', '.join(f['objects'])} | {op['threshold']:g} x{op['debounce']} | "
-                     f"{fg['warned']}/{fg['slip_runs']} | {fg['false_positive_grasps']}/{fg['held_runs']} | "
-                     f"{_pct(f['clips']['f1'])} | {f['seconds']} |")
+        lines.append(
+            f"| {f['fold']} | {', '.join(f['objects'])} | {op['threshold']:g} x{op['debounce']} | "
+            f"{fg['warned']}/{fg['slip_runs']} | {fg['false_positive_grasps']}/{fg['held_runs']} | "
+            f"{_pct(f['clips']['f1'])} | {f['seconds']} |"
+        )
     lines += ["", "![trade-off](tradeoff.png)", ""]
     return "\n".join(lines)

@@ -15,6 +15,7 @@ Each epoch draws chunks: one ending at (or a few frames after) the moment of eve
 scored frames (lags and temporal context) so its logits equal a replay of the whole run. Positive
 and negative frames get equal total weight in the loss.
 """
+
 from __future__ import annotations
 
 import math
@@ -53,8 +54,18 @@ class GraspTrainConfig:
     inner_folds: int = 2  # for the operating point (0: choose it on the training runs themselves)
 
     def __post_init__(self):
-        checks = {"epochs": (1, 10_000), "batch_size": (1, 4096), "chunk": (1, 2048), "negatives": (0, 100), "hard_negatives": (0, 100), "mine_every": (1, 1000),
-                  "onset_frames": (0, 500), "horizon": (1, 5000), "seed": (0, 2**32 - 1), "inner_folds": (0, 20)}
+        checks = {
+            "epochs": (1, 10_000),
+            "batch_size": (1, 4096),
+            "chunk": (1, 2048),
+            "negatives": (0, 100),
+            "hard_negatives": (0, 100),
+            "mine_every": (1, 1000),
+            "onset_frames": (0, 500),
+            "horizon": (1, 5000),
+            "seed": (0, 2**32 - 1),
+            "inner_folds": (0, 20),
+        }
         for key, (lo, hi) in checks.items():
             v = getattr(self, key)
             if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
@@ -100,7 +111,9 @@ class _Chunks:
             y = frame_targets(gray.shape[1], moment, cfg.onset_frames, cfg.horizon)
             self.items.append((gray, y, moment))
 
-    def draw(self, rng: np.random.Generator, hardness: list[np.ndarray] | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
+    def draw(
+        self, rng: np.random.Generator, hardness: list[np.ndarray] | None = None
+    ) -> list[tuple[np.ndarray, np.ndarray]]:
         """Chunks of one epoch; ``hardness``: per run, per frame P(slip) of the current model, from
         which ``hard_negatives`` chunk ends per run are drawn among the negative frames."""
         out = []
@@ -115,8 +128,11 @@ class _Chunks:
                 ends.append(min(n - 1, moment + int(rng.integers(0, 6))))
             for e in ends:
                 idx = np.arange(e - self.length + 1, e + 1).clip(min=0)  # before the start: the first frame
-                targets = np.where(np.arange(e - self.cfg.chunk + 1, e + 1) >= 0,
-                                   y[np.arange(e - self.cfg.chunk + 1, e + 1).clip(min=0)], -1)
+                targets = np.where(
+                    np.arange(e - self.cfg.chunk + 1, e + 1) >= 0,
+                    y[np.arange(e - self.cfg.chunk + 1, e + 1).clip(min=0)],
+                    -1,
+                )
                 out.append((gray[:, idx], targets.astype(np.int64)))
         order = rng.permutation(len(out))
         return [out[i] for i in order]
@@ -134,8 +150,12 @@ def _batches(chunks, size: int, flips: bool, rng: np.random.Generator):
         yield x, torch.from_numpy(np.stack([c[1] for c in part]))
 
 
-def fit_runs(runs: Sequence[GraspRun], cfg: GraspTrainConfig, progress: bool = True,
-             on_epoch: Callable[[dict[str, Any]], None] | None = None):
+def fit_runs(
+    runs: Sequence[GraspRun],
+    cfg: GraspTrainConfig,
+    progress: bool = True,
+    on_epoch: Callable[[dict[str, Any]], None] | None = None,
+):
     """Train ``cfg.model`` on ``runs``; returns ``(model in eval mode, per-epoch metrics)``."""
     from slipsense.models import build
 
@@ -181,8 +201,14 @@ def fit_runs(runs: Sequence[GraspRun], cfg: GraspTrainConfig, progress: bool = T
             seen += int(keep.sum())
             correct += int((logits[keep].argmax(-1) == y[keep]).sum())
         sched.step()
-        row = {"epoch": epoch + 1, "loss": total / max(seen, 1), "frame_accuracy": correct / max(seen, 1),
-               "onset_frames": n_pos, "other_frames": n_neg, "seconds": time.perf_counter() - t0}
+        row = {
+            "epoch": epoch + 1,
+            "loss": total / max(seen, 1),
+            "frame_accuracy": correct / max(seen, 1),
+            "onset_frames": n_pos,
+            "other_frames": n_neg,
+            "seconds": time.perf_counter() - t0,
+        }
         history.append(row)
         if on_epoch is not None:
             on_epoch(row)
@@ -191,8 +217,9 @@ def fit_runs(runs: Sequence[GraspRun], cfg: GraspTrainConfig, progress: bool = T
 
 @torch.no_grad()
 def _predict_items(model, items) -> list[np.ndarray]:
-    return [torch.softmax(model(torch.from_numpy(g[None]).float().div_(255.0))[0], -1)[:, 1].numpy()
-            for g, _, _ in items]
+    return [
+        torch.softmax(model(torch.from_numpy(g[None]).float().div_(255.0))[0], -1)[:, 1].numpy() for g, _, _ in items
+    ]
 
 
 @torch.no_grad()
@@ -216,8 +243,9 @@ def object_split(runs: Sequence[GraspRun], folds: int, seed: int = 0) -> list[li
     return object_folds({r.object for r in runs}, folds, seed)
 
 
-def operating_point(runs: Sequence[GraspRun], cfg: GraspTrainConfig, progress: bool = False,
-                    model=None) -> dict[str, Any]:
+def operating_point(
+    runs: Sequence[GraspRun], cfg: GraspTrainConfig, progress: bool = False, model=None
+) -> dict[str, Any]:
     """The alarm threshold and debounce for a model trained on ``runs``, chosen on those runs only:
     on out-of-fold predictions of ``cfg.inner_folds`` inner folds by object (each inner model trained
     like the outer one), or, with ``inner_folds=0``, on ``model``'s own predictions of ``runs``."""
@@ -236,12 +264,15 @@ def operating_point(runs: Sequence[GraspRun], cfg: GraspTrainConfig, progress: b
                 probs_by_key[r.key] = p
         probs = [probs_by_key[r.key] for r in usable]
     op = pergrasp.choose_operating_point(probs, [r.moment_of_slip for r in usable], horizon=cfg.horizon)
-    op["chosen_on"] = f"{cfg.inner_folds} inner folds of the training objects" if cfg.inner_folds else \
-        "the training runs themselves"
+    op["chosen_on"] = (
+        f"{cfg.inner_folds} inner folds of the training objects" if cfg.inner_folds else "the training runs themselves"
+    )
     return op
 
 
-def clip_scores(runs: Sequence[GraspRun], probs: Sequence[np.ndarray], labels: dict, frames: int = 5) -> tuple[np.ndarray, np.ndarray]:
+def clip_scores(
+    runs: Sequence[GraspRun], probs: Sequence[np.ndarray], labels: dict, frames: int = 5
+) -> tuple[np.ndarray, np.ndarray]:
     """The paper's clip protocol on per-frame traces: every ``frames``-frame clip the project cuts
     (:func:`slipsense.recordings.clips.plan_windows`: the clip ending right before the moment of
     slip, two wiggle windows per video of a run that held) is scored by the detector's probability
@@ -270,15 +301,25 @@ def clip_metrics(p: np.ndarray, y: np.ndarray, threshold: float) -> dict[str, An
     prec = tp / (tp + fp) if tp + fp else 0.0
     rec = tp / (tp + fn) if tp + fn else 0.0
     spec = tn / (tn + fp) if tn + fp else 0.0
-    return {"clips": len(y), "slip_clips": int((y == 1).sum()), "accuracy": (tp + tn) / max(len(y), 1),
-            "balanced_accuracy": (rec + spec) / 2, "precision": prec, "recall": rec,
-            "f1": 2 * prec * rec / (prec + rec) if prec + rec else 0.0,
-            "always_wiggle_accuracy": float((y == 0).mean()) if len(y) else math.nan,
-            "tp": tp, "fp": fp, "fn": fn, "tn": tn}
+    return {
+        "clips": len(y),
+        "slip_clips": int((y == 1).sum()),
+        "accuracy": (tp + tn) / max(len(y), 1),
+        "balanced_accuracy": (rec + spec) / 2,
+        "precision": prec,
+        "recall": rec,
+        "f1": 2 * prec * rec / (prec + rec) if prec + rec else 0.0,
+        "always_wiggle_accuracy": float((y == 0).mean()) if len(y) else math.nan,
+        "tp": tp,
+        "fp": fp,
+        "fn": fn,
+        "tn": tn,
+    }
 
 
-def evaluate_fold(runs: Sequence[GraspRun], cfg: GraspTrainConfig, labels: dict, held: Sequence[str],
-                  progress: bool = True) -> dict[str, Any]:
+def evaluate_fold(
+    runs: Sequence[GraspRun], cfg: GraspTrainConfig, labels: dict, held: Sequence[str], progress: bool = True
+) -> dict[str, Any]:
     """Train on the runs of every object but ``held``, choose the operating point on those training
     runs only (:func:`operating_point`), replay the held-out objects' runs. Returns the fold's
     per-grasp summary and clip metrics at that operating point, plus what pooling needs: every
@@ -292,26 +333,43 @@ def evaluate_fold(runs: Sequence[GraspRun], cfg: GraspTrainConfig, labels: dict,
     op = operating_point(train, cfg, progress=False, model=model)
     probs = predict_runs(model, test)
     rests = [pergrasp.rest_mask(r.contact) for r in test]
-    outs = [pergrasp.grasp_outcome(pergrasp.debounce(p, op["threshold"], op["debounce"]), r.moment_of_slip,
-                                   cfg.horizon, rest=rest) for r, p, rest in zip(test, probs, rests)]
+    outs = [
+        pergrasp.grasp_outcome(
+            pergrasp.debounce(p, op["threshold"], op["debounce"]), r.moment_of_slip, cfg.horizon, rest=rest
+        )
+        for r, p, rest in zip(test, probs, rests)
+    ]
     p, y = clip_scores(test, probs, labels)
     return {
-        "objects": sorted(held), "operating_point": op, "per_grasp": pergrasp.summarise(outs),
-        "clips": clip_metrics(p, y, op["threshold"]), "history": history,
-        "clip_probability": [round(float(v), 5) for v in p], "clip_label": [int(v) for v in y],
-        "runs": [{"object": r.object, "experiment": r.experiment, "moment_of_slip": r.moment_of_slip,
-                  "outcome": o.outcome, "first_alarm": o.first_alarm, "lead": o.lead,
-                  "rest": np.flatnonzero(rest).tolist(),
-                  "probability": [None if math.isnan(v) else round(float(v), 4) for v in pr]}
-                 for r, o, pr, rest in zip(test, outs, probs, rests)],
+        "objects": sorted(held),
+        "operating_point": op,
+        "per_grasp": pergrasp.summarise(outs),
+        "clips": clip_metrics(p, y, op["threshold"]),
+        "history": history,
+        "clip_probability": [round(float(v), 5) for v in p],
+        "clip_label": [int(v) for v in y],
+        "runs": [
+            {
+                "object": r.object,
+                "experiment": r.experiment,
+                "moment_of_slip": r.moment_of_slip,
+                "outcome": o.outcome,
+                "first_alarm": o.first_alarm,
+                "lead": o.lead,
+                "rest": np.flatnonzero(rest).tolist(),
+                "probability": [None if math.isnan(v) else round(float(v), 4) for v in pr],
+            }
+            for r, o, pr, rest in zip(test, outs, probs, rests)
+        ],
     }
 
 
 def pool_folds(folds: Sequence[dict[str, Any]], thresholds: Sequence[float] | None = None) -> dict[str, Any]:
     """Pool :func:`evaluate_fold` results: per-grasp outcomes and clip decisions, each fold at its own
     operating point; and, for the trade-off curve, every fold's runs at shared ``thresholds``."""
-    outcomes = [pergrasp.GraspOutcome(r["outcome"], r["first_alarm"], r["lead"], 0.0, 0)
-                for f in folds for r in f["runs"]]
+    outcomes = [
+        pergrasp.GraspOutcome(r["outcome"], r["first_alarm"], r["lead"], 0.0, 0) for f in folds for r in f["runs"]
+    ]
     per_grasp = pergrasp.summarise(outcomes)
     per_grasp["runs_alarming_at_rest"] = sum(f["per_grasp"]["runs_alarming_at_rest"] for f in folds)
     per_grasp["held_alarm_fraction"] = float(np.mean([f["per_grasp"]["held_alarm_fraction"] for f in folds]))
@@ -331,9 +389,13 @@ def pool_folds(folds: Sequence[dict[str, Any]], thresholds: Sequence[float] | No
     debounce = int(np.median([f["operating_point"]["debounce"] for f in folds]))
     curve = pergrasp.table(traces, moments, thresholds, (debounce,), rests=rests)
     p_all = np.concatenate([np.asarray(f["clip_probability"], dtype=np.float64) for f in folds])
-    return {"per_grasp": per_grasp, "clips": clip_metrics(decisions.astype(np.float64), y, 0.5),
-            "clips_at_half": clip_metrics(p_all, y, 0.5),
-            "operating_points": [f["operating_point"] for f in folds], "curve": curve}
+    return {
+        "per_grasp": per_grasp,
+        "clips": clip_metrics(decisions.astype(np.float64), y, 0.5),
+        "clips_at_half": clip_metrics(p_all, y, 0.5),
+        "operating_points": [f["operating_point"] for f in folds],
+        "curve": curve,
+    }
 
 
 # ---------------------------------------------------------------------------------------------
@@ -348,7 +410,7 @@ def make_config(model: str, settings: dict[str, Any], size: tuple[int, int] | No
     train, model_cfg = {}, {}
     for key, value in settings.items():
         if key.startswith("model."):
-            model_cfg[key[len("model."):]] = value
+            model_cfg[key[len("model.") :]] = value
         elif key in train_keys:
             train[key] = value
         else:
@@ -362,8 +424,9 @@ def make_config(model: str, settings: dict[str, Any], size: tuple[int, int] | No
     return cfg
 
 
-def load_grasp_data(recordings, overrides=None, image_size: tuple[int, int] = (30, 40), on_error: str = "raise",
-                    progress: bool = True) -> tuple[list[GraspRun], dict]:
+def load_grasp_data(
+    recordings, overrides=None, image_size: tuple[int, int] = (30, 40), on_error: str = "raise", progress: bool = True
+) -> tuple[list[GraspRun], dict]:
     """Labelled whole runs of a recordings folder (``(runs, labels)``), labels with overrides."""
     from slipsense.data import label_runs
     from slipsense.recordings.folders import find_recordings, validate_recordings
@@ -379,14 +442,30 @@ def load_grasp_data(recordings, overrides=None, image_size: tuple[int, int] = (3
     return load_runs(recs, labels, image_size, progress=progress), labels
 
 
-def _checkpoint_info(cfg: GraspTrainConfig, op: dict[str, Any], runs: Sequence[GraspRun], data: dict[str, Any],
-                     history: list[dict[str, Any]]) -> dict[str, Any]:
-    return {"train_config": cfg.to_dict(), "operating_point": op, "history": history,
-            "data": {**data, "objects": sorted({r.object for r in runs}), "runs": len(runs)}}
+def _checkpoint_info(
+    cfg: GraspTrainConfig,
+    op: dict[str, Any],
+    runs: Sequence[GraspRun],
+    data: dict[str, Any],
+    history: list[dict[str, Any]],
+) -> dict[str, Any]:
+    return {
+        "train_config": cfg.to_dict(),
+        "operating_point": op,
+        "history": history,
+        "data": {**data, "objects": sorted({r.object for r in runs}), "runs": len(runs)},
+    }
 
 
-def train_detector(runs: Sequence[GraspRun], labels: dict, cfg: GraspTrainConfig, out, held: Sequence[str] = (),
-                   data: dict[str, Any] | None = None, progress: bool = True) -> dict[str, Any]:
+def train_detector(
+    runs: Sequence[GraspRun],
+    labels: dict,
+    cfg: GraspTrainConfig,
+    out,
+    held: Sequence[str] = (),
+    data: dict[str, Any] | None = None,
+    progress: bool = True,
+) -> dict[str, Any]:
     """Train a detector on every run whose object is not in ``held``, choose its operating point on
     those runs (inner folds), and write ``out/detector.safetensors`` (weights, full config, operating
     point), ``metrics.csv`` and ``curves.png``; with ``held`` objects, also ``held_out.json`` (their
@@ -416,10 +495,19 @@ def train_detector(runs: Sequence[GraspRun], labels: dict, cfg: GraspTrainConfig
     return result
 
 
-def evaluate_held_out(model, op: dict[str, Any], runs: Sequence[GraspRun], labels: dict, horizon: int) -> dict[str, Any]:
+def evaluate_held_out(
+    model, op: dict[str, Any], runs: Sequence[GraspRun], labels: dict, horizon: int
+) -> dict[str, Any]:
     probs = predict_runs(model, runs)
-    outs = [pergrasp.grasp_outcome(pergrasp.debounce(p, op["threshold"], op["debounce"]), r.moment_of_slip, horizon,
-                                   rest=pergrasp.rest_mask(r.contact)) for r, p in zip(runs, probs)]
+    outs = [
+        pergrasp.grasp_outcome(
+            pergrasp.debounce(p, op["threshold"], op["debounce"]),
+            r.moment_of_slip,
+            horizon,
+            rest=pergrasp.rest_mask(r.contact),
+        )
+        for r, p in zip(runs, probs)
+    ]
     p, y = clip_scores(runs, probs, labels)
     return {"per_grasp": pergrasp.summarise(outs), "clips": clip_metrics(p, y, op["threshold"])}
 

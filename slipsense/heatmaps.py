@@ -1,5 +1,6 @@
 """Heat maps of what a trained model looks at, drawn over the sensor (ViViT paper Fig. 6 style
 attention, STNet paper Fig. 8 style marker relevance over the displacement field)."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -53,8 +54,17 @@ def marker_saliency_figure(model, window: np.ndarray, rest_xy: np.ndarray, out: 
     plt = _plt()
     fig, ax = plt.subplots(figsize=(5, 4.4))
     sc = ax.scatter(rest_xy[:, 0], rest_xy[:, 1], c=sal, cmap="inferno", s=40)
-    ax.quiver(rest_xy[:, 0], rest_xy[:, 1], disp[:, 0], disp[:, 1], angles="xy", scale_units="xy",
-              scale=0.25, color="tab:cyan", width=0.004)
+    ax.quiver(
+        rest_xy[:, 0],
+        rest_xy[:, 1],
+        disp[:, 0],
+        disp[:, 1],
+        angles="xy",
+        scale_units="xy",
+        scale=0.25,
+        color="tab:cyan",
+        width=0.004,
+    )
     fig.colorbar(sc, ax=ax, label="relevance for slip")
     ax.set_aspect("equal")
     ax.set_xlabel("x (mm)")

@@ -41,10 +41,10 @@ Heat maps (:meth:`SlipDetector.heatmap`) always use the PyTorch model.
 :meth:`SlipDetector.replay` computes the same probabilities for whole recordings at once (frame
 part over all frames in batches, then every window): what :mod:`slipsense.early_warning` uses.
 """
+
 from __future__ import annotations
 
 import collections
-import hashlib
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -58,6 +58,7 @@ from torch import nn
 from slipsense.errors import ConfigError, InputError
 from slipsense.models.base import SlipModel, window_geometry
 from slipsense.resources import shipped_model
+from slipsense.runners import OnnxRunner, TorchRunner, exported_parts, onnx_cache_dir
 from slipsense.sensors.spec import GELSIGHT_MINI
 
 #: Frame rate of the GelSight recordings (frames per second): converts frames to milliseconds.
@@ -69,42 +70,6 @@ REPLAY_CHUNK = 64
 COMBINE = ("max", "mean")
 BACKENDS = ("torch", "onnx")
 DTYPES = ("float32", "int8")
-
-
-# ---------------------------------------------------------------------------------------------
-# Runners: the same two parts on PyTorch or ONNX Runtime, numpy in and out
-# ---------------------------------------------------------------------------------------------
-
-
-class _TorchRunner:
-    # no_grad, not inference_mode: tensors a model caches during an inference-mode call (ViViT keeps
-    # scratch buffers) could not be updated in place by a later ordinary call on the same model.
-    def __init__(self, frame_part: nn.Module | None, window_part: nn.Module):
-        self.frame_part, self.window_part = frame_part, window_part
-
-    def frame(self, x: np.ndarray) -> np.ndarray:
-        with torch.no_grad():
-            return self.frame_part(torch.from_numpy(x)).numpy()
-
-    def window(self, x: np.ndarray) -> np.ndarray:
-        with torch.no_grad():
-            return self.window_part(torch.from_numpy(x)).float().numpy()
-
-
-class _OnnxRunner:
-    def __init__(self, frame_path: Path | None, window_path: Path):
-        from slipsense.export import onnx_session
-
-        self.frame_sess = None if frame_path is None else onnx_session(frame_path)
-        self.window_sess = onnx_session(window_path)
-        self._frame_in = None if self.frame_sess is None else self.frame_sess.get_inputs()[0].name
-        self._window_in = self.window_sess.get_inputs()[0].name
-
-    def frame(self, x: np.ndarray) -> np.ndarray:
-        return self.frame_sess.run(None, {self._frame_in: x})[0]
-
-    def window(self, x: np.ndarray) -> np.ndarray:
-        return self.window_sess.run(None, {self._window_in: x})[0]
 
 
 def slip_probability(logits: np.ndarray) -> np.ndarray:
@@ -193,9 +158,19 @@ class SlipDetector:
     ``image_size`` ``(H, W)`` (video) or ``markers`` M (markers).
     """
 
-    def __init__(self, model: nn.Module, *, threshold: float = 0.5, sensors: int = 1, combine: str = "max",
-                 backend: str = "torch", info: Mapping[str, Any] | None = None, onnx_dir: str | Path | None = None,
-                 dtype: str = "float32", debounce: int = 1):
+    def __init__(
+        self,
+        model: nn.Module,
+        *,
+        threshold: float = 0.5,
+        sensors: int = 1,
+        combine: str = "max",
+        backend: str = "torch",
+        info: Mapping[str, Any] | None = None,
+        onnx_dir: str | Path | None = None,
+        dtype: str = "float32",
+        debounce: int = 1,
+    ):
         _check_settings(threshold, sensors, combine, backend, dtype)
         if isinstance(debounce, bool) or not isinstance(debounce, (int, np.integer)) or not 1 <= debounce <= 1000:
             raise ConfigError(f"debounce must be a whole number of frames in 1..1000, got {debounce!r}")
@@ -218,19 +193,27 @@ class SlipDetector:
         parts = model.streaming_parts()
         self._slot_tokens = model.slot_tokens
         if backend == "torch":
-            self._runner = _TorchRunner(*parts)
+            self._runner = TorchRunner(*parts)
         else:
             if onnx_dir is None:
                 self._tmpdir = tempfile.TemporaryDirectory(prefix="slipsense-onnx-")
                 onnx_dir = self._tmpdir.name
-            self._runner = _OnnxRunner(*_exported_parts(model, self.geometry, Path(onnx_dir), dtype))
+            self._runner = OnnxRunner(*exported_parts(model, self.geometry, Path(onnx_dir), dtype))
         self._has_frame_part = parts[0] is not None
         self.reset()
 
     @classmethod
-    def from_checkpoint(cls, path: str | Path, threshold: float | None = None, sensors: int = 1, combine: str = "max",
-                        backend: str = "torch", onnx_dir: str | Path | None = None,
-                        dtype: str = "float32", debounce: int | None = None) -> "SlipDetector":
+    def from_checkpoint(
+        cls,
+        path: str | Path,
+        threshold: float | None = None,
+        sensors: int = 1,
+        combine: str = "max",
+        backend: str = "torch",
+        onnx_dir: str | Path | None = None,
+        dtype: str = "float32",
+        debounce: int | None = None,
+    ) -> "SlipDetector":
         """Load a checkpoint (:func:`slipsense.checkpoint.load_model`) into a detector.
 
         ``threshold`` / ``debounce`` default to the operating point stored in the checkpoint (chosen
@@ -246,8 +229,17 @@ class SlipDetector:
         _check_settings(threshold, sensors, combine, backend, dtype)
         if backend == "onnx" and onnx_dir is None:
             onnx_dir = onnx_cache_dir(Path(path))
-        return cls(model, threshold=threshold, sensors=sensors, combine=combine, backend=backend, info=info,
-                   onnx_dir=onnx_dir, dtype=dtype, debounce=debounce)
+        return cls(
+            model,
+            threshold=threshold,
+            sensors=sensors,
+            combine=combine,
+            backend=backend,
+            info=info,
+            onnx_dir=onnx_dir,
+            dtype=dtype,
+            debounce=debounce,
+        )
 
     @classmethod
     def pretrained(cls, name: str = "motionnet-gelsight", **kwargs: Any) -> "SlipDetector":
@@ -264,11 +256,15 @@ class SlipDetector:
         from slipsense.pergrasp import STARTUP
 
         if self.backend != "torch" or self.dtype != "float32":
-            raise ConfigError(f"{self.model_name} streams on PyTorch in float32 (backend='torch'): it needs "
-                              f"no more to stay under 2 ms per push")
+            raise ConfigError(
+                f"{self.model_name} streams on PyTorch in float32 (backend='torch'): it needs "
+                f"no more to stay under 2 ms per push"
+            )
         if self.sensors != model.sensors:
-            raise ConfigError(f"{self.model_name} was trained on {model.sensors} sensor(s) seen together; "
-                              f"the detector was given sensors={self.sensors}")
+            raise ConfigError(
+                f"{self.model_name} was trained on {model.sensors} sensor(s) seen together; "
+                f"the detector was given sensors={self.sensors}"
+            )
         self.kind, self.frames = "grasp", 1
         self.image_size, self.markers = None, None
         self.gray_size: tuple[int, int] = tuple(model.image_size)
@@ -292,7 +288,9 @@ class SlipDetector:
         self._shapes: dict[int, tuple[int, ...]] = {}  # image shape per sensor, fixed by the first push
         if self.kind == "grasp":
             self._stream.reset()
-        self._cache: collections.deque[np.ndarray] = collections.deque(maxlen=self.frames)  # frame-part outputs (S, ...)
+        self._cache: collections.deque[np.ndarray] = collections.deque(
+            maxlen=self.frames
+        )  # frame-part outputs (S, ...)
         self._inputs: collections.deque[np.ndarray] = collections.deque(maxlen=self.frames)  # model inputs (S, ...)
 
     @property
@@ -315,9 +313,12 @@ class SlipDetector:
         for s, f in enumerate(frames):
             image = _check_image(f, f"frame {index}, sensor {s}", None)
             if self._shapes.setdefault(s, image.shape) != image.shape:
-                raise InputError(None, f"frame {index}, sensor {s}: image is {image.shape[1]}x{image.shape[0]}, "
-                                       f"the earlier frames of this sensor were {self._shapes[s][1]}x"
-                                       f"{self._shapes[s][0]} (call reset() to start a new stream)")
+                raise InputError(
+                    None,
+                    f"frame {index}, sensor {s}: image is {image.shape[1]}x{image.shape[0]}, "
+                    f"the earlier frames of this sensor were {self._shapes[s][1]}x"
+                    f"{self._shapes[s][0]} (call reset() to start a new stream)",
+                )
             gray[s] = gray_frames(image, self.gray_size)
         self._index += 1
         if index < self.startup:  # the camera's start-up transient is not the scene
@@ -336,8 +337,9 @@ class SlipDetector:
         a non-finite value; the window is left unchanged then.
         """
         if len(frames) != self.sensors:
-            raise InputError(None, f"frame {self._index}: push takes {self.sensors} frame(s), one per sensor, "
-                                   f"got {len(frames)}")
+            raise InputError(
+                None, f"frame {self._index}: push takes {self.sensors} frame(s), one per sensor, got {len(frames)}"
+            )
         if self.kind == "grasp":
             return self._push_grasp(frames)
         if self.kind == "video":  # converted straight into the batch: no per-sensor copies
@@ -421,10 +423,10 @@ class SlipDetector:
         n = len(streams[0])
         p = np.full(n, np.nan)
         if n > self.startup:
-            gray = np.stack([gray_frames(s[self.startup:], self.gray_size) for s in streams])
+            gray = np.stack([gray_frames(s[self.startup :], self.gray_size) for s in streams])
             with torch.no_grad():
                 logits = self.model(torch.from_numpy(gray[None]).float().div_(255.0))[0]
-            p[self.startup:] = torch.softmax(logits, dim=-1)[:, 1].double().numpy()
+            p[self.startup :] = torch.softmax(logits, dim=-1)[:, 1].double().numpy()
         return Trace(p, np.repeat(p[:, None], self.sensors, axis=1), self.threshold, self.debounce)
 
     def _check_stream(self, stream: Any, sensor: int) -> np.ndarray:
@@ -433,8 +435,9 @@ class SlipDetector:
             raise InputError(None, f"{where}: replay takes numpy arrays, got {type(stream).__name__}")
         if self.kind in ("video", "grasp"):
             if stream.dtype != np.uint8 or stream.ndim != 4 or stream.shape[-1] != 3:
-                raise InputError(None, f"{where}: expected a uint8 (N, H, W, 3) BGR video, got {stream.dtype} "
-                                       f"{stream.shape}")
+                raise InputError(
+                    None, f"{where}: expected a uint8 (N, H, W, 3) BGR video, got {stream.dtype} {stream.shape}"
+                )
             return stream
         if stream.ndim != 3 or stream.shape[1:] != (self.markers, 3):
             raise InputError(None, f"{where}: expected marker clouds (N, {self.markers}, 3), got {stream.shape}")
@@ -481,8 +484,9 @@ class SlipDetector:
             self._tmpdir = None
 
 
-def stored_operating_point(path: str | Path, info: Mapping[str, Any], threshold: float | None,
-                           debounce: int | None) -> tuple[float, int]:
+def stored_operating_point(
+    path: str | Path, info: Mapping[str, Any], threshold: float | None, debounce: int | None
+) -> tuple[float, int]:
     """The threshold and debounce to use: the caller's where given, else the checkpoint's operating
     point, else 0.5 / 1 with a warning naming the checkpoint."""
     import warnings
@@ -492,8 +496,9 @@ def stored_operating_point(path: str | Path, info: Mapping[str, Any], threshold:
         if isinstance(op, Mapping) and isinstance(op.get("threshold"), (int, float)):
             threshold = float(op["threshold"])
         else:
-            warnings.warn(f"{path}: checkpoint stores no alarm threshold; using 0.5 (pass a threshold to choose)",
-                          stacklevel=3)
+            warnings.warn(
+                f"{path}: checkpoint stores no alarm threshold; using 0.5 (pass a threshold to choose)", stacklevel=3
+            )
             threshold = 0.5
     if debounce is None:
         k = op.get("debounce", 1) if isinstance(op, Mapping) else 1
@@ -523,8 +528,9 @@ def _check_settings(threshold: Any, sensors: Any, combine: str, backend: str, dt
 def _check_image(frame: Any, where: str, size: tuple[int, int]) -> np.ndarray:
     """A uint8 (H, W, 3) BGR image resized to ``size``, or InputError."""
     if not isinstance(frame, np.ndarray):
-        raise InputError(None, f"{where}: expected a uint8 (H, W, 3) BGR image as a numpy array, "
-                               f"got {type(frame).__name__}")
+        raise InputError(
+            None, f"{where}: expected a uint8 (H, W, 3) BGR image as a numpy array, got {type(frame).__name__}"
+        )
     if frame.dtype != np.uint8:
         raise InputError(None, f"{where}: expected a uint8 (H, W, 3) BGR image, got dtype {frame.dtype}")
     if frame.ndim != 3 or frame.shape[2] != 3 or min(frame.shape[:2]) < 1:
@@ -555,7 +561,9 @@ def _video_input(frames: np.ndarray, out: np.ndarray | None = None) -> np.ndarra
 def _check_cloud(cloud: Any, where: str, markers: int) -> np.ndarray:
     """A finite float32 (M, 3) marker cloud, or InputError."""
     if not isinstance(cloud, np.ndarray):
-        raise InputError(None, f"{where}: expected a float (M, 3) marker cloud as a numpy array, got {type(cloud).__name__}")
+        raise InputError(
+            None, f"{where}: expected a float (M, 3) marker cloud as a numpy array, got {type(cloud).__name__}"
+        )
     if not (np.issubdtype(cloud.dtype, np.floating) or np.issubdtype(cloud.dtype, np.integer)):
         raise InputError(None, f"{where}: expected float marker positions (mm), got dtype {cloud.dtype}")
     if cloud.shape != (markers, 3):
@@ -567,31 +575,16 @@ def _check_cloud(cloud: Any, where: str, markers: int) -> np.ndarray:
     return cloud.astype(np.float32, copy=False)
 
 
-def onnx_cache_dir(checkpoint: Path) -> Path:
-    """``<cache_root>/onnx/<hash>``: keyed by the checkpoint's bytes and the library versions."""
-    from slipsense import __version__
-    from slipsense.config import cache_root
-
-    h = hashlib.sha256()
-    with open(checkpoint, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    # parts-2: the ViViT frame part's patch statistics are reduced innermost axis first (faster graph)
-    h.update(f"{__version__} {torch.__version__} parts-2".encode())
-    return cache_root() / "onnx" / h.hexdigest()[:24]
-
-
-def _exported_parts(model: nn.Module, geometry: Mapping[str, Any], folder: Path,
-                    dtype: str = "float32") -> tuple[Path | None, Path]:
-    """The model's streaming parts as ONNX files in ``folder``, exported unless a verified copy is
-    there (:func:`slipsense.export.cached_streaming_parts`); ``dtype="int8"``: their dynamically
-    quantized copies."""
-    from slipsense.export import cached_streaming_parts
-
-    return cached_streaming_parts(model, folder, geometry, dtype)
-
-
 __all__ = [
-    "DEFAULT_CHECKPOINT", "FPS", "Reading", "SlipDetector", "Trace", "alarm_at",
-    "combine_probabilities", "onnx_cache_dir", "slip_probability", "stored_operating_point", "window_geometry",
+    "DEFAULT_CHECKPOINT",
+    "FPS",
+    "Reading",
+    "SlipDetector",
+    "Trace",
+    "alarm_at",
+    "combine_probabilities",
+    "onnx_cache_dir",
+    "slip_probability",
+    "stored_operating_point",
+    "window_geometry",
 ]

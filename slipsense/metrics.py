@@ -1,4 +1,5 @@
 """Binary classification metrics from confusion counts (class 1 = slip)."""
+
 from __future__ import annotations
 
 from typing import Any
@@ -40,5 +41,12 @@ def metrics_from(p: np.ndarray, y: np.ndarray, threshold: float = 0.5) -> dict[s
     cm = confusion(y, pred)
     eps = 1e-7
     loss = float(-np.mean(np.where(y == 1, np.log(p + eps), np.log(1 - p + eps)))) if len(y) else 0.0
-    return {**scores(cm), "loss": loss, "n_clips": int(len(y)), "n_slip": int((y == 1).sum()),
-            "n_wiggle": int((y == 0).sum()), "confusion": cm.tolist(), "threshold": threshold}
+    return {
+        **scores(cm),
+        "loss": loss,
+        "n_clips": int(len(y)),
+        "n_slip": int((y == 1).sum()),
+        "n_wiggle": int((y == 0).sum()),
+        "confusion": cm.tolist(),
+        "threshold": threshold,
+    }

@@ -17,6 +17,7 @@ alarms only in ``m-H..m`` scores 100% and 0 (tests hold all three).
 
 Everything here is numpy on alarm arrays: the models and the replay live elsewhere.
 """
+
 from __future__ import annotations
 
 import math
@@ -78,8 +79,13 @@ class GraspOutcome:
     rest_alarms: int
 
 
-def grasp_outcome(alarm: np.ndarray, moment: int | None, horizon: int = HORIZON, startup: int = STARTUP,
-                  rest: np.ndarray | None = None) -> GraspOutcome:
+def grasp_outcome(
+    alarm: np.ndarray,
+    moment: int | None,
+    horizon: int = HORIZON,
+    startup: int = STARTUP,
+    rest: np.ndarray | None = None,
+) -> GraspOutcome:
     """Score one run.
 
     Args:
@@ -108,9 +114,21 @@ def grasp_outcome(alarm: np.ndarray, moment: int | None, horizon: int = HORIZON,
 
 #: Columns of the per-grasp table, in order.
 COLUMNS = (
-    "threshold", "debounce", "slip_runs", "warned", "premature", "missed", "warned_rate", "median_lead_frames",
-    "median_lead_ms", "held_runs", "false_positive_grasps", "false_positive_rate", "held_alarm_fraction",
-    "runs_alarming_at_rest", "score",
+    "threshold",
+    "debounce",
+    "slip_runs",
+    "warned",
+    "premature",
+    "missed",
+    "warned_rate",
+    "median_lead_frames",
+    "median_lead_ms",
+    "held_runs",
+    "false_positive_grasps",
+    "false_positive_rate",
+    "held_alarm_fraction",
+    "runs_alarming_at_rest",
+    "score",
 )
 
 
@@ -126,33 +144,53 @@ def summarise(outcomes: Sequence[GraspOutcome], fps: float = 25.0) -> dict[str, 
     warned_rate = warned / len(slip) if slip else math.nan
     fp_rate = fp / len(held) if held else math.nan
     return {
-        "slip_runs": len(slip), "warned": warned,
-        "premature": sum(o.outcome == "premature" for o in slip), "missed": sum(o.outcome == "missed" for o in slip),
-        "warned_rate": warned_rate, "median_lead_frames": med, "median_lead_ms": med * 1000.0 / fps,
-        "held_runs": len(held), "false_positive_grasps": int(fp), "false_positive_rate": fp_rate,
+        "slip_runs": len(slip),
+        "warned": warned,
+        "premature": sum(o.outcome == "premature" for o in slip),
+        "missed": sum(o.outcome == "missed" for o in slip),
+        "warned_rate": warned_rate,
+        "median_lead_frames": med,
+        "median_lead_ms": med * 1000.0 / fps,
+        "held_runs": len(held),
+        "false_positive_grasps": int(fp),
+        "false_positive_rate": fp_rate,
         "held_alarm_fraction": float(np.mean([o.alarm_fraction for o in held])) if held else math.nan,
         "runs_alarming_at_rest": sum(o.rest_alarms > 0 for o in outcomes),
         "score": (0.0 if math.isnan(warned_rate) else warned_rate) - (0.0 if math.isnan(fp_rate) else fp_rate),
     }
 
 
-def table(probabilities: Sequence[np.ndarray], moments: Sequence[int | None], thresholds: Sequence[float],
-          debounces: Sequence[int] = (1,), horizon: int = HORIZON, startup: int = STARTUP,
-          rests: Sequence[np.ndarray | None] | None = None, fps: float = 25.0) -> list[dict[str, Any]]:
+def table(
+    probabilities: Sequence[np.ndarray],
+    moments: Sequence[int | None],
+    thresholds: Sequence[float],
+    debounces: Sequence[int] = (1,),
+    horizon: int = HORIZON,
+    startup: int = STARTUP,
+    rests: Sequence[np.ndarray | None] | None = None,
+    fps: float = 25.0,
+) -> list[dict[str, Any]]:
     """One row (:data:`COLUMNS`) per (threshold, debounce) over runs given as probability traces."""
     rests = rests if rests is not None else [None] * len(probabilities)
     rows = []
     for k in debounces:
         for th in thresholds:
-            outs = [grasp_outcome(debounce(p, th, k), m, horizon, startup, r)
-                    for p, m, r in zip(probabilities, moments, rests)]
+            outs = [
+                grasp_outcome(debounce(p, th, k), m, horizon, startup, r)
+                for p, m, r in zip(probabilities, moments, rests)
+            ]
             rows.append({"threshold": float(th), "debounce": int(k), **summarise(outs, fps)})
     return rows
 
 
-def choose_operating_point(probabilities: Sequence[np.ndarray], moments: Sequence[int | None],
-                           thresholds: Sequence[float] | None = None, debounces: Sequence[int] = (1, 2, 3, 5),
-                           horizon: int = HORIZON, startup: int = STARTUP) -> dict[str, Any]:
+def choose_operating_point(
+    probabilities: Sequence[np.ndarray],
+    moments: Sequence[int | None],
+    thresholds: Sequence[float] | None = None,
+    debounces: Sequence[int] = (1, 2, 3, 5),
+    horizon: int = HORIZON,
+    startup: int = STARTUP,
+) -> dict[str, Any]:
     """The (threshold, debounce) with the best :func:`summarise` score on these runs (ties: the
     shortest debounce, then the middle of the tying thresholds, for a margin on both sides). Call it on training runs only (out-of-fold
     predictions of inner folds): choosing it on test runs is tuning on the test set."""
@@ -164,5 +202,10 @@ def choose_operating_point(probabilities: Sequence[np.ndarray], moments: Sequenc
     k = min(r["debounce"] for r in tied)
     tied = sorted((r for r in tied if r["debounce"] == k), key=lambda r: r["threshold"])
     best = tied[(len(tied) - 1) // 2]
-    return {"threshold": best["threshold"], "debounce": best["debounce"], "horizon": horizon,
-            "startup": startup, "score_on_training_runs": best["score"]}
+    return {
+        "threshold": best["threshold"],
+        "debounce": best["debounce"],
+        "horizon": horizon,
+        "startup": startup,
+        "score_on_training_runs": best["score"],
+    }

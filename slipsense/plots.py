@@ -1,4 +1,5 @@
 """Pictures a person would rather look at than read: curves, confusion matrices, heat maps."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -33,8 +34,14 @@ def plot_curves(history: Sequence[dict[str, Any]], path: str | Path, title: str 
     epochs = [r["epoch"] for r in history]
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 3.6))
     for key, ax in (("loss", a1), ("accuracy", a2)):
-        splits = ["train", "val"] + sorted({k[: -len("_accuracy")] for r in history for k in r
-                                           if k.endswith("_accuracy") and k[: -len("_accuracy")] not in ("train", "val")})
+        splits = ["train", "val"] + sorted(
+            {
+                k[: -len("_accuracy")]
+                for r in history
+                for k in r
+                if k.endswith("_accuracy") and k[: -len("_accuracy")] not in ("train", "val")
+            }
+        )
         for split in splits:
             vals = [r.get(f"{split}_{key}") for r in history]
             if any(v is not None for v in vals):
@@ -55,8 +62,15 @@ def plot_confusion(cm, path: str | Path, labels=("wiggle", "slip"), title: str =
     ax.imshow(cm, cmap="Blues")
     for i in range(2):
         for j in range(2):
-            ax.text(j, i, str(cm[i, j]), ha="center", va="center",
-                    color="white" if cm[i, j] > cm.max() / 2 else "black", fontsize=13)
+            ax.text(
+                j,
+                i,
+                str(cm[i, j]),
+                ha="center",
+                va="center",
+                color="white" if cm[i, j] > cm.max() / 2 else "black",
+                fontsize=13,
+            )
     ax.set_xticks([0, 1], [f"pred {l}" for l in labels])
     ax.set_yticks([0, 1], [f"true {l}" for l in labels])
     ax.set_title(title)

@@ -13,6 +13,7 @@
   (dropout-free models), and 1 process with ``--batch-size 8 --accumulate 2`` (any model: the
   dropout masks of a micro-batch do not depend on the process that draws them).
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -146,10 +147,17 @@ def restore_state(path: Path, state: dict[str, Any], model: nn.Module, optimizer
         raise InputError(path, "resume state history is not a list of metric rows")
 
 
-def fit(model: nn.Module, train_data: Dataset, val_data: Dataset | None, cfg: TrainConfig,
-        out_dir: str | Path, info: dict[str, Any] | None = None, resume: bool = False,
-        extra_eval: dict[str, Dataset] | None = None,
-        resume_state: dict[str, Any] | None = None) -> list[dict[str, Any]]:
+def fit(
+    model: nn.Module,
+    train_data: Dataset,
+    val_data: Dataset | None,
+    cfg: TrainConfig,
+    out_dir: str | Path,
+    info: dict[str, Any] | None = None,
+    resume: bool = False,
+    extra_eval: dict[str, Dataset] | None = None,
+    resume_state: dict[str, Any] | None = None,
+) -> list[dict[str, Any]]:
     """Train ``model`` on ``train_data``; validate on ``val_data`` after every epoch.
 
     Args:
@@ -183,10 +191,15 @@ def fit(model: nn.Module, train_data: Dataset, val_data: Dataset | None, cfg: Tr
     # batches 1 x 16 sees, for any dataset size.
     plan = StepPlan(len(train_data), cfg.batch_size, d.world, cfg.accumulate, cfg.seed)
     batches = RankBatches(plan, d.rank)
-    loader = DataLoader(train_data, batch_sampler=batches, num_workers=cfg.num_workers,
-                        persistent_workers=cfg.num_workers > 0)
-    info = {**(info or {}), "train": asdict(cfg), "world_size": d.world,
-            "global_batch": d.world * cfg.batch_size * cfg.accumulate}
+    loader = DataLoader(
+        train_data, batch_sampler=batches, num_workers=cfg.num_workers, persistent_workers=cfg.num_workers > 0
+    )
+    info = {
+        **(info or {}),
+        "train": asdict(cfg),
+        "world_size": d.world,
+        "global_batch": d.world * cfg.batch_size * cfg.accumulate,
+    }
     history: list[dict[str, Any]] = []
     best = -math.inf
     start_epoch = 0
@@ -200,8 +213,10 @@ def fit(model: nn.Module, train_data: Dataset, val_data: Dataset | None, cfg: Tr
         if d.main:
             print(f"resuming {out} after epoch {state['epoch'] + 1}/{cfg.epochs}")
     if d.main:
-        write_text(out / "run.json", json.dumps({**info, "model": model.model_name,
-                                                 "model_config": model.config()}, indent=2, default=str))
+        write_text(
+            out / "run.json",
+            json.dumps({**info, "model": model.model_name, "model_config": model.config()}, indent=2, default=str),
+        )
     t_run = time.perf_counter()
     dummy: list = []  # one real item, run with weight 0 by a rank whose micro-batch is empty
     for epoch in range(start_epoch, cfg.epochs):
@@ -230,8 +245,9 @@ def fit(model: nn.Module, train_data: Dataset, val_data: Dataset | None, cfg: Tr
                         # DDP averages over ranks: scaled so the step's gradient is the mean over
                         # the n_global items of the step, wherever they were computed.
                         (total * (d.world / n_global)).backward()
-                        sums += torch.tensor([total.item(), (logits.argmax(-1) == y).sum().item(), len(y)],
-                                             dtype=torch.float64)
+                        sums += torch.tensor(
+                            [total.item(), (logits.argmax(-1) == y).sum().item(), len(y)], dtype=torch.float64
+                        )
                     else:
                         # Every rank joins every gradient all-reduce; in eval mode (no dropout, no
                         # batch-norm update) and with weight 0, the item changes nothing.
@@ -244,10 +260,13 @@ def fit(model: nn.Module, train_data: Dataset, val_data: Dataset | None, cfg: Tr
             if bar is not steps and sums[2] > 0:
                 bar.set_postfix(loss=f"{sums[0].item() / sums[2].item():.4f}")
         sums = all_sum(sums, d)
-        row: dict[str, Any] = {"epoch": epoch + 1, "lr": optimizer.param_groups[0]["lr"],
-                               "train_loss": sums[0].item() / max(sums[2].item(), 1),
-                               "train_accuracy": sums[1].item() / max(sums[2].item(), 1),
-                               "train_items": int(sums[2].item())}
+        row: dict[str, Any] = {
+            "epoch": epoch + 1,
+            "lr": optimizer.param_groups[0]["lr"],
+            "train_loss": sums[0].item() / max(sums[2].item(), 1),
+            "train_accuracy": sums[1].item() / max(sums[2].item(), 1),
+            "train_items": int(sums[2].item()),
+        }
         scheduler.step()
         if val_data is not None and len(val_data):
             p, y = predict(model, val_data, batch_size=max(cfg.batch_size, 32), device=d.device, d=d)
@@ -259,8 +278,11 @@ def fit(model: nn.Module, train_data: Dataset, val_data: Dataset | None, cfg: Tr
             row.update({f"{name}_{k}": m[k] for k in ("loss", "accuracy", "precision", "recall", "f1")})
         row["seconds"] = time.perf_counter() - t0
         history.append(row)
-        score = -row["val_loss"] if cfg.select_by == "loss" and "val_loss" in row else row.get(
-            f"val_{cfg.select_by}", row["train_accuracy"])
+        score = (
+            -row["val_loss"]
+            if cfg.select_by == "loss" and "val_loss" in row
+            else row.get(f"val_{cfg.select_by}", row["train_accuracy"])
+        )
         improved = score > best
         best = max(best, score)
         if d.main:
@@ -269,10 +291,18 @@ def fit(model: nn.Module, train_data: Dataset, val_data: Dataset | None, cfg: Tr
             if improved:
                 save_checkpoint(out / "best.safetensors", model, ck_info)
             write_metrics_csv(out / "metrics.csv", history)
-            save_resume_state(resume_path, {
-                "model": model.state_dict(), "optimizer": optimizer.state_dict(),
-                "scheduler": scheduler.state_dict(), "rng": _rng_state(), "history": history,
-                "best": best, "epoch": epoch})
+            save_resume_state(
+                resume_path,
+                {
+                    "model": model.state_dict(),
+                    "optimizer": optimizer.state_dict(),
+                    "scheduler": scheduler.state_dict(),
+                    "rng": _rng_state(),
+                    "history": history,
+                    "best": best,
+                    "epoch": epoch,
+                },
+            )
             shown = {k: (round(v, 4) if isinstance(v, float) else v) for k, v in row.items()}
             print(json.dumps(shown), flush=True)
         if d.world > 1:
@@ -323,8 +353,6 @@ class TrainRequest:
     overrides: Path | None = None  # CSV of hand labels replacing automatic moments of slip
     progress: bool = True
     train_overrides: dict[str, Any] = field(default_factory=dict)
-
-
 
 
 def build_model(name: str, preset: str | None, overrides: dict[str, Any], data_config: dict[str, Any]):
@@ -385,16 +413,24 @@ def prepare_data(req: TrainRequest, kind: str):
                 test_objects = sorted(object_folds(objects, n_folds=req.folds, seed=req.seed)[k])
             tr, te = split_by_object(clips, test_objects)
             if len(tr) == 0:
-                raise ConfigError(f"every object of {root} is held out ({', '.join(test_objects)}): "
-                                  "nothing is left to train on")
+                raise ConfigError(
+                    f"every object of {root} is held out ({', '.join(test_objects)}): nothing is left to train on"
+                )
         else:
             raise ConfigError(f"--split must be objects, clips or all, got {req.split!r}")
         size = tuple(clips.x.shape[2:4])
         from slipsense.config import portable_path
 
-        split_info = {"kind": "video", "recordings": portable_path(root), "clip_spec": spec_dict(spec), "split": req.split,
-                      "test_objects": test_objects, "test_indices": [int(i) for i in te],
-                      "on_error": req.on_error, "overrides": portable_path(req.overrides) if req.overrides else None}
+        split_info = {
+            "kind": "video",
+            "recordings": portable_path(root),
+            "clip_spec": spec_dict(spec),
+            "split": req.split,
+            "test_objects": test_objects,
+            "test_indices": [int(i) for i in te],
+            "on_error": req.on_error,
+            "overrides": portable_path(req.overrides) if req.overrides else None,
+        }
         train = ClipDataset(clips.subset(tr), AugmentConfig(enabled=req.augment), seed=req.seed)
         test = ClipDataset(clips.subset(te))
         return train, test, split_info, {"frames": req.frames, "image_size": size}
@@ -406,14 +442,21 @@ def prepare_data(req: TrainRequest, kind: str):
         x, y, groups = load_markers(req.markers)
         n_groups = len(np.unique(groups))
         if n_groups < 2:
-            raise InputError(req.markers, f"all {len(groups)} samples are in one group: a split that never cuts a "
-                                          "group leaves nothing to train on (give groups with several values)")
+            raise InputError(
+                req.markers,
+                f"all {len(groups)} samples are in one group: a split that never cuts a "
+                "group leaves nothing to train on (give groups with several values)",
+            )
         tr, te = split_groups(groups, 0.2 if req.test_fraction == 0.1 else req.test_fraction, req.seed)
         from slipsense.config import portable_path
 
         split_info = {"kind": "markers", "markers": portable_path(req.markers), "test_indices": [int(i) for i in te]}
-        return (MarkerDataset(x[tr], y[tr]), MarkerDataset(x[te], y[te]), split_info,
-                {"frames": int(x.shape[1]), "markers": int(x.shape[2])})
+        return (
+            MarkerDataset(x[tr], y[tr]),
+            MarkerDataset(x[te], y[te]),
+            split_info,
+            {"frames": int(x.shape[1]), "markers": int(x.shape[2])},
+        )
     raise ConfigError(f"model input kind {kind!r} is not supported")
 
 
@@ -433,8 +476,11 @@ def check_same_split(path: Path, split_info: dict[str, Any]) -> None:
         raise InputError(path, "is not a split description (a JSON object)")
     changed = [k for k in SPLIT_IDENTITY if (k in old or k in split_info) and old.get(k) != split_info.get(k)]
     if changed:
-        raise InputError(path, f"the run was started with another data split ({', '.join(changed)} differ); "
-                               "resume with the same data and split options, or use a new --out")
+        raise InputError(
+            path,
+            f"the run was started with another data split ({', '.join(changed)} differ); "
+            "resume with the same data and split options, or use a new --out",
+        )
 
 
 def run_training(req: TrainRequest, resume: bool = False) -> dict[str, Any]:
@@ -447,7 +493,9 @@ def run_training(req: TrainRequest, resume: bool = False) -> dict[str, Any]:
     accepted = settings_of(cls)
     unknown = sorted(set(req.model_overrides) - accepted)
     if unknown:  # before any data is decoded
-        raise ConfigError(f"model {req.model!r} has no setting {', '.join(unknown)}; settings: {', '.join(sorted(accepted))}")
+        raise ConfigError(
+            f"model {req.model!r} has no setting {', '.join(unknown)}; settings: {', '.join(sorted(accepted))}"
+        )
     settings = {**paper_settings(req.model), "seed": req.seed, "progress": req.progress, **req.train_overrides}
     cfg = TrainConfig.from_dict(settings)
     train_data, test_data, split_info, data_config = prepare_data(req, kind)
@@ -480,8 +528,17 @@ def run_training(req: TrainRequest, resume: bool = False) -> dict[str, Any]:
     # The held-out part is also the validation set that picked best.safetensors, so scoring that
     # checkpoint on it would be optimistic: the reported model is the last epoch's.
     final, _ = load_model(out / "last.safetensors")
-    metrics = evaluate_model(final, test_data, out / "evaluation.json", out / "confusion.png",
-                             extra={"checkpoint": (out / "last.safetensors").as_posix(), "split": split_info.get("split"),
-                                    "test_objects": split_info.get("test_objects")}, progress=req.progress)
+    metrics = evaluate_model(
+        final,
+        test_data,
+        out / "evaluation.json",
+        out / "confusion.png",
+        extra={
+            "checkpoint": (out / "last.safetensors").as_posix(),
+            "split": split_info.get("split"),
+            "test_objects": split_info.get("test_objects"),
+        },
+        progress=req.progress,
+    )
     print(json.dumps({k: metrics[k] for k in ("accuracy", "precision", "recall", "f1", "n_clips")}))
     return metrics

@@ -1,5 +1,6 @@
 """Fixtures shared by the test modules: one torch thread, a private cache, made-up grasp recordings,
 and the shared GelSight data when it is there."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -56,8 +57,13 @@ def grasp_recordings(tmp_path_factory) -> Path:
     for i in range(4):
         for exp, slip in ((1, True), (2, False)):
             for cam in (0, 2):
-                write_grasp_video(root / f"obj{i}" / f"exp_num_{exp}" / f"camera_{cam}.avi", 70,
-                                  (20, 50 if slip else 69), slip, seed=100 * i + 10 * exp + cam)
+                write_grasp_video(
+                    root / f"obj{i}" / f"exp_num_{exp}" / f"camera_{cam}.avi",
+                    70,
+                    (20, 50 if slip else 69),
+                    slip,
+                    seed=100 * i + 10 * exp + cam,
+                )
             if slip:
                 (root / f"obj{i}" / f"exp_num_{exp}" / "slip.txt").write_text("")
     return root

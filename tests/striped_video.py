@@ -3,6 +3,7 @@
 Each frame carries its index as 8 vertical stripes (bright = bit set): robust to XVID's losses, so
 a test can check which source frame ended up where after decoding, windowing and caching.
 """
+
 from __future__ import annotations
 
 from pathlib import Path

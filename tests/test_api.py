@@ -1,4 +1,5 @@
 """The top-level Python API (slipsense/__init__.py, slipsense/api.py) and the README's quick start."""
+
 from __future__ import annotations
 
 import re
@@ -15,8 +16,19 @@ from conftest import needs_data
 from slipsense.errors import ConfigError
 
 README = Path(__file__).resolve().parent.parent / "README.md"
-SMALL = dict(width=4, features=8, temporal=8, lags=[1, 5, 10], dilations=[1, 2, 4], chunk=16, negatives=1,
-             hard_negatives=1, image_size=[12, 16], epochs=2, inner_folds=0)
+SMALL = dict(
+    width=4,
+    features=8,
+    temporal=8,
+    lags=[1, 5, 10],
+    dilations=[1, 2, 4],
+    chunk=16,
+    negatives=1,
+    hard_negatives=1,
+    image_size=[12, 16],
+    epochs=2,
+    inner_folds=0,
+)
 
 
 def test_import_is_light_and_names_resolve():
@@ -54,14 +66,15 @@ def test_fit_then_evaluate_return_objects(tmp_path, grasp_recordings, cache, one
 
 def _quick_start() -> str:
     text = README.read_text(encoding="utf-8")
-    section = text[text.index("## Python quick start"):]
+    section = text[text.index("## Python quick start") :]
     return re.search(r"```python\n(.*?)```", section, re.S).group(1)
 
 
 @needs_data
 def test_readme_quick_start_runs(tmp_path, one_thread):
-    result = subprocess.run([sys.executable, "-c", _quick_start()], capture_output=True, text=True, cwd=tmp_path,
-                            timeout=300)
+    result = subprocess.run(
+        [sys.executable, "-c", _quick_start()], capture_output=True, text=True, cwd=tmp_path, timeout=300
+    )
     assert result.returncode == 0, result.stderr
 
 
@@ -81,8 +94,23 @@ def test_wheel_carries_the_shipped_detectors_and_overrides(tmp_path):
     import zipfile
 
     root = README.parent
-    build = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w",
-                            str(tmp_path), str(root)], capture_output=True, text=True, timeout=300)
+    build = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "wheel",
+            "--no-deps",
+            "--no-build-isolation",
+            "-q",
+            "-w",
+            str(tmp_path),
+            str(root),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     if build.returncode != 0 and "No module named" in build.stderr:
         pytest.skip(f"cannot build a wheel here: {build.stderr.strip().splitlines()[-1]}")
     assert build.returncode == 0, build.stderr

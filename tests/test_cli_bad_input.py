@@ -3,9 +3,13 @@
 Every case is made here, in a temporary folder; with ``--on-error skip`` bad videos are warned about
 and left out instead.
 """
+
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import cv2
@@ -61,8 +65,9 @@ def _error_line(result) -> str:
     return lines[0]
 
 
-@pytest.mark.parametrize("case", ["empty file", "truncated AVI", "PNG renamed to .avi", "wrong resolution",
-                                  "one-frame video"])
+@pytest.mark.parametrize(
+    "case", ["empty file", "truncated AVI", "PNG renamed to .avi", "wrong resolution", "one-frame video"]
+)
 def test_bad_video_stops_label_with_one_line(tmp_path, case):
     root = tmp_path / "rec"
     bad, word = _bad_cases(tmp_path / "all")[case]
@@ -84,8 +89,10 @@ def test_skip_flag_warns_and_leaves_bad_videos_out(tmp_path):
     (root / "bad" / "exp_num_1").mkdir(parents=True)
     (root / "bad" / "exp_num_1" / "camera_0.avi").write_bytes(b"")
     (root / "novideo" / "exp_num_1").mkdir(parents=True)  # an experiment folder without videos
-    result = runner.invoke(app, ["label", "--recordings", str(root), "--csv", str(tmp_path / "l.csv"),
-                                 "--on-error", "skip", "--no-progress"])
+    result = runner.invoke(
+        app,
+        ["label", "--recordings", str(root), "--csv", str(tmp_path / "l.csv"), "--on-error", "skip", "--no-progress"],
+    )
     assert result.exit_code == 0, result.output
     rows = (tmp_path / "l.csv").read_text().strip().splitlines()
     assert len(rows) == 3 and all(r.startswith(("object", "cup")) for r in rows)
@@ -112,10 +119,13 @@ def test_corrupt_and_foreign_checkpoints(tmp_path):
     assert result.exit_code == 2 and "bad.safetensors" in _error_line(result)
 
 
-@pytest.mark.parametrize("problem, make, word", [
-    ("nan", lambda x: x.__setitem__((1, 2, 3, 0), np.nan), "NaN"),
-    ("inf", lambda x: x.__setitem__((0, 0, 0, 2), np.inf), "inf"),
-])
+@pytest.mark.parametrize(
+    "problem, make, word",
+    [
+        ("nan", lambda x: x.__setitem__((1, 2, 3, 0), np.nan), "NaN"),
+        ("inf", lambda x: x.__setitem__((0, 0, 0, 2), np.inf), "inf"),
+    ],
+)
 def test_marker_file_with_nonfinite_values(tmp_path, problem, make, word):
     x = np.zeros((4, 12, 6, 3), np.float32)
     make(x)
@@ -134,35 +144,55 @@ def test_marker_file_with_wrong_shape(tmp_path):
     assert result.exit_code == 2 and "shape.npz" in _error_line(result)
 
 
-@pytest.mark.parametrize("args, word", [
-    (["--set", "no_such_key=3"], "no_such_key"),
-    (["--epochs", "0"], "epochs"),
-    (["--lr", "-1"], "lr"),
-    (["--frames", "40"], "frames"),
-    (["--size", "big"], "size"),
-])
+@pytest.mark.parametrize(
+    "args, word",
+    [
+        (["--set", "no_such_key=3"], "no_such_key"),
+        (["--epochs", "0"], "epochs"),
+        (["--lr", "-1"], "lr"),
+        (["--frames", "40"], "frames"),
+        (["--size", "big"], "size"),
+    ],
+)
 def test_bad_config_values(tmp_path, args, word):
     root = tmp_path / "rec"
     _good_run(root)
-    result = runner.invoke(app, ["train", "--model", "vivit", "--recordings", str(root), "--out", str(tmp_path / "r"),
-                                 "--no-progress", *args])
+    result = runner.invoke(
+        app,
+        ["train", "--model", "vivit", "--recordings", str(root), "--out", str(tmp_path / "r"), "--no-progress", *args],
+    )
     assert result.exit_code == 2, result.output
     assert word in _error_line(result)
 
 
 # ------------------------------------------------------------------ issue 12: more bad-input classes
-import os
-import subprocess
-import sys
-
-TINY = ["--model", "temnet", "--set", "d_model=8", "--set", "heads=2", "--set", "blocks=1", "--set", "ff_dim=8",
-        "--set", "head_hidden=0", "--batch-size", "4", "--no-progress"]
+TINY = [
+    "--model",
+    "temnet",
+    "--set",
+    "d_model=8",
+    "--set",
+    "heads=2",
+    "--set",
+    "blocks=1",
+    "--set",
+    "ff_dim=8",
+    "--set",
+    "head_hidden=0",
+    "--batch-size",
+    "4",
+    "--no-progress",
+]
 
 
 def _markers_npz(path: Path, n: int = 24, **extra) -> Path:
     rng = np.random.default_rng(0)
-    arrays = {"x": rng.normal(size=(n, 4, 5, 3)).astype(np.float32), "y": np.arange(n) % 2,
-              "groups": np.arange(n) // 2, **extra}
+    arrays = {
+        "x": rng.normal(size=(n, 4, 5, 3)).astype(np.float32),
+        "y": np.arange(n) % 2,
+        "groups": np.arange(n) // 2,
+        **extra,
+    }
     np.savez(path, **arrays)
     return path
 
@@ -198,8 +228,9 @@ def unwritable(tmp_path):
 def run_dir(tmp_path):
     """A trained tiny TemNet run (its checkpoint) and its marker file."""
     _markers_npz(tmp_path / "m.npz")
-    result = runner.invoke(app, ["train", *TINY, "--markers", str(tmp_path / "m.npz"), "--out", str(tmp_path / "run"),
-                                 "--epochs", "1"])
+    result = runner.invoke(
+        app, ["train", *TINY, "--markers", str(tmp_path / "m.npz"), "--out", str(tmp_path / "run"), "--epochs", "1"]
+    )
     assert result.exit_code == 0, result.output
     return tmp_path / "run"
 
@@ -213,7 +244,9 @@ def test_label_csv_that_is_a_folder_or_unwritable(tmp_path, cache, unwritable):
     result = runner.invoke(app, ["label", "--recordings", str(root), "--csv", str(tmp_path / "out"), "--no-progress"])
     _one_error(result, str(tmp_path / "out"), "folder")
     assert (tmp_path / "out" / "keep.txt").read_text() == "mine"
-    result = runner.invoke(app, ["label", "--recordings", str(root), "--csv", str(unwritable / "l.csv"), "--no-progress"])
+    result = runner.invoke(
+        app, ["label", "--recordings", str(root), "--csv", str(unwritable / "l.csv"), "--no-progress"]
+    )
     _one_error(result, "l.csv", "cannot be written")
     assert not (tmp_path / "cache" / "labels").exists()  # refused before any work
 
@@ -222,14 +255,38 @@ def test_evaluate_json_and_train_out_that_cannot_be_written(tmp_path, run_dir, u
     ck = run_dir / "last.safetensors"
     before = ck.read_bytes()
     (tmp_path / "eval.json").mkdir()
-    result = runner.invoke(app, ["evaluate", "--checkpoint", str(ck), "--markers", str(tmp_path / "m.npz"),
-                                 "--json", str(tmp_path / "eval.json"), "--no-progress"])
+    result = runner.invoke(
+        app,
+        [
+            "evaluate",
+            "--checkpoint",
+            str(ck),
+            "--markers",
+            str(tmp_path / "m.npz"),
+            "--json",
+            str(tmp_path / "eval.json"),
+            "--no-progress",
+        ],
+    )
     _one_error(result, "eval.json", "folder")
-    result = runner.invoke(app, ["evaluate", "--checkpoint", str(ck), "--markers", str(tmp_path / "m.npz"),
-                                 "--json", str(unwritable / "e.json"), "--no-progress"])
+    result = runner.invoke(
+        app,
+        [
+            "evaluate",
+            "--checkpoint",
+            str(ck),
+            "--markers",
+            str(tmp_path / "m.npz"),
+            "--json",
+            str(unwritable / "e.json"),
+            "--no-progress",
+        ],
+    )
     _one_error(result, "e.json", "cannot be written")
     (tmp_path / "afile").write_text("mine")
-    result = runner.invoke(app, ["train", *TINY, "--markers", str(tmp_path / "m.npz"), "--out", str(tmp_path / "afile")])
+    result = runner.invoke(
+        app, ["train", *TINY, "--markers", str(tmp_path / "m.npz"), "--out", str(tmp_path / "afile")]
+    )
     _one_error(result, "afile", "is a file")
     result = runner.invoke(app, ["train", *TINY, "--markers", str(tmp_path / "m.npz"), "--out", str(unwritable / "r")])
     _one_error(result, "cannot be written")
@@ -277,21 +334,35 @@ def _rewrite_config(src: Path, dst: Path, **changes) -> Path:
     return dst
 
 
-@pytest.mark.parametrize("change, word", [
-    ({"d_model": 10**9}, "out of range"),
-    ({"blocks": 10**7}, "out of range"),
-    ({"ff_dim": 4000, "blocks": 4000}, "missing"),
-    ({"ff_dim": 16}, "has shape"),
-    ({"model_config": [8, 2]}, "mapping"),
-    ({"d_model": float("inf")}, "out of range"),
-])
+@pytest.mark.parametrize(
+    "change, word",
+    [
+        ({"d_model": 10**9}, "out of range"),
+        ({"blocks": 10**7}, "out of range"),
+        ({"ff_dim": 4000, "blocks": 4000}, "missing"),
+        ({"ff_dim": 16}, "has shape"),
+        ({"model_config": [8, 2]}, "mapping"),
+        ({"d_model": float("inf")}, "out of range"),
+    ],
+)
 def test_checkpoint_configs_out_of_bounds_are_refused_before_allocating(tmp_path, run_dir, change, word):
     import time
 
     bad = _rewrite_config(run_dir / "last.safetensors", tmp_path / "bad.safetensors", **change)
     t = time.perf_counter()
-    result = runner.invoke(app, ["evaluate", "--checkpoint", str(bad), "--markers", str(tmp_path / "m.npz"),
-                                 "--json", str(tmp_path / "e.json"), "--no-progress"])
+    result = runner.invoke(
+        app,
+        [
+            "evaluate",
+            "--checkpoint",
+            str(bad),
+            "--markers",
+            str(tmp_path / "m.npz"),
+            "--json",
+            str(tmp_path / "e.json"),
+            "--no-progress",
+        ],
+    )
     _one_error(result, "bad.safetensors", word)
     assert time.perf_counter() - t < 60  # refused from the header, not after building the model (slack: shared CPU)
 
@@ -305,8 +376,9 @@ def test_skip_leaves_out_a_run_whose_cameras_differ_in_frame_count(tmp_path, cac
     csv_out = tmp_path / "l.csv"
     result = runner.invoke(app, ["label", "--recordings", str(root), "--csv", str(csv_out), "--no-progress"])
     _one_error(result, "mug", "differ in frame count")
-    result = runner.invoke(app, ["label", "--recordings", str(root), "--csv", str(csv_out), "--on-error", "skip",
-                                 "--no-progress"])
+    result = runner.invoke(
+        app, ["label", "--recordings", str(root), "--csv", str(csv_out), "--on-error", "skip", "--no-progress"]
+    )
     assert result.exit_code == 0, result.output
     # (pytest records warnings; the command line prints each as one "warning: ..." line)
     assert any("mug" in str(w.message) and "skipped" in str(w.message) for w in recwarn.list)
@@ -326,29 +398,37 @@ def test_one_camera_and_upper_case_avi_are_warned_about(tmp_path, cache, recwarn
     assert any("only one sensor video" in l for l in warned), warned
 
 
-@pytest.mark.parametrize("row, words", [
-    ("plate,1,,20", ["line 2", "unknown object 'plate'"]),
-    ("cup,7,,20", ["line 2", "no experiment 7"]),
-    ("cup,1,,500", ["line 2", "moment 500 is outside 0..29"]),
-    ("cup,1,camera_2,40", ["line 2", "outside"]),
-])
+@pytest.mark.parametrize(
+    "row, words",
+    [
+        ("plate,1,,20", ["line 2", "unknown object 'plate'"]),
+        ("cup,7,,20", ["line 2", "no experiment 7"]),
+        ("cup,1,,500", ["line 2", "moment 500 is outside 0..29"]),
+        ("cup,1,camera_2,40", ["line 2", "outside"]),
+    ],
+)
 def test_override_csv_errors_name_file_and_line(tmp_path, cache, row, words):
     root = tmp_path / "rec"
     _good_run(root)
     ov = tmp_path / "hand.csv"
     ov.write_text("object,experiment,camera,moment_of_slip\n" + row + "\n")
-    result = runner.invoke(app, ["label", "--recordings", str(root), "--csv", str(tmp_path / "l.csv"),
-                                 "--overrides", str(ov), "--no-progress"])
+    result = runner.invoke(
+        app,
+        ["label", "--recordings", str(root), "--csv", str(tmp_path / "l.csv"), "--overrides", str(ov), "--no-progress"],
+    )
     _one_error(result, str(ov), *words)
     assert not (tmp_path / "l.csv").exists()
 
 
 # marker files --------------------------------------------------------------------------------
-@pytest.mark.parametrize("extra, word", [
-    ({"fps": np.array("fast")}, "fps"),
-    ({"fps": np.array(-3.0)}, "fps"),
-    ({"object": np.zeros(24, np.int64), "object_names": np.array("cup")}, "object_names"),
-])
+@pytest.mark.parametrize(
+    "extra, word",
+    [
+        ({"fps": np.array("fast")}, "fps"),
+        ({"fps": np.array(-3.0)}, "fps"),
+        ({"object": np.zeros(24, np.int64), "object_names": np.array("cup")}, "object_names"),
+    ],
+)
 def test_marker_npz_metadata_is_checked(tmp_path, extra, word):
     path = _markers_npz(tmp_path / "meta.npz", **extra)
     result = runner.invoke(app, ["train", *TINY, "--markers", str(path), "--out", str(tmp_path / "r")])
@@ -378,8 +458,10 @@ def test_marker_npz_reads_only_the_keys_it_uses(tmp_path):
 @pytest.mark.parametrize("seed", ["-5", str(2**40)])
 def test_bad_seeds(tmp_path, cmd, seed):
     _markers_npz(tmp_path / "m.npz")
-    args = {"train": ["train", *TINY, "--markers", str(tmp_path / "m.npz"), "--out", str(tmp_path / "r")],
-            "simulate": ["simulate", "--out", str(tmp_path / "s.npz"), "--no-progress"]}[cmd]
+    args = {
+        "train": ["train", *TINY, "--markers", str(tmp_path / "m.npz"), "--out", str(tmp_path / "r")],
+        "simulate": ["simulate", "--out", str(tmp_path / "s.npz"), "--no-progress"],
+    }[cmd]
     result = runner.invoke(app, [*args, "--seed", seed])
     _one_error(result, "--seed")
     assert not (tmp_path / "r").exists() and not (tmp_path / "s.npz").exists()
@@ -387,8 +469,20 @@ def test_bad_seeds(tmp_path, cmd, seed):
 
 @pytest.mark.parametrize("std", ["-5", "nan", "inf"])
 def test_bad_noise_std(tmp_path, run_dir, std):
-    result = runner.invoke(app, ["evaluate", "--checkpoint", str(run_dir / "last.safetensors"), "--markers",
-                                 str(tmp_path / "m.npz"), "--json", str(tmp_path / "e.json"), "--noise-std", std])
+    result = runner.invoke(
+        app,
+        [
+            "evaluate",
+            "--checkpoint",
+            str(run_dir / "last.safetensors"),
+            "--markers",
+            str(tmp_path / "m.npz"),
+            "--json",
+            str(tmp_path / "e.json"),
+            "--noise-std",
+            std,
+        ],
+    )
     _one_error(result, "--noise-std")
     assert not (tmp_path / "e.json").exists()
 
@@ -401,13 +495,20 @@ def test_corrupt_and_foreign_videos_make_no_library_log_noise(tmp_path):
         data[k] ^= 0xFF
     (tmp_path / "corrupt.avi").write_bytes(bytes(data))
     (tmp_path / "fake.avi").write_bytes(b"RIFF\x00\x00\x00\x00AVI not really a video")
-    code = ("import sys\nfrom slipsense.recordings.video import probe_video, read_video\n"
-            "for p in sys.argv[1:]:\n"
-            "    try:\n        probe_video(p, expected_size=None); read_video(p, expected_size=None)\n"
-            "    except Exception as e:\n        print('refused', e)\n")
+    code = (
+        "import sys\nfrom slipsense.recordings.video import probe_video, read_video\n"
+        "for p in sys.argv[1:]:\n"
+        "    try:\n        probe_video(p, expected_size=None); read_video(p, expected_size=None)\n"
+        "    except Exception as e:\n        print('refused', e)\n"
+    )
     env = {k: v for k, v in os.environ.items() if k != "OPENCV_FFMPEG_LOGLEVEL"}
-    proc = subprocess.run([sys.executable, "-c", code, str(tmp_path / "corrupt.avi"), str(tmp_path / "fake.avi")],
-                          capture_output=True, text=True, env=env, timeout=60)
+    proc = subprocess.run(
+        [sys.executable, "-c", code, str(tmp_path / "corrupt.avi"), str(tmp_path / "fake.avi")],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=60,
+    )
     assert proc.returncode == 0, proc.stderr
     assert proc.stderr == "", proc.stderr  # no "[mpeg4 @ 0x...] ac-tex damaged", no "[ WARN:0] ..."
     assert "refused" in proc.stdout and "fake.avi" in proc.stdout

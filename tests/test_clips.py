@@ -1,4 +1,5 @@
 """Clip cutting, caching, splits (slipsense.recordings.clips) and augmentation (slipsense.recordings.augment)."""
+
 from __future__ import annotations
 
 import json
@@ -54,9 +55,14 @@ CONTACT = (10, 50)
 
 def label_for(rec: Recording, moment: int = MOMENT, n_frames: int = N_FRAMES) -> VideoLabel:
     return VideoLabel(
-        object=rec.object, experiment=rec.experiment, camera=rec.camera, n_frames=n_frames,
-        slipped=rec.slipped, moment_of_slip=moment if rec.slipped else None,
-        contact_start=CONTACT[0], contact_end=moment if rec.slipped else CONTACT[1],
+        object=rec.object,
+        experiment=rec.experiment,
+        camera=rec.camera,
+        n_frames=n_frames,
+        slipped=rec.slipped,
+        moment_of_slip=moment if rec.slipped else None,
+        contact_start=CONTACT[0],
+        contact_end=moment if rec.slipped else CONTACT[1],
     )
 
 
@@ -91,17 +97,33 @@ def clip_indices(clip: np.ndarray) -> list[int]:
 # ------------------------------------------------------------------------------------------ spec
 
 
-@pytest.mark.parametrize("kwargs", [
-    {"frames": 1}, {"frames": 13}, {"frames": 5.0}, {"frames": True}, {"horizon": -1},
-    {"wiggle_per_video": -1}, {"size": (0, 10)}, {"size": (10,)}, {"size": "small"}, {"seed": 1.5},
-])
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        {"frames": 1},
+        {"frames": 13},
+        {"frames": 5.0},
+        {"frames": True},
+        {"horizon": -1},
+        {"wiggle_per_video": -1},
+        {"size": (0, 10)},
+        {"size": (10,)},
+        {"size": "small"},
+        {"seed": 1.5},
+    ],
+)
 def test_clip_spec_rejects(kwargs):
     with pytest.raises(ConfigError):
         ClipSpec(**kwargs)
 
 
-@given(frames=st.integers(-5, 20), horizon=st.integers(-5, 50), wiggle=st.integers(-3, 10),
-       h=st.integers(-2, 400), w=st.integers(-2, 400))
+@given(
+    frames=st.integers(-5, 20),
+    horizon=st.integers(-5, 50),
+    wiggle=st.integers(-3, 10),
+    h=st.integers(-2, 400),
+    w=st.integers(-2, 400),
+)
 def test_clip_spec_validation_property(frames, horizon, wiggle, h, w):
     valid = 2 <= frames <= 12 and horizon >= 0 and wiggle >= 0 and h > 0 and w > 0
     if valid:
@@ -122,10 +144,15 @@ def label_and_spec(draw):
     ce = draw(st.integers(cs, n - 1))
     slipped = draw(st.booleans())
     moment = draw(st.integers(0, n - 1)) if slipped else None
-    label = VideoLabel("obj", draw(st.integers(1, 20)), draw(st.sampled_from(["camera_0", "camera_2"])),
-                       n, slipped, moment, cs, ce)
-    spec = ClipSpec(frames=draw(st.integers(2, 12)), horizon=draw(st.integers(0, 30)),
-                    wiggle_per_video=draw(st.integers(0, 8)), seed=draw(st.integers(0, 2**32)))
+    label = VideoLabel(
+        "obj", draw(st.integers(1, 20)), draw(st.sampled_from(["camera_0", "camera_2"])), n, slipped, moment, cs, ce
+    )
+    spec = ClipSpec(
+        frames=draw(st.integers(2, 12)),
+        horizon=draw(st.integers(0, 30)),
+        wiggle_per_video=draw(st.integers(0, 8)),
+        seed=draw(st.integers(0, 2**32)),
+    )
     return label, spec
 
 
@@ -174,8 +201,13 @@ def test_build_clips_shapes_and_counts(built):
     n_wiggle_videos = 2 * sum(not s for exps in TREE.values() for s in exps.values())
     assert built.x.shape == (n_slip_videos + 2 * n_wiggle_videos, 5, *SIZE, 3)
     assert built.x.dtype == np.uint8 and built.y.dtype == np.int64
-    assert built.counts() == {"clips": len(built), "slip": n_slip_videos, "wiggle": 2 * n_wiggle_videos,
-                              "augmented": 0, "objects": 4}
+    assert built.counts() == {
+        "clips": len(built),
+        "slip": n_slip_videos,
+        "wiggle": 2 * n_wiggle_videos,
+        "augmented": 0,
+        "objects": 4,
+    }
     assert built.objects == ["apple", "fig", "pear", "plum"]
     keys = [(m["object"], m["experiment"], m["camera"], m["start"]) for m in built.meta]
     assert keys == sorted(keys)
@@ -501,8 +533,9 @@ def test_augment_clipset(built):
     assert len(augment_clipset(built, AugmentConfig(enabled=False))) == n
 
 
-@pytest.mark.parametrize("kwargs", [{"noise_std": -1}, {"noise_std": float("nan")}, {"noise_std": "15"},
-                                    {"hflip": "yes"}])
+@pytest.mark.parametrize(
+    "kwargs", [{"noise_std": -1}, {"noise_std": float("nan")}, {"noise_std": "15"}, {"hflip": "yes"}]
+)
 def test_augment_config_rejects(kwargs):
     with pytest.raises(ConfigError):
         AugmentConfig(**kwargs)
@@ -529,8 +562,9 @@ def test_real_recordings_to_clips():
     for r in (slipped, calm):
         n = probe_video(r.path).n_frames
         # Stand-in labels: the real ones come from the labeller; here only the plumbing is tested.
-        labels[r.key] = VideoLabel(r.object, r.experiment, r.camera, n, r.slipped,
-                                   n - 20 if r.slipped else None, 12, n - 20)
+        labels[r.key] = VideoLabel(
+            r.object, r.experiment, r.camera, n, r.slipped, n - 20 if r.slipped else None, 12, n - 20
+        )
     spec = ClipSpec(frames=5, size=(120, 160), wiggle_per_video=2)
     clips = build_clips([slipped, calm], labels, spec, progress=False)
     assert clips.x.shape == (3, 5, 120, 160, 3) and sorted(clips.y.tolist()) == [0, 0, 1]

@@ -1,4 +1,5 @@
 """Scoring a checkpoint at reduced inference precision (``slipsense evaluate --dtype``)."""
+
 from __future__ import annotations
 
 import json
@@ -35,16 +36,28 @@ def test_reduced_precision_scores_close_to_float32(stnet_and_markers, dtype):
     ref = evaluate_checkpoint(ckpt, markers=markers, json_out=root / "f32.json", progress=False)
     low = evaluate_checkpoint(ckpt, markers=markers, json_out=root / f"{dtype}.json", progress=False, dtype=dtype)
     assert ref["inference_dtype"] == "float32" and low["inference_dtype"] == dtype
-    assert isinstance(low["precision"], float)                  # the metric is not overwritten
+    assert isinstance(low["precision"], float)  # the metric is not overwritten
     assert low["n_clips"] == ref["n_clips"] == 40
-    assert abs(low["accuracy"] - ref["accuracy"]) <= 0.1        # a few borderline windows may flip
+    assert abs(low["accuracy"] - ref["accuracy"]) <= 0.1  # a few borderline windows may flip
     assert json.loads((root / f"{dtype}.json").read_text())["inference_dtype"] == dtype
 
 
 def test_dtype_errors(stnet_and_markers):
     ckpt, markers, root = stnet_and_markers
-    result = runner.invoke(app, ["evaluate", "--checkpoint", str(ckpt), "--markers", str(markers),
-                                 "--dtype", "float16", "--json", str(root / "x.json")])
+    result = runner.invoke(
+        app,
+        [
+            "evaluate",
+            "--checkpoint",
+            str(ckpt),
+            "--markers",
+            str(markers),
+            "--dtype",
+            "float16",
+            "--json",
+            str(root / "x.json"),
+        ],
+    )
     assert result.exit_code == 2 and "float16" in result.output
     vivit = build("vivit", image_size=(32, 32), patch_size=(16, 16), frames=2).eval()
     assert at_dtype(vivit, "float32") is vivit

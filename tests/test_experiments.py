@@ -1,4 +1,5 @@
 """Experiment commands (slipsense.experiments, slipsense.cli_experiments) on tiny in-memory data."""
+
 from __future__ import annotations
 
 import csv
@@ -53,8 +54,18 @@ class MemorySource:
         x = rng.integers(0, 120, (len(wins), spec.frames, *spec.size, 3), dtype=np.uint8)
         y = np.array([w[4] for w in wins], np.int64)
         x[y == 1] += 120
-        meta = [{"object": o, "experiment": e, "camera": c, "start": s, "end": s + spec.frames - 1,
-                 "moment_of_slip": MOMENT if lab else None, "augmented": False} for o, e, c, s, lab in wins]
+        meta = [
+            {
+                "object": o,
+                "experiment": e,
+                "camera": c,
+                "start": s,
+                "end": s + spec.frames - 1,
+                "moment_of_slip": MOMENT if lab else None,
+                "augmented": False,
+            }
+            for o, e, c, s, lab in wins
+        ]
         return ClipSet(x, y, meta, spec)
 
     def markers(self, frames, n_markers, horizon=0, wiggle_per_video=2, seed=0):
@@ -65,8 +76,14 @@ class MemorySource:
         y = np.array([w[4] for w in wins], np.int64)
         x = rng.normal(size=(len(wins), frames, n_markers, 3)).astype(np.float32)
         x[y == 1] += 1.0
-        return {"x": x, "y": y, "groups": np.array([w[0] for w in wins]), "experiment": np.array([w[1] for w in wins]),
-                "camera": np.array([w[2] for w in wins]), "start": np.array([w[3] for w in wins])}
+        return {
+            "x": x,
+            "y": y,
+            "groups": np.array([w[0] for w in wins]),
+            "experiment": np.array([w[1] for w in wins]),
+            "camera": np.array([w[2] for w in wins]),
+            "start": np.array([w[3] for w in wins]),
+        }
 
 
 TINY_MODELS = {
@@ -78,8 +95,18 @@ SIM = {"markers_x": 4, "markers_y": 4, "seq_len": 13, "objects": ("pen", "tape")
 
 
 def tiny(out: Path, **kw) -> E.Settings:
-    values = dict(out=out, size=SIZE, patch=(8, 8), epochs=2, batch_size=8, lr=1e-3, progress=False,
-                  model_overrides=TINY_MODELS, max_steps_per_epoch=2, command="slipsense experiment test")
+    values = dict(
+        out=out,
+        size=SIZE,
+        patch=(8, 8),
+        epochs=2,
+        batch_size=8,
+        lr=1e-3,
+        progress=False,
+        model_overrides=TINY_MODELS,
+        max_steps_per_epoch=2,
+        command="slipsense experiment test",
+    )
     values.update(kw)
     return E.Settings(**values)
 
@@ -133,7 +160,10 @@ def test_params_counts_table(tmp_path):
     assert 120e6 < int(by["stnet", "paper"]["parameters"]) < 130e6
     assert {("vivit", "paper"), ("stnet", "compact"), ("temnet", "compact")} <= set(by)
     # factorised positions: (5 - 1) x 48 x 8 fewer spatial, 5 x 8 more temporal
-    assert int(by["vivit", "paper"]["parameters"]) - int(by["vivit", "positions=factorised"]["parameters"]) == 4 * 48 * 8 - 5 * 8
+    assert (
+        int(by["vivit", "paper"]["parameters"]) - int(by["vivit", "positions=factorised"]["parameters"])
+        == 4 * 48 * 8 - 5 * 8
+    )
     assert all(r["setting"] == "full" for r in rows)
     cfg = json.loads((tmp_path / "config.json").read_text())
     assert cfg["models"]["vivit/paper"]["model_config"]["patch_size"] == [40, 40]
@@ -141,8 +171,20 @@ def test_params_counts_table(tmp_path):
 
 
 def test_video_compare(tmp_path, source):
-    cols = ["model", "parameters", "epochs", "train_seconds", "inference_clips_per_s", "accuracy", "precision",
-            "recall", "f1", "n_test", "n_test_slip", "initialisation"]
+    cols = [
+        "model",
+        "parameters",
+        "epochs",
+        "train_seconds",
+        "inference_clips_per_s",
+        "accuracy",
+        "precision",
+        "recall",
+        "f1",
+        "n_test",
+        "n_test_slip",
+        "initialisation",
+    ]
     res = E.run_video_compare(tiny(tmp_path), source, inference_clips=3)
     cfg = check_outputs(tmp_path, "video-compare", cols, 2)
     assert [r["model"] for r in res["rows"]] == ["vivit", "resnet3d50"]
@@ -157,8 +199,22 @@ def test_video_compare(tmp_path, source):
 
 
 def test_frames_curves(tmp_path, source):
-    cols = ["frames", "clip_ms", "epochs", "train_accuracy", "test_accuracy", "test_f1", "heldout_accuracy",
-            "heldout_precision", "heldout_recall", "heldout_f1", "n_train", "n_test", "n_heldout", "train_seconds"]
+    cols = [
+        "frames",
+        "clip_ms",
+        "epochs",
+        "train_accuracy",
+        "test_accuracy",
+        "test_f1",
+        "heldout_accuracy",
+        "heldout_precision",
+        "heldout_recall",
+        "heldout_f1",
+        "n_train",
+        "n_test",
+        "n_heldout",
+        "train_seconds",
+    ]
     res = E.run_frames(tiny(tmp_path), source, frames_list=(3, 2))
     check_outputs(tmp_path, "frames", cols, 2)
     ccols, curves = read_csv(tmp_path / "curves.csv")
@@ -178,19 +234,40 @@ def test_noise_trains_then_reuses_its_checkpoint(tmp_path, source):
     assert again["rows"][0]["accuracy"] == pytest.approx(res["rows"][0]["accuracy"])
     assert again["rows"][1]["loss"] == pytest.approx(res["rows"][1]["loss"], rel=1e-4)
     cfg = json.loads((tmp_path / "b" / "config.json").read_text())
-    assert cfg["config"]["trained_here"] is False and cfg["config"]["test_objects"] == \
-        json.loads((tmp_path / "a" / "config.json").read_text())["config"]["test_objects"]
+    assert (
+        cfg["config"]["trained_here"] is False
+        and cfg["config"]["test_objects"]
+        == json.loads((tmp_path / "a" / "config.json").read_text())["config"]["test_objects"]
+    )
     with pytest.raises(ConfigError):
         E.run_noise(tiny(tmp_path / "c"), source, checkpoint=ck, stds=(-1,))
 
 
 def test_stnet_sim_and_real(tmp_path, source):
-    cols = ["data", "model", "preset", "parameters", "epochs", "precision", "recall", "f1", "accuracy", "loss",
-            "n_train", "n_test", "n_test_slip", "train_seconds"]
+    cols = [
+        "data",
+        "model",
+        "preset",
+        "parameters",
+        "epochs",
+        "precision",
+        "recall",
+        "f1",
+        "accuracy",
+        "loss",
+        "n_train",
+        "n_test",
+        "n_test_slip",
+        "train_seconds",
+    ]
     res = E.run_stnet(tiny(tmp_path), source, sim_sequences=1, sim_overrides=SIM, n_markers=5, frames=4)
     check_outputs(tmp_path, "stnet", cols, 4)
     assert [(r["data"], r["model"]) for r in res["rows"]] == [
-        ("simulated", "stnet"), ("simulated", "temnet"), ("real", "stnet"), ("real", "temnet")]
+        ("simulated", "stnet"),
+        ("simulated", "temnet"),
+        ("real", "stnet"),
+        ("real", "temnet"),
+    ]
     ccols, curves = read_csv(tmp_path / "curves.csv")
     assert ccols[:3] == ["data", "model", "epoch"] and len(curves) == 8
     cfg = json.loads((tmp_path / "config.json").read_text())
@@ -202,8 +279,19 @@ def test_stnet_sim_and_real(tmp_path, source):
 
 
 def test_horizon(tmp_path, source):
-    cols = ["horizon_frames", "horizon_ms", "accuracy", "precision", "recall", "f1", "n_train", "n_test",
-            "n_test_slip", "heldout_objects", "train_seconds"]
+    cols = [
+        "horizon_frames",
+        "horizon_ms",
+        "accuracy",
+        "precision",
+        "recall",
+        "f1",
+        "n_train",
+        "n_test",
+        "n_test_slip",
+        "heldout_objects",
+        "train_seconds",
+    ]
     res = E.run_horizon(tiny(tmp_path), source, horizons=(0, 3))
     check_outputs(tmp_path, "horizon", cols, 2)
     assert [r["horizon_ms"] for r in res["rows"]] == [0.0, 120.0]
@@ -220,7 +308,11 @@ def test_match_windows_pairs_same_window_and_drops_disagreements(source):
     for i, j in zip(ci, mi):
         m = clips.meta[i]
         assert (m["object"], m["experiment"], m["camera"], m["start"]) == (
-            arrays["groups"][j], arrays["experiment"][j], arrays["camera"][j], arrays["start"][j])
+            arrays["groups"][j],
+            arrays["experiment"][j],
+            arrays["camera"][j],
+            arrays["start"][j],
+        )
     flipped = dict(arrays, y=1 - arrays["y"])
     flipped["y"][mi[0]] = clips.y[ci[0]]
     ci2, _, dropped2 = E.match_windows(clips.meta, flipped, clips.y)
@@ -228,8 +320,20 @@ def test_match_windows_pairs_same_window_and_drops_disagreements(source):
 
 
 def test_all_models_same_windows(tmp_path, source):
-    cols = ["model", "input", "preset", "parameters", "epochs", "accuracy", "precision", "recall", "f1", "n_test",
-            "n_test_slip", "train_seconds"]
+    cols = [
+        "model",
+        "input",
+        "preset",
+        "parameters",
+        "epochs",
+        "accuracy",
+        "precision",
+        "recall",
+        "f1",
+        "n_test",
+        "n_test_slip",
+        "train_seconds",
+    ]
     res = E.run_all_models(tiny(tmp_path), source, frames=4, n_markers=3)
     cfg = check_outputs(tmp_path, "all-models", cols, 4)
     assert [r["model"] for r in res["rows"]] == ["vivit", "resnet3d50", "stnet", "temnet"]
@@ -284,11 +388,15 @@ def test_results_link_benchmarks_and_early_warning(tmp_path):
     (reports / "bench" / "avx2" / "stream-1thread.md").write_text("# Streaming\n")
     warn = reports / "early-warning-fold0"
     warn.mkdir()
-    (warn / "early_warning.json").write_text(json.dumps({"checkpoint": "/somewhere/last.safetensors", "model": "vivit",
-                                                         "recordings": "/data/gelsight-slip"}))
+    (warn / "early_warning.json").write_text(
+        json.dumps({"checkpoint": "/somewhere/last.safetensors", "model": "vivit", "recordings": "/data/gelsight-slip"})
+    )
     (warn / "early_warning.png").write_bytes(b"png")
     text = E.collect_results(reports, out).read_text()
-    assert "| [`bench/avx2/stream-1thread.md`](../reports/bench/avx2/stream-1thread.md) | `python bench/bench_stream.py` |" in text
+    assert (
+        "| [`bench/avx2/stream-1thread.md`](../reports/bench/avx2/stream-1thread.md) | `python bench/bench_stream.py` |"
+        in text
+    )
     assert "![early warning](../reports/early-warning-fold0/early_warning.png)" in text
     assert "Model `last.safetensors` (vivit)" in text and "/somewhere" not in text
     assert "## Other measurements" not in text

@@ -1,5 +1,6 @@
 """The experiments' data door (slipsense.experiments.source.DataSource) on made-up recordings: labels come
 through slipsense.data.label_runs, the path ``slipsense train`` uses (hand labels, --on-error skip)."""
+
 from __future__ import annotations
 
 import warnings
@@ -22,7 +23,7 @@ def recordings(tmp_path_factory) -> Path:
     differ in frame count, so it cannot be labelled."""
     root = tmp_path_factory.mktemp("recordings")
     for obj in ("apple", "pear", "plum"):
-        for exp in ((1, 2) if obj != "plum" else (1,)):
+        for exp in (1, 2) if obj != "plum" else (1,):
             d = root / obj / f"exp_num_{exp}"
             for cam, n in (("camera_0", N_FRAMES), ("camera_2", N_FRAMES - 10 if obj == "plum" else N_FRAMES)):
                 striped_video.write_video(d / f"{cam}.avi", n)
@@ -67,7 +68,9 @@ def test_user_overrides_are_read_against_the_recordings(recordings, tmp_path):
         warnings.simplefilter("ignore", SkippedInputWarning)
         got = labels.labels()
     assert {k: (lab.source, lab.moment_of_slip) for k, lab in got.items() if k[:2] == ("apple", 1)} == {
-        ("apple", 1, "camera_0"): ("override", 30), ("apple", 1, "camera_2"): ("override", 30)}
+        ("apple", 1, "camera_0"): ("override", 30),
+        ("apple", 1, "camera_2"): ("override", 30),
+    }
     bad = tmp_path / "bad.csv"
     bad.write_text("object,experiment,camera,moment_of_slip\nkiwi,1,,30\n")
     with pytest.raises(InputError, match="unknown object 'kiwi'") as err:

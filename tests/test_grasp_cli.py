@@ -1,4 +1,5 @@
 """`slipsense grasp train|folds` and `early-warning` with a grasp detector, on small made-up recordings."""
+
 import json
 
 import pytest
@@ -6,9 +7,31 @@ from typer.testing import CliRunner
 
 from slipsense.cli import app
 
-SMALL = ["--set", "width=4", "--set", "features=8", "--set", "temporal=8", "--set", "lags=[1,5,10]",
-         "--set", "dilations=[1,2,4]", "--set", "chunk=16", "--set", "negatives=1", "--set", "hard_negatives=1",
-         "--size", "12x16", "--epochs", "2", "--no-progress", "--threads", "1"]
+SMALL = [
+    "--set",
+    "width=4",
+    "--set",
+    "features=8",
+    "--set",
+    "temporal=8",
+    "--set",
+    "lags=[1,5,10]",
+    "--set",
+    "dilations=[1,2,4]",
+    "--set",
+    "chunk=16",
+    "--set",
+    "negatives=1",
+    "--set",
+    "hard_negatives=1",
+    "--size",
+    "12x16",
+    "--epochs",
+    "2",
+    "--no-progress",
+    "--threads",
+    "1",
+]
 
 
 @pytest.fixture(scope="module")
@@ -19,8 +42,24 @@ def grasps(grasp_recordings):
 def test_grasp_train_then_early_warning(tmp_path, grasps, monkeypatch):
     monkeypatch.setenv("SLIPSENSE_CACHE", str(tmp_path / "cache"))
     out = tmp_path / "det"
-    res = CliRunner().invoke(app, ["grasp", "train", "--out", str(out), "--recordings", str(grasps), "--fold", "0",
-                                   "--folds", "2", "--inner-folds", "2", *SMALL])
+    res = CliRunner().invoke(
+        app,
+        [
+            "grasp",
+            "train",
+            "--out",
+            str(out),
+            "--recordings",
+            str(grasps),
+            "--fold",
+            "0",
+            "--folds",
+            "2",
+            "--inner-folds",
+            "2",
+            *SMALL,
+        ],
+    )
     assert res.exit_code == 0, res.output
     assert "held-out objects" in res.output and "always-wiggle" in res.output
     from slipsense.checkpoint import read_info
@@ -32,13 +71,35 @@ def test_grasp_train_then_early_warning(tmp_path, grasps, monkeypatch):
     held = json.loads((out / "held_out.json").read_text())
     assert held["per_grasp"]["slip_runs"] + held["per_grasp"]["held_runs"] == 4
     ew = tmp_path / "ew"
-    res = CliRunner().invoke(app, ["early-warning", "--checkpoint", str(out / "detector.safetensors"),
-                                   "--recordings", str(grasps), "--out", str(ew), "--no-progress"])
+    res = CliRunner().invoke(
+        app,
+        [
+            "early-warning",
+            "--checkpoint",
+            str(out / "detector.safetensors"),
+            "--recordings",
+            str(grasps),
+            "--out",
+            str(ew),
+            "--no-progress",
+        ],
+    )
     assert res.exit_code == 0, res.output
     assert "checkpoint's operating point" in res.output
     gif = tmp_path / "run.gif"
-    res = CliRunner().invoke(app, ["watch", str(grasps / "obj0" / "exp_num_1"), "--checkpoint",
-                                   str(out / "detector.safetensors"), "--out", str(gif), "--max-frames", "15"])
+    res = CliRunner().invoke(
+        app,
+        [
+            "watch",
+            str(grasps / "obj0" / "exp_num_1"),
+            "--checkpoint",
+            str(out / "detector.safetensors"),
+            "--out",
+            str(gif),
+            "--max-frames",
+            "15",
+        ],
+    )
     assert res.exit_code == 0, res.output
     assert gif.read_bytes()[:3] == b"GIF" and "filling window" in res.output
     doc = json.loads((ew / "early_warning.json").read_text())
@@ -49,8 +110,19 @@ def test_grasp_train_then_early_warning(tmp_path, grasps, monkeypatch):
 def test_grasp_folds_resume(tmp_path, grasps, monkeypatch):
     monkeypatch.setenv("SLIPSENSE_CACHE", str(tmp_path / "cache"))
     out = tmp_path / "folds"
-    args = ["grasp", "folds", "--out", str(out), "--recordings", str(grasps), "--folds", "2", "--inner-folds", "0",
-            *SMALL]
+    args = [
+        "grasp",
+        "folds",
+        "--out",
+        str(out),
+        "--recordings",
+        str(grasps),
+        "--folds",
+        "2",
+        "--inner-folds",
+        "0",
+        *SMALL,
+    ]
     res = CliRunner().invoke(app, args)
     assert res.exit_code == 0, res.output
     rep = json.loads((out / "folds.json").read_text())
@@ -64,7 +136,8 @@ def test_grasp_folds_resume(tmp_path, grasps, monkeypatch):
 
 def test_grasp_bad_settings_one_line(tmp_path, grasps):
     for extra in (["--set", "width=100000"], ["--set", "epochs=0"], ["--fold", "7"], ["--set", "nonsense=1"]):
-        res = CliRunner().invoke(app, ["grasp", "train", "--out", str(tmp_path / "x"), "--recordings", str(grasps),
-                                       "--no-progress", *extra])
+        res = CliRunner().invoke(
+            app, ["grasp", "train", "--out", str(tmp_path / "x"), "--recordings", str(grasps), "--no-progress", *extra]
+        )
         assert res.exit_code == 2, (extra, res.output)
         assert res.output.strip().startswith("error:") and "Traceback" not in res.output

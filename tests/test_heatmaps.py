@@ -1,4 +1,5 @@
 """Heat-map figures: ViViT attention over frames, STNet marker relevance over the displacement field."""
+
 import numpy as np
 import pytest
 import torch

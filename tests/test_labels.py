@@ -1,7 +1,7 @@
 """Moment-of-slip and contact-phase labelling (slipsense.recordings.labels)."""
+
 from __future__ import annotations
 
-import csv
 import json
 from pathlib import Path
 
@@ -335,12 +335,18 @@ def test_read_overrides_csv_accepts_optional_camera_and_blank_moment(tmp_path):
     "text, message",
     [
         ("object,camera,moment_of_slip\nball,camera_0,3\n", "line 1: missing column(s) experiment"),
-        ("object,experiment,moment_of_slip\nball,1,3\nball,1,late\n", "line 3: moment_of_slip must be an integer, got 'late'"),
+        (
+            "object,experiment,moment_of_slip\nball,1,3\nball,1,late\n",
+            "line 3: moment_of_slip must be an integer, got 'late'",
+        ),
         ("object,experiment,moment_of_slip\nball,one,3\n", "line 2: experiment must be an integer"),
         ("object,experiment,moment_of_slip\nball,1,-4\n", "line 2: moment_of_slip must be >= 0"),
         ("object,experiment,moment_of_slip\nbal,1,3\n", "line 2: unknown object 'bal'"),
         ("object,experiment,moment_of_slip\nball,4,3\n", "line 2: object 'ball' has no experiment 4"),
-        ("object,experiment,camera,moment_of_slip\nball,1,camera_1,3\n", "line 2: ball experiment 1 has no camera 'camera_1'"),
+        (
+            "object,experiment,camera,moment_of_slip\nball,1,camera_1,3\n",
+            "line 2: ball experiment 1 has no camera 'camera_1'",
+        ),
         ("object,experiment,moment_of_slip\nball,1,3\nball,1,4\n", "line 3: repeats the override of line 2"),
         ("object,experiment,camera,moment_of_slip\nball,1,,3\nball,1,camera_0,4\n", "line 3: mixes a whole-run"),
         ("object,experiment,moment_of_slip\n,1,3\n", "line 2: object is blank"),

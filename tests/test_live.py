@@ -1,4 +1,5 @@
 """Live slip detection: streaming detector, replay, watch, early warning and ONNX export."""
+
 from __future__ import annotations
 
 import csv
@@ -103,8 +104,9 @@ def test_factorised_vivit_streams_one_spatial_encoding_per_frame():
         r = det.push(video[i])
         if i >= 4:
             assert abs(r.probability - _full_forward(model, video[i - 4 : i + 1])) < 1e-5
-    assert np.allclose(det.replay(video).probability[4:], [_full_forward(model, video[i - 4 : i + 1]) for i in range(4, 9)],
-                       atol=1e-5)
+    assert np.allclose(
+        det.replay(video).probability[4:], [_full_forward(model, video[i - 4 : i + 1]) for i in range(4, 9)], atol=1e-5
+    )
     # slot order still matters: the temporal embedding tells the frames apart
     assert abs(_full_forward(model, video[:5]) - _full_forward(model, video[:5][::-1].copy())) > 1e-6
     with pytest.raises(ConfigError, match="positions"):
@@ -221,8 +223,14 @@ def test_bad_frames_raise_input_error(vivit):
 
 
 def test_settings_are_checked(vivit):
-    for kwargs in (dict(threshold=1.5), dict(sensors=0), dict(combine="min"), dict(backend="tensorrt"),
-                   dict(dtype="int4"), dict(dtype="int8")):  # int8 needs the onnx backend
+    for kwargs in (
+        dict(threshold=1.5),
+        dict(sensors=0),
+        dict(combine="min"),
+        dict(backend="tensorrt"),
+        dict(dtype="int4"),
+        dict(dtype="int8"),
+    ):  # int8 needs the onnx backend
         with pytest.raises(ConfigError):
             SlipDetector(vivit, **kwargs)
 
@@ -286,8 +294,9 @@ def recordings(tmp_path_factory):
     root = tmp_path_factory.mktemp("recordings")
     for exp, end in ((1, 50), (2, 60)):
         for cam in (0, 1):
-            _write_video(root / "obj" / f"exp_num_{exp}" / f"camera_{cam}.avi", n=70, contact=(20, end),
-                         seed=10 * exp + cam)
+            _write_video(
+                root / "obj" / f"exp_num_{exp}" / f"camera_{cam}.avi", n=70, contact=(20, end), seed=10 * exp + cam
+            )
     (root / "obj" / "exp_num_1" / "slip.txt").write_text("")
     return root
 
@@ -295,8 +304,9 @@ def recordings(tmp_path_factory):
 def test_watch_writes_gif(tmp_path, vivit_ckpt):
     video = _write_video(tmp_path / "clip.avi", n=12)
     out = tmp_path / "annotated.gif"
-    res = CliRunner().invoke(app, ["watch", str(video), "--checkpoint", str(vivit_ckpt), "--out", str(out),
-                                   "--threshold", "0.3"])
+    res = CliRunner().invoke(
+        app, ["watch", str(video), "--checkpoint", str(vivit_ckpt), "--out", str(out), "--threshold", "0.3"]
+    )
     assert res.exit_code == 0, res.output
     lines = [l for l in res.output.splitlines() if l.startswith("frame")]
     assert len(lines) == 12 and "filling window" in lines[0] and "p=0." in lines[4]
@@ -309,8 +319,21 @@ def test_watch_writes_gif(tmp_path, vivit_ckpt):
 
 def test_watch_experiment_folder_two_sensors_mp4(tmp_path, vivit_ckpt, recordings):
     out = tmp_path / "run.mp4"
-    res = CliRunner().invoke(app, ["watch", str(recordings / "obj" / "exp_num_1"), "--checkpoint", str(vivit_ckpt),
-                                   "--out", str(out), "--max-frames", "8", "--combine", "mean"])
+    res = CliRunner().invoke(
+        app,
+        [
+            "watch",
+            str(recordings / "obj" / "exp_num_1"),
+            "--checkpoint",
+            str(vivit_ckpt),
+            "--out",
+            str(out),
+            "--max-frames",
+            "8",
+            "--combine",
+            "mean",
+        ],
+    )
     assert res.exit_code == 0, res.output
     assert res.output.count("[") == 4  # frames 4..7 show two per-sensor probabilities
     assert out.stat().st_size > 0
@@ -342,8 +365,21 @@ def test_watch_bad_source_is_one_line(tmp_path, vivit_ckpt):
 def test_early_warning_on_synthetic_recordings(tmp_path, vivit_ckpt, recordings, monkeypatch):
     monkeypatch.setenv("SLIPSENSE_CACHE", str(tmp_path / "cache"))
     out = tmp_path / "ew"
-    res = CliRunner().invoke(app, ["early-warning", "--checkpoint", str(vivit_ckpt), "--recordings", str(recordings),
-                                   "--out", str(out), "--thresholds", "0.2,0.5,0.8", "--no-progress"])
+    res = CliRunner().invoke(
+        app,
+        [
+            "early-warning",
+            "--checkpoint",
+            str(vivit_ckpt),
+            "--recordings",
+            str(recordings),
+            "--out",
+            str(out),
+            "--thresholds",
+            "0.2,0.5,0.8",
+            "--no-progress",
+        ],
+    )
     assert res.exit_code == 0, res.output
     with open(out / "early_warning.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))
@@ -353,7 +389,11 @@ def test_early_warning_on_synthetic_recordings(tmp_path, vivit_ckpt, recordings,
     doc = json.loads((out / "early_warning.json").read_text())
     assert [r["threshold"] for r in doc["table"]] == [0.2, 0.5, 0.8]
     slip_run = next(r for r in doc["runs"] if r["slipped"])
-    assert slip_run["moment_of_slip"] == 50 and set(slip_run["outcome"]["0.5"].split()) <= {"warned", "premature", "missed"}
+    assert slip_run["moment_of_slip"] == 50 and set(slip_run["outcome"]["0.5"].split()) <= {
+        "warned",
+        "premature",
+        "missed",
+    }
     assert len(slip_run["probability"]) == 70 and slip_run["probability"][3] is None
     for name in ("early_warning.png",):
         assert (out / name).read_bytes()[:4] == b"\x89PNG"
@@ -363,7 +403,9 @@ def test_early_warning_on_synthetic_recordings(tmp_path, vivit_ckpt, recordings,
     det = SlipDetector.from_checkpoint(vivit_ckpt, sensors=2)
     cams = [read_video(recordings / "obj" / "exp_num_1" / f"camera_{c}.avi", expected_size=None) for c in (0, 1)]
     pushed = [det.push(cams[0][i], cams[1][i]).probability for i in range(70)]
-    assert np.abs(np.array(pushed[4:]) - np.array(slip_run["probability"][4:], float)).max() < 1e-4  # JSON rounds to 1e-5
+    assert (
+        np.abs(np.array(pushed[4:]) - np.array(slip_run["probability"][4:], float)).max() < 1e-4
+    )  # JSON rounds to 1e-5
 
 
 # ---------------------------------------------------------------------------------------------
@@ -408,7 +450,10 @@ def test_onnx_vivit_matches_torch_on_real_clips(tmp_path, real_clips):
     parts.mkdir()
     for key in ("frame", "window"):
         shutil.copy(res.paths[key], parts / f"{key}.onnx")
-    dets = {"torch": SlipDetector(model, sensors=2), "onnx": SlipDetector(model, sensors=2, backend="onnx", onnx_dir=parts)}
+    dets = {
+        "torch": SlipDetector(model, sensors=2),
+        "onnx": SlipDetector(model, sensors=2, backend="onnx", onnx_dir=parts),
+    }
     a, b = real_clips
     probs = {k: [d.push(a[i], b[i]).per_sensor for i in range(8)][4:] for k, d in dets.items()}
     assert np.abs(np.array(probs["torch"]) - np.array(probs["onnx"])).max() <= 1e-4
@@ -439,7 +484,9 @@ def test_onnx_resnet3d_matches_torch_on_real_clips(tmp_path, real_clips):
 
     model = _model("resnet3d50", **RESNET_TINY)
     small = [np.stack([cv2.resize(f, (160, 120), interpolation=cv2.INTER_AREA) for f in c[:4]]) for c in real_clips]
-    res = export_onnx(model, tmp_path / "r3d.onnx", verify=False, info={"data": {"clip_spec": {"size": [120, 160], "frames": 4}}})
+    res = export_onnx(
+        model, tmp_path / "r3d.onnx", verify=False, info={"data": {"clip_spec": {"size": [120, 160], "frames": 4}}}
+    )
     assert set(res.paths) == {"model"}
     x = torch.stack([_as_input(c) for c in small])
     with torch.no_grad():

@@ -1,4 +1,5 @@
 """Marker detection and tracking: synthetic marker grids with known motion, plus one real video."""
+
 from __future__ import annotations
 
 import os

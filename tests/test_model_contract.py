@@ -1,6 +1,7 @@
 """The model contract (slipsense.models.base), checked for every registered model: a new model is
 covered by registering it (build -> forward shape -> streaming == full forward -> ONNX parity ->
 checkpoint round trip)."""
+
 from __future__ import annotations
 
 import numpy as np

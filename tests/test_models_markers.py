@@ -1,4 +1,5 @@
 """STNet / TemNet: shapes, configs, parameter counts, input checks, gradients, heat maps, fast paths."""
+
 from __future__ import annotations
 
 import math
@@ -55,8 +56,17 @@ def test_d_model_defaults_to_flattened_markers():
 
 
 @pytest.mark.parametrize("name", ["stnet", "temnet"])
-@pytest.mark.parametrize("extra", [{}, dict(pool="mean"), dict(d_model=None, heads=2), dict(num_classes=3),
-                                   dict(head_hidden=0), dict(head_hidden=7, pool="last")])
+@pytest.mark.parametrize(
+    "extra",
+    [
+        {},
+        dict(pool="mean"),
+        dict(d_model=None, heads=2),
+        dict(num_classes=3),
+        dict(head_hidden=0),
+        dict(head_hidden=7, pool="last"),
+    ],
+)
 def test_count_parameters_for_matches_built_model(name, extra):
     cfg = {**SMALL, **extra}
     assert count_parameters_for(cfg, name) == count_parameters(build(name, **cfg))
@@ -108,8 +118,19 @@ def test_build_preset_overrides_and_errors():
         build_preset("compact", colour="red")
 
 
-@pytest.mark.parametrize("bad", [dict(d_model=18), dict(pool="max"), dict(codec_kernel=4), dict(dropout=1.0),
-                                 dict(blocks=0), dict(activation="tanh"), dict(num_classes=1), dict(head_hidden=-1)])
+@pytest.mark.parametrize(
+    "bad",
+    [
+        dict(d_model=18),
+        dict(pool="max"),
+        dict(codec_kernel=4),
+        dict(dropout=1.0),
+        dict(blocks=0),
+        dict(activation="tanh"),
+        dict(num_classes=1),
+        dict(head_hidden=-1),
+    ],
+)
 def test_bad_config_raises_config_error(bad):
     with pytest.raises(ConfigError):
         build("stnet", **{**SMALL, **bad})
@@ -130,13 +151,17 @@ def test_xavier_normal_init():
 
 # check_input
 
-@pytest.mark.parametrize("shape, words", [
-    ((2, 5, 10, 3), "got shape (2, 5, 10, 3)"),        # wrong T
-    ((2, 4, 11, 3), "got shape (2, 4, 11, 3)"),        # wrong M
-    ((2, 4, 10, 2), "got shape (2, 4, 10, 2)"),        # wrong last dim
-    ((4, 10, 3), "3-D"),
-    ((0, 4, 10, 3), "got shape (0, 4, 10, 3)"),
-])
+
+@pytest.mark.parametrize(
+    "shape, words",
+    [
+        ((2, 5, 10, 3), "got shape (2, 5, 10, 3)"),  # wrong T
+        ((2, 4, 11, 3), "got shape (2, 4, 11, 3)"),  # wrong M
+        ((2, 4, 10, 2), "got shape (2, 4, 10, 2)"),  # wrong last dim
+        ((4, 10, 3), "3-D"),
+        ((0, 4, 10, 3), "got shape (0, 4, 10, 3)"),
+    ],
+)
 def test_check_input_shape_errors(small, shape, words):
     with pytest.raises(InputError) as err:
         small.check_input(torch.zeros(shape))
@@ -175,6 +200,7 @@ def test_check_input_property(small, shape):
 
 
 # training and interpretation
+
 
 @pytest.mark.parametrize("name", ["stnet", "temnet"])
 def test_gradient_reaches_every_parameter(name):
@@ -225,12 +251,12 @@ def test_explicit_attention_equals_fused_path(small):
 
 def test_marker_saliency(small):
     x = _x(2)
-    x[:, :, 3] += torch.linspace(0, 2, 4).view(1, 4, 1)       # marker 3 moves
+    x[:, :, 3] += torch.linspace(0, 2, 4).view(1, 4, 1)  # marker 3 moves
     sal = small.marker_saliency(x)
     assert sal.shape == (2, SMALL["markers"])
     assert (sal >= 0).all() and torch.allclose(sal.amax(1), torch.ones(2))
     assert small.training is False
-    still = x[:, :1].repeat(1, 4, 1, 1)                         # no displacement -> no relevance
+    still = x[:, :1].repeat(1, 4, 1, 1)  # no displacement -> no relevance
     assert small.marker_saliency(still).abs().max() == 0
     assert small.marker_saliency(x, baseline="zero").shape == (2, SMALL["markers"])
     with pytest.raises(ConfigError):
@@ -248,6 +274,7 @@ def test_saliency_restores_training_mode():
 
 # fast and reduced-precision inference
 
+
 @pytest.mark.parametrize("name", ["stnet", "temnet"])
 def test_optimize_for_inference_matches(name):
     torch.manual_seed(0)
@@ -257,14 +284,14 @@ def test_optimize_for_inference_matches(name):
     with torch.inference_mode():
         ref = model(x)
         torch.testing.assert_close(fast(x), ref, atol=1e-4, rtol=1e-4)
-        torch.testing.assert_close(fast(x[:1]), ref[:1], atol=1e-4, rtol=1e-4)   # other batch size
+        torch.testing.assert_close(fast(x[:1]), ref[:1], atol=1e-4, rtol=1e-4)  # other batch size
         bf = optimize_for_inference(model, torch.bfloat16)(x)
     assert bf.dtype == torch.float32
     assert (bf - ref).abs().max() < 0.1 * ref.abs().max() + 0.05
     assert len(fast.attention_maps(x)) == SMALL["blocks"]
     with pytest.raises(ConfigError, match="gradients"):
         fast.marker_saliency(x)
-    assert next(model.parameters()).dtype == torch.float32     # the original is untouched
+    assert next(model.parameters()).dtype == torch.float32  # the original is untouched
     with pytest.raises(ConfigError):
         optimize_for_inference(model, torch.float16)
 
@@ -285,6 +312,7 @@ def test_int8_close_to_float():
 
 def test_upsample_conv_equals_upsample_then_conv1d():
     from slipsense.models.stnet import UpsampleConv1d
+
     torch.manual_seed(0)
     fast = UpsampleConv1d(6, 16, 3)
     torch.nn.init.normal_(fast.weight)
@@ -298,6 +326,7 @@ def test_upsample_conv_equals_upsample_then_conv1d():
 
 def test_frame_sum_head_matches_flat_linear():
     from slipsense.models.stnet_fast import FrameSumLinear
+
     torch.manual_seed(0)
     model = build("stnet", **{**SMALL, "head_hidden": 64}).eval()
     fast = optimize_for_inference(model)

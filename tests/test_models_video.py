@@ -1,4 +1,5 @@
 """Video models: ViViT (factorised encoder, the paper's network) and the 3D ResNet-50 baseline."""
+
 from __future__ import annotations
 
 import importlib.util
@@ -13,6 +14,7 @@ from slipsense.errors import ConfigError, InputError
 from slipsense.models import available, build, count_parameters
 from slipsense.models.resnet3d import PAPER_PARAMETERS
 from slipsense.models.vivit import ViViT
+
 
 @pytest.fixture(autouse=True)
 def _one_thread(one_thread):
@@ -74,8 +76,9 @@ def test_paper_config_defaults_and_parameter_count():
     assert n == 67_130  # = vit-pytorch ViViT(frame_patch_size=1) at this size
 
 
-@pytest.mark.parametrize("bad", [dict(image_size=(250, 320)), dict(pool="max"), dict(dim=0), dict(dropout=1.5),
-                                 dict(unknown=1)])
+@pytest.mark.parametrize(
+    "bad", [dict(image_size=(250, 320)), dict(pool="max"), dict(dim=0), dict(dropout=1.5), dict(unknown=1)]
+)
 def test_bad_config_is_config_error(bad):
     with pytest.raises(ConfigError):
         build("vivit", **bad)
@@ -158,7 +161,7 @@ def test_fused_patch_embedding_matches_plain():
     x = _clip(2, 5, 3, 240, 320, seed=1)
     # smooth, low-contrast frames are the hard case for variance arithmetic
     ramp = torch.linspace(0, 1, 320)
-    smooth = (0.45 + 0.02 * ramp + 0.004 * torch.randn(2, 5, 3, 240, 320, generator=torch.Generator().manual_seed(2)))
+    smooth = 0.45 + 0.02 * ramp + 0.004 * torch.randn(2, 5, 3, 240, 320, generator=torch.Generator().manual_seed(2))
     with torch.no_grad():
         for clip in (x, smooth.clamp(0, 1)):
             model.fused = True
@@ -213,8 +216,18 @@ def test_folded_inference_attention_matches_training_path():
 def test_matches_vit_pytorch_reference():
     RefViViT = _load_reference_vivit()
     torch.manual_seed(0)
-    ref = RefViViT(image_size=(240, 320), image_patch_size=(40, 40), frames=5, frame_patch_size=1, num_classes=2,
-                   dim=8, spatial_depth=2, temporal_depth=2, heads=2, mlp_dim=8).eval()
+    ref = RefViViT(
+        image_size=(240, 320),
+        image_patch_size=(40, 40),
+        frames=5,
+        frame_patch_size=1,
+        num_classes=2,
+        dim=8,
+        spatial_depth=2,
+        temporal_depth=2,
+        heads=2,
+        mlp_dim=8,
+    ).eval()
     _perturbed(ref)
     ours = ViViT.from_vit_pytorch(ref).eval()
     assert count_parameters(ours) == count_parameters(ref)
@@ -224,14 +237,36 @@ def test_matches_vit_pytorch_reference():
         assert (ours(x) - expected).abs().max() < 1e-5
         ours.fused = False
         assert (ours(x) - expected).abs().max() < 1e-5
-    ref_mean = RefViViT(image_size=(16, 24), image_patch_size=(8, 8), frames=3, frame_patch_size=1, num_classes=2,
-                        dim=8, spatial_depth=1, temporal_depth=2, heads=1, dim_head=8, mlp_dim=4, pool="mean").eval()
+    ref_mean = RefViViT(
+        image_size=(16, 24),
+        image_patch_size=(8, 8),
+        frames=3,
+        frame_patch_size=1,
+        num_classes=2,
+        dim=8,
+        spatial_depth=1,
+        temporal_depth=2,
+        heads=1,
+        dim_head=8,
+        mlp_dim=4,
+        pool="mean",
+    ).eval()
     ours_mean = ViViT.from_vit_pytorch(ref_mean, image_size=(16, 24)).eval()
     x = _clip(2, 3, 3, 16, 24, seed=6)
     with torch.no_grad():
         assert (ours_mean(x) - ref_mean(x.permute(0, 2, 1, 3, 4))).abs().max() < 1e-5
-    tubelet = RefViViT(image_size=(16, 24), image_patch_size=(8, 8), frames=4, frame_patch_size=2, num_classes=2,
-                       dim=8, spatial_depth=1, temporal_depth=1, heads=1, mlp_dim=4)
+    tubelet = RefViViT(
+        image_size=(16, 24),
+        image_patch_size=(8, 8),
+        frames=4,
+        frame_patch_size=2,
+        num_classes=2,
+        dim=8,
+        spatial_depth=1,
+        temporal_depth=1,
+        heads=1,
+        mlp_dim=4,
+    )
     with pytest.raises(ConfigError, match="frame_patch_size"):
         ViViT.from_vit_pytorch(tubelet, image_size=(16, 24))
 
@@ -299,8 +334,15 @@ def test_onnx_export_matches(tmp_path):
     with torch.no_grad(), warnings.catch_warnings():
         warnings.simplefilter("ignore")
         model(x)  # caches filled: the export must not bake them or the scratch buffer in
-        torch.onnx.export(model, (x,), str(path), dynamo=False, input_names=["video"], output_names=["logits"],
-                          dynamic_axes={"video": {0: "batch"}})
+        torch.onnx.export(
+            model,
+            (x,),
+            str(path),
+            dynamo=False,
+            input_names=["video"],
+            output_names=["logits"],
+            dynamic_axes={"video": {0: "batch"}},
+        )
     session = ort.InferenceSession(str(path))
     for batch in (1, 3):
         clip = _clip(batch, 3, 3, 16, 24, seed=batch)

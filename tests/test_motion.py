@@ -1,5 +1,4 @@
 """MotionNet: causal, streams equal to the whole-run forward, trains on runs, detector integration."""
-import warnings
 
 import numpy as np
 import pytest
@@ -14,8 +13,9 @@ from slipsense.recordings.runs import GraspRun
 
 def _model(**kw):
     torch.manual_seed(0)
-    return build("motionnet", image_size=(16, 20), width=4, features=8, temporal=8, lags=(1, 5, 10),
-                 dilations=(1, 2, 4), **kw).eval()
+    return build(
+        "motionnet", image_size=(16, 20), width=4, features=8, temporal=8, lags=(1, 5, 10), dilations=(1, 2, 4), **kw
+    ).eval()
 
 
 def test_causal_and_stream_equals_forward():
@@ -51,7 +51,9 @@ def _runs(n_runs=8, n=70, size=(16, 20), seed=0):
         if slipped:
             for t in range(m - 8, m + 1):
                 gray[:, t, :, (t * 2) % size[1]] = 250
-        runs.append(GraspRun(f"obj{i % 4}", i, slipped, m, gray, np.zeros((2, n), np.float32), ("camera_0", "camera_2")))
+        runs.append(
+            GraspRun(f"obj{i % 4}", i, slipped, m, gray, np.zeros((2, n), np.float32), ("camera_0", "camera_2"))
+        )
     return runs
 
 
@@ -63,8 +65,16 @@ def test_frame_targets():
 
 def test_fit_learns_a_moving_stripe():
     runs = _runs()
-    cfg = GraspTrainConfig(model_config={"image_size": [16, 20], "width": 4, "features": 8, "temporal": 8},
-                           epochs=25, lr=1e-2, batch_size=8, chunk=16, negatives=2, hard_negatives=1, inner_folds=0)
+    cfg = GraspTrainConfig(
+        model_config={"image_size": [16, 20], "width": 4, "features": 8, "temporal": 8},
+        epochs=25,
+        lr=1e-2,
+        batch_size=8,
+        chunk=16,
+        negatives=2,
+        hard_negatives=1,
+        inner_folds=0,
+    )
     model, hist = fit_runs(runs, cfg, progress=False)
     assert len(hist) == 25 and hist[-1]["loss"] < hist[0]["loss"]
     probs = predict_runs(model, runs)
@@ -86,8 +96,9 @@ def test_detector_pushes_like_replay_and_guards_input(tmp_path):
     from slipsense.checkpoint import save_checkpoint
 
     m = _model()
-    path = save_checkpoint(tmp_path / "m.safetensors", m, {"operating_point": {"threshold": 0.3, "debounce": 2,
-                                                                              "startup": 10}})
+    path = save_checkpoint(
+        tmp_path / "m.safetensors", m, {"operating_point": {"threshold": 0.3, "debounce": 2, "startup": 10}}
+    )
     det = SlipDetector.from_checkpoint(path, sensors=2)
     assert det.threshold == 0.3 and det.debounce == 2
     rng = np.random.default_rng(1)
@@ -129,8 +140,17 @@ def test_motion_energy_baseline_streams_and_trains():
         full = torch.softmax(m(g), -1)[0, :, 1].numpy()
     st = m.stream()
     assert np.allclose([st.push((g[0, :, t] * 255).round().byte().numpy()) for t in range(30)], full, atol=1e-5)
-    cfg = GraspTrainConfig(model="motion-energy", model_config={"image_size": [16, 20], "lags": [1, 5, 10]},
-                           epochs=30, lr=5e-2, batch_size=8, chunk=16, negatives=2, hard_negatives=0, inner_folds=0)
+    cfg = GraspTrainConfig(
+        model="motion-energy",
+        model_config={"image_size": [16, 20], "lags": [1, 5, 10]},
+        epochs=30,
+        lr=5e-2,
+        batch_size=8,
+        chunk=16,
+        negatives=2,
+        hard_negatives=0,
+        inner_folds=0,
+    )
     model, hist = fit_runs(_runs(), cfg, progress=False)
     assert hist[-1]["loss"] < hist[0]["loss"]
 

@@ -1,4 +1,5 @@
 """Per-grasp early-warning measure: trivial detectors must score badly, a good one well."""
+
 import numpy as np
 import pytest
 

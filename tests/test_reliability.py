@@ -1,5 +1,6 @@
 """Reliability promises of issue 12 (docs/reliability.md): run folders never run code, training and
 evaluation refuse empty data, a refused --resume writes nothing, caches are verified."""
+
 from __future__ import annotations
 
 import json
@@ -19,8 +20,23 @@ from slipsense.errors import InputError
 runner = CliRunner()
 
 #: A TemNet small enough to train in a fraction of a second.
-TINY = ["--model", "temnet", "--set", "d_model=8", "--set", "heads=2", "--set", "blocks=1", "--set", "ff_dim=8",
-        "--set", "head_hidden=0", "--batch-size", "4", "--no-progress"]
+TINY = [
+    "--model",
+    "temnet",
+    "--set",
+    "d_model=8",
+    "--set",
+    "heads=2",
+    "--set",
+    "blocks=1",
+    "--set",
+    "ff_dim=8",
+    "--set",
+    "head_hidden=0",
+    "--batch-size",
+    "4",
+    "--no-progress",
+]
 
 
 def _markers(path: Path, n: int = 24, groups=None, frames: int = 4, markers: int = 5) -> Path:
@@ -80,11 +96,18 @@ def test_malicious_resume_state_is_refused_and_not_run(tmp_path, fmt):
 def test_resume_state_is_data_only_and_round_trips(tmp_path):
     import random
 
-    state = {"model": {"w": torch.randn(3, 2), "tied": torch.arange(4)}, "optimizer": {"state": {0: {"step": torch.tensor(3.0)}},
-             "param_groups": [{"lr": 1e-3, "betas": (0.9, 0.999), "params": [0], "foreach": None}]},
-             "scheduler": {"last_epoch": 2}, "rng": {"python": random.getstate(), "numpy": np.random.get_state(),
-                                                     "torch": torch.get_rng_state()},
-             "history": [{"epoch": 1, "val_loss": math.inf}], "best": -math.inf, "epoch": 0}
+    state = {
+        "model": {"w": torch.randn(3, 2), "tied": torch.arange(4)},
+        "optimizer": {
+            "state": {0: {"step": torch.tensor(3.0)}},
+            "param_groups": [{"lr": 1e-3, "betas": (0.9, 0.999), "params": [0], "foreach": None}],
+        },
+        "scheduler": {"last_epoch": 2},
+        "rng": {"python": random.getstate(), "numpy": np.random.get_state(), "torch": torch.get_rng_state()},
+        "history": [{"epoch": 1, "val_loss": math.inf}],
+        "best": -math.inf,
+        "epoch": 0,
+    }
     path = tmp_path / "resume.pt"
     save_resume_state(path, state)
     back = load_resume_state(path)
@@ -103,19 +126,26 @@ def test_resume_state_is_data_only_and_round_trips(tmp_path):
 
 def test_damaged_resume_states_are_one_line_errors(tmp_path):
     path = tmp_path / "resume.pt"
-    save_resume_state(path, {"model": {}, "optimizer": {}, "scheduler": {}, "rng": {}, "history": [], "best": 0.0,
-                             "epoch": 1})
+    save_resume_state(
+        path, {"model": {}, "optimizer": {}, "scheduler": {}, "rng": {}, "history": [], "best": 0.0, "epoch": 1}
+    )
     data = path.read_bytes()
-    for name, payload, word in [("trunc", data[:-3] if len(data) > 200 else data[:20], "unreadable"),
-                                ("empty", b"", "not a slipsense resume"),
-                                ("text", b"hello world, not a state", "not a slipsense resume")]:
+    for name, payload, word in [
+        ("trunc", data[:-3] if len(data) > 200 else data[:20], "unreadable"),
+        ("empty", b"", "not a slipsense resume"),
+        ("text", b"hello world, not a state", "not a slipsense resume"),
+    ]:
         p = tmp_path / f"{name}.pt"
         p.write_bytes(payload)
         with pytest.raises(InputError, match=word):
             load_resume_state(p)
     from safetensors.torch import save_file
 
-    save_file({"a": torch.zeros(1)}, str(tmp_path / "foreign.pt"), metadata={"slipsense-resume": '{"format": 1, "state": {"__code__": 1}}'})
+    save_file(
+        {"a": torch.zeros(1)},
+        str(tmp_path / "foreign.pt"),
+        metadata={"slipsense-resume": '{"format": 1, "state": {"__code__": 1}}'},
+    )
     with pytest.raises(InputError, match="malformed"):
         load_resume_state(tmp_path / "foreign.pt")
 
@@ -126,14 +156,29 @@ def test_resume_of_another_model_changes_nothing(tmp_path):
     assert _train(tmp_path, out, "--epochs", "1").exit_code == 0
     before = {p.name: p.read_bytes() for p in out.iterdir()}
     # another size: the weights in resume.pt do not fit
-    result = runner.invoke(app, ["train", *TINY, "--set", "ff_dim=16", "--markers", str(tmp_path / "m.npz"),
-                                 "--out", str(out), "--epochs", "2", "--resume"])
+    result = runner.invoke(
+        app,
+        [
+            "train",
+            *TINY,
+            "--set",
+            "ff_dim=16",
+            "--markers",
+            str(tmp_path / "m.npz"),
+            "--out",
+            str(out),
+            "--epochs",
+            "2",
+            "--resume",
+        ],
+    )
     assert result.exit_code == 2, result.output
     assert "resume.pt" in _error_line(result) and "does not fit the model" in _error_line(result)
     # another split: split.json would change
     _markers(tmp_path / "m2.npz", groups=np.arange(24) // 3)
-    result = runner.invoke(app, ["train", *TINY, "--markers", str(tmp_path / "m2.npz"), "--out", str(out),
-                                 "--epochs", "2", "--resume"])
+    result = runner.invoke(
+        app, ["train", *TINY, "--markers", str(tmp_path / "m2.npz"), "--out", str(out), "--epochs", "2", "--resume"]
+    )
     assert result.exit_code == 2, result.output
     assert "split.json" in _error_line(result) and "test_indices" in _error_line(result)
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before
@@ -166,9 +211,27 @@ def _recordings(root: Path, objects=("cup", "pen"), n: int = 30, cameras=("camer
 def test_training_with_every_object_held_out_is_refused(tmp_path, cache):
     rec = _recordings(tmp_path / "rec")
     out = tmp_path / "run"
-    result = runner.invoke(app, ["train", "--model", "vivit", "--recordings", str(rec), "--overrides",
-                                 str(tmp_path / "overrides.csv"), "--size", "48x64", "--frames", "2",
-                                 "--test-objects", "cup,pen", "--out", str(out), "--no-progress"])
+    result = runner.invoke(
+        app,
+        [
+            "train",
+            "--model",
+            "vivit",
+            "--recordings",
+            str(rec),
+            "--overrides",
+            str(tmp_path / "overrides.csv"),
+            "--size",
+            "48x64",
+            "--frames",
+            "2",
+            "--test-objects",
+            "cup,pen",
+            "--out",
+            str(out),
+            "--no-progress",
+        ],
+    )
     assert result.exit_code == 2, result.output
     assert "nothing is left to train on" in _error_line(result)
     assert not out.exists()
@@ -196,17 +259,20 @@ def test_fit_refuses_an_empty_training_set(tmp_path):
     assert not (tmp_path / "run").exists()
 
 
-@pytest.mark.parametrize("split, word", [
-    ({"kind": "markers", "test_indices": []}, "no test items"),
-    ({"kind": "markers"}, "lacks test_indices"),
-    ({"kind": "markers", "test_indices": [0, -1]}, "negative"),
-    ({"kind": "markers", "test_indices": [0, 500]}, "out of range"),
-    ({"kind": "markers", "test_indices": [1, 1]}, "repeats"),
-    ({"kind": "markers", "test_indices": "0,1"}, "list of integers"),
-    ({"kind": "markers", "test_indices": [0.5]}, "list of integers"),
-    ({"kind": "video", "test_indices": [0]}, "video data"),
-    ([1, 2, 3], "JSON object"),
-])
+@pytest.mark.parametrize(
+    "split, word",
+    [
+        ({"kind": "markers", "test_indices": []}, "no test items"),
+        ({"kind": "markers"}, "lacks test_indices"),
+        ({"kind": "markers", "test_indices": [0, -1]}, "negative"),
+        ({"kind": "markers", "test_indices": [0, 500]}, "out of range"),
+        ({"kind": "markers", "test_indices": [1, 1]}, "repeats"),
+        ({"kind": "markers", "test_indices": "0,1"}, "list of integers"),
+        ({"kind": "markers", "test_indices": [0.5]}, "list of integers"),
+        ({"kind": "video", "test_indices": [0]}, "video data"),
+        ([1, 2, 3], "JSON object"),
+    ],
+)
 def test_bad_split_files_are_refused(tmp_path, split, word):
     _markers(tmp_path / "m.npz")
     assert _train(tmp_path, tmp_path / "run", "--epochs", "1").exit_code == 0
@@ -215,8 +281,19 @@ def test_bad_split_files_are_refused(tmp_path, split, word):
     path = tmp_path / "split.json"
     path.write_text(json.dumps(split))
     json_out = tmp_path / "eval.json"
-    result = runner.invoke(app, ["evaluate", "--checkpoint", str(tmp_path / "run" / "last.safetensors"),
-                                 "--split", str(path), "--json", str(json_out), "--no-progress"])
+    result = runner.invoke(
+        app,
+        [
+            "evaluate",
+            "--checkpoint",
+            str(tmp_path / "run" / "last.safetensors"),
+            "--split",
+            str(path),
+            "--json",
+            str(json_out),
+            "--no-progress",
+        ],
+    )
     assert result.exit_code == 2, result.output
     line = _error_line(result)
     assert "split.json" in line and word in line, line

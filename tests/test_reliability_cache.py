@@ -1,5 +1,6 @@
 """Caches are verified, never trusted: an entry whose checksum, inputs or contents do not hold is
 rebuilt from its inputs with a CacheWarning (labels, clips, markers, ONNX parts)."""
+
 from __future__ import annotations
 
 import hashlib
@@ -224,4 +225,9 @@ def test_onnx_parts_cache_is_verified(tmp_path, monkeypatch):
     with pytest.warns(CacheWarning, match="another model"):
         export.cached_streaming_parts(other, folder, window_geometry(other))
     assert len(calls) == 3
-    assert export.check_parts(folder, ["frame.onnx", "window.onnx"], export._parts_key(other, window_geometry(other), "float32")) is None
+    assert (
+        export.check_parts(
+            folder, ["frame.onnx", "window.onnx"], export._parts_key(other, window_geometry(other), "float32")
+        )
+        is None
+    )

@@ -5,6 +5,7 @@ depend on the rank. Also a script, run by the tests once under torchrun and once
 
 It trains four small jobs on 67 items (not a multiple of any batch here) into OUT/<job>/.
 """
+
 from __future__ import annotations
 
 import json
@@ -25,12 +26,12 @@ N_ITEMS = 67
 
 @register("test-reliability-dropout")
 class DropNet(MarkerModel):
-
     def __init__(self, frames: int = 4, markers: int = 6, hidden: int = 16, dropout: float = 0.5):
         super().__init__()
         self._config = dict(frames=frames, markers=markers, hidden=hidden, dropout=dropout)
-        self.net = nn.Sequential(nn.Flatten(), nn.Linear(frames * markers * 3, hidden), nn.Tanh(),
-                                 nn.Dropout(dropout), nn.Linear(hidden, 2))
+        self.net = nn.Sequential(
+            nn.Flatten(), nn.Linear(frames * markers * 3, hidden), nn.Tanh(), nn.Dropout(dropout), nn.Linear(hidden, 2)
+        )
 
     def config(self):
         return dict(self._config)
@@ -63,19 +64,34 @@ def main(out: str) -> None:
     for job, (dropout, batch, accumulate) in (JOBS if world > 1 else SINGLE).items():
         seed_everything(0)
         model = DropNet(dropout=dropout)
-        cfg = TrainConfig(epochs=3, batch_size=batch, accumulate=accumulate, lr=1e-2, weight_decay=1e-4,
-                          step_size=2, gamma=0.5, seed=0, progress=False)
+        cfg = TrainConfig(
+            epochs=3,
+            batch_size=batch,
+            accumulate=accumulate,
+            lr=1e-2,
+            weight_decay=1e-4,
+            step_size=2,
+            gamma=0.5,
+            seed=0,
+            progress=False,
+        )
         history = fit(model, Toy(N_ITEMS), Toy(16), cfg, Path(out) / job)
         if int(os.environ.get("RANK", "0")) == 0:
             from safetensors.torch import save_file
 
-            save_file({k: v.contiguous() for k, v in model.state_dict().items()}, str(Path(out) / job / "final.safetensors"))
+            save_file(
+                {k: v.contiguous() for k, v in model.state_dict().items()}, str(Path(out) / job / "final.safetensors")
+            )
             (Path(out) / job / "history.json").write_text(json.dumps(history))
 
 
 def _run(out: Path, torchrun: bool) -> None:
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node=2"] if torchrun else [sys.executable]
+    cmd = (
+        [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node=2"]
+        if torchrun
+        else [sys.executable]
+    )
     proc = subprocess.run(cmd + [__file__, str(out)], env=env, capture_output=True, text=True, timeout=240)
     assert proc.returncode == 0, f"{cmd} failed:\n{proc.stdout}\n{proc.stderr}"
 
@@ -89,7 +105,9 @@ def test_step_plan_covers_every_item_once_for_any_world():
                 flat = [i for micro in steps for m in micro for i in m]
                 assert sorted(flat) == list(range(n))  # nothing repeated, nothing dropped
                 # the order is the one-process order, whatever the world
-                assert flat == [i for micro in StepPlan(n, world * batch * acc, 1, 1, 7).steps(epoch) for m in micro for i in m]
+                assert flat == [
+                    i for micro in StepPlan(n, world * batch * acc, 1, 1, 7).steps(epoch) for m in micro for i in m
+                ]
                 assert all(len(micro) == world * acc for micro in steps)
 
 

@@ -1,4 +1,5 @@
 """Binocular-sensor simulator: shapes, seeding, labels, the physics of each pattern, the npz format."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -37,6 +38,7 @@ def _near_contact(cfg, info, t, within=3.0):
 
 
 # ----------------------------------------------------------------------------- shapes, seeds, labels
+
 
 def test_rest_grid_matches_the_paper_sensor():
     cfg = SimConfig()
@@ -80,8 +82,14 @@ def test_seeded_and_reproducible():
 
 
 def test_gross_slip_label_rule():
-    cfg = SimConfig(objects=("cherry_tomato",), patterns=("slipping",), n_sequences=2, seq_len=30,
-                    partial_slip_s=(0.9, 1.0), label_rule="gross_slip")
+    cfg = SimConfig(
+        objects=("cherry_tomato",),
+        patterns=("slipping",),
+        n_sequences=2,
+        seq_len=30,
+        partial_slip_s=(0.9, 1.0),
+        label_rule="gross_slip",
+    )
     ds = make_dataset(cfg, progress=False)
     for g in np.unique(ds.groups):
         y = ds.y[ds.groups == g]
@@ -101,6 +109,7 @@ def test_config_errors():
 
 
 # ----------------------------------------------------------------------------- physics of each pattern
+
 
 def test_stationary_without_object_is_just_noise():
     cfg, seq, info, d = _sim("pen", "stationary", 0, p_empty=1.0, pixel_noise_px=0.0)
@@ -198,6 +207,7 @@ def test_displacement_field_checks_shapes():
 
 # ----------------------------------------------------------------------------- npz format
 
+
 @pytest.fixture(scope="module")
 def tiny_ds():
     return make_dataset(SimConfig(objects=("screw",), n_sequences=1, seq_len=13), progress=False)
@@ -230,25 +240,35 @@ def test_minimal_user_file(tmp_path):
     ds = load_marker_npz(_write(tmp_path, x=_x(), y=np.array([0, 1, 1])))
     np.testing.assert_array_equal(ds.groups, [0, 1, 2])  # one group per sample by default
     assert ds.pattern is None
-    ds = load_marker_npz(_write(tmp_path, x=_x(), y=np.array([0, 1, 1]), groups=np.array(["a", "b", "a"]),
-                                pattern=np.array(["slipping", "rolling", "slipping"])))
+    ds = load_marker_npz(
+        _write(
+            tmp_path,
+            x=_x(),
+            y=np.array([0, 1, 1]),
+            groups=np.array(["a", "b", "a"]),
+            pattern=np.array(["slipping", "rolling", "slipping"]),
+        )
+    )
     np.testing.assert_array_equal(ds.groups, [0, 1, 0])
     assert [ds.pattern_names[i] for i in ds.pattern] == ["slipping", "rolling", "slipping"]
     ds = load_marker_npz(_write(tmp_path, x=_x()), require_labels=False)
     assert ds.y is None
 
 
-@pytest.mark.parametrize("arrays, match", [
-    (dict(y=np.zeros(3)), "missing key 'x'"),
-    (dict(x=_x()), "missing key 'y'"),
-    (dict(x=np.zeros((3, 4, 5)), y=np.zeros(3)), r"expected \(N, T, M, 3\)"),
-    (dict(x=np.zeros((3, 4, 5, 2)), y=np.zeros(3)), r"expected \(N, T, M, 3\)"),
-    (dict(x=_x(), y=np.array([0, 1, 2])), "0 .no slip. or 1"),
-    (dict(x=_x(), y=np.array([0, 1])), "one value per sample"),
-    (dict(x=_x(), y=np.array([0, 1, 1]), groups=np.arange(4)), "groups"),
-    (dict(x=_x(), y=np.array([0, 1, 1]), pattern=np.array([0, 1, 9])), "pattern indices"),
-    (dict(x=np.array(["a"] * 12).reshape(1, 1, 4, 3), y=np.zeros(1)), "dtype"),
-])
+@pytest.mark.parametrize(
+    "arrays, match",
+    [
+        (dict(y=np.zeros(3)), "missing key 'x'"),
+        (dict(x=_x()), "missing key 'y'"),
+        (dict(x=np.zeros((3, 4, 5)), y=np.zeros(3)), r"expected \(N, T, M, 3\)"),
+        (dict(x=np.zeros((3, 4, 5, 2)), y=np.zeros(3)), r"expected \(N, T, M, 3\)"),
+        (dict(x=_x(), y=np.array([0, 1, 2])), "0 .no slip. or 1"),
+        (dict(x=_x(), y=np.array([0, 1])), "one value per sample"),
+        (dict(x=_x(), y=np.array([0, 1, 1]), groups=np.arange(4)), "groups"),
+        (dict(x=_x(), y=np.array([0, 1, 1]), pattern=np.array([0, 1, 9])), "pattern indices"),
+        (dict(x=np.array(["a"] * 12).reshape(1, 1, 4, 3), y=np.zeros(1)), "dtype"),
+    ],
+)
 def test_loader_errors_name_the_file(tmp_path, arrays, match):
     path = _write(tmp_path, **arrays)
     with pytest.raises(InputError, match=match) as exc:

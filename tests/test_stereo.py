@@ -1,4 +1,5 @@
 """Refraction-aware binocular reconstruction: round trip, Snell's law, plain triangulation, validation."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -25,8 +26,9 @@ GEOM = SensorGeometry()
 
 def _gel_points(rng, n, geom=GEOM):
     """Points in the gel volume (world frame, mm): the 22 x 21 mm surface, up to 3 mm indented."""
-    return np.stack([rng.uniform(-11, 11, n), rng.uniform(-10.5, 10.5, n),
-                     geom.h_v_mm + rng.uniform(-3.0, 0.5, n)], axis=1)
+    return np.stack(
+        [rng.uniform(-11, 11, n), rng.uniform(-10.5, 10.5, n), geom.h_v_mm + rng.uniform(-3.0, 0.5, n)], axis=1
+    )
 
 
 def test_round_trip_is_exact():
@@ -97,13 +99,16 @@ def test_gel_frame_is_a_shift():
     assert gel_to_camera(GEOM, p)[0, 2] == GEOM.h_v_mm - 0.5
 
 
-@pytest.mark.parametrize("bad, match", [
-    (np.zeros((3, 3)), "expected"),
-    (np.zeros(4), "expected"),
-    (np.array([[1.0, np.nan]]), "non-finite"),
-    (np.array([[np.inf, 1.0]]), "non-finite"),
-    ([["a", "b"]], "numeric"),
-])
+@pytest.mark.parametrize(
+    "bad, match",
+    [
+        (np.zeros((3, 3)), "expected"),
+        (np.zeros(4), "expected"),
+        (np.array([[1.0, np.nan]]), "non-finite"),
+        (np.array([[np.inf, 1.0]]), "non-finite"),
+        ([["a", "b"]], "numeric"),
+    ],
+)
 def test_bad_pixels_are_input_errors(bad, match):
     with pytest.raises(InputError, match=match):
         reconstruct(GEOM, bad, np.zeros((1, 2)))
@@ -143,8 +148,12 @@ def test_bad_geometry_is_a_config_error():
 
 @settings(max_examples=60, deadline=None)
 @given(
-    x=st.floats(-11, 11), y=st.floats(-10.5, 10.5), depth=st.floats(-3.0, 1.0),
-    n_r=st.floats(1.0, 1.7), h_c=st.floats(1.0, 10.0), baseline=st.floats(4.0, 20.0),
+    x=st.floats(-11, 11),
+    y=st.floats(-10.5, 10.5),
+    depth=st.floats(-3.0, 1.0),
+    n_r=st.floats(1.0, 1.7),
+    h_c=st.floats(1.0, 10.0),
+    baseline=st.floats(4.0, 20.0),
 )
 def test_round_trip_property(x, y, depth, n_r, h_c, baseline):
     geom = SensorGeometry(n_r=n_r, h_c_mm=h_c, baseline_mm=baseline)

@@ -1,4 +1,5 @@
 """Training loop: DDP equivalence, resume after SIGKILL, checkpoints and their errors."""
+
 from __future__ import annotations
 
 import json
@@ -19,7 +20,11 @@ SCRIPT = Path(__file__).parent / "support" / "tiny_train.py"
 
 def _run(args, torchrun=False, check=True):
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).parent / "support"), "OMP_NUM_THREADS": "1"}
-    cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node=2"] if torchrun else [sys.executable]
+    cmd = (
+        [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node=2"]
+        if torchrun
+        else [sys.executable]
+    )
     proc = subprocess.run(cmd + [str(SCRIPT), *map(str, args)], env=env, capture_output=True, text=True, timeout=180)
     if check and proc.returncode != 0:
         raise AssertionError(f"{cmd} failed ({proc.returncode}):\n{proc.stdout}\n{proc.stderr}")
@@ -87,8 +92,11 @@ def test_checkpoint_roundtrip_and_errors(tmp_path):
     from safetensors.torch import save_file
 
     meta = {"slipsense": json.dumps({"model": "test-tiny", "model_config": {"hidden": 5}})}
-    save_file({k: v.contiguous() for k, v in TinyNet(hidden=7).state_dict().items()},
-              str(tmp_path / "misfit.safetensors"), metadata=meta)
+    save_file(
+        {k: v.contiguous() for k, v in TinyNet(hidden=7).state_dict().items()},
+        str(tmp_path / "misfit.safetensors"),
+        metadata=meta,
+    )
     with pytest.raises(InputError, match="misfit.safetensors: weight .* has shape"):
         load_model(tmp_path / "misfit.safetensors")
     save_file({"w": torch.zeros(2)}, str(tmp_path / "foreign.safetensors"))
@@ -109,7 +117,16 @@ def test_pooling_folds_sums_confusions(tmp_path):
 
     for k, cm in enumerate(([[8, 0], [2, 2]], [[5, 1], [0, 3]])):
         (tmp_path / f"f{k}").mkdir()
-        m = {"confusion": cm, "accuracy": 0, "precision": 0, "recall": 0, "f1": 0, "n_clips": 0, "n_slip": 0, "n_wiggle": 0}
+        m = {
+            "confusion": cm,
+            "accuracy": 0,
+            "precision": 0,
+            "recall": 0,
+            "f1": 0,
+            "n_clips": 0,
+            "n_slip": 0,
+            "n_wiggle": 0,
+        }
         (tmp_path / f"f{k}" / "evaluation.json").write_text(json.dumps(m))
     out = pool([tmp_path / "f0", tmp_path / "f1"])
     assert out["pooled"]["confusion"] == [[13, 1], [2, 5]]

@@ -1,4 +1,5 @@
 """Video decoding (slipsense.recordings.video) and recording discovery (slipsense.recordings.folders)."""
+
 from __future__ import annotations
 
 import os
@@ -152,8 +153,16 @@ def test_min_frames_above_length(tmp_path):
         read_video(path, min_frames=7)
 
 
-@pytest.mark.parametrize("kwargs", [{"min_frames": 0}, {"min_frames": True}, {"expected_size": (240,)},
-                                    {"expected_size": (0, 320)}, {"expected_size": "240x320"}])
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        {"min_frames": 0},
+        {"min_frames": True},
+        {"expected_size": (240,)},
+        {"expected_size": (0, 320)},
+        {"expected_size": "240x320"},
+    ],
+)
 def test_bad_arguments(tmp_path, kwargs):
     path = write_video(tmp_path / "v.avi", 3)
     with pytest.raises(InputError):
@@ -184,8 +193,13 @@ class FakeCapture:
 
     def get(self, prop):
         h, w = self.frames[0].shape[:2]
-        return {cv2.CAP_PROP_FRAME_COUNT: self.count, cv2.CAP_PROP_FRAME_WIDTH: w,
-                cv2.CAP_PROP_FRAME_HEIGHT: h, cv2.CAP_PROP_FPS: 25.0, cv2.CAP_PROP_FOURCC: 0}.get(prop, 0.0)
+        return {
+            cv2.CAP_PROP_FRAME_COUNT: self.count,
+            cv2.CAP_PROP_FRAME_WIDTH: w,
+            cv2.CAP_PROP_FRAME_HEIGHT: h,
+            cv2.CAP_PROP_FPS: 25.0,
+            cv2.CAP_PROP_FOURCC: 0,
+        }.get(prop, 0.0)
 
     def read(self, image=None):
         if self.i >= len(self.frames):
@@ -237,7 +251,9 @@ def test_opencv_errors_become_input_errors(tmp_path, monkeypatch):
 # ----------------------------------------------------------------------------------------- folders
 
 
-def make_tree(root: Path, spec: dict[str, dict[int, bool]], n_frames: int = 4, cameras=("camera_0", "camera_2")) -> None:
+def make_tree(
+    root: Path, spec: dict[str, dict[int, bool]], n_frames: int = 4, cameras=("camera_0", "camera_2")
+) -> None:
     """spec: object -> {experiment number -> slipped}."""
     for obj, exps in spec.items():
         for num, slipped in exps.items():
@@ -254,9 +270,12 @@ def test_find_recordings_sorted_and_complete(tmp_path):
     (tmp_path / ".hidden").mkdir()
     recs = find_recordings(tmp_path)
     assert [r.key for r in recs] == [
-        ("apple", 1, "camera_0"), ("apple", 1, "camera_2"),
-        ("pear", 2, "camera_0"), ("pear", 2, "camera_2"),
-        ("pear", 10, "camera_0"), ("pear", 10, "camera_2"),
+        ("apple", 1, "camera_0"),
+        ("apple", 1, "camera_2"),
+        ("pear", 2, "camera_0"),
+        ("pear", 2, "camera_2"),
+        ("pear", 10, "camera_0"),
+        ("pear", 10, "camera_2"),
     ]  # numeric, not lexical, experiment order
     assert [r.slipped for r in recs] == [True, True, False, False, True, True]
     assert recs[0].path == tmp_path / "apple" / "exp_num_1" / "camera_0.avi"
@@ -322,7 +341,7 @@ def test_skip_everything_still_raises(tmp_path):
 def test_validate_recordings(tmp_path):
     make_tree(tmp_path, {"apple": {1: False, 2: True}}, n_frames=4)
     broken = tmp_path / "apple" / "exp_num_2" / "camera_2.avi"
-    broken.write_bytes(broken.read_bytes()[: 400])
+    broken.write_bytes(broken.read_bytes()[:400])
     recs = find_recordings(tmp_path)  # structure only: the broken file is still listed
     assert len(recs) == 4
     with pytest.raises(InputError) as exc:

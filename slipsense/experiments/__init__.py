@@ -19,12 +19,18 @@ Modules: :mod:`~slipsense.experiments.settings` (:class:`Settings`: full, quick 
 :mod:`~slipsense.experiments.results` (docs/results.md). The commands are in
 :mod:`slipsense.cli_experiments`.
 """
-from slipsense.experiments.settings import (EXPERIMENTS, FULL_PATCH, FULL_SIZE, QUICK_PATCH, QUICK_SIZE, TITLES,
-                                            Settings)
-from slipsense.experiments.source import (FPS, DataSource, clip_spec, default_overrides, held_out_objects,
-                                          object_split)
-from slipsense.experiments.report import (Report, cpu_description, cpu_model, csv_text, machine_info, machine_line,
-                                          markdown_table)
+
+from slipsense.experiments.settings import EXPERIMENTS, FULL_PATCH, FULL_SIZE, QUICK_PATCH, QUICK_SIZE, TITLES, Settings
+from slipsense.experiments.source import FPS, DataSource, clip_spec, default_overrides, held_out_objects, object_split
+from slipsense.experiments.report import (
+    Report,
+    cpu_description,
+    cpu_model,
+    csv_text,
+    machine_info,
+    machine_line,
+    markdown_table,
+)
 from slipsense.experiments.training import inference_rate, score, train_model, train_seconds
 from slipsense.experiments.params import run_params
 from slipsense.experiments.video_compare import run_video_compare
@@ -37,11 +43,47 @@ from slipsense.experiments.results import BENCH_SCRIPTS, REQUIREMENTS, collect_r
 from slipsense.experiments.results import _data_line  # noqa: F401  (tests reach it as slipsense.experiments._data_line)
 
 __all__ = [
-    "BENCH_SCRIPTS", "DEFAULT_FRAMES_LIST", "DEFAULT_HORIZONS", "DEFAULT_NOISE_STDS", "EXPERIMENTS", "FPS",
-    "FULL_PATCH", "FULL_SIZE", "QUICK_PATCH", "QUICK_SIM_SEQUENCES", "QUICK_SIZE", "REQUIREMENTS", "SIM_SEQUENCES",
-    "TITLES", "DataSource", "Report", "Settings", "clip_spec", "collect_results", "command_lines", "cpu_description",
-    "cpu_model", "csv_text", "default_overrides", "find_reports", "held_out_objects", "inference_rate",
-    "machine_info", "machine_line", "markdown_table", "match_windows", "object_split", "run_all_models",
-    "run_frames", "run_horizon", "run_noise", "run_params", "run_stnet", "run_video_compare", "score",
-    "simulated_markers", "train_model", "train_seconds",
+    "BENCH_SCRIPTS",
+    "DEFAULT_FRAMES_LIST",
+    "DEFAULT_HORIZONS",
+    "DEFAULT_NOISE_STDS",
+    "EXPERIMENTS",
+    "FPS",
+    "FULL_PATCH",
+    "FULL_SIZE",
+    "QUICK_PATCH",
+    "QUICK_SIM_SEQUENCES",
+    "QUICK_SIZE",
+    "REQUIREMENTS",
+    "SIM_SEQUENCES",
+    "TITLES",
+    "DataSource",
+    "Report",
+    "Settings",
+    "clip_spec",
+    "collect_results",
+    "command_lines",
+    "cpu_description",
+    "cpu_model",
+    "csv_text",
+    "default_overrides",
+    "find_reports",
+    "held_out_objects",
+    "inference_rate",
+    "machine_info",
+    "machine_line",
+    "markdown_table",
+    "match_windows",
+    "object_split",
+    "run_all_models",
+    "run_frames",
+    "run_horizon",
+    "run_noise",
+    "run_params",
+    "run_stnet",
+    "run_video_compare",
+    "score",
+    "simulated_markers",
+    "train_model",
+    "train_seconds",
 ]

@@ -1,5 +1,6 @@
 """Experiment ``horizon`` (beyond the papers): ViViT trained and scored on held-out objects with slip
 clips ending 0, 2, 5, 10 frames before the moment of slip."""
+
 from __future__ import annotations
 
 from dataclasses import asdict
@@ -28,17 +29,34 @@ def run_horizon(settings: Settings, source=None, horizons: Sequence[int] = DEFAU
         size = tuple(clips.x.shape[2:4])
         del clips
         rep.config["clip_specs"][str(h)] = asdict(spec)
-        model, history = train_model("vivit", f"horizon{h}", train, settings, rep,
-                                     {"frames": spec.frames, "image_size": size},
-                                     info=video_info(source, spec, present))
+        model, history = train_model(
+            "vivit",
+            f"horizon{h}",
+            train,
+            settings,
+            rep,
+            {"frames": spec.frames, "image_size": size},
+            info=video_info(source, spec, present),
+        )
         m = score(model, test)
-        rows.append({"horizon_frames": int(h), "horizon_ms": 1000 * h / FPS, **{k: m[k] for k in metric_cols()},
-                     "n_train": len(tr), "n_test": m["n_clips"], "n_test_slip": m["n_slip"],
-                     "heldout_objects": len(present), "train_seconds": train_seconds(history)})
+        rows.append(
+            {
+                "horizon_frames": int(h),
+                "horizon_ms": 1000 * h / FPS,
+                **{k: m[k] for k in metric_cols()},
+                "n_train": len(tr),
+                "n_test": m["n_clips"],
+                "n_test_slip": m["n_slip"],
+                "heldout_objects": len(present),
+                "train_seconds": train_seconds(history),
+            }
+        )
         del model, train, test
-    rep.notes.append("A slip clip ends `horizon` frames before the frame preceding the moment of slip (25 frames/s); "
-                     "wiggle clips are the same at every horizon. Videos whose slip comes too early for the "
-                     "horizon give no slip clip, so n_test_slip can shrink.")
+    rep.notes.append(
+        "A slip clip ends `horizon` frames before the frame preceding the moment of slip (25 frames/s); "
+        "wiggle clips are the same at every horizon. Videos whose slip comes too early for the "
+        "horizon give no slip clip, so n_test_slip can shrink."
+    )
     rep.notes.append(f"Held-out objects: {', '.join(test_objects)}.")
 
     def figure(plt):
@@ -52,8 +70,15 @@ def run_horizon(settings: Settings, source=None, horizons: Sequence[int] = DEFAU
         ax.legend()
         return fig
 
-    cols = ["horizon_frames", "horizon_ms", *metric_cols(), "n_train", "n_test", "n_test_slip", "heldout_objects",
-            "train_seconds"]
+    cols = [
+        "horizon_frames",
+        "horizon_ms",
+        *metric_cols(),
+        "n_train",
+        "n_test",
+        "n_test_slip",
+        "heldout_objects",
+        "train_seconds",
+    ]
     paths = rep.write(rows, cols, figure, models_in_setting=("vivit",))
     return {"rows": rows, "paths": paths}
-

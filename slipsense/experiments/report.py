@@ -4,6 +4,7 @@ Every experiment writes into its folder ``OUT``: ``<name>.csv``, ``<name>.md``, 
 last, ``config.json`` (see :mod:`slipsense.experiments`); :func:`machine_info` is the machine part
 of ``config.json``, :func:`cpu_description` names the CPU in benchmark reports.
 """
+
 from __future__ import annotations
 
 import csv
@@ -28,12 +29,18 @@ from slipsense.experiments.settings import EXPERIMENTS, TITLES, Settings
 
 # =============================================================================== machine
 
+
 def _git_commit() -> dict[str, Any]:
     root = Path(__file__).resolve().parents[2]  # the checkout
     try:
         head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True, timeout=10)
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=root,
-                               capture_output=True, text=True, timeout=10)
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain", "--untracked-files=no"],
+            cwd=root,
+            capture_output=True,
+            text=True,
+            timeout=10,
+        )
         if head.returncode == 0:
             return {"commit": head.stdout.strip(), "modified": bool(dirty.stdout.strip())}
     except (OSError, subprocess.SubprocessError):
@@ -69,11 +76,20 @@ def machine_info(device: str = "auto") -> dict[str, Any]:
 
     resolved = device if device != "auto" else ("cuda" if torch.cuda.is_available() else "cpu")
     info: dict[str, Any] = {
-        "platform": platform.platform(), "machine": platform.machine(), "python": platform.python_version(),
-        "cpu_model": cpu_model(), "cpu_isa": torch.backends.cpu.get_cpu_capability(), "cpu_count": os.cpu_count(),
+        "platform": platform.platform(),
+        "machine": platform.machine(),
+        "python": platform.python_version(),
+        "cpu_model": cpu_model(),
+        "cpu_isa": torch.backends.cpu.get_cpu_capability(),
+        "cpu_count": os.cpu_count(),
         "cpus_usable": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
-        "torch": torch.__version__, "torch_threads": torch.get_num_threads(), "numpy": np.__version__,
-        "cuda_available": torch.cuda.is_available(), "device": resolved, "slipsense": __version__, **_git_commit(),
+        "torch": torch.__version__,
+        "torch_threads": torch.get_num_threads(),
+        "numpy": np.__version__,
+        "cuda_available": torch.cuda.is_available(),
+        "device": resolved,
+        "slipsense": __version__,
+        **_git_commit(),
     }
     if resolved.startswith("cuda") and torch.cuda.is_available():
         info["gpu"] = torch.cuda.get_device_name(torch.device(resolved))
@@ -93,6 +109,7 @@ def machine_line(m: dict[str, Any]) -> str:
 
 
 # =============================================================================== files
+
 
 def _fmt(v: Any) -> str:
     if v is None or (isinstance(v, float) and math.isnan(v)):
@@ -161,15 +178,24 @@ class Report:
     def add_model(self, label: str, model, train_cfg=None, **extra) -> None:
         from slipsense.models import count_parameters
 
-        entry = {"model": model.model_name, "model_config": model.config(),
-                 "parameters": count_parameters(model), **extra}
+        entry = {
+            "model": model.model_name,
+            "model_config": model.config(),
+            "parameters": count_parameters(model),
+            **extra,
+        }
         if train_cfg is not None:
             entry["train"] = asdict(train_cfg)
         self.models[label] = entry
 
-    def write(self, rows: list[dict[str, Any]], columns: Sequence[str], figure: Callable[[Any], Any],
-              extra_tables: dict[str, tuple[list[dict[str, Any]], Sequence[str]]] | None = None,
-              models_in_setting: Iterable[str] = ()) -> dict[str, Path]:
+    def write(
+        self,
+        rows: list[dict[str, Any]],
+        columns: Sequence[str],
+        figure: Callable[[Any], Any],
+        extra_tables: dict[str, tuple[list[dict[str, Any]], Sequence[str]]] | None = None,
+        models_in_setting: Iterable[str] = (),
+    ) -> dict[str, Path]:
         """Write ``<name>.csv``, ``<name>.png``, ``<name>.md`` and, last, ``config.json``."""
         from slipsense.plots import _plt, save_figure
 
@@ -177,8 +203,12 @@ class Report:
         setting_line = s.describe(models_in_setting)
         rows = [{**r, "setting": s.setting} for r in rows]
         columns = [*columns, "setting"]
-        paths = {"csv": self.out / f"{self.name}.csv", "md": self.out / f"{self.name}.md",
-                 "png": self.out / f"{self.name}.png", "config": self.out / "config.json"}
+        paths = {
+            "csv": self.out / f"{self.name}.csv",
+            "md": self.out / f"{self.name}.md",
+            "png": self.out / f"{self.name}.png",
+            "config": self.out / "config.json",
+        }
         write_text(paths["csv"], csv_text(rows, columns))
         extra_files = {}
         for stem, (erows, ecols) in (extra_tables or {}).items():
@@ -194,24 +224,31 @@ class Report:
         fig.suptitle(f"{TITLES[self.name]}\n[{label}]", fontsize=10)
         save_figure(fig, paths["png"])
         md_cols = [c for c in columns if c != "setting"]
-        md = [f"# {TITLES[self.name]}", "", f"Setting: **{setting_line}**", "",
-              markdown_table(rows, md_cols), ""]
+        md = [f"# {TITLES[self.name]}", "", f"Setting: **{setting_line}**", "", markdown_table(rows, md_cols), ""]
         if self.notes:
             md += [*(f"* {n}" for n in self.notes), ""]
         md += [f"![{self.name}]({paths['png'].name})", ""]
         write_text(paths["md"], "\n".join(md))
         finished = datetime.now(timezone.utc)
         config = {
-            "experiment": self.name, "title": TITLES[self.name], "setting": s.setting, "setting_line": setting_line,
-            "command": s.command, "started": self.started.isoformat(timespec="seconds"),
+            "experiment": self.name,
+            "title": TITLES[self.name],
+            "setting": s.setting,
+            "setting_line": setting_line,
+            "command": s.command,
+            "started": self.started.isoformat(timespec="seconds"),
             "finished": finished.isoformat(timespec="seconds"),
             "seconds": round(time.perf_counter() - self.t0, 1),
             "seeds": {"seed": s.seed, "data_seed": s.data_seed},
-            "settings": s.to_json(), "data": self.data, "config": self.config, "models": self.models,
-            "notes": self.notes, "machine": machine_info(s.device),
-            "files": {k: p.name for k, p in paths.items() if k != "config"}, "extra_files": extra_files,
+            "settings": s.to_json(),
+            "data": self.data,
+            "config": self.config,
+            "models": self.models,
+            "notes": self.notes,
+            "machine": machine_info(s.device),
+            "files": {k: p.name for k, p in paths.items() if k != "config"},
+            "extra_files": extra_files,
             "columns": list(columns),
         }
         write_text(paths["config"], json.dumps(_jsonable(config), indent=2))
         return paths
-

@@ -2,6 +2,7 @@
 section per experiment (its command lines, what it needs, each report's table, figure, command and
 machine), then the early-warning replays, the benchmark reports (with the script that writes each)
 and the hand-written reports."""
+
 from __future__ import annotations
 
 import json
@@ -104,12 +105,15 @@ def _report_section(name: str, folder: Path, cfg: dict[str, Any], out: Path, hea
     body = [f"![{name}]({rel_png})" if ln.strip() == f"![{name}]({png.name})" else ln for ln in body]
     m = cfg.get("machine", {})
     lines = [f"### `{folder.name}`", ""] if heading else []
-    lines += [f"Report: [`{rel_dir}`]({rel_dir}) — finished {cfg.get('finished')}, took {cfg.get('seconds')} s  ",
-              f"Command: `{cfg.get('command') or '(called from Python)'}`  ",
-              f"Machine: {machine_line(m)}  ",
-              *([f"Data: {_data_line(cfg['data'])}  "] if cfg.get("data") else []),
-              f"Code: slipsense {m.get('slipsense')}, commit {m.get('commit')}"
-              + (" (with local modifications)" if m.get("modified") else ""), ""]
+    lines += [
+        f"Report: [`{rel_dir}`]({rel_dir}) — finished {cfg.get('finished')}, took {cfg.get('seconds')} s  ",
+        f"Command: `{cfg.get('command') or '(called from Python)'}`  ",
+        f"Machine: {machine_line(m)}  ",
+        *([f"Data: {_data_line(cfg['data'])}  "] if cfg.get("data") else []),
+        f"Code: slipsense {m.get('slipsense')}, commit {m.get('commit')}"
+        + (" (with local modifications)" if m.get("modified") else ""),
+        "",
+    ]
     return lines + [*body, ""]
 
 
@@ -137,8 +141,10 @@ def collect_results(reports: str | Path = "reports", out: str | Path = "docs/res
         "",
         "| # | experiment | full setting | quick setting | needs |",
         "|---|---|---|---|---|",
-        *(f"| {i} | {name} | `{command_lines(name)[0]}` | `{command_lines(name)[1]}` | {REQUIREMENTS[name]} |"
-          for i, name in enumerate(EXPERIMENTS, 1)),
+        *(
+            f"| {i} | {name} | `{command_lines(name)[0]}` | `{command_lines(name)[1]}` | {REQUIREMENTS[name]} |"
+            for i, name in enumerate(EXPERIMENTS, 1)
+        ),
         "",
         "Every command also takes `--epochs N`, `--size HxW` (`--patch HxW`), `--seed`, `--data-seed`, `--fold`, "
         "`--device`, `--resume` (continue interrupted training under `OUT/runs`) and `--help`. Then "
@@ -152,8 +158,12 @@ def collect_results(reports: str | Path = "reports", out: str | Path = "docs/res
             lines += ["**Not yet run** — no measurement yet.", "", f"Full: `{full}`  ", f"Quick: `{quick}`", ""]
             continue
         if len(found[name]) > 1:
-            lines += [f"{len(found[name])} reports (conditions), newest first: "
-                      + ", ".join(f"`{folder.name}`" for folder, _ in found[name]) + ".", ""]
+            lines += [
+                f"{len(found[name])} reports (conditions), newest first: "
+                + ", ".join(f"`{folder.name}`" for folder, _ in found[name])
+                + ".",
+                "",
+            ]
         for folder, cfg in found[name]:
             lines += _report_section(name, folder, cfg, out, heading=len(found[name]) > 1)
     lines += _live_and_speed_section(Path(reports), out)
@@ -164,8 +174,12 @@ def collect_results(reports: str | Path = "reports", out: str | Path = "docs/res
 
 
 #: benchmark report name prefix -> the script that writes it
-BENCH_SCRIPTS = {"vivit": "bench/bench_vivit.py", "stnet": "bench/bench_stnet.py", "stream": "bench/bench_stream.py",
-                 "data": "bench/bench_data.py"}
+BENCH_SCRIPTS = {
+    "vivit": "bench/bench_vivit.py",
+    "stnet": "bench/bench_stnet.py",
+    "stream": "bench/bench_stream.py",
+    "data": "bench/bench_data.py",
+}
 
 
 def _live_and_speed_section(reports: Path, out: Path) -> list[str]:
@@ -175,24 +189,36 @@ def _live_and_speed_section(reports: Path, out: Path) -> list[str]:
     warnings = sorted(p.parent for p in reports.rglob("early_warning.json"))
     bench = sorted(p for p in reports.rglob("*.md") if "bench" in p.relative_to(reports).parts)
     if not warnings and not bench:
-        return lines + ["No early-warning replay or benchmark report yet: `slipsense early-warning --checkpoint CKPT --recordings DIR --out "
-                        "reports/early-warning` and `python bench/bench_*.py --out reports/bench/MACHINE/NAME.md`.", ""]
+        return lines + [
+            "No early-warning replay or benchmark report yet: `slipsense early-warning --checkpoint CKPT --recordings DIR --out "
+            "reports/early-warning` and `python bench/bench_*.py --out reports/bench/MACHINE/NAME.md`.",
+            "",
+        ]
     for folder in warnings:
         try:
             meta = json.loads((folder / "early_warning.json").read_text())
         except (OSError, json.JSONDecodeError, UnicodeDecodeError):
             continue
         rel = Path(os.path.relpath(folder, out.parent)).as_posix()
-        lines += [f"### Early warning: `{folder.name}`", "",
-                  f"Model `{Path(str(meta.get('checkpoint', '?'))).name}` ({meta.get('model', '?')}) replayed through the "
-                  f"streaming detector on recordings `{Path(str(meta.get('recordings', '?'))).name}` "
-                  f"(`slipsense early-warning`); table: [`early_warning.csv`]({rel}/early_warning.csv).", ""]
+        lines += [
+            f"### Early warning: `{folder.name}`",
+            "",
+            f"Model `{Path(str(meta.get('checkpoint', '?'))).name}` ({meta.get('model', '?')}) replayed through the "
+            f"streaming detector on recordings `{Path(str(meta.get('recordings', '?'))).name}` "
+            f"(`slipsense early-warning`); table: [`early_warning.csv`]({rel}/early_warning.csv).",
+            "",
+        ]
         lines += [f"![early warning]({rel}/{png.name})" for png in sorted(folder.glob("*.png"))] + [""]
     if bench:
-        lines += ["### Benchmarks", "",
-                  "Written by the scripts in `bench/` with `--out`; the folder names the CPU's vector instruction set "
-                  "(timings differ between machines of one model name with and without AVX-512).", "",
-                  "| report | script |", "|---|---|"]
+        lines += [
+            "### Benchmarks",
+            "",
+            "Written by the scripts in `bench/` with `--out`; the folder names the CPU's vector instruction set "
+            "(timings differ between machines of one model name with and without AVX-512).",
+            "",
+            "| report | script |",
+            "|---|---|",
+        ]
         for md in bench:
             rel = Path(os.path.relpath(md, out.parent)).as_posix()
             script = BENCH_SCRIPTS.get(md.stem.split("-")[0], "bench/")
@@ -207,7 +233,12 @@ def _written_reports_section(reports: Path, out: Path) -> list[str]:
     readmes = sorted(p for p in reports.rglob("README.md") if "bench" not in p.relative_to(reports).parts)
     if not readmes:
         return []
-    lines = ["## Other measurements", "", "Reports that run a few commands by hand (each names its commands and machine):", ""]
+    lines = [
+        "## Other measurements",
+        "",
+        "Reports that run a few commands by hand (each names its commands and machine):",
+        "",
+    ]
     for md in readmes:
         try:
             first = md.read_text(encoding="utf-8").splitlines()[0].lstrip("# ").strip()
@@ -216,4 +247,3 @@ def _written_reports_section(reports: Path, out: Path) -> list[str]:
         rel = Path(os.path.relpath(md, out.parent)).as_posix()
         lines.append(f"- [{first or md.parent.name}]({rel}) (`{md.parent.relative_to(reports).as_posix()}`)")
     return lines + [""]
-

@@ -11,6 +11,7 @@ per-model ``train_overrides``/``model_overrides``) override either; any override
 ``seed`` seeds model initialisation, batch order and augmentation; ``data_seed`` the object folds,
 the wiggle windows and the random clip split (see :mod:`slipsense.experiments.source`).
 """
+
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field

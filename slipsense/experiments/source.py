@@ -13,6 +13,7 @@ selected on held-out data).
 Data come from a :class:`DataSource`; tests hand in an in-memory one (any object with ``objects``,
 ``clips``, ``markers`` and optionally ``describe``).
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -37,6 +38,7 @@ def default_overrides() -> Path | None:
 
 # =============================================================================== data
 
+
 class DataSource:
     """GelSight recordings -> clips, objects and real marker sequences (the experiments' only data door).
 
@@ -46,8 +48,13 @@ class DataSource:
         on_error: ``raise`` or ``skip`` bad videos and runs that cannot be labelled (as ``slipsense train``).
     """
 
-    def __init__(self, recordings: str | Path | None = None, overrides: str | Path | None = "default",
-                 on_error: str = "raise", progress: bool = True):
+    def __init__(
+        self,
+        recordings: str | Path | None = None,
+        overrides: str | Path | None = "default",
+        on_error: str = "raise",
+        progress: bool = True,
+    ):
         from slipsense.config import gelsight_recordings
 
         self.root = Path(recordings) if recordings is not None else gelsight_recordings()
@@ -60,8 +67,11 @@ class DataSource:
     def describe(self) -> dict[str, Any]:
         from slipsense.config import portable_path
 
-        return {"recordings": portable_path(self.root), "overrides": portable_path(self.overrides) if self.overrides else None,
-                "on_error": self.on_error}
+        return {
+            "recordings": portable_path(self.root),
+            "overrides": portable_path(self.overrides) if self.overrides else None,
+            "on_error": self.on_error,
+        }
 
     def recordings(self):
         """The validated recordings (listed once)."""
@@ -89,8 +99,7 @@ class DataSource:
         for r in self.recordings():
             known.setdefault((r.object, r.experiment), []).append(r.camera)
         rows = read_overrides_csv(self.overrides)
-        return {k: v for k, v in rows.items()
-                if k[:2] in known and (k[2] is None or k[2] in known[k[:2]])} or None
+        return {k: v for k, v in rows.items() if k[:2] in known and (k[2] is None or k[2] in known[k[:2]])} or None
 
     def labels(self):
         """``{key: VideoLabel}`` of the recordings, labelled as ``slipsense train`` labels them
@@ -99,8 +108,9 @@ class DataSource:
         if self._labels is None:
             from slipsense.data import label_runs
 
-            self._labels = label_runs(self.recordings(), overrides=self.label_overrides(), on_error=self.on_error,
-                                      progress=self.progress)
+            self._labels = label_runs(
+                self.recordings(), overrides=self.label_overrides(), on_error=self.on_error, progress=self.progress
+            )
         return self._labels
 
     def clips(self, spec):
@@ -120,19 +130,31 @@ class DataSource:
 
         return sorted({lab.object for lab in self.labels().values() if plan_windows(lab, spec)})
 
-    def markers(self, frames: int, n_markers: int, horizon: int = 0, wiggle_per_video: int = 2,
-                seed: int = 0) -> dict[str, np.ndarray]:
+    def markers(
+        self, frames: int, n_markers: int, horizon: int = 0, wiggle_per_video: int = 2, seed: int = 0
+    ) -> dict[str, np.ndarray]:
         """Real marker windows (:func:`slipsense.sensors.real.real_marker_dataset`), minus the videos
         whose labels the overrides replace (the marker pipeline labels automatically)."""
         from slipsense.sensors.real import real_marker_dataset
 
-        arrays = real_marker_dataset(self.root, frames=frames, n_markers=n_markers, horizon=horizon,
-                                     wiggle_per_video=wiggle_per_video, seed=seed, on_error=self.on_error,
-                                     progress=self.progress)
+        arrays = real_marker_dataset(
+            self.root,
+            frames=frames,
+            n_markers=n_markers,
+            horizon=horizon,
+            wiggle_per_video=wiggle_per_video,
+            seed=seed,
+            on_error=self.on_error,
+            progress=self.progress,
+        )
         if self.overrides is not None:
             replaced = {k for k, lab in self.labels().items() if lab.source == "override"}
-            keep = np.array([(str(g), int(e), str(c)) not in replaced
-                             for g, e, c in zip(arrays["groups"], arrays["experiment"], arrays["camera"])])
+            keep = np.array(
+                [
+                    (str(g), int(e), str(c)) not in replaced
+                    for g, e, c in zip(arrays["groups"], arrays["experiment"], arrays["camera"])
+                ]
+            )
             arrays = {k: v[keep] for k, v in arrays.items()}
         return arrays
 
@@ -140,8 +162,13 @@ class DataSource:
 def clip_spec(settings: Settings, frames: int = 5, horizon: int = 0, size: tuple[int, int] | None = None):
     from slipsense.recordings.clips import ClipSpec
 
-    return ClipSpec(frames=frames, horizon=horizon, wiggle_per_video=settings.wiggle_per_video,
-                    size=size or settings.video_size, seed=settings.data_seed)
+    return ClipSpec(
+        frames=frames,
+        horizon=horizon,
+        wiggle_per_video=settings.wiggle_per_video,
+        size=size or settings.video_size,
+        seed=settings.data_seed,
+    )
 
 
 def held_out_objects(source, settings: Settings) -> list[str]:
@@ -171,4 +198,3 @@ def object_split(clips, test_objects: Sequence[str]) -> tuple[np.ndarray, np.nda
     if len(tr) == 0:
         raise ConfigError("no training clips left after holding objects out")
     return tr, te, present
-

@@ -1,5 +1,6 @@
 """Experiment ``stnet`` (STNet paper, Table II and Fig. 7): STNet vs TemNet on simulated marker
 sequences (split by sequence) and on real tracked GelSight markers (held-out objects)."""
+
 from __future__ import annotations
 
 from typing import Any, Sequence
@@ -17,8 +18,12 @@ SIM_SEQUENCES = 4
 QUICK_SIM_SEQUENCES = 2
 
 
-def simulated_markers(settings: Settings, sequences: int | None = None, overrides: dict[str, Any] | None = None,
-                      test_fraction: float = 0.2):
+def simulated_markers(
+    settings: Settings,
+    sequences: int | None = None,
+    overrides: dict[str, Any] | None = None,
+    test_fraction: float = 0.2,
+):
     """Simulated marker windows and a split by sequence: ``test_fraction`` of the sequences of each
     motion pattern are held out (all windows of a sequence on one side; every pattern on both)."""
     from slipsense.sensors.simulator import SimConfig, make_dataset
@@ -35,14 +40,26 @@ def simulated_markers(settings: Settings, sequences: int | None = None, override
         k = min(max(k, 1), len(members) - 1) if len(members) >= 2 else 0
         test_groups += rng.permutation(members)[:k].tolist()
     is_test = np.isin(groups, test_groups)
-    sim_info = {"n_sequences": n, "seed": settings.data_seed, "test_fraction": test_fraction,
-                "n_test_sequences": len(test_groups), **(overrides or {})}
+    sim_info = {
+        "n_sequences": n,
+        "seed": settings.data_seed,
+        "test_fraction": test_fraction,
+        "n_test_sequences": len(test_groups),
+        **(overrides or {}),
+    }
     return ds.x, ds.y, np.flatnonzero(~is_test), np.flatnonzero(is_test), sim_info
 
 
-def run_stnet(settings: Settings, source=None, data: Sequence[str] = ("sim", "real"), preset: str = "compact",
-              sim_sequences: int | None = None, sim_overrides: dict[str, Any] | None = None,
-              n_markers: int = 32, frames: int = 12) -> dict[str, Any]:
+def run_stnet(
+    settings: Settings,
+    source=None,
+    data: Sequence[str] = ("sim", "real"),
+    preset: str = "compact",
+    sim_sequences: int | None = None,
+    sim_overrides: dict[str, Any] | None = None,
+    n_markers: int = 32,
+    frames: int = 12,
+) -> dict[str, Any]:
     """STNet vs TemNet (``preset``): precision/recall/F1 and per-epoch accuracy/loss, on simulated
     sequences (split by sequence) and on real marker sequences (held-out objects)."""
     from slipsense.datasets import MarkerDataset
@@ -62,11 +79,18 @@ def run_stnet(settings: Settings, source=None, data: Sequence[str] = ("sim", "re
         if kind == "sim":
             x, y, tr, te, sim_info = simulated_markers(settings, sim_sequences, sim_overrides)
             rep.config["simulation"] = sim_info
-            split_note = "20 % of the simulated sequences of each motion pattern (all windows of a sequence on one side)"
+            split_note = (
+                "20 % of the simulated sequences of each motion pattern (all windows of a sequence on one side)"
+            )
         else:
             test_objects = held_out_objects(source, settings)
-            arrays = source.markers(frames=frames, n_markers=n_markers, horizon=0,
-                                    wiggle_per_video=settings.wiggle_per_video, seed=settings.data_seed)
+            arrays = source.markers(
+                frames=frames,
+                n_markers=n_markers,
+                horizon=0,
+                wiggle_per_video=settings.wiggle_per_video,
+                seed=settings.data_seed,
+            )
             x, y, groups = arrays["x"], arrays["y"], np.asarray(arrays["groups"]).astype(str)
             is_test = np.isin(groups, test_objects)
             tr, te = np.flatnonzero(~is_test), np.flatnonzero(is_test)
@@ -79,26 +103,60 @@ def run_stnet(settings: Settings, source=None, data: Sequence[str] = ("sim", "re
         train, test = MarkerDataset(x[tr], y[tr]), MarkerDataset(x[te], y[te])
         data_config = {"frames": int(x.shape[1]), "markers": int(x.shape[2])}
         for name in ("stnet", "temnet"):
-            model, history = train_model(name, f"{kind}-{name}", train, settings, rep, data_config, val_data=test,
-                                         preset=preset, info={"data": kind})
+            model, history = train_model(
+                name,
+                f"{kind}-{name}",
+                train,
+                settings,
+                rep,
+                data_config,
+                val_data=test,
+                preset=preset,
+                info={"data": kind},
+            )
             m = score(model, test)
-            rows.append({"data": "simulated" if kind == "sim" else "real", "model": name, "preset": preset,
-                         "parameters": rep.models[f"{kind}-{name}"]["parameters"], "epochs": len(history),
-                         "precision": m["precision"], "recall": m["recall"], "f1": m["f1"], "accuracy": m["accuracy"],
-                         "loss": m["loss"], "n_train": len(tr), "n_test": m["n_clips"], "n_test_slip": m["n_slip"],
-                         "train_seconds": train_seconds(history)})
+            rows.append(
+                {
+                    "data": "simulated" if kind == "sim" else "real",
+                    "model": name,
+                    "preset": preset,
+                    "parameters": rep.models[f"{kind}-{name}"]["parameters"],
+                    "epochs": len(history),
+                    "precision": m["precision"],
+                    "recall": m["recall"],
+                    "f1": m["f1"],
+                    "accuracy": m["accuracy"],
+                    "loss": m["loss"],
+                    "n_train": len(tr),
+                    "n_test": m["n_clips"],
+                    "n_test_slip": m["n_slip"],
+                    "train_seconds": train_seconds(history),
+                }
+            )
             for r in history:
-                curves.append({"data": rows[-1]["data"], "model": name, "epoch": r["epoch"],
-                               "train_loss": r["train_loss"], "train_accuracy": r["train_accuracy"],
-                               "test_loss": r.get("val_loss"), "test_accuracy": r.get("val_accuracy")})
+                curves.append(
+                    {
+                        "data": rows[-1]["data"],
+                        "model": name,
+                        "epoch": r["epoch"],
+                        "train_loss": r["train_loss"],
+                        "train_accuracy": r["train_accuracy"],
+                        "test_loss": r.get("val_loss"),
+                        "test_accuracy": r.get("val_accuracy"),
+                    }
+                )
             del model
         del x, y
-    rep.notes.append(f"Preset: {preset} ({'the paper-size network' if preset.startswith('paper') else 'not the paper size; --preset paper for it'}); "
-                     f"training settings: the STNet paper's (Adam, lr 1e-5, batch 64) unless overridden.")
+    rep.notes.append(
+        f"Preset: {preset} ({'the paper-size network' if preset.startswith('paper') else 'not the paper size; --preset paper for it'}); "
+        f"training settings: the STNet paper's (Adam, lr 1e-5, batch 64) unless overridden."
+    )
     if "real" in data:
-        rep.notes.append(f"Real data: {n_markers} tracked GelSight markers per frame (x, y in mm, intensity depth "
-                         f"proxy), {frames}-frame windows cut like the video clips; the paper's sensor has 552 "
-                         f"markers with stereo depth.")
+        rep.notes.append(
+            f"Real data: {n_markers} tracked GelSight markers per frame (x, y in mm, intensity depth "
+            f"proxy), {frames}-frame windows cut like the video clips; the paper's sensor has 552 "
+            f"markers with stereo depth."
+        )
 
     def figure(plt):
         fig, axes = plt.subplots(len(data), 2, figsize=(11, 3.6 * len(data)), squeeze=False)
@@ -108,19 +166,37 @@ def run_stnet(settings: Settings, source=None, data: Sequence[str] = ("sim", "re
                 ax = axes[i, j]
                 for name, color in (("stnet", "tab:blue"), ("temnet", "tab:orange")):
                     cs = [c for c in curves if c["data"] == dname and c["model"] == name]
-                    ax.plot([c["epoch"] for c in cs], [c[f"train_{key}"] for c in cs], color=color, ls="--",
-                            label=f"{name} train")
-                    ax.plot([c["epoch"] for c in cs], [c[f"test_{key}"] for c in cs], color=color,
-                            label=f"{name} test")
+                    ax.plot(
+                        [c["epoch"] for c in cs],
+                        [c[f"train_{key}"] for c in cs],
+                        color=color,
+                        ls="--",
+                        label=f"{name} train",
+                    )
+                    ax.plot([c["epoch"] for c in cs], [c[f"test_{key}"] for c in cs], color=color, label=f"{name} test")
                 ax.set_title(f"{dname}: {key}")
                 epoch_axis(ax)
                 ax.legend(fontsize=8)
         return fig
 
-    cols = ["data", "model", "preset", "parameters", "epochs", "precision", "recall", "f1", "accuracy", "loss",
-            "n_train", "n_test", "n_test_slip", "train_seconds"]
+    cols = [
+        "data",
+        "model",
+        "preset",
+        "parameters",
+        "epochs",
+        "precision",
+        "recall",
+        "f1",
+        "accuracy",
+        "loss",
+        "n_train",
+        "n_test",
+        "n_test_slip",
+        "train_seconds",
+    ]
     curve_cols = ["data", "model", "epoch", "train_loss", "train_accuracy", "test_loss", "test_accuracy"]
-    paths = rep.write(rows, cols, figure, extra_tables={"curves": (curves, curve_cols)},
-                      models_in_setting=("stnet", "temnet"))
+    paths = rep.write(
+        rows, cols, figure, extra_tables={"curves": (curves, curve_cols)}, models_in_setting=("stnet", "temnet")
+    )
     return {"rows": rows, "curves": curves, "paths": paths}
-

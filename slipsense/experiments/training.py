@@ -2,6 +2,7 @@
 (:func:`train_model`), score it (:func:`score`), time it (:func:`inference_rate`), plus the clip
 datasets, checkpoint info and plot axes every video experiment uses.
 """
+
 from __future__ import annotations
 
 import time
@@ -38,9 +39,19 @@ def _accepted(name: str, data_config: dict[str, Any]) -> dict[str, Any]:
     return {k: v for k, v in data_config.items() if k in params}
 
 
-def train_model(name: str, label: str, train_data, settings: Settings, report: Report, data_config: dict[str, Any],
-                val_data=None, extra_eval: dict[str, Any] | None = None, preset: str | None = None,
-                info: dict[str, Any] | None = None, before_fit: Callable[[Any], None] | None = None):
+def train_model(
+    name: str,
+    label: str,
+    train_data,
+    settings: Settings,
+    report: Report,
+    data_config: dict[str, Any],
+    val_data=None,
+    extra_eval: dict[str, Any] | None = None,
+    preset: str | None = None,
+    info: dict[str, Any] | None = None,
+    before_fit: Callable[[Any], None] | None = None,
+):
     """Build (seeded) and train one model into ``OUT/runs/<label>``; returns ``(model, history)``."""
     from slipsense.train import build_model, fit, seed_everything
 
@@ -50,10 +61,19 @@ def train_model(name: str, label: str, train_data, settings: Settings, report: R
     if before_fit is not None:
         before_fit(model)
     run_dir = settings.out / "runs" / label
-    history = fit(model, train_data, val_data, cfg, run_dir, info={"experiment": report.name, **(info or {})},
-                  resume=settings.resume, extra_eval=extra_eval)
-    report.add_model(label, model, cfg, preset=preset, run=str(run_dir),
-                     train_seconds=sum(r["seconds"] for r in history))
+    history = fit(
+        model,
+        train_data,
+        val_data,
+        cfg,
+        run_dir,
+        info={"experiment": report.name, **(info or {})},
+        resume=settings.resume,
+        extra_eval=extra_eval,
+    )
+    report.add_model(
+        label, model, cfg, preset=preset, run=str(run_dir), train_seconds=sum(r["seconds"] for r in history)
+    )
     return model, history
 
 
@@ -88,8 +108,14 @@ def inference_rate(model, data, n: int = 50, warmup: int = 3, max_seconds: float
                 break
         sync()
         dt = time.perf_counter() - t0
-    return {"clips_per_s": done / dt if dt > 0 else float("inf"), "ms_per_clip": 1000 * dt / done,
-            "timed_clips": done, "batch": 1, "threads": torch.get_num_threads(), "device": str(device)}
+    return {
+        "clips_per_s": done / dt if dt > 0 else float("inf"),
+        "ms_per_clip": 1000 * dt / done,
+        "timed_clips": done,
+        "batch": 1,
+        "threads": torch.get_num_threads(),
+        "device": str(device),
+    }
 
 
 def clip_datasets(clips, tr, te, settings: Settings):
@@ -104,8 +130,16 @@ def clip_datasets(clips, tr, te, settings: Settings):
 def video_info(source, spec, test_objects: Sequence[str], **extra) -> dict[str, Any]:
     """Checkpoint info for a video run: clip settings and held-out objects (as ``slipsense train`` stores)."""
     described = source.describe() if hasattr(source, "describe") else {}
-    return {"data": {"kind": "video", "clip_spec": asdict(spec), "split": "objects", "test_objects": list(test_objects),
-                     **described}, **extra}
+    return {
+        "data": {
+            "kind": "video",
+            "clip_spec": asdict(spec),
+            "split": "objects",
+            "test_objects": list(test_objects),
+            **described,
+        },
+        **extra,
+    }
 
 
 def epoch_axis(ax) -> None:
@@ -118,4 +152,3 @@ def epoch_axis(ax) -> None:
 
 def metric_cols() -> list[str]:
     return ["accuracy", "precision", "recall", "f1"]
-

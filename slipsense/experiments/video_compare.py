@@ -1,5 +1,6 @@
 """Experiment ``video-compare`` (ViViT paper, III-B): ViViT vs 3D ResNet-50 on held-out objects —
 parameters, training time, batch-1 inference rate and held-out scores."""
+
 from __future__ import annotations
 
 from dataclasses import asdict
@@ -12,12 +13,20 @@ from slipsense.errors import InputError
 from slipsense.experiments.report import Report
 from slipsense.experiments.settings import Settings
 from slipsense.experiments.source import DataSource, clip_spec, held_out_objects, object_split
-from slipsense.experiments.training import (clip_datasets, inference_rate, metric_cols, score, train_model,
-                                            train_seconds, video_info)
+from slipsense.experiments.training import (
+    clip_datasets,
+    inference_rate,
+    metric_cols,
+    score,
+    train_model,
+    train_seconds,
+    video_info,
+)
 
 
-def run_video_compare(settings: Settings, source=None, resnet_weights: str | Path | None = None,
-                      inference_clips: int = 50) -> dict[str, Any]:
+def run_video_compare(
+    settings: Settings, source=None, resnet_weights: str | Path | None = None, inference_clips: int = 50
+) -> dict[str, Any]:
     """ViViT vs 3D ResNet-50 (from scratch, or from ``resnet_weights``) trained on the training
     objects, scored on the held-out objects: parameters, training time, batch-1 inference rate,
     accuracy/precision/recall/F1."""
@@ -30,33 +39,60 @@ def run_video_compare(settings: Settings, source=None, resnet_weights: str | Pat
     train, test = clip_datasets(clips, tr, te, settings)
     size = tuple(clips.x.shape[2:4])
     del clips
-    rep.config.update(clip_spec=asdict(spec), test_objects=present, n_train_clips=len(tr), n_test_clips=len(te),
-                      n_train_items=len(train), resnet_weights=str(resnet_weights) if resnet_weights else None,
-                      inference_clips=inference_clips)
+    rep.config.update(
+        clip_spec=asdict(spec),
+        test_objects=present,
+        n_train_clips=len(tr),
+        n_test_clips=len(te),
+        n_train_items=len(train),
+        resnet_weights=str(resnet_weights) if resnet_weights else None,
+        inference_clips=inference_clips,
+    )
     rows = []
     histories = {}
     for name in ("vivit", "resnet3d50"):
         before = None
         if name == "resnet3d50" and resnet_weights is not None:
+
             def before(model, path=Path(resnet_weights)):
                 try:
                     model.load_weights(path)
                 except InputError:
                     model.load_weights(path, skip_head=True)  # e.g. Kinetics-400 weights: keep a 2-class head
-        model, history = train_model(name, name, train, settings, rep, {"frames": spec.frames, "image_size": size},
-                                     before_fit=before, info=video_info(source, spec, present))
+
+        model, history = train_model(
+            name,
+            name,
+            train,
+            settings,
+            rep,
+            {"frames": spec.frames, "image_size": size},
+            before_fit=before,
+            info=video_info(source, spec, present),
+        )
         histories[name] = history
         m = score(model, test)
         rate = inference_rate(model, test, n=inference_clips)
         rep.models[name]["inference"] = rate
-        rows.append({"model": name, "parameters": rep.models[name]["parameters"], "epochs": len(history),
-                     "train_seconds": train_seconds(history), "inference_clips_per_s": rate["clips_per_s"],
-                     **{k: m[k] for k in metric_cols()}, "n_test": m["n_clips"], "n_test_slip": m["n_slip"],
-                     "initialisation": ("user weights" if name == "resnet3d50" and resnet_weights else "random")})
+        rows.append(
+            {
+                "model": name,
+                "parameters": rep.models[name]["parameters"],
+                "epochs": len(history),
+                "train_seconds": train_seconds(history),
+                "inference_clips_per_s": rate["clips_per_s"],
+                **{k: m[k] for k in metric_cols()},
+                "n_test": m["n_clips"],
+                "n_test_slip": m["n_slip"],
+                "initialisation": ("user weights" if name == "resnet3d50" and resnet_weights else "random"),
+            }
+        )
         del model
     rep.notes.append(f"Held-out objects (fold {settings.fold} of {settings.folds}): {', '.join(present)}.")
-    rep.notes.append("3D ResNet-50 is trained from scratch unless --resnet-weights is given (no pretrained video "
-                     "weights are available here).")
+    rep.notes.append(
+        "3D ResNet-50 is trained from scratch unless --resnet-weights is given (no pretrained video "
+        "weights are available here)."
+    )
     rep.notes.append("Inference rate: clips per second at batch 1 with the trained model, inputs already in memory.")
 
     def figure(plt):
@@ -80,9 +116,18 @@ def run_video_compare(settings: Settings, source=None, resnet_weights: str | Pat
 
     curves = [{"model": n, **r} for n, h in histories.items() for r in h]
     curve_cols = ["model", "epoch", "lr", "train_loss", "train_accuracy", "seconds"]
-    cols = ["model", "parameters", "epochs", "train_seconds", "inference_clips_per_s", *metric_cols(),
-            "n_test", "n_test_slip", "initialisation"]
-    paths = rep.write(rows, cols, figure, extra_tables={"curves": (curves, curve_cols)},
-                      models_in_setting=("vivit", "resnet3d50"))
+    cols = [
+        "model",
+        "parameters",
+        "epochs",
+        "train_seconds",
+        "inference_clips_per_s",
+        *metric_cols(),
+        "n_test",
+        "n_test_slip",
+        "initialisation",
+    ]
+    paths = rep.write(
+        rows, cols, figure, extra_tables={"curves": (curves, curve_cols)}, models_in_setting=("vivit", "resnet3d50")
+    )
     return {"rows": rows, "paths": paths}
-

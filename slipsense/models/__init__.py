@@ -9,6 +9,7 @@ Every model subclasses a kind of :mod:`slipsense.models.base` (``VideoModel``, `
 ``forward(x)`` -> logits with class 1 = slip, and optionally its streaming parts, ONNX form,
 attention heat map and reduced precision. Nothing outside this package names a model.
 """
+
 from __future__ import annotations
 
 import importlib

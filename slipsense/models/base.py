@@ -23,6 +23,7 @@ Optional hooks, with defaults that suit a plain network: :meth:`SlipModel.stream
 :meth:`SlipModel.attention` (a heat map for the live view), :meth:`SlipModel.reduced_precision`,
 :meth:`SlipModel.small_config` (the contract test's size) and :attr:`SlipModel.quick_epochs`.
 """
+
 from __future__ import annotations
 
 import copy
@@ -126,12 +127,16 @@ class GraspModel(SlipModel):
         raise NotImplementedError
 
     def streaming_parts(self):
-        raise ConfigError(f"{self.model_name} takes whole grasps of both sensors: it streams itself "
-                          f"(stream()) and has no frame/window parts")
+        raise ConfigError(
+            f"{self.model_name} takes whole grasps of both sensors: it streams itself "
+            f"(stream()) and has no frame/window parts"
+        )
 
     def window_geometry(self, spec: Mapping[str, Any]) -> dict[str, Any]:
-        raise ConfigError(f"{self.model_name} takes whole grasps of both sensors: it has no clip window "
-                          f"and no ONNX export yet (it streams on PyTorch in under 2 ms)")
+        raise ConfigError(
+            f"{self.model_name} takes whole grasps of both sensors: it has no clip window "
+            f"and no ONNX export yet (it streams on PyTorch in under 2 ms)"
+        )
 
     def exportable(self) -> nn.Module:
         self.window_geometry({})  # raises: one line, not a tracer's traceback

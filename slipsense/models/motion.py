@@ -17,6 +17,7 @@ The left edge is handled by repeating the first frame (in the lags) and the firs
 temporal stack): running the whole sequence or pushing frame by frame (:class:`MotionStream`)
 gives equal results, which the tests check.
 """
+
 from __future__ import annotations
 
 from collections import deque
@@ -36,7 +37,9 @@ _LIMITS = {"width": 256, "features": 512, "temporal": 512, "sensors": 8, "max_la
 
 
 def _conv(cin: int, cout: int, k: int, stride: int) -> nn.Sequential:
-    return nn.Sequential(nn.Conv2d(cin, cout, k, stride, k // 2, bias=False), nn.BatchNorm2d(cout), nn.ReLU(inplace=True))
+    return nn.Sequential(
+        nn.Conv2d(cin, cout, k, stride, k // 2, bias=False), nn.BatchNorm2d(cout), nn.ReLU(inplace=True)
+    )
 
 
 @register("motionnet")
@@ -55,15 +58,25 @@ class MotionNet(GraspModel):
         diff_scale: differences are multiplied by this (grey levels in [0, 1]; motion is a few %).
     """
 
-    def __init__(self, sensors: int = 2, image_size: Sequence[int] = (30, 40), lags: Sequence[int] = (1, 5, 25),
-                 width: int = 8, features: int = 32, temporal: int = 32, dilations: Sequence[int] = (1, 2, 4, 8),
-                 dropout: float = 0.1, diff_scale: float = 10.0):
+    def __init__(
+        self,
+        sensors: int = 2,
+        image_size: Sequence[int] = (30, 40),
+        lags: Sequence[int] = (1, 5, 25),
+        width: int = 8,
+        features: int = 32,
+        temporal: int = 32,
+        dilations: Sequence[int] = (1, 2, 4, 8),
+        dropout: float = 0.1,
+        diff_scale: float = 10.0,
+    ):
         super().__init__()
         image_size = tuple(int(v) for v in image_size)
         lags, dilations = tuple(int(v) for v in lags), tuple(int(v) for v in dilations)
         if len(image_size) != 2 or min(image_size) < 8 or image_size[0] * image_size[1] > _LIMITS["pixels"]:
-            raise ConfigError(f"motionnet: image_size must be (h, w) with 8 <= h, w and h*w <= {_LIMITS['pixels']}, "
-                              f"got {image_size}")
+            raise ConfigError(
+                f"motionnet: image_size must be (h, w) with 8 <= h, w and h*w <= {_LIMITS['pixels']}, got {image_size}"
+            )
         if not lags or min(lags) < 1 or max(lags) > _LIMITS["max_lag"]:
             raise ConfigError(f"motionnet: lags must be 1..{_LIMITS['max_lag']} frames, got {lags}")
         if not dilations or min(dilations) < 1 or sum(dilations) > 256:
@@ -85,9 +98,17 @@ class MotionNet(GraspModel):
         self.head = nn.Linear(self.temporal, 2)
 
     def config(self) -> dict:
-        return {"sensors": self.sensors, "image_size": list(self.image_size), "lags": list(self.lags),
-                "width": self.width, "features": self.features, "temporal": self.temporal,
-                "dilations": list(self.dilations), "dropout": self.dropout_p, "diff_scale": self.diff_scale}
+        return {
+            "sensors": self.sensors,
+            "image_size": list(self.image_size),
+            "lags": list(self.lags),
+            "width": self.width,
+            "features": self.features,
+            "temporal": self.temporal,
+            "dilations": list(self.dilations),
+            "dropout": self.dropout_p,
+            "diff_scale": self.diff_scale,
+        }
 
     @property
     def receptive_field(self) -> int:
@@ -125,7 +146,7 @@ class MotionNet(GraspModel):
         x = rearrange(feats, "b n f -> b f n")
         for i, conv in enumerate(self.tcn):
             y = F.relu(conv(x))
-            x = y + x[:, :, -y.shape[2]:] if i > 0 else y
+            x = y + x[:, :, -y.shape[2] :] if i > 0 else y
         x = self.dropout(rearrange(x, "b f n -> b n f"))
         return self.head(x)
 
@@ -145,14 +166,17 @@ class MotionNet(GraspModel):
         t = gray.shape[2]
         if t < need + self.max_lag:
             raise InputError(None, f"motionnet chunk of {t} frames is shorter than {need + self.max_lag}")
-        cur = gray[:, :, t - need:]
-        diffs = torch.stack([cur - gray[:, :, t - need - lag: t - lag] for lag in self.lags], dim=3)
+        cur = gray[:, :, t - need :]
+        diffs = torch.stack([cur - gray[:, :, t - need - lag : t - lag] for lag in self.lags], dim=3)
         return self.classify(self.encode(diffs * self.diff_scale))
 
     def check_input(self, x: Tensor) -> None:
         if x.ndim != 5 or x.shape[1] != self.sensors or tuple(x.shape[3:]) != self.image_size:
-            raise InputError(None, f"motionnet takes grey frames (B, {self.sensors}, N, {self.image_size[0]}, "
-                                   f"{self.image_size[1]}), got {tuple(x.shape)}")
+            raise InputError(
+                None,
+                f"motionnet takes grey frames (B, {self.sensors}, N, {self.image_size[0]}, "
+                f"{self.image_size[1]}), got {tuple(x.shape)}",
+            )
         if not x.dtype.is_floating_point or not bool(torch.isfinite(x).all()):
             raise InputError(None, "motionnet input must be finite floats in [0, 1]")
 
@@ -211,17 +235,35 @@ class MotionEnergy(MotionNet):
     what the network adds. Streams and trains like :class:`MotionNet`.
     """
 
-    def __init__(self, sensors: int = 2, image_size: Sequence[int] = (30, 40), lags: Sequence[int] = (1, 5, 25),
-                 diff_scale: float = 10.0):
-        super().__init__(sensors=sensors, image_size=image_size, lags=lags, width=1, features=1, temporal=1,
-                         dilations=(1,), dropout=0.0, diff_scale=diff_scale)
+    def __init__(
+        self,
+        sensors: int = 2,
+        image_size: Sequence[int] = (30, 40),
+        lags: Sequence[int] = (1, 5, 25),
+        diff_scale: float = 10.0,
+    ):
+        super().__init__(
+            sensors=sensors,
+            image_size=image_size,
+            lags=lags,
+            width=1,
+            features=1,
+            temporal=1,
+            dilations=(1,),
+            dropout=0.0,
+            diff_scale=diff_scale,
+        )
         del self.encoder, self.project, self.tcn, self.head
         self.head = nn.Linear(len(self.lags), 2)
         self.dilations = ()
 
     def config(self) -> dict:
-        return {"sensors": self.sensors, "image_size": list(self.image_size), "lags": list(self.lags),
-                "diff_scale": self.diff_scale}
+        return {
+            "sensors": self.sensors,
+            "image_size": list(self.image_size),
+            "lags": list(self.lags),
+            "diff_scale": self.diff_scale,
+        }
 
     def encode(self, diffs: Tensor) -> Tensor:
         """``(B, S, N, L, h, w)`` -> ``(B, N, L)``: log1p of the mean absolute change, max over sensors."""

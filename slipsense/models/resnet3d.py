@@ -23,6 +23,7 @@ averaged over the whole clip before the Linear — the same for inputs whose fin
 ``width`` scales every channel count (``width=8`` gives a tiny model for tests); ``stem_kernel`` and
 ``temporal_kernels`` pick the other layouts above.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -51,8 +52,9 @@ class Bottleneck(nn.Module):
         kt = temporal_kernel
         self.conv_a = nn.Conv3d(dim_in, dim_inner, (kt, 1, 1), padding=(kt // 2, 0, 0), bias=False)
         self.bn_a = nn.BatchNorm3d(dim_inner)
-        self.conv_b = nn.Conv3d(dim_inner, dim_inner, (1, 3, 3), stride=(1, stride, stride), padding=(0, 1, 1),
-                                bias=False)
+        self.conv_b = nn.Conv3d(
+            dim_inner, dim_inner, (1, 3, 3), stride=(1, stride, stride), padding=(0, 1, 1), bias=False
+        )
         self.bn_b = nn.BatchNorm3d(dim_inner)
         self.conv_c = nn.Conv3d(dim_inner, dim_out, 1, bias=False)
         self.bn_c = nn.BatchNorm3d(dim_out)
@@ -119,8 +121,9 @@ class ResNet3D50(VideoModel):
         if not layers or any(n < 1 for n in layers):
             raise ConfigError(f"resnet3d50: layers must be positive block counts, got {layers!r}")
         if len(temporal_kernels) != len(layers) or any(k < 1 or k % 2 == 0 for k in temporal_kernels):
-            raise ConfigError(f"resnet3d50: temporal_kernels must be {len(layers)} odd positive integers, "
-                              f"got {temporal_kernels!r}")
+            raise ConfigError(
+                f"resnet3d50: temporal_kernels must be {len(layers)} odd positive integers, got {temporal_kernels!r}"
+            )
         for key, value in dict(width=width, num_classes=num_classes, channels=channels).items():
             if not isinstance(value, int) or value < 1:
                 raise ConfigError(f"resnet3d50: {key} must be a positive integer, got {value!r}")
@@ -135,16 +138,28 @@ class ResNet3D50(VideoModel):
             raise ConfigError("resnet3d50: bgr_to_rgb needs channels=3")
 
         self.channels, self.frames, self.bgr_to_rgb = channels, frames, bool(bgr_to_rgb)
-        self._config = dict(layers=layers, width=width, stem_kernel=list(stem_kernel),
-                            temporal_kernels=temporal_kernels, num_classes=num_classes, dropout=float(dropout),
-                            channels=channels, frames=frames, bgr_to_rgb=bool(bgr_to_rgb), mean=mean, std=std)
+        self._config = dict(
+            layers=layers,
+            width=width,
+            stem_kernel=list(stem_kernel),
+            temporal_kernels=temporal_kernels,
+            num_classes=num_classes,
+            dropout=float(dropout),
+            channels=channels,
+            frames=frames,
+            bgr_to_rgb=bool(bgr_to_rgb),
+            mean=mean,
+            std=std,
+        )
         self.register_buffer("mean", torch.tensor(mean).view(1, channels, 1, 1, 1), persistent=False)
         self.register_buffer("std", torch.tensor(std).view(1, channels, 1, 1, 1), persistent=False)
 
         kt, kh, kw = stem_kernel
         self.stem = nn.Sequential()
-        self.stem.add_module("conv", nn.Conv3d(channels, width, stem_kernel, stride=(1, 2, 2),
-                                               padding=(kt // 2, kh // 2, kw // 2), bias=False))
+        self.stem.add_module(
+            "conv",
+            nn.Conv3d(channels, width, stem_kernel, stride=(1, 2, 2), padding=(kt // 2, kh // 2, kw // 2), bias=False),
+        )
         self.stem.add_module("bn", nn.BatchNorm3d(width))
         self.stem.add_module("relu", nn.ReLU(inplace=True))
         self.stem.add_module("pool", nn.MaxPool3d((1, 3, 3), stride=(1, 2, 2), padding=(0, 1, 1)))
@@ -155,10 +170,12 @@ class ResNet3D50(VideoModel):
             dim_inner = width * 2**i
             dim_out = 4 * dim_inner
             stride = 1 if i == 0 else 2
-            stage = nn.Sequential(*(
-                Bottleneck(dim_in if j == 0 else dim_out, dim_inner, dim_out, kt, stride if j == 0 else 1)
-                for j in range(blocks)
-            ))
+            stage = nn.Sequential(
+                *(
+                    Bottleneck(dim_in if j == 0 else dim_out, dim_inner, dim_out, kt, stride if j == 0 else 1)
+                    for j in range(blocks)
+                )
+            )
             stages.append(stage)
             dim_in = dim_out
         self.stages = nn.Sequential(*stages)
@@ -199,8 +216,11 @@ class ResNet3D50(VideoModel):
         if ok and self.frames is not None:
             ok = x.shape[1] == self.frames
         if not ok:
-            raise InputError(None, f"video must have shape (B, {t}, {self.channels}, H, W) "
-                                   f"(batch, frames, channels, height, width), got {tuple(x.shape)}")
+            raise InputError(
+                None,
+                f"video must have shape (B, {t}, {self.channels}, H, W) "
+                f"(batch, frames, channels, height, width), got {tuple(x.shape)}",
+            )
 
     # network
 
@@ -239,8 +259,9 @@ class ResNet3D50(VideoModel):
             own = {k: v for k, v in own.items() if not k.startswith("fc.")}
         missing = sorted(set(own) - set(sd))
         unexpected = sorted(set(sd) - set(own))
-        wrong = [f"{k} {tuple(sd[k].shape)} != {tuple(own[k].shape)}"
-                 for k in own if k in sd and sd[k].shape != own[k].shape]
+        wrong = [
+            f"{k} {tuple(sd[k].shape)} != {tuple(own[k].shape)}" for k in own if k in sd and sd[k].shape != own[k].shape
+        ]
         problems = []
         if missing:
             problems.append(f"{len(missing)} missing (e.g. {', '.join(missing[:3])})")
@@ -254,8 +275,10 @@ class ResNet3D50(VideoModel):
 
     def _short_config(self) -> str:
         c = self._config
-        return (f"(layers={c['layers']}, width={c['width']}, stem_kernel={c['stem_kernel']}, "
-                f"temporal_kernels={c['temporal_kernels']}, num_classes={c['num_classes']})")
+        return (
+            f"(layers={c['layers']}, width={c['width']}, stem_kernel={c['stem_kernel']}, "
+            f"temporal_kernels={c['temporal_kernels']}, num_classes={c['num_classes']})"
+        )
 
 
 def _read_state_dict(path: Path) -> dict[str, Tensor]:
@@ -279,8 +302,14 @@ def _read_state_dict(path: Path) -> dict[str, Tensor]:
     return sd
 
 
-_PTV_BLOCK = {"conv_a": "conv_a", "norm_a": "bn_a", "conv_b": "conv_b", "norm_b": "bn_b",
-              "conv_c": "conv_c", "norm_c": "bn_c"}
+_PTV_BLOCK = {
+    "conv_a": "conv_a",
+    "norm_a": "bn_a",
+    "conv_b": "conv_b",
+    "norm_b": "bn_b",
+    "conv_c": "conv_c",
+    "norm_c": "bn_c",
+}
 
 
 def _rename_pytorchvideo_key(key: str) -> str:

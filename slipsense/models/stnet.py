@@ -70,6 +70,7 @@ The MSA attends over the T frames, so :meth:`STNet.attention_maps` gives ``(B, h
 block. A heat map over the sensor surface needs an attribution to markers:
 :meth:`STNet.marker_saliency` is gradient x input-displacement (see its docstring).
 """
+
 from __future__ import annotations
 
 from typing import Any
@@ -92,19 +93,56 @@ ACTIVATIONS = {"relu": nn.ReLU, "gelu": nn.GELU}
 #: trains in minutes on 2 CPU cores (~0.7 M parameters, most in the fusion layer that reads the
 #: raw 1656 values).
 PRESETS: dict[str, dict[str, Any]] = {
-    "paper": dict(frames=12, markers=552, d_model=1656, heads=8, blocks=5, ff_dim=2048, head_hidden=1656,
-                  dropout=0.1, codec_channels=16, codec_kernel=3, codec_layers=4, pool="flatten",
-                  activation="relu"),
-    "paper-ff4096": dict(frames=12, markers=552, d_model=1656, heads=8, blocks=5, ff_dim=4096, head_hidden=0,
-                         dropout=0.1, codec_channels=16, codec_kernel=3, codec_layers=4, pool="flatten",
-                         activation="relu"),
-    "compact": dict(frames=12, markers=552, d_model=128, heads=4, blocks=2, ff_dim=256, head_hidden=0,
-                    dropout=0.1, codec_channels=8, codec_kernel=3, codec_layers=4, pool="flatten",
-                    activation="relu"),
+    "paper": dict(
+        frames=12,
+        markers=552,
+        d_model=1656,
+        heads=8,
+        blocks=5,
+        ff_dim=2048,
+        head_hidden=1656,
+        dropout=0.1,
+        codec_channels=16,
+        codec_kernel=3,
+        codec_layers=4,
+        pool="flatten",
+        activation="relu",
+    ),
+    "paper-ff4096": dict(
+        frames=12,
+        markers=552,
+        d_model=1656,
+        heads=8,
+        blocks=5,
+        ff_dim=4096,
+        head_hidden=0,
+        dropout=0.1,
+        codec_channels=16,
+        codec_kernel=3,
+        codec_layers=4,
+        pool="flatten",
+        activation="relu",
+    ),
+    "compact": dict(
+        frames=12,
+        markers=552,
+        d_model=128,
+        heads=4,
+        blocks=2,
+        ff_dim=256,
+        head_hidden=0,
+        dropout=0.1,
+        codec_channels=8,
+        codec_kernel=3,
+        codec_layers=4,
+        pool="flatten",
+        activation="relu",
+    ),
 }
 
 
 # S codecs: spatial encoder-decoder applied to each frame's 1656 values
+
 
 class UpsampleConv1d(nn.Module):
     """``nn.Upsample(scale)`` then ``nn.Conv1d(channels, 1, kernel, padding=kernel // 2)``: same
@@ -119,14 +157,14 @@ class UpsampleConv1d(nn.Module):
         self.weight = nn.Parameter(torch.empty(1, channels, kernel))
         self.bias = nn.Parameter(torch.zeros(1))
 
-    def forward(self, z):                                     # (n, c, l) -> (n, 1, l * scale)
-        taps = torch.einsum('ncl,ck->nkl', z, self.weight[0])
-        taps = repeat(taps, 'n k l -> n k (l s)', s=self.scale)
+    def forward(self, z):  # (n, c, l) -> (n, 1, l * scale)
+        taps = torch.einsum("ncl,ck->nkl", z, self.weight[0])
+        taps = repeat(taps, "n k l -> n k (l s)", s=self.scale)
         pad = self.kernel // 2
         taps = F.pad(taps, (pad, pad))
         length = taps.shape[-1] - 2 * pad
-        out = sum(taps[:, j, j:j + length] for j in range(self.kernel))
-        return rearrange(out + self.bias, 'n l -> n 1 l')
+        out = sum(taps[:, j, j : j + length] for j in range(self.kernel))
+        return rearrange(out + self.bias, "n l -> n 1 l")
 
 
 class SCodecs(nn.Module):
@@ -135,42 +173,42 @@ class SCodecs(nn.Module):
         pad = kernel // 2
         enc = []
         for i in range(layers):
-            enc += [nn.Conv1d(1 if i == 0 else channels, channels, kernel, stride=2, padding=pad),
-                    nn.LeakyReLU(0.01)]
-        self.encoder = nn.Sequential(*enc)   # length L -> ceil(L / 2**layers)
+            enc += [nn.Conv1d(1 if i == 0 else channels, channels, kernel, stride=2, padding=pad), nn.LeakyReLU(0.01)]
+        self.encoder = nn.Sequential(*enc)  # length L -> ceil(L / 2**layers)
         self.decoder = nn.Sequential(
-            UpsampleConv1d(channels, 2 ** layers, kernel),    # upsampling + Conv1d, back to >= L
-            nn.AdaptiveAvgPool1d(length),                     # pooling: exactly L
+            UpsampleConv1d(channels, 2**layers, kernel),  # upsampling + Conv1d, back to >= L
+            nn.AdaptiveAvgPool1d(length),  # pooling: exactly L
             nn.LeakyReLU(0.01),
         )
 
-    def forward(self, x):                                     # (b, t, d)
+    def forward(self, x):  # (b, t, d)
         b = x.shape[0]
-        x = rearrange(x, 'b t d -> (b t) 1 d')
+        x = rearrange(x, "b t d -> (b t) 1 d")
         x = self.decoder(self.encoder(x))
-        return rearrange(x, '(b t) 1 d -> b t d', b=b)
+        return rearrange(x, "(b t) 1 d -> b t d", b=b)
 
 
 # MSA block
 
+
 class Attention(nn.Module):
-    def __init__(self, dim, heads=8, dropout=0.):
+    def __init__(self, dim, heads=8, dropout=0.0):
         super().__init__()
         self.heads = heads
         self.dropout = dropout
-        self.to_qkv = nn.Linear(dim, dim * 3)                # W^Q, W^K, W^V in one matmul (eq. 6a)
+        self.to_qkv = nn.Linear(dim, dim * 3)  # W^Q, W^K, W^V in one matmul (eq. 6a)
         self.to_out = nn.Linear(dim, dim)
 
-    def forward(self, x, return_attn=False):                  # (b, n, d)
+    def forward(self, x, return_attn=False):  # (b, n, d)
         qkv = self.to_qkv(x)
-        q, k, v = rearrange(qkv, 'b n (three h d) -> three b h n d', three=3, h=self.heads)
-        if return_attn:                                       # explicit softmax(QK^T / sqrt(d_k)), eq. 6b
+        q, k, v = rearrange(qkv, "b n (three h d) -> three b h n d", three=3, h=self.heads)
+        if return_attn:  # explicit softmax(QK^T / sqrt(d_k)), eq. 6b
             attn = torch.softmax(q @ k.transpose(-1, -2) * q.shape[-1] ** -0.5, dim=-1)
             out = F.dropout(attn, self.dropout, self.training) @ v
         else:
             attn = None
-            out = F.scaled_dot_product_attention(q, k, v, dropout_p=self.dropout if self.training else 0.)
-        out = self.to_out(rearrange(out, 'b h n d -> b n (h d)'))
+            out = F.scaled_dot_product_attention(q, k, v, dropout_p=self.dropout if self.training else 0.0)
+        out = self.to_out(rearrange(out, "b h n d -> b n (h d)"))
         return out, attn
 
 
@@ -181,8 +219,9 @@ class Block(nn.Module):
         super().__init__()
         self.attn = Attention(dim, heads, dropout)
         self.norm1 = nn.LayerNorm(dim)
-        self.ff = nn.Sequential(nn.Linear(dim, ff_dim), ACTIVATIONS[activation](), nn.Dropout(dropout),
-                                nn.Linear(ff_dim, dim))
+        self.ff = nn.Sequential(
+            nn.Linear(dim, ff_dim), ACTIVATIONS[activation](), nn.Dropout(dropout), nn.Linear(ff_dim, dim)
+        )
         self.norm2 = nn.LayerNorm(dim)
         self.drop = nn.Dropout(dropout)
 
@@ -195,6 +234,7 @@ class Block(nn.Module):
 
 # the network
 
+
 @register("stnet")
 class STNet(MarkerModel):
     """STNet (``use_codecs=True``) / TemNet (``use_codecs=False``): see the module docstring."""
@@ -203,20 +243,62 @@ class STNet(MarkerModel):
     paper_training = dict(epochs=100, batch_size=64, lr=1e-5, weight_decay=0.0, step_size=1000, gamma=1.0)
     presets = PRESETS
 
-    def __init__(self, frames=12, markers=552, d_model=None, heads=8, blocks=5, ff_dim=2048, head_hidden=None,
-                 dropout=0.1, codec_channels=16, codec_kernel=3, codec_layers=4, pool="flatten",
-                 activation="relu", num_classes=2, use_codecs=True, relative=False):
+    def __init__(
+        self,
+        frames=12,
+        markers=552,
+        d_model=None,
+        heads=8,
+        blocks=5,
+        ff_dim=2048,
+        head_hidden=None,
+        dropout=0.1,
+        codec_channels=16,
+        codec_kernel=3,
+        codec_layers=4,
+        pool="flatten",
+        activation="relu",
+        num_classes=2,
+        use_codecs=True,
+        relative=False,
+    ):
         super().__init__()
         d_in = markers * 3
         d_model = d_in if d_model is None else d_model
         head_hidden = d_model if head_hidden is None else head_hidden
-        _validate(frames=frames, markers=markers, d_model=d_model, heads=heads, blocks=blocks, ff_dim=ff_dim,
-                  head_hidden=head_hidden, dropout=dropout, codec_channels=codec_channels, codec_kernel=codec_kernel,
-                  codec_layers=codec_layers, pool=pool, activation=activation, num_classes=num_classes)
-        self._config = dict(frames=frames, markers=markers, d_model=d_model, heads=heads, blocks=blocks,
-                            ff_dim=ff_dim, head_hidden=head_hidden, dropout=dropout, codec_channels=codec_channels,
-                            codec_kernel=codec_kernel, codec_layers=codec_layers, pool=pool,
-                            activation=activation, num_classes=num_classes, use_codecs=use_codecs)
+        _validate(
+            frames=frames,
+            markers=markers,
+            d_model=d_model,
+            heads=heads,
+            blocks=blocks,
+            ff_dim=ff_dim,
+            head_hidden=head_hidden,
+            dropout=dropout,
+            codec_channels=codec_channels,
+            codec_kernel=codec_kernel,
+            codec_layers=codec_layers,
+            pool=pool,
+            activation=activation,
+            num_classes=num_classes,
+        )
+        self._config = dict(
+            frames=frames,
+            markers=markers,
+            d_model=d_model,
+            heads=heads,
+            blocks=blocks,
+            ff_dim=ff_dim,
+            head_hidden=head_hidden,
+            dropout=dropout,
+            codec_channels=codec_channels,
+            codec_kernel=codec_kernel,
+            codec_layers=codec_layers,
+            pool=pool,
+            activation=activation,
+            num_classes=num_classes,
+            use_codecs=use_codecs,
+        )
         if relative:  # only stored when set, so checkpoints of the paper's network keep their config
             self._config["relative"] = True
         self.frames, self.markers, self.pool, self.use_codecs = frames, markers, pool, use_codecs
@@ -225,19 +307,20 @@ class STNet(MarkerModel):
         # them at the scale the first layers see.
         self.relative = bool(relative)
 
-        self.to_frames = Rearrange('b t m c -> b t (m c)')       # x_i: (b, t, 1656), a view
+        self.to_frames = Rearrange("b t m c -> b t (m c)")  # x_i: (b, t, 1656), a view
         if use_codecs:
             self.codecs = SCodecs(d_in, codec_channels, codec_kernel, codec_layers)
-            self.fuse = nn.Linear(2 * d_in, d_model)              # a_i = FC(Concat(S_i, x_i))
+            self.fuse = nn.Linear(2 * d_in, d_model)  # a_i = FC(Concat(S_i, x_i))
         else:
             self.codecs = None
             self.fuse = nn.Linear(d_in, d_model) if d_model != d_in else nn.Identity()
         self.pos_embedding = nn.Parameter(torch.empty(1, frames, d_model))
         self.blocks = nn.ModuleList([Block(d_model, heads, ff_dim, dropout, activation) for _ in range(blocks)])
         head_in = frames * d_model if pool == "flatten" else d_model
-        if head_hidden:                                        # FC -> ReLU -> dropout -> FC
-            self.to_logits = nn.Sequential(nn.Linear(head_in, head_hidden), nn.ReLU(), nn.Dropout(dropout),
-                                           nn.Linear(head_hidden, num_classes))
+        if head_hidden:  # FC -> ReLU -> dropout -> FC
+            self.to_logits = nn.Sequential(
+                nn.Linear(head_in, head_hidden), nn.ReLU(), nn.Dropout(dropout), nn.Linear(head_hidden, num_classes)
+            )
         else:
             self.to_logits = nn.Linear(head_in, num_classes)
         self.reset_parameters()
@@ -276,18 +359,18 @@ class STNet(MarkerModel):
 
     # forward
 
-    def _tokens(self, x):                                     # (b, t, m, 3) -> a: (b, t, d)
+    def _tokens(self, x):  # (b, t, m, 3) -> a: (b, t, d)
         x = x.to(self.pos_embedding.dtype)
         if self.relative:
             x = x - x[:, :1]
         x = self.to_frames(x)
         if self.codecs is not None:
-            x = torch.cat((self.codecs(x), x), dim=-1)        # eq. 5
+            x = torch.cat((self.codecs(x), x), dim=-1)  # eq. 5
         return self.fuse(x) + self.pos_embedding
 
-    def _head(self, x):                                       # [b]: (b, t, d) -> (b, classes)
+    def _head(self, x):  # [b]: (b, t, d) -> (b, classes)
         if self.pool == "flatten":
-            x = rearrange(x, 'b t d -> b (t d)')
+            x = rearrange(x, "b t d -> b (t d)")
         elif self.pool == "mean":
             x = x.mean(dim=1)
         else:
@@ -363,8 +446,10 @@ class STNet(MarkerModel):
         """
         self.check_input(x)
         if getattr(self, "inference_only", False):
-            raise ConfigError("marker_saliency needs gradients: call it on the trainable model, "
-                              "not on the copy optimize_for_inference made")
+            raise ConfigError(
+                "marker_saliency needs gradients: call it on the trainable model, "
+                "not on the copy optimize_for_inference made"
+            )
         if isinstance(baseline, torch.Tensor):
             x0 = baseline.to(x)
         elif baseline == "first":
@@ -379,10 +464,10 @@ class STNet(MarkerModel):
             with torch.enable_grad():
                 xg = x.detach().float().requires_grad_(True)
                 logits = self(xg)
-                grad, = torch.autograd.grad(logits[:, target].sum(), xg)
+                (grad,) = torch.autograd.grad(logits[:, target].sum(), xg)
         finally:
             self.train(was_training)
-        rel = (grad * (xg.detach() - x0.float())).sum(dim=(1, 3)).abs()    # (b, m)
+        rel = (grad * (xg.detach() - x0.float())).sum(dim=(1, 3)).abs()  # (b, m)
         return rel / rel.amax(dim=1, keepdim=True).clamp_min(torch.finfo(rel.dtype).tiny)
 
 
@@ -399,9 +484,20 @@ class TemNet(STNet):
 
 # configurations
 
+
 def _validate(**c):
-    for key in ("frames", "markers", "d_model", "heads", "blocks", "ff_dim", "codec_channels", "codec_kernel",
-                "codec_layers", "num_classes"):
+    for key in (
+        "frames",
+        "markers",
+        "d_model",
+        "heads",
+        "blocks",
+        "ff_dim",
+        "codec_channels",
+        "codec_kernel",
+        "codec_layers",
+        "num_classes",
+    ):
         if not isinstance(c[key], int) or isinstance(c[key], bool) or c[key] < 1:
             raise ConfigError(f"{key} must be a positive integer, got {c[key]!r}")
     if not isinstance(c["head_hidden"], int) or isinstance(c["head_hidden"], bool) or c["head_hidden"] < 0:
@@ -435,9 +531,21 @@ def build_preset(name: str, model: str = "stnet", **overrides) -> STNet:
 
 def _full_config(config: dict[str, Any] | None, model: str) -> dict[str, Any]:
     """``config`` with STNet's defaults filled in (what the analytic counts below need)."""
-    c = dict(frames=12, markers=552, d_model=None, heads=8, blocks=5, ff_dim=2048, head_hidden=None,
-             codec_channels=16, codec_kernel=3, codec_layers=4, pool="flatten", num_classes=2,
-             use_codecs=(model == "stnet"))
+    c = dict(
+        frames=12,
+        markers=552,
+        d_model=None,
+        heads=8,
+        blocks=5,
+        ff_dim=2048,
+        head_hidden=None,
+        codec_channels=16,
+        codec_kernel=3,
+        codec_layers=4,
+        pool="flatten",
+        num_classes=2,
+        use_codecs=(model == "stnet"),
+    )
     c.update(config or {})
     return c
 
@@ -451,11 +559,11 @@ def count_parameters_for(config: dict[str, Any] | None = None, model: str = "stn
     f, t, k, ch = c["ff_dim"], c["frames"], c["codec_kernel"], c["codec_channels"]
     n = 0
     if c["use_codecs"]:
-        n += (k * ch + ch) + (c["codec_layers"] - 1) * (ch * ch * k + ch) + (ch * k + 1)   # S codecs
-        n += 2 * d_in * d + d                                                               # fusion FC
+        n += (k * ch + ch) + (c["codec_layers"] - 1) * (ch * ch * k + ch) + (ch * k + 1)  # S codecs
+        n += 2 * d_in * d + d  # fusion FC
     elif d != d_in:
-        n += d_in * d + d                                                                   # projection
-    n += t * d                                                                              # frame embedding
+        n += d_in * d + d  # projection
+    n += t * d  # frame embedding
     n += c["blocks"] * ((3 * d * d + 3 * d) + (d * d + d) + (d * f + f) + (f * d + d) + 4 * d)
     head_in = t * d if c["pool"] == "flatten" else d
     hid = d if c["head_hidden"] is None else c["head_hidden"]
@@ -477,12 +585,12 @@ def flops_per_sample(config: dict[str, Any] | None = None, model: str = "stnet")
             length = (length + 1) // 2
             macs += length * ch * cin * k
             cin = ch
-        macs += length * 2 ** c["codec_layers"] * ch * k                                    # decoder conv
-        macs += 2 * d_in * d                                                                # fusion
+        macs += length * 2 ** c["codec_layers"] * ch * k  # decoder conv
+        macs += 2 * d_in * d  # fusion
     elif d != d_in:
         macs += d_in * d
     macs *= t
-    macs += c["blocks"] * (t * (4 * d * d + 2 * d * f) + 2 * t * t * d)                    # linears + QK^T, AV
+    macs += c["blocks"] * (t * (4 * d * d + 2 * d * f) + 2 * t * t * d)  # linears + QK^T, AV
     hid = d if c["head_hidden"] is None else c["head_hidden"]
     head_in = t * d if c["pool"] == "flatten" else d
     macs += (head_in * hid + hid * c["num_classes"]) if hid else head_in * c["num_classes"]

@@ -4,6 +4,7 @@ bf16 weights, int8 dynamic quantization (``SlipModel.reduced_precision``, ``benc
 The paper-size STNet streams ~0.5 GB of Linear weights per sample; these copies cut what is read
 (int8, bf16) or read it faster (pre-packed blocked layout, both cores on the classifier).
 """
+
 from __future__ import annotations
 
 import copy
@@ -22,8 +23,11 @@ def onednn_packing_available(dtype: torch.dtype = torch.float32) -> bool:
     """Whether this build and this CPU can pre-pack ``dtype`` Linear weights for oneDNN (bf16
     packing needs AVX512-BF16/AVX-NE-CONVERT or AVX512BW/VL/DQ; plain AVX2 machines lack it)."""
     if dtype not in _PACKING:
-        ok = (torch.backends.mkldnn.is_available() and hasattr(torch.ops.mkldnn, "_reorder_linear_weight")
-              and hasattr(torch.ops.mkldnn, "_linear_pointwise"))
+        ok = (
+            torch.backends.mkldnn.is_available()
+            and hasattr(torch.ops.mkldnn, "_reorder_linear_weight")
+            and hasattr(torch.ops.mkldnn, "_linear_pointwise")
+        )
         if ok:
             try:
                 w = torch.ops.mkldnn._reorder_linear_weight(torch.zeros(8, 8, dtype=dtype), 1)
@@ -41,11 +45,12 @@ class PackedLinear(nn.Module):
     keep the original model for training and checkpoints.
     """
 
-    def __init__(self, linear: nn.Linear, batch_hint: int = 12, dtype: torch.dtype = torch.float32,
-                 activation: str = "none"):
+    def __init__(
+        self, linear: nn.Linear, batch_hint: int = 12, dtype: torch.dtype = torch.float32, activation: str = "none"
+    ):
         super().__init__()
         self.in_features, self.out_features = linear.in_features, linear.out_features
-        self.activation = activation                         # "none" or "relu", fused into the matmul
+        self.activation = activation  # "none" or "relu", fused into the matmul
         w = linear.weight.detach().to(dtype).contiguous()
         self.packed = torch.ops.mkldnn._reorder_linear_weight(w, batch_hint)
         self.bias = None if linear.bias is None else linear.bias.detach().to(dtype).clone()
@@ -54,8 +59,9 @@ class PackedLinear(nn.Module):
         return torch.ops.mkldnn._linear_pointwise(x, self.packed, self.bias, self.activation, [], "")
 
     def extra_repr(self):
-        return (f"in_features={self.in_features}, out_features={self.out_features}, packed=oneDNN"
-                + (f", activation={self.activation}" if self.activation != "none" else ""))
+        return f"in_features={self.in_features}, out_features={self.out_features}, packed=oneDNN" + (
+            f", activation={self.activation}" if self.activation != "none" else ""
+        )
 
 
 class FrameSumLinear(nn.Module):
@@ -67,11 +73,11 @@ class FrameSumLinear(nn.Module):
     def __init__(self, linear: nn.Linear, frames: int, dtype: torch.dtype = torch.float32):
         super().__init__()
         self.frames = frames
-        self.weight = rearrange(linear.weight.detach(), 'o (t d) -> t o d', t=frames).to(dtype).contiguous()
+        self.weight = rearrange(linear.weight.detach(), "o (t d) -> t o d", t=frames).to(dtype).contiguous()
         self.bias = linear.bias.detach().to(dtype).clone()
 
-    def forward(self, x):                                     # (b, t * d) -> (b, o)
-        x = rearrange(x, 'b (t d) -> t d b', t=self.frames)
+    def forward(self, x):  # (b, t * d) -> (b, o)
+        x = rearrange(x, "b (t d) -> t d b", t=self.frames)
         return torch.bmm(self.weight, x).sum(0).t() + self.bias
 
 
@@ -92,7 +98,7 @@ def optimize_for_inference(model: nn.Module, dtype: torch.dtype = torch.float32,
     fast.inference_only = True
     if getattr(fast, "pool", None) == "flatten":
         first = fast.to_logits[0] if isinstance(fast.to_logits, nn.Sequential) else fast.to_logits
-        if first.out_features >= 64:                         # worth it only for a wide layer
+        if first.out_features >= 64:  # worth it only for a wide layer
             head = FrameSumLinear(first, fast.frames, dtype)
             if isinstance(fast.to_logits, nn.Sequential):
                 fast.to_logits[0] = head
@@ -124,5 +130,5 @@ def quantize_dynamic_int8(model: nn.Module) -> nn.Module:
             torch.backends.quantized.engine = engine
             break
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore")       # torch.ao.quantization deprecation notice
+        warnings.simplefilter("ignore")  # torch.ao.quantization deprecation notice
         return quantize_dynamic(copy.deepcopy(model).eval().float(), {nn.Linear}, dtype=torch.qint8)

@@ -5,6 +5,7 @@ A window's frames pass the S codecs and the fusion layer one by one, so the live
 (:mod:`slipsense.export` writes both as ONNX). With relative input every frame is seen against its
 window's first frame and nothing can be cached.
 """
+
 from __future__ import annotations
 
 import torch

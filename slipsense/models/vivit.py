@@ -49,6 +49,7 @@ temporal embedding per slot added to the frame tokens before the temporal transf
 spatial token is then the same in every slot, so a streaming detector encodes each frame once
 (patch embedding *and* spatial transformer) and reruns only the temporal transformer per window.
 """
+
 from __future__ import annotations
 
 import threading
@@ -61,6 +62,7 @@ from torch import Tensor, nn
 
 from slipsense.errors import ConfigError, InputError
 from slipsense.models.base import VideoModel, check_video_values, register
+from slipsense.models.vivit_layers import Transformer, eager_inference, version_key
 
 
 def pair(value: int | Sequence[int]) -> tuple[int, int]:
@@ -71,146 +73,6 @@ def pair(value: int | Sequence[int]) -> tuple[int, int]:
     return (int(a), int(b))
 
 
-# building blocks (vit-pytorch's, pre-norm)
-
-
-class FeedForward(nn.Module):
-    """``x -> Linear(GELU(Linear(LayerNorm(x))))``: (N, n, dim) -> (N, n, dim)."""
-
-    def __init__(self, dim: int, hidden_dim: int, dropout: float = 0.0):
-        super().__init__()
-        self.norm = nn.LayerNorm(dim)
-        self.fc1 = nn.Linear(dim, hidden_dim)
-        self.fc2 = nn.Linear(hidden_dim, dim)
-        self.dropout = nn.Dropout(dropout)
-
-    def forward(self, x: Tensor) -> Tensor:
-        x = F.gelu(self.fc1(self.norm(x)))
-        if self.training and self.dropout.p > 0:
-            return self.dropout(self.fc2(self.dropout(x)))
-        return self.fc2(x)
-
-
-def _eager_inference() -> bool:
-    """True in plain eager inference: no autograd, no tracing (jit / legacy ONNX export) or compiling
-    (torch.compile / torch.export / dynamo ONNX export). Only then are caches and scratch buffers safe."""
-    return not (torch.is_grad_enabled() or torch.jit.is_tracing() or torch.compiler.is_compiling())
-
-
-def _version_key(*tensors: Tensor) -> tuple | None:
-    """Identifies the current values of ``tensors`` (storage, shape, in-place version); None if untracked."""
-    try:
-        return tuple((t.data_ptr(), t._version, t.shape, t.dtype, t.device) for t in tensors)
-    except RuntimeError:  # inference tensors carry no version counter: do not cache
-        return None
-
-
-class Attention(nn.Module):
-    """Pre-norm multi-head self-attention: (N, n, dim) -> (N, n, dim).
-
-    ``attn_store``: a list to append the attention weights ``(N, heads, n, n)`` to; then the
-    weights are computed explicitly (softmax of scaled dot products) instead of by the fused
-    ``scaled_dot_product_attention`` kernel — the same numbers to float rounding.
-
-    Inference (eval mode, no autograd) takes a folded path: with ``dim_head`` (64) far above ``dim``
-    (8), the per-head products ``scale * Wq_h^T Wk_h`` and ``Wv_h^T Wo_h^T`` are ``dim x dim``
-    matrices, so scores ``y A_h y^T`` and outputs ``sum_h P_h (y M_h) + b_o`` need 8-wide instead of
-    64-wide matmuls. Exactly the same function (matrix products regrouped); the folded matrices are
-    cached until a weight changes.
-    """
-
-    def __init__(self, dim: int, heads: int, dim_head: int, dropout: float = 0.0):
-        super().__init__()
-        inner_dim = heads * dim_head
-        self.heads = heads
-        self.scale = dim_head**-0.5
-        self.dropout_p = dropout
-        self.norm = nn.LayerNorm(dim)
-        self.to_qkv = nn.Linear(dim, inner_dim * 3, bias=False)
-        project_out = not (heads == 1 and dim_head == dim)  # as vit-pytorch: no projection then
-        self.to_out = nn.Linear(inner_dim, dim) if project_out else nn.Identity()
-        self.dropout = nn.Dropout(dropout)
-        self._folded: tuple | None = None
-
-    def forward(self, x: Tensor, attn_store: list[Tensor] | None = None, first_only: bool = False) -> Tensor:
-        """``first_only``: return only token 0's output, (N, 1, dim)."""
-        y = self.norm(x)
-        if not self.training and not torch.is_grad_enabled():
-            return self._forward_folded(y, attn_store, first_only)
-        q, k, v = rearrange(self.to_qkv(y), "b n (qkv h d) -> qkv b h n d", qkv=3, h=self.heads)
-        dropout_p = self.dropout_p if self.training else 0.0
-        if attn_store is None:
-            out = F.scaled_dot_product_attention(q, k, v, dropout_p=dropout_p, scale=self.scale)
-        else:
-            attn = (q @ k.transpose(-1, -2) * self.scale).softmax(dim=-1)  # (b, h, n, n)
-            attn_store.append(attn)
-            out = F.dropout(attn, dropout_p, self.training) @ v
-        out = rearrange(out[:, :, :1] if first_only else out, "b h n d -> b n (h d)")
-        return self.dropout(self.to_out(out))
-
-    def folded_weights(self) -> tuple[Tensor, Tensor, Tensor]:
-        """``(A, M, b_o)``: A = [A_1 .. A_h], M = [M_1 .. M_h] as (dim, heads * dim) and the output bias (dim,)."""
-        wq, wk, wv = rearrange(self.to_qkv.weight, "(qkv h d) c -> qkv h d c", qkv=3, h=self.heads)
-        dim = wq.shape[-1]
-        if isinstance(self.to_out, nn.Linear):
-            wo, bias = rearrange(self.to_out.weight, "c (h d) -> h c d", h=self.heads), self.to_out.bias
-        else:  # heads == 1 and dim_head == dim: no output projection
-            wo, bias = torch.eye(dim, dtype=wq.dtype, device=wq.device)[None], wq.new_zeros(dim)
-        a = torch.einsum("hdi,hdj->ihj", wq, wk) * self.scale  # A_h[i, j] = scale sum_d Wq_h[d, i] Wk_h[d, j]
-        m = torch.einsum("hdi,hcd->ihc", wv, wo)  # M_h[i, c] = sum_d Wv_h[d, i] Wo_h[c, d]
-        return a.reshape(dim, -1), m.reshape(dim, -1), bias
-
-    def _forward_folded(self, y: Tensor, attn_store: list[Tensor] | None, first_only: bool) -> Tensor:
-        if _eager_inference():  # cache the folded weights until a weight changes
-            key = _version_key(self.to_qkv.weight, *self.to_out.parameters())
-            if key is None or self._folded is None or self._folded[0] != key:
-                self._folded = (key, *self.folded_weights())
-            _, a, m, bias = self._folded
-        else:
-            a, m, bias = self.folded_weights()
-        b, n, dim = y.shape
-        h = self.heads
-        queries = y[:, :1] if first_only else y  # (b, q, dim)
-        q = queries.shape[1]
-        scores = torch.bmm((queries @ a).view(b, q * h, dim), y.transpose(1, 2))  # rows (query, head): (b, q h, n)
-        attn = scores.softmax(dim=-1).view(b, q, h * n)
-        if attn_store is not None:
-            attn_store.append(rearrange(attn, "b q (h n) -> b h q n", h=h))
-        values = rearrange(y @ m, "b n (h c) -> b (h n) c", h=h)  # y M_h for every head: (b, h n, dim)
-        return torch.baddbmm(bias, attn, values)  # sum over heads and keys: (b, q, dim)
-
-
-class Transformer(nn.Module):
-    """``depth`` pre-norm residual layers (attention, feed-forward), then a LayerNorm."""
-
-    def __init__(self, dim: int, depth: int, heads: int, dim_head: int, mlp_dim: int, dropout: float):
-        super().__init__()
-        self.layers = nn.ModuleList(
-            nn.ModuleList([Attention(dim, heads, dim_head, dropout), FeedForward(dim, mlp_dim, dropout)])
-            for _ in range(depth)
-        )
-        self.norm = nn.LayerNorm(dim)
-
-    def forward(self, x: Tensor, attn_store: list[Tensor] | None = None, first_only: bool = False) -> Tensor:
-        """(N, n, dim) -> (N, n, dim); appends each layer's ``(N, heads, n, n)`` to ``attn_store``.
-
-        ``first_only``: return only token 0 (the CLS token), (N, 1, dim); the last layer then
-        computes only that token's row (the others cannot reach it any more).
-        """
-        if first_only and not self.layers:
-            x = x[:, :1]
-        for i, (attn, ff) in enumerate(self.layers):
-            if first_only and i == len(self.layers) - 1:
-                x = attn(x, attn_store, first_only=True) + x[:, :1]
-            else:
-                x = attn(x, attn_store) + x
-            x = ff(x) + x
-        return self.norm(x)
-
-
-# the model
-
-#: ViViT position embeddings: per frame slot and patch (the paper's), or spatial + temporal.
 POSITIONS = ("slot", "factorised")
 
 
@@ -255,9 +117,19 @@ class ViViT(VideoModel):
         super().__init__()
         image_h, image_w = pair(image_size)
         patch_h, patch_w = pair(patch_size)
-        ints = dict(image_h=image_h, image_w=image_w, patch_h=patch_h, patch_w=patch_w, frames=frames,
-                    dim=dim, heads=heads, dim_head=dim_head, mlp_dim=mlp_dim, channels=channels,
-                    num_classes=num_classes)
+        ints = dict(
+            image_h=image_h,
+            image_w=image_w,
+            patch_h=patch_h,
+            patch_w=patch_w,
+            frames=frames,
+            dim=dim,
+            heads=heads,
+            dim_head=dim_head,
+            mlp_dim=mlp_dim,
+            channels=channels,
+            num_classes=num_classes,
+        )
         for key, value in ints.items():
             if not isinstance(value, int) or value < 1:
                 raise ConfigError(f"vivit: {key} must be a positive integer, got {value!r}")
@@ -265,8 +137,9 @@ class ViViT(VideoModel):
             if not isinstance(value, int) or value < 0:
                 raise ConfigError(f"vivit: {key} must be a non-negative integer, got {value!r}")
         if image_h % patch_h or image_w % patch_w:
-            raise ConfigError(f"vivit: image_size {(image_h, image_w)} is not divisible by "
-                              f"patch_size {(patch_h, patch_w)}")
+            raise ConfigError(
+                f"vivit: image_size {(image_h, image_w)} is not divisible by patch_size {(patch_h, patch_w)}"
+            )
         if pool not in ("cls", "mean"):
             raise ConfigError(f"vivit: pool must be 'cls' or 'mean', got {pool!r}")
         if positions not in POSITIONS:
@@ -279,10 +152,22 @@ class ViViT(VideoModel):
         self.patch_size = (patch_h, patch_w)
         self.grid = (image_h // patch_h, image_w // patch_w)  # (Hp, Wp)
         self.frames, self.channels, self.pool = frames, channels, pool
-        self._config = dict(image_size=[image_h, image_w], patch_size=[patch_h, patch_w], frames=frames,
-                            dim=dim, spatial_depth=spatial_depth, temporal_depth=temporal_depth, heads=heads,
-                            dim_head=dim_head, mlp_dim=mlp_dim, pool=pool, dropout=float(dropout),
-                            emb_dropout=float(emb_dropout), channels=channels, num_classes=num_classes)
+        self._config = dict(
+            image_size=[image_h, image_w],
+            patch_size=[patch_h, patch_w],
+            frames=frames,
+            dim=dim,
+            spatial_depth=spatial_depth,
+            temporal_depth=temporal_depth,
+            heads=heads,
+            dim_head=dim_head,
+            mlp_dim=mlp_dim,
+            pool=pool,
+            dropout=float(dropout),
+            emb_dropout=float(emb_dropout),
+            channels=channels,
+            num_classes=num_classes,
+        )
         if positions != "slot":  # only when set: checkpoints of the paper model keep their config unchanged
             self._config["positions"] = positions
         self.positions = positions
@@ -337,8 +222,9 @@ class ViViT(VideoModel):
         expected = self.expected_shape()
         shown = "(" + ", ".join(map(str, expected)) + ")"
         if x.dim() != 5 or x.shape[0] < 1 or tuple(x.shape[1:]) != expected[1:]:
-            raise InputError(None, f"video must have shape {shown} (batch, frames, channels, height, width), "
-                                   f"got {tuple(x.shape)}")
+            raise InputError(
+                None, f"video must have shape {shown} (batch, frames, channels, height, width), got {tuple(x.shape)}"
+            )
 
     # patch embedding
 
@@ -385,7 +271,7 @@ class ViViT(VideoModel):
         hp, wp = self.grid
         n, c = frames.shape[:2]
         patches = frames.reshape(n, c, hp, ph, wp, pw).permute(0, 2, 4, 1, 3, 5)  # a view: (n, hp, wp, c, ph, pw)
-        if not _eager_inference():
+        if not eager_inference():
             return patches.reshape(n * hp * wp, c * ph * pw)
         # Inference tensors cannot be written outside inference mode: one buffer per mode.
         key = (threading.get_ident(), frames.dtype, frames.device, torch.is_inference_mode_enabled())
@@ -413,9 +299,9 @@ class ViViT(VideoModel):
         accurate as ``F.layer_norm``.
         """
         ph, pw = self.patch_size
-        if _eager_inference():  # cache the folded weights until a weight changes
+        if eager_inference():  # cache the folded weights until a weight changes
             params = (self.patch_norm.weight, self.patch_norm.bias, self.patch_to_dim.weight, self.patch_to_dim.bias)
-            key = _version_key(*params)
+            key = version_key(*params)
             if key is None or self._fused_cache is None or self._fused_cache[0] != key:
                 self._fused_cache = (key, *self.fused_patch_weights())
             _, kernel, row_sum, bias = self._fused_cache
@@ -424,15 +310,16 @@ class ViViT(VideoModel):
 
         rows = self._cut_patches(frames)  # (n P, patch_dim)
         mean = rows.mean(dim=1, keepdim=True)
-        centred = rows.sub_(mean) if _eager_inference() else rows - mean  # in place: the scratch buffer
+        centred = rows.sub_(mean) if eager_inference() else rows - mean  # in place: the scratch buffer
         sum_sq = torch.linalg.vector_norm(centred, dim=1).square()  # (n P,)
         z = kernel @ centred.t()  # (dim + 1, n P)
         z, resid = z[:-1], z[-1]
         var = sum_sq / self.patch_norm.normalized_shape[0] - resid * resid
         z = torch.addcmul(bias[:, None], z - resid * row_sum[:, None], torch.rsqrt(var + self.patch_norm.eps))
         tokens = rearrange(z, "d (n p) -> n p d", p=self.grid[0] * self.grid[1])
-        return F.layer_norm(tokens, self.dim_norm.normalized_shape, self.dim_norm.weight, self.dim_norm.bias,
-                            self.dim_norm.eps)
+        return F.layer_norm(
+            tokens, self.dim_norm.normalized_shape, self.dim_norm.weight, self.dim_norm.bias, self.dim_norm.eps
+        )
 
     # the two halves of the network
 
@@ -486,7 +373,8 @@ class ViViT(VideoModel):
         b, t = x.shape[:2]
         attention = {
             "spatial": rearrange(torch.stack(spatial, 1), "(b t) l h i j -> b t l h i j", b=b, t=t)
-            if spatial else x.new_zeros(b, t, 0, 0, 0, 0),
+            if spatial
+            else x.new_zeros(b, t, 0, 0, 0, 0),
             "temporal": torch.stack(temporal, 1) if temporal else x.new_zeros(b, 0, 0, 0, 0),
         }
         return logits, attention
@@ -576,15 +464,26 @@ class ViViT(VideoModel):
         ph, pw = ref.patch_size
         image_h, image_w = pair(image_size)
         if (image_h // ph) * (image_w // pw) != num_patches:
-            raise ConfigError(f"from_vit_pytorch: image_size {(image_h, image_w)} with {ph} x {pw} patches does not "
-                              f"give the reference's {num_patches} patches")
+            raise ConfigError(
+                f"from_vit_pytorch: image_size {(image_h, image_w)} with {ph} x {pw} patches does not "
+                f"give the reference's {num_patches} patches"
+            )
         attn, ff = (ref.spatial_transformer.layers or ref.temporal_transformer.layers)[0]
         model = cls(
-            image_size=(image_h, image_w), patch_size=(ph, pw), frames=frames, dim=dim,
-            spatial_depth=len(ref.spatial_transformer.layers), temporal_depth=len(ref.temporal_transformer.layers),
-            heads=attn.heads, dim_head=attn.to_qkv.out_features // (3 * attn.heads), mlp_dim=ff.net[1].out_features,
-            pool=ref.pool, dropout=float(attn.dropout_p), emb_dropout=float(ref.dropout.p),
-            channels=ref.to_patch_embedding[1].normalized_shape[0] // (ph * pw), num_classes=ref.mlp_head.out_features,
+            image_size=(image_h, image_w),
+            patch_size=(ph, pw),
+            frames=frames,
+            dim=dim,
+            spatial_depth=len(ref.spatial_transformer.layers),
+            temporal_depth=len(ref.temporal_transformer.layers),
+            heads=attn.heads,
+            dim_head=attn.to_qkv.out_features // (3 * attn.heads),
+            mlp_dim=ff.net[1].out_features,
+            pool=ref.pool,
+            dropout=float(attn.dropout_p),
+            emb_dropout=float(ref.dropout.p),
+            channels=ref.to_patch_embedding[1].normalized_shape[0] // (ph * pw),
+            num_classes=ref.mlp_head.out_features,
         )
         model.load_reference_state_dict(ref.state_dict())
         return model
@@ -592,8 +491,10 @@ class ViViT(VideoModel):
     def load_reference_state_dict(self, sd: dict[str, Tensor]) -> None:
         """Load a vit-pytorch ViViT (``frame_patch_size=1``) state dict, renaming its keys to this file's."""
         if self.positions != "slot":
-            raise ConfigError("load_reference_state_dict: vit-pytorch's ViViT has per-slot positions; this model has "
-                              f"positions={self.positions!r}")
+            raise ConfigError(
+                "load_reference_state_dict: vit-pytorch's ViViT has per-slot positions; this model has "
+                f"positions={self.positions!r}"
+            )
         from slipsense.models.vivit_reference import reference_key
 
         self.load_state_dict({reference_key(k): v for k, v in sd.items()}, strict=True)

@@ -3,6 +3,7 @@
 The live detector (:mod:`slipsense.live`) runs :class:`ViViTFramePart` once per pushed frame and
 :class:`ViViTWindowPart` on the cached window; :mod:`slipsense.export` writes both as ONNX.
 """
+
 from __future__ import annotations
 
 import torch

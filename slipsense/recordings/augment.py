@@ -3,6 +3,7 @@
 The copy is made in three fixed steps: (1) add Gaussian noise (std 15 on the 0..255 scale,
 rounded and clipped back to uint8), (2) swap the red and blue channels, (3) flip horizontally.
 """
+
 from __future__ import annotations
 
 import math
@@ -37,8 +38,12 @@ class AugmentConfig:
 
     def __post_init__(self) -> None:
         std = self.noise_std
-        if isinstance(std, bool) or not isinstance(std, (int, float, np.integer, np.floating)) \
-                or not math.isfinite(std) or std < 0:
+        if (
+            isinstance(std, bool)
+            or not isinstance(std, (int, float, np.integer, np.floating))
+            or not math.isfinite(std)
+            or std < 0
+        ):
             raise ConfigError(f"noise_std must be a finite number >= 0, got {std!r}")
         for name in ("swap_red_blue", "hflip", "enabled"):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
@@ -60,8 +65,12 @@ def add_noise(x: np.ndarray, std: float, rng: np.random.Generator) -> np.ndarray
     x = np.asarray(x)
     if x.dtype != np.uint8:
         raise InputError(None, f"add_noise needs uint8 images, got {x.dtype}")
-    if isinstance(std, bool) or not isinstance(std, (int, float, np.integer, np.floating)) \
-            or not math.isfinite(std) or std < 0:
+    if (
+        isinstance(std, bool)
+        or not isinstance(std, (int, float, np.integer, np.floating))
+        or not math.isfinite(std)
+        or std < 0
+    ):
         raise InputError(None, f"noise std must be a finite number >= 0, got {std!r}")
     out = np.array(x, copy=True, order="C")
     if std == 0 or out.size == 0:

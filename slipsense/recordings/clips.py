@@ -14,6 +14,7 @@ Windows, in frame indices of the decoded video (0-based, ``end`` inclusive):
   ``[contact_start, contact_end]``. The draw for a video depends only on ``ClipSpec.seed`` and the
   video's key, so adding or removing other videos does not move its windows.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -76,7 +77,9 @@ class ClipSpec:
 
     def __post_init__(self) -> None:
         if not _is_int(self.frames) or not MIN_CLIP_FRAMES <= self.frames <= MAX_CLIP_FRAMES:
-            raise ConfigError(f"clip frames must be an integer in {MIN_CLIP_FRAMES}..{MAX_CLIP_FRAMES}, got {self.frames!r}")
+            raise ConfigError(
+                f"clip frames must be an integer in {MIN_CLIP_FRAMES}..{MAX_CLIP_FRAMES}, got {self.frames!r}"
+            )
         if not _is_int(self.horizon) or self.horizon < 0:
             raise ConfigError(f"clip horizon must be an integer >= 0, got {self.horizon!r}")
         if not _is_int(self.wiggle_per_video) or self.wiggle_per_video < 0:
@@ -106,9 +109,7 @@ def _video_rng(seed: int, key: Key) -> np.random.Generator:
     return np.random.default_rng([seed, zlib.crc32(f"{key[0]}/{key[1]}/{key[2]}".encode())])
 
 
-def wiggle_starts(
-    contact_start: int, contact_end: int, frames: int, count: int, rng: np.random.Generator
-) -> list[int]:
+def wiggle_starts(contact_start: int, contact_end: int, frames: int, count: int, rng: np.random.Generator) -> list[int]:
     """Draw ``count`` non-overlapping ``frames``-long windows inside ``[contact_start, contact_end]``.
 
     Every placement of the windows is equally likely (stars and bars: choose ``count`` distinct
@@ -309,8 +310,9 @@ def _meta(rec: Recording, label: VideoLabel, win: Window) -> dict[str, Any]:
     }
 
 
-def _plans(recordings: Iterable[Recording], labels: Mapping[Key, VideoLabel], spec: ClipSpec,
-           warn: bool) -> list[tuple[Recording, VideoLabel, list[Window]]]:
+def _plans(
+    recordings: Iterable[Recording], labels: Mapping[Key, VideoLabel], spec: ClipSpec, warn: bool
+) -> list[tuple[Recording, VideoLabel, list[Window]]]:
     """The videos that give clips, with their label and windows, in clip order (checks labels)."""
     plans: list[tuple[Recording, VideoLabel, list[Window]]] = []
     seen: set[Key] = set()
@@ -330,8 +332,9 @@ def _plans(recordings: Iterable[Recording], labels: Mapping[Key, VideoLabel], sp
         check_label(label, rec.path)
         windows, note = _plan(label, spec)
         if note is not None and warn:
-            warnings.warn(f"{rec.path}: {note}; {'skipped' if not windows else 'using fewer'}",
-                          SkippedInputWarning, stacklevel=3)
+            warnings.warn(
+                f"{rec.path}: {note}; {'skipped' if not windows else 'using fewer'}", SkippedInputWarning, stacklevel=3
+            )
         if windows:
             plans.append((rec, label, windows))
     return plans
@@ -388,8 +391,13 @@ def _save_npz(path: Path, clips: ClipSet) -> str:
     return digest[0]
 
 
-def _load_npz(npz: Path, sidecar: Path, spec: ClipSpec, key: str | None = None,
-              expected: tuple[list[dict[str, Any]], np.ndarray] | None = None) -> ClipSet:
+def _load_npz(
+    npz: Path,
+    sidecar: Path,
+    spec: ClipSpec,
+    key: str | None = None,
+    expected: tuple[list[dict[str, Any]], np.ndarray] | None = None,
+) -> ClipSet:
     """Load a cache entry, raising ValueError/OSError on any inconsistency.
 
     ``key``: the :func:`cache_key` of the inputs, which the sidecar must record; ``expected``:

@@ -29,6 +29,7 @@ Thresholds are in 8-bit intensity units of the block-averaged difference. They w
 shared GelSight Mini recordings, where the rest level of the signal is about 1.5 and contacts
 reach 5 to 60.
 """
+
 from __future__ import annotations
 
 from typing import Literal, Sequence

@@ -6,6 +6,7 @@ Both take ``on_error``: ``"raise"`` stops at the first problem with an
 :class:`~slipsense.errors.InputError`; ``"skip"`` emits a :class:`SkippedInputWarning` naming the
 file and the problem and carries on without it.
 """
+
 from __future__ import annotations
 
 import re
@@ -124,14 +125,20 @@ def _object_recordings(obj_dir: Path, on_error: str) -> list[Recording]:
         # say so rather than label the run from the other camera alone without a word.
         for p in sorted(exp_dir.iterdir()):
             if p.is_file() and p.name.lower().startswith("camera_") and p not in cameras:
-                warnings.warn(f"{p}: not used (sensor videos are read from files named {CAMERA_GLOB}, lower case)",
-                              SkippedInputWarning, stacklevel=3)
+                warnings.warn(
+                    f"{p}: not used (sensor videos are read from files named {CAMERA_GLOB}, lower case)",
+                    SkippedInputWarning,
+                    stacklevel=3,
+                )
         if not cameras:
             report(exp_dir, f"experiment folder holds no {CAMERA_GLOB} video", on_error)
             continue
         if len(cameras) == 1:
-            warnings.warn(f"{exp_dir}: only one sensor video ({cameras[0].name}); the run is labelled from it alone",
-                          IncompleteRunWarning, stacklevel=3)
+            warnings.warn(
+                f"{exp_dir}: only one sensor video ({cameras[0].name}); the run is labelled from it alone",
+                IncompleteRunWarning,
+                stacklevel=3,
+            )
         seen[number] = exp_dir
         slipped = (exp_dir / SLIP_MARKER).exists()
         out.extend(

@@ -2,6 +2,7 @@
 
 Used by :func:`slipsense.recordings.labels.label_recordings`.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -27,8 +28,17 @@ def _inputs(recs: Sequence[Recording], rule: Rule) -> list:
     out: list = [ALGORITHM_VERSION, rule]
     for r in sorted(recs, key=lambda r: r.camera):
         st = Path(r.path).stat()
-        out.append([r.object, int(r.experiment), r.camera, str(Path(r.path).resolve()), int(st.st_size),
-                    int(st.st_mtime_ns), bool(r.slipped)])
+        out.append(
+            [
+                r.object,
+                int(r.experiment),
+                r.camera,
+                str(Path(r.path).resolve()),
+                int(st.st_size),
+                int(st.st_mtime_ns),
+                bool(r.slipped),
+            ]
+        )
     return out
 
 
@@ -76,7 +86,9 @@ def check_run_labels(labels: Sequence[VideoLabel], recs: Sequence[Recording]) ->
         if n < 2:
             raise ValueError(f"{l.camera}: n_frames {n}")
         if l.slipped is not rec.slipped:
-            raise ValueError(f"{l.camera}: slipped={l.slipped!r} but slip.txt is {'present' if rec.slipped else 'absent'}")
+            raise ValueError(
+                f"{l.camera}: slipped={l.slipped!r} but slip.txt is {'present' if rec.slipped else 'absent'}"
+            )
         if l.source != "auto":
             raise ValueError(f"{l.camera}: source {l.source!r}")
         if not 0 <= l.contact_start <= l.contact_end < n:

@@ -1,6 +1,7 @@
 """Label CSV files and hand-made overrides: :func:`write_labels_csv` / :func:`read_labels_csv`,
 :func:`read_overrides_csv` and :func:`apply_overrides`.
 """
+
 from __future__ import annotations
 
 import csv
@@ -101,10 +102,19 @@ def write_labels_csv(labels: Mapping[Key, VideoLabel] | Iterable[VideoLabel], pa
     writer = csv.writer(buf, lineterminator="\n")
     writer.writerow(LABEL_COLUMNS)
     for l in items:
-        writer.writerow([
-            l.object, l.experiment, l.camera, l.n_frames, "true" if l.slipped else "false",
-            "" if l.moment_of_slip is None else l.moment_of_slip, l.contact_start, l.contact_end, l.source,
-        ])
+        writer.writerow(
+            [
+                l.object,
+                l.experiment,
+                l.camera,
+                l.n_frames,
+                "true" if l.slipped else "false",
+                "" if l.moment_of_slip is None else l.moment_of_slip,
+                l.contact_start,
+                l.contact_end,
+                l.source,
+            ]
+        )
     atomic.write_text(path, buf.getvalue())
 
 
@@ -230,8 +240,9 @@ def read_overrides_csv(
         clash = [k for k in seen if k[:2] == (obj, exp) and (k[2] is None) != (cam is None)]
         if clash:
             raise InputError(
-                path, f"line {line}: mixes a whole-run and a per-camera override of {obj} experiment {exp} "
-                f"(line {seen[clash[0]]})"
+                path,
+                f"line {line}: mixes a whole-run and a per-camera override of {obj} experiment {exp} "
+                f"(line {seen[clash[0]]})",
             )
         seen[key] = line
         out[key] = moment

@@ -18,6 +18,7 @@ Labels are cached by :mod:`slipsense.recordings.label_cache`; CSV files and over
 handled by :mod:`slipsense.recordings.label_csv`. This module re-exports the public names of
 both and of :mod:`slipsense.recordings.contact`.
 """
+
 from __future__ import annotations
 
 from dataclasses import replace
@@ -109,9 +110,7 @@ GRASP_WINDOW = 30
 STILL_END_FRAMES = 24
 
 
-def _run_labels(
-    recordings: Sequence[Recording], signals: Sequence[np.ndarray], rule: Rule
-) -> list[VideoLabel]:
+def _run_labels(recordings: Sequence[Recording], signals: Sequence[np.ndarray], rule: Rule) -> list[VideoLabel]:
     """VideoLabels for one run from its recordings and their tail-referenced signals."""
     n = len(signals[0])
     slipped = any(r.slipped for r in recordings)
@@ -140,8 +139,9 @@ def _phase_length(phase: tuple[int, int]) -> int:
     return phase[1] - phase[0] + 1
 
 
-def _ends_holding(tails: Sequence[tuple[int, int]], heads: Sequence[tuple[int, int]],
-                  still_ends: Sequence[int], n: int) -> bool:
+def _ends_holding(
+    tails: Sequence[tuple[int, int]], heads: Sequence[tuple[int, int]], still_ends: Sequence[int], n: int
+) -> bool:
     """Whether a run that did not slip ended while still holding the object.
 
     Against the final frames of such a run the gel at rest before the grasp looks like contact
@@ -212,8 +212,7 @@ def label_run(recordings_of_one_experiment: Sequence[Recording], rule: Rule = "e
     if not _ends_holding(tail_phases, heads, [still for _, still in tails], len(blocks[0])):
         return labels
     return [
-        replace(l, contact_start=h[0], contact_end=h[1]) if _phase_length(h) > 1 else l
-        for l, h in zip(labels, heads)
+        replace(l, contact_start=h[0], contact_end=h[1]) if _phase_length(h) > 1 else l for l, h in zip(labels, heads)
     ]
 
 
@@ -276,8 +275,11 @@ def label_recordings(
                 except OSError as exc:
                     import warnings
 
-                    warnings.warn(f"{cached_path}: cannot write the label cache ({exc}); continuing without it",
-                                  CacheWarning, stacklevel=2)
+                    warnings.warn(
+                        f"{cached_path}: cannot write the label cache ({exc}); continuing without it",
+                        CacheWarning,
+                        stacklevel=2,
+                    )
         for label in run_labels:
             labels[label.key] = label
     if overrides:

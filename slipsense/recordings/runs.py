@@ -10,6 +10,7 @@ camera's contact signal (:func:`slipsense.recordings.labels.contact_signal`, use
 :func:`gray_frames` is the one conversion used both here and by the live detector, so training
 and streaming see the same pixels.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -115,8 +116,13 @@ def _decode_run(recs: Sequence[Recording], size: tuple[int, int]) -> dict[str, n
     return {"gray": np.stack(grays), "contact": np.stack(contacts)}
 
 
-def load_runs(recordings: Iterable[Recording], labels: Mapping[tuple, VideoLabel], size: tuple[int, int],
-              sensors: int = 2, progress: bool = True) -> list[GraspRun]:
+def load_runs(
+    recordings: Iterable[Recording],
+    labels: Mapping[tuple, VideoLabel],
+    size: tuple[int, int],
+    sensors: int = 2,
+    progress: bool = True,
+) -> list[GraspRun]:
     """Every run of ``recordings`` as a :class:`GraspRun` (decoded once, then cached, checksummed).
 
     Args:
@@ -152,8 +158,17 @@ def load_runs(recordings: Iterable[Recording], labels: Mapping[tuple, VideoLabel
         labs = [labels[r.key] for r in recs]
         moment = next((l.moment_of_slip for l in labs if l.moment_of_slip is not None), None)
         slipped = any(l.slipped for l in labs)
-        runs.append(GraspRun(key[0], key[1], slipped, moment if slipped else None, arrays["gray"],
-                             arrays["contact"], tuple(r.camera for r in recs)))
+        runs.append(
+            GraspRun(
+                key[0],
+                key[1],
+                slipped,
+                moment if slipped else None,
+                arrays["gray"],
+                arrays["contact"],
+                tuple(r.camera for r in recs),
+            )
+        )
     return runs
 
 

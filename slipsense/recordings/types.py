@@ -1,4 +1,5 @@
 """Plain records shared by the recordings pipeline: what a video is, and what we know about it."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass

@@ -13,6 +13,7 @@ of at most :data:`TRUNCATION_TOLERANCE` (one) frame, which forgives a writer tha
 frame the decoder cannot flush, and report anything larger as truncated. A file that only lost its
 trailing index (the last bytes of an AVI) still decodes completely and is accepted.
 """
+
 from __future__ import annotations
 
 import os
@@ -161,9 +162,7 @@ def _check_size(path: Path, height: int, width: int, expected_size: tuple[int, i
         return
     eh, ew = expected_size
     if (height, width) != (eh, ew):
-        raise InputError(
-            path, f"frames are {width}x{height} pixels (width x height), expected {ew}x{eh}"
-        )
+        raise InputError(path, f"frames are {width}x{height} pixels (width x height), expected {ew}x{eh}")
 
 
 def _check_args(expected_size: tuple[int, int] | None, min_frames: int) -> None:
@@ -177,7 +176,9 @@ def _check_args(expected_size: tuple[int, int] | None, min_frames: int) -> None:
         and all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v > 0 for v in expected_size)
     )
     if not ok:
-        raise InputError(None, f"expected_size must be (height, width) positive integers or None, got {expected_size!r}")
+        raise InputError(
+            None, f"expected_size must be (height, width) positive integers or None, got {expected_size!r}"
+        )
 
 
 def read_video(
@@ -217,9 +218,7 @@ def read_video(
     if n == 0:
         raise InputError(path, "no decodable frames")
     if count is not None and n < count - TRUNCATION_TOLERANCE:
-        raise InputError(
-            path, f"truncated: the container states {count} frames but only {n} could be decoded"
-        )
+        raise InputError(path, f"truncated: the container states {count} frames but only {n} could be decoded")
     if n < min_frames:
         raise InputError(path, f"only {n} frame{'s' if n != 1 else ''}, need at least {min_frames}")
     _check_size(path, frames.shape[1], frames.shape[2], expected_size)

@@ -7,6 +7,7 @@ any working folder::
     >>> shipped_model().name
     'motionnet-gelsight.safetensors'
 """
+
 from __future__ import annotations
 
 from importlib.resources import files

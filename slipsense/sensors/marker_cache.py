@@ -5,6 +5,7 @@ tracking parameters, with a ``.json`` sidecar (sha256 and inputs) written last; 
 only when it passes its checksum, records the same inputs and holds a consistent track
 (:func:`check_track`).
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -44,8 +45,17 @@ def _cache_file(cache_dir: Path, path: Path, params: dict[str, Any]) -> Path:
 def _identity(path: Path, params: dict[str, Any]) -> str:
     """What a cached track was computed from (the same fields as its file name's hash)."""
     st = path.stat()
-    return json.dumps({"version": CACHE_VERSION, "path": str(path.resolve()), "size": st.st_size,
-                       "mtime_ns": st.st_mtime_ns, "params": params}, sort_keys=True, default=str)
+    return json.dumps(
+        {
+            "version": CACHE_VERSION,
+            "path": str(path.resolve()),
+            "size": st.st_size,
+            "mtime_ns": st.st_mtime_ns,
+            "params": params,
+        },
+        sort_keys=True,
+        default=str,
+    )
 
 
 def _sha256(path: Path) -> str:
@@ -74,12 +84,14 @@ def _save_cached_track(cfile: Path, path: Path, params: dict[str, Any], track: "
         write_with(cfile, writer)
         write_text(cfile.with_suffix(".json"), json.dumps({"sha256": digest[0], "inputs": _identity(path, params)}))
     except OSError as exc:
-        warnings.warn(f"{cfile}: cannot write the marker cache ({exc}); continuing without it", CacheWarning,
-                      stacklevel=3)
+        warnings.warn(
+            f"{cfile}: cannot write the marker cache ({exc}); continuing without it", CacheWarning, stacklevel=3
+        )
 
 
-def check_track(track: "MarkerTrack", expected_size: tuple[int, int] | None = None,
-                n_frames: int | None = None) -> None:
+def check_track(
+    track: "MarkerTrack", expected_size: tuple[int, int] | None = None, n_frames: int | None = None
+) -> None:
     """Raise ValueError unless ``track``'s arrays fit together (shapes, ranges, finite values)."""
     t, n = track.positions.shape[:2] if track.positions.ndim == 3 else (-1, -1)
     if track.positions.ndim != 3 or track.positions.shape[2] != 2 or n < 1 or t < 1:
@@ -104,8 +116,9 @@ def check_track(track: "MarkerTrack", expected_size: tuple[int, int] | None = No
         raise ValueError(f"{t} frames tracked but the video has {n_frames}")
 
 
-def _load_cached_track(cfile: Path, path: Path, params: dict[str, Any],
-                       expected_size: tuple[int, int] | None) -> "MarkerTrack | None":
+def _load_cached_track(
+    cfile: Path, path: Path, params: dict[str, Any], expected_size: tuple[int, int] | None
+) -> "MarkerTrack | None":
     """A cached track that passes its checksum, records these inputs and is consistent; None when
     absent, otherwise warned about (:class:`~slipsense.errors.CacheWarning`) and None."""
     import warnings

@@ -4,6 +4,7 @@ Step 1 of the pipeline described in :mod:`slipsense.sensors.markers`. The blob s
 (:func:`_detect`) is shared with :mod:`slipsense.sensors.marker_tracking`, which uses it to
 re-acquire lost markers.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -202,9 +203,7 @@ def _detect(
     return _Blobs(pts.astype(np.float32), areas.astype(np.float32), base_level)
 
 
-def _detect_scaled(
-    gray: np.ndarray, diameter: float | None, min_contrast: float, border: int
-) -> tuple[_Blobs, float]:
+def _detect_scaled(gray: np.ndarray, diameter: float | None, min_contrast: float, border: int) -> tuple[_Blobs, float]:
     """Detect; without a known diameter, measure it and redo once if the first guess was far off.
 
     Returns the blobs and the marker diameter in px (measured, given, or the default guess).

@@ -4,6 +4,7 @@
 The same format holds simulated and real marker windows; every file read is validated and any
 problem is an InputError naming the file.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -44,8 +45,11 @@ def save_dataset(ds: MarkerDataset, path: str | Path) -> Path:
     path = Path(path)
     if path.suffix != ".npz":
         raise InputError(path, "marker datasets are saved as .npz; give a path ending in .npz")
-    arrays: dict[str, np.ndarray] = {"x": np.asarray(ds.x, np.float32), "groups": np.asarray(ds.groups, np.int64),
-                                     "fps": np.asarray(ds.fps, np.float64)}
+    arrays: dict[str, np.ndarray] = {
+        "x": np.asarray(ds.x, np.float32),
+        "groups": np.asarray(ds.groups, np.int64),
+        "fps": np.asarray(ds.fps, np.float64),
+    }
     if ds.y is not None:
         arrays["y"] = np.asarray(ds.y, np.int64)
     if ds.pattern is not None:
@@ -80,13 +84,17 @@ def validate_marker_array(x, path: str | Path | None, name: str = "x") -> np.nda
         bad = np.argwhere(~finite)
         i, t, m, _ = (int(v) for v in bad[0])
         kind = "NaN" if np.isnan(x[i, t, m]).any() else "inf"
-        raise InputError(path, f"{name} contains {len(bad)} non-finite value(s); first {kind} at sample {i}, "
-                               f"frame {t}, marker {m}")
+        raise InputError(
+            path, f"{name} contains {len(bad)} non-finite value(s); first {kind} at sample {i}, frame {t}, marker {m}"
+        )
     big = np.abs(x) > MAX_ABS_MM
     if big.any():
         i, t, m, _ = (int(v) for v in np.argwhere(big)[0])
-        raise InputError(path, f"{name} holds {int(big.sum())} value(s) out of range (|value| > {MAX_ABS_MM:g} mm); "
-                               f"first {float(x[i, t, m][big[i, t, m]][0]):g} at sample {i}, frame {t}, marker {m}")
+        raise InputError(
+            path,
+            f"{name} holds {int(big.sum())} value(s) out of range (|value| > {MAX_ABS_MM:g} mm); "
+            f"first {float(x[i, t, m][big[i, t, m]][0]):g} at sample {i}, frame {t}, marker {m}",
+        )
     return x
 
 
@@ -153,14 +161,18 @@ def load_marker_npz(path: str | Path, require_labels: bool = True) -> MarkerData
     y = None
     if "y" in data:
         y_raw = _per_sample(data["y"], n, "y", path)
-        if not (np.issubdtype(y_raw.dtype, np.integer) or np.issubdtype(y_raw.dtype, np.bool_)
-                or np.issubdtype(y_raw.dtype, np.floating)):
+        if not (
+            np.issubdtype(y_raw.dtype, np.integer)
+            or np.issubdtype(y_raw.dtype, np.bool_)
+            or np.issubdtype(y_raw.dtype, np.floating)
+        ):
             raise InputError(path, f"y has dtype {y_raw.dtype}; expected integer labels 0/1")
         bad = ~np.isin(y_raw, (0, 1))
         if bad.any():
             i = int(np.argmax(bad))
-            raise InputError(path, f"y must be 0 (no slip) or 1 (slip); sample {i} has {y_raw[i]!r} "
-                                   f"({int(bad.sum())} bad label(s))")
+            raise InputError(
+                path, f"y must be 0 (no slip) or 1 (slip); sample {i} has {y_raw[i]!r} ({int(bad.sum())} bad label(s))"
+            )
         y = y_raw.astype(np.int64)
     elif require_labels:
         raise InputError(path, f"missing key 'y' (labels (N,), 0/1); keys present: {present}")

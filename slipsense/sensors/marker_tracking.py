@@ -4,6 +4,7 @@
 Steps 2 and 3 of the pipeline described in :mod:`slipsense.sensors.markers`; the markers are
 found with :mod:`slipsense.sensors.marker_detection`.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -318,8 +319,13 @@ def track_markers(
     # pyramids), so each call builds its own; at 320 x 240 that costs well under a millisecond.
     def lk(src: Any, dst: Any, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         out, status, _err = cv2.calcOpticalFlowPyrLK(
-            src, dst, pts.reshape(-1, 1, 2).astype(np.float32), None,
-            winSize=win, maxLevel=max_level, criteria=criteria,
+            src,
+            dst,
+            pts.reshape(-1, 1, 2).astype(np.float32),
+            None,
+            winSize=win,
+            maxLevel=max_level,
+            criteria=criteria,
         )
         return out.reshape(-1, 2), status.reshape(-1).astype(bool)
 

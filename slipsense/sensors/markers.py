@@ -45,6 +45,7 @@ in :mod:`slipsense.sensors.marker_tracking`, the track cache in
 works on whole recordings and finished tracks: :func:`track_recording`, :func:`track_recordings`,
 :func:`marker_sequences` and :func:`plot_displacement`.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -256,8 +257,15 @@ def plot_displacement(
         longest = float(np.linalg.norm(disp[ok], axis=1).max()) if ok.any() else 0.0
         scale = max(1.0, track.spacing / longest) if longest > 0 else 1.0
     ax.quiver(
-        ref[ok, 0], ref[ok, 1], disp[ok, 0], disp[ok, 1],
-        angles="xy", scale_units="xy", scale=1.0 / scale, color="yellow", width=0.004,
+        ref[ok, 0],
+        ref[ok, 1],
+        disp[ok, 0],
+        disp[ok, 1],
+        angles="xy",
+        scale_units="xy",
+        scale=1.0 / scale,
+        color="yellow",
+        width=0.004,
     )
     ax.plot(ref[:, 0], ref[:, 1], ".", color="white", markersize=3)
     if (~ok).any():

@@ -6,6 +6,7 @@ reduced to a fixed count per sensor and cut into the same windows as the video c
 slip, wiggle windows come from the contact phase of runs that did not slip. ``groups`` is the
 object name, so a grouped split leaves whole objects out.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -16,9 +17,17 @@ from slipsense.atomic import write_with
 from slipsense.errors import InputError
 
 
-def real_marker_dataset(recordings_dir: str | Path, frames: int = 12, n_markers: int = 32, horizon: int = 0,
-                        wiggle_per_video: int = 2, seed: int = 0, on_error: str = "raise",
-                        progress: bool = True, overrides: str | Path | None = None) -> dict[str, np.ndarray]:
+def real_marker_dataset(
+    recordings_dir: str | Path,
+    frames: int = 12,
+    n_markers: int = 32,
+    horizon: int = 0,
+    wiggle_per_video: int = 2,
+    seed: int = 0,
+    on_error: str = "raise",
+    progress: bool = True,
+    overrides: str | Path | None = None,
+) -> dict[str, np.ndarray]:
     """Marker windows of every video under ``recordings_dir``.
 
     Returns arrays ``x`` float32 ``(N, frames, n_markers, 3)`` — per marker x, y in mm from the
@@ -44,7 +53,7 @@ def real_marker_dataset(recordings_dir: str | Path, frames: int = 12, n_markers:
             continue
         cloud = marker_sequences(track, n_markers, normalise=False)  # (T, n_markers, 3)
         for w in windows:
-            xs.append(cloud[w.start:w.end + 1])
+            xs.append(cloud[w.start : w.end + 1])
             ys.append(w.y)
             groups.append(rec.object)
             exps.append(rec.experiment)
@@ -52,8 +61,14 @@ def real_marker_dataset(recordings_dir: str | Path, frames: int = 12, n_markers:
             starts.append(w.start)
     if not xs:
         raise InputError(recordings_dir, "no marker windows could be made")
-    return {"x": np.stack(xs).astype(np.float32), "y": np.asarray(ys, np.int64), "groups": np.asarray(groups),
-            "experiment": np.asarray(exps, np.int64), "camera": np.asarray(cams), "start": np.asarray(starts, np.int64)}
+    return {
+        "x": np.stack(xs).astype(np.float32),
+        "y": np.asarray(ys, np.int64),
+        "groups": np.asarray(groups),
+        "experiment": np.asarray(exps, np.int64),
+        "camera": np.asarray(cams),
+        "start": np.asarray(starts, np.int64),
+    }
 
 
 def save_marker_npz(arrays: dict[str, np.ndarray], path: str | Path) -> Path:

@@ -5,6 +5,7 @@ and the objects' shapes and penetration into the gel. The model is described in
 :mod:`slipsense.sensors.sim_sequence`, which moves the objects and computes the marker
 displacements, and in docs/simulator.md.
 """
+
 # SimConfig.validate recognises range fields by their annotation string "Range", so annotations
 # must stay unevaluated here.
 from __future__ import annotations
@@ -118,6 +119,7 @@ class SimConfig:
 
     def validate(self) -> None:
         """Raise ConfigError naming the first bad setting."""
+
         def need(cond, msg):
             if not cond:
                 raise ConfigError(f"SimConfig.{msg}")
@@ -169,6 +171,7 @@ class SimConfig:
 
 
 # ----------------------------------------------------------------------------- grid and fields
+
 
 def rest_grid(cfg: SimConfig) -> np.ndarray:
     """Rest marker positions ``(M, 3)`` float64 mm in the gel frame (z = 0), ``x`` fastest."""
@@ -254,6 +257,7 @@ def _coverage_norm(kernel: np.ndarray, coverage: np.ndarray) -> np.ndarray:
 
 # ----------------------------------------------------------------------------- objects
 
+
 def _u(rng: np.random.Generator, r: Range) -> float:
     return float(rng.uniform(r[0], r[1]))
 
@@ -319,8 +323,9 @@ def _height(obj: dict[str, Any], dx: np.ndarray, dy: np.ndarray) -> np.ndarray:
         return _round_profile(q, obj["radius"]) + thread + 4.0 * beyond**2
     if name == "earphone":
         theta = np.arctan2(q, s)
-        r_theta = obj["radius"] * (1 + sum(a * np.cos((k + 2) * theta + ph)
-                                           for k, (a, ph) in enumerate(zip(obj["harmonics"], obj["phases"]))))
+        r_theta = obj["radius"] * (
+            1 + sum(a * np.cos((k + 2) * theta + ph) for k, (a, ph) in enumerate(zip(obj["harmonics"], obj["phases"])))
+        )
         rr = np.hypot(s, q / obj["aspect"])
         return rr**2 / (2 * r_theta)  # paraxial (parabolic) cap with a direction-dependent radius
     raise ConfigError(f"unknown object {name!r}")  # pragma: no cover

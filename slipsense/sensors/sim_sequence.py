@@ -32,6 +32,7 @@ Deformation model (per frame, on the rest marker positions ``X``; details in doc
   noise is added and the markers are reconstructed again: the depth-dominated error of a real
   binocular sensor.
 """
+
 from __future__ import annotations
 
 import math
@@ -80,8 +81,9 @@ def _noise(rng, cfg: SimConfig, T: int, X: np.ndarray, sigma: float) -> np.ndarr
     modes = np.stack([np.cos(np.pi * kx * xn) * np.cos(np.pi * ky * yn) for kx in range(3) for ky in range(3)], 1)
     modes /= np.sqrt((modes**2).sum(1).mean())  # unit mean variance per marker
     fs = cfg.noise_smooth_fraction
-    innov = (math.sqrt(fs) * np.einsum("mk,tkc->tmc", modes, rng.normal(size=(T, modes.shape[1], 3)))
-             + math.sqrt(1 - fs) * rng.normal(size=(T, M, 3)))
+    innov = math.sqrt(fs) * np.einsum("mk,tkc->tmc", modes, rng.normal(size=(T, modes.shape[1], 3))) + math.sqrt(
+        1 - fs
+    ) * rng.normal(size=(T, M, 3))
     out = np.empty_like(innov)
     rho = cfg.noise_corr
     out[0] = innov[0]
@@ -90,8 +92,14 @@ def _noise(rng, cfg: SimConfig, T: int, X: np.ndarray, sigma: float) -> np.ndarr
     return sigma * out
 
 
-def simulate_sequence(obj_name: str, pattern: str, rng: np.random.Generator, cfg: SimConfig,
-                      return_info: bool = False, allow_empty: bool = True):
+def simulate_sequence(
+    obj_name: str,
+    pattern: str,
+    rng: np.random.Generator,
+    cfg: SimConfig,
+    return_info: bool = False,
+    allow_empty: bool = True,
+):
     """One sequence of absolute marker positions ``(T, M, 3)`` float32 mm in the gel frame.
 
     ``T`` is drawn from ``cfg.seq_len``; ``M = markers_x * markers_y`` (552 by default); rest
@@ -165,14 +173,16 @@ def simulate_sequence(obj_name: str, pattern: str, rng: np.random.Generator, cfg
         hit = np.flatnonzero(t >= t_gross)
         gross = int(hit[0]) if len(hit) else -1
         params.update(t_gross_s=t_gross, speed_mm_s=speed, start_fraction=s0)
-    params.update(depth_mm=depth, shear_limit_mm=kappa_limit, relax_s=relax, direction=direction.tolist(),
-                  empty=bool(empty))
+    params.update(
+        depth_mm=depth, shear_limit_mm=kappa_limit, relax_s=relax, direction=direction.tolist(), empty=bool(empty)
+    )
 
     point, sub = _penetration(obj, delta, centres, X[:, :2], cfg)
     cell = sub.mean(-1)  # cell-averaged penetration: the normal load on each marker's cell
     coverage = (sub > 0).mean(-1)  # fraction of each cell in contact
-    cn, cl, gx, gy = _isotropic_kernels(cfg.markers_x, cfg.markers_y, cfg.gel_x_mm, cfg.gel_y_mm,
-                                        cfg.normal_decay_mm, cfg.lateral_decay_mm)
+    cn, cl, gx, gy = _isotropic_kernels(
+        cfg.markers_x, cfg.markers_y, cfg.gel_x_mm, cfg.gel_y_mm, cfg.normal_decay_mm, cfg.lateral_decay_mm
+    )
     u = np.zeros((T, M, 3))
     # normal: the gel conforms to the object inside the contact, the dent spreads around it
     u[..., 2] = -np.maximum(point, _spread(cn, cell, _coverage_norm(cn, coverage)))
@@ -209,9 +219,18 @@ def simulate_sequence(obj_name: str, pattern: str, rng: np.random.Generator, cfg
     out = pos.astype(np.float32)
     if not return_info:
         return out
-    info = {"object": obj_name, "pattern": pattern, "params": params, "direction": direction,
-            "centre": centres, "depth": delta, "contact": point > 0, "stick": stick,
-            "gross_slip_frame": gross, "noise_mm": sigma}
+    info = {
+        "object": obj_name,
+        "pattern": pattern,
+        "params": params,
+        "direction": direction,
+        "centre": centres,
+        "depth": delta,
+        "contact": point > 0,
+        "stick": stick,
+        "gross_slip_frame": gross,
+        "noise_mm": sigma,
+    }
     return out, info
 
 

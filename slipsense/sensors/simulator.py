@@ -30,6 +30,7 @@ computes each frame (:func:`simulate_sequence`; its docstring describes the defo
 module re-exports their public names and holds :func:`make_dataset`, which cuts and labels the
 windows, and the figures.
 """
+
 from __future__ import annotations
 
 import math
@@ -75,6 +76,7 @@ __all__ = [
 
 # ----------------------------------------------------------------------------- datasets
 
+
 def _labels(pattern: str, gross: int, starts: np.ndarray, cfg: SimConfig) -> np.ndarray:
     if pattern != SLIP_PATTERN:
         return np.zeros(len(starts), np.int64)
@@ -95,6 +97,7 @@ def make_dataset(cfg: SimConfig, progress: bool = True) -> MarkerDataset:
     jobs = [(o, p, k) for o in cfg.objects for p in cfg.patterns for k in range(cfg.n_sequences)]
     try:
         from tqdm import tqdm
+
         it = tqdm(jobs, desc="simulate", disable=not progress)
     except ImportError:  # pragma: no cover
         it = jobs
@@ -113,24 +116,52 @@ def make_dataset(cfg: SimConfig, progress: bool = True) -> MarkerDataset:
     if not xs:
         empty = np.zeros(0, np.int64)
         return MarkerDataset(np.zeros((0, cfg.window, M, 3), np.float32), empty, empty, empty, empty, fps=cfg.fps)
-    return MarkerDataset(np.concatenate(xs), np.concatenate(ys), np.concatenate(gs), np.concatenate(ps),
-                         np.concatenate(os_), fps=float(cfg.fps))
+    return MarkerDataset(
+        np.concatenate(xs),
+        np.concatenate(ys),
+        np.concatenate(gs),
+        np.concatenate(ps),
+        np.concatenate(os_),
+        fps=float(cfg.fps),
+    )
 
 
 # ----------------------------------------------------------------------------- figures
 
 #: Object shown for each pattern in the figures (small contacts make the lobes visible).
-FIGURE_OBJECTS = {"stationary": "tape", "pressing": "cherry_tomato", "rolling": "cherry_tomato",
-                  "slipping": "cherry_tomato"}
+FIGURE_OBJECTS = {
+    "stationary": "tape",
+    "pressing": "cherry_tomato",
+    "rolling": "cherry_tomato",
+    "slipping": "cherry_tomato",
+}
 
 
 def _draw_field(ax, X: np.ndarray, disp: np.ndarray, shape: tuple[int, int], vlim: float, arrow_scale: float):
     """z displacement as a coloured background, xy displacement as arrows (magnified)."""
     ny, nx = shape
-    mesh = ax.pcolormesh(X[:, 0].reshape(ny, nx), X[:, 1].reshape(ny, nx), disp[:, 2].reshape(ny, nx),
-                         cmap="RdBu_r", vmin=-vlim, vmax=vlim, shading="nearest", alpha=0.8)
-    ax.quiver(X[:, 0], X[:, 1], disp[:, 0] * arrow_scale, disp[:, 1] * arrow_scale, angles="xy",
-              scale_units="xy", scale=1.0, width=0.005, headwidth=3.5, color="k")
+    mesh = ax.pcolormesh(
+        X[:, 0].reshape(ny, nx),
+        X[:, 1].reshape(ny, nx),
+        disp[:, 2].reshape(ny, nx),
+        cmap="RdBu_r",
+        vmin=-vlim,
+        vmax=vlim,
+        shading="nearest",
+        alpha=0.8,
+    )
+    ax.quiver(
+        X[:, 0],
+        X[:, 1],
+        disp[:, 0] * arrow_scale,
+        disp[:, 1] * arrow_scale,
+        angles="xy",
+        scale_units="xy",
+        scale=1.0,
+        width=0.005,
+        headwidth=3.5,
+        color="k",
+    )
     ax.set_aspect("equal")
     ax.set_xlim(X[:, 0].min() - 0.6, X[:, 0].max() + 0.6)
     ax.set_ylim(X[:, 1].min() - 0.6, X[:, 1].max() + 0.6)
@@ -146,6 +177,7 @@ def plot_patterns(cfg: SimConfig, out_dir: str | Path, frames: int = 4, arrow_sc
     contact. ``sim_objects.png`` shows the static footprint of each object. Written atomically.
     """
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
@@ -165,8 +197,9 @@ def plot_patterns(cfg: SimConfig, out_dir: str | Path, frames: int = 4, arrow_sc
         vlim = max(float(np.abs(disp[..., 2]).max()), 0.05)
         ncol = 2
         nrow = int(math.ceil(frames / ncol))
-        fig, axes = plt.subplots(nrow, ncol, figsize=(5.2 * ncol + 1.0, 5.0 * nrow), constrained_layout=True,
-                                 squeeze=False)
+        fig, axes = plt.subplots(
+            nrow, ncol, figsize=(5.2 * ncol + 1.0, 5.0 * nrow), constrained_layout=True, squeeze=False
+        )
         for ax, ti in zip(axes.ravel(), idx):
             mesh = _draw_field(ax, X, disp[ti], shape, vlim, arrow_scale)
             mask = info["contact"][ti].reshape(shape).astype(float)
@@ -175,8 +208,12 @@ def plot_patterns(cfg: SimConfig, out_dir: str | Path, frames: int = 4, arrow_sc
             if pattern in ("rolling", "slipping"):
                 c = info["centre"][ti]
                 e = info["direction"] * 3.0
-                ax.annotate("", xy=(c[0] + e[0], c[1] + e[1]), xytext=(c[0], c[1]),
-                            arrowprops=dict(arrowstyle="-|>", color="red", lw=2.5))
+                ax.annotate(
+                    "",
+                    xy=(c[0] + e[0], c[1] + e[1]),
+                    xytext=(c[0], c[1]),
+                    arrowprops=dict(arrowstyle="-|>", color="red", lw=2.5),
+                )
             title = f"t = {ti / cfg.fps:.2f} s"
             if pattern == "slipping":
                 g = info["gross_slip_frame"]
@@ -185,7 +222,7 @@ def plot_patterns(cfg: SimConfig, out_dir: str | Path, frames: int = 4, arrow_sc
             ax.set_title(title, fontsize=11)
             ax.set_xlabel("x (mm)")
             ax.set_ylabel("y (mm)")
-        for ax in axes.ravel()[len(idx):]:
+        for ax in axes.ravel()[len(idx) :]:
             ax.set_visible(False)
         fig.colorbar(mesh, ax=axes, label="z displacement (mm)", shrink=0.85)
         fig.suptitle(f"{pattern}: {obj.replace('_', ' ')} (arrows: xy displacement x{arrow_scale:g})")

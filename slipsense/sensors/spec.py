@@ -9,6 +9,7 @@ A new sensor is one :class:`SensorSpec` here (and, for a new recording layout, a
     >>> GELSIGHT_MINI.frames_to_ms(5)
     200.0
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -45,8 +46,13 @@ class SensorSpec:
 #: Two GelSight Mini sensors on the fingers of a Franka Panda: the ViViT study's recordings
 #: (``<object>/exp_num_<N>/camera_0.avi`` and ``camera_2.avi``, ``slip.txt`` when it slipped).
 GELSIGHT_MINI = SensorSpec(
-    name="gelsight-mini", output="video", fps=25.0, image_size=(240, 320), camera_glob="camera_*.avi",
-    experiment_pattern=r"^exp_num_(\d+)$", slip_marker="slip.txt",
+    name="gelsight-mini",
+    output="video",
+    fps=25.0,
+    image_size=(240, 320),
+    camera_glob="camera_*.avi",
+    experiment_pattern=r"^exp_num_(\d+)$",
+    slip_marker="slip.txt",
 )
 
 #: The STNet study's binocular visuo-tactile sensor: 24 x 23 markers reconstructed in 3D, 20 Hz

@@ -33,6 +33,7 @@ vectorised over markers).
 The simulator uses the *gel frame* (origin on the contact surface at the gel centre, same axes);
 :func:`gel_to_camera` / :func:`camera_to_gel` convert between the two (a shift of ``h_v`` in z).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -80,8 +81,10 @@ class SensorGeometry:
             if not np.isfinite(getattr(self, name)):
                 raise ConfigError(f"SensorGeometry.{name} must be finite")
         if self.h_c_mm >= self.h_v_mm:
-            raise ConfigError(f"SensorGeometry.h_c_mm ({self.h_c_mm}) must be below h_v_mm ({self.h_v_mm}): "
-                              "the interface must lie in front of the cameras")
+            raise ConfigError(
+                f"SensorGeometry.h_c_mm ({self.h_c_mm}) must be below h_v_mm ({self.h_v_mm}): "
+                "the interface must lie in front of the cameras"
+            )
 
     @property
     def interface_z_mm(self) -> float:
@@ -98,6 +101,7 @@ class SensorGeometry:
 
 
 # ----------------------------------------------------------------------------- validation
+
 
 def _points(arr, name: str, ncols: int) -> np.ndarray:
     """``arr`` as a finite float64 ``(N, ncols)`` array, else InputError naming ``name``."""
@@ -119,6 +123,7 @@ def _unit(v: np.ndarray) -> np.ndarray:
 
 # ----------------------------------------------------------------------------- frames
 
+
 def gel_to_camera(geom: SensorGeometry, points) -> np.ndarray:
     """Gel-frame points ``(N, 3)`` mm (origin on the contact surface) -> world frame ``(N, 3)`` mm."""
     return _points(points, "points", 3) + np.array([0.0, 0.0, geom.h_v_mm])
@@ -130,6 +135,7 @@ def camera_to_gel(geom: SensorGeometry, points) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------- rays
+
 
 def pixel_rays(geom: SensorGeometry, uv, camera: str = "left") -> tuple[np.ndarray, np.ndarray]:
     """Rays in air through pixels ``uv (N, 2)`` (column, row; pixels) of one camera.
@@ -194,9 +200,12 @@ def _closest_midpoint(a_l, w_l, a_r, w_r, what: str):
     den = 1.0 - b**2
     parallel = den < _PARALLEL_EPS
     if parallel.any():
-        raise InputError(None, f"{what}: the two rays of {int(parallel.sum())} marker(s) are near parallel "
-                               f"(first at index {int(np.argmax(parallel))}); the pixel pair has no usable "
-                               "disparity and cannot be triangulated")
+        raise InputError(
+            None,
+            f"{what}: the two rays of {int(parallel.sum())} marker(s) are near parallel "
+            f"(first at index {int(np.argmax(parallel))}); the pixel pair has no usable "
+            "disparity and cannot be triangulated",
+        )
     s = (b * q - p) / den
     t = (q - b * p) / den
     p_l = a_l + s[:, None] * w_l
@@ -227,8 +236,11 @@ def reconstruct(geom: SensorGeometry, uv_left, uv_right, return_gap: bool = Fals
     mid, gap, s, t = _closest_midpoint(a_l, w_l, a_r, w_r, "reconstruct")
     behind = (s < 0) | (t < 0)
     if behind.any():
-        raise InputError(None, f"reconstruct: the rays of {int(behind.sum())} marker(s) meet in front of the "
-                               f"interface (first at index {int(np.argmax(behind))}); are left and right swapped?")
+        raise InputError(
+            None,
+            f"reconstruct: the rays of {int(behind.sum())} marker(s) meet in front of the "
+            f"interface (first at index {int(np.argmax(behind))}); are left and right swapped?",
+        )
     return (mid, gap) if return_gap else mid
 
 
@@ -246,6 +258,7 @@ def reconstruct_without_refraction(geom: SensorGeometry, uv_left, uv_right, retu
 
 
 # ----------------------------------------------------------------------------- forward model
+
 
 def _interface_offset(rho: np.ndarray, a: float, b: np.ndarray, n_r: float) -> np.ndarray:
     """Horizontal offset ``s`` (mm) of the refraction point from the camera, ``0 <= s <= rho``.
@@ -290,8 +303,11 @@ def project(geom: SensorGeometry, points) -> tuple[np.ndarray, np.ndarray]:
     a = geom.interface_z_mm
     b = pts[:, 2] - a
     if (b <= 0).any():
-        raise InputError(None, f"project: {int((b <= 0).sum())} point(s) lie in front of the interface "
-                               f"(z <= h_v - h_c = {a} mm; first at index {int(np.argmax(b <= 0))})")
+        raise InputError(
+            None,
+            f"project: {int((b <= 0).sum())} point(s) lie in front of the interface "
+            f"(z <= h_v - h_c = {a} mm; first at index {int(np.argmax(b <= 0))})",
+        )
     out = []
     for camera in ("left", "right"):
         c = geom.camera_centre(camera)

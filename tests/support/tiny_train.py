@@ -6,6 +6,7 @@ Writes ``OUT_DIR/final.pt`` (the state dict) on rank 0. With KILL_AFTER_ITEMS th
 SIGKILLs itself after reading that many training items: a kill mid-epoch, at a point that no
 checkpoint write can protect against except by being atomic.
 """
+
 from __future__ import annotations
 
 import os
@@ -22,7 +23,6 @@ from slipsense.train import TrainConfig, fit, seed_everything
 
 @register("test-tiny")
 class TinyNet(MarkerModel):
-
     def __init__(self, frames: int = 4, markers: int = 6, hidden: int = 16):
         super().__init__()
         self._config = dict(frames=frames, markers=markers, hidden=hidden)
@@ -60,8 +60,9 @@ def main(argv):
     kill_after = int(args[3]) if len(args) > 3 else None
     seed_everything(0)
     model = TinyNet()
-    cfg = TrainConfig(epochs=epochs, batch_size=batch, lr=1e-2, weight_decay=1e-4, step_size=2, gamma=0.5,
-                      seed=0, progress=False)
+    cfg = TrainConfig(
+        epochs=epochs, batch_size=batch, lr=1e-2, weight_decay=1e-4, step_size=2, gamma=0.5, seed=0, progress=False
+    )
     fit(model, Toy(kill_after=kill_after), Toy(16), cfg, out, resume=resume)
     if int(os.environ.get("RANK", "0")) == 0:
         torch.save(model.state_dict(), os.path.join(out, "final.pt"))
