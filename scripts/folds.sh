@@ -7,7 +7,6 @@ cd "$(dirname "$0")/.."
 out=${OUT:-runs/vivit-folds}
 report=${REPORT:-reports/vivit-folds/folds.json}
 for k in 0 1 2 3 4; do
-    .venv/bin/slipsense train --model vivit --fold "$k" --folds 5 --size 120x160 --set 'patch_size=[20,20]' \
-        --overrides configs/gelsight-label-overrides.csv --out "$out/fold$k" --no-progress "$@"
+    .venv/bin/slipsense train --config configs/vivit-folds.yaml --fold "$k" --out "$out/fold$k" --no-progress "$@"
 done
 .venv/bin/python -m slipsense.folds "$out"/fold* --json "$report"

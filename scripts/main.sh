@@ -10,7 +10,7 @@ out=reports/main
 mkdir -p "$out"
 overrides=configs/gelsight-label-overrides.csv
 .venv/bin/slipsense label --csv "$out/labels.csv" --overrides "$overrides" --no-progress
-.venv/bin/slipsense grasp train --model motionnet --fold 0 --folds 5 --overrides "$overrides" \
+.venv/bin/slipsense grasp train --config configs/motionnet.yaml --fold 0 --folds 5 \
     --out "$out/motionnet-fold0" --no-progress "$@"
 # the same detector as a gripper would run it, on the held-out objects' recordings only
 held=$(.venv/bin/python -c "import json,sys; print(' '.join(json.load(open(sys.argv[1]))['objects']))" \

@@ -127,24 +127,37 @@ def label(
 @app.command()
 @friendly
 def train(
-    model: str = typer.Option("vivit", help="model name (see `slipsense models`)"),
+    config: Optional[Path] = typer.Option(
+        None, help="a configuration tree (YAML: model/data/train), e.g. configs/vivit-paper.yaml"
+    ),
+    model: Optional[str] = typer.Option(None, help="model name (see `slipsense models`; default vivit)"),
     recordings: Optional[Path] = typer.Option(None, help="GelSight recordings folder (video models)"),
     markers: Optional[Path] = typer.Option(None, help="marker-sequence .npz (STNet/TemNet)"),
     out: Path = typer.Option(Path("runs/latest"), help="run folder"),
     preset: Optional[str] = typer.Option(None, help="named model configuration (e.g. paper, compact)"),
-    set_: Optional[List[str]] = typer.Option(None, "--set", help="model config key=value (repeatable)"),
-    frames: int = typer.Option(5, help="frames per clip (2..12)"),
-    horizon: int = typer.Option(0, help="slip clips end this many frames before the moment of slip"),
+    set_: Optional[List[str]] = typer.Option(
+        None,
+        "--set",
+        help="section.key=value, section model, data or train (a bare key=value sets model.key); repeatable",
+    ),
+    frames: Optional[int] = typer.Option(None, help="frames per clip (2..12; default 5)"),
+    horizon: Optional[int] = typer.Option(None, help="slip clips end this many frames before the moment of slip"),
     size: Optional[str] = typer.Option(None, help="clip size HxW (default 240x320)"),
-    wiggle_per_video: int = typer.Option(2, help="wiggle windows drawn from each non-slip video"),
-    split: str = typer.Option(
-        "objects", help="objects: leave objects out; clips: random 90/10 by clip; all: train on everything"
+    wiggle_per_video: Optional[int] = typer.Option(
+        None, help="wiggle windows drawn from each non-slip video (default 2)"
+    ),
+    split: Optional[str] = typer.Option(
+        None, help="objects (default): leave objects out; clips: random 90/10 by clip; all: train on everything"
     ),
     test_objects: Optional[str] = typer.Option(None, help="comma-separated held-out objects"),
     fold: Optional[int] = typer.Option(None, help="hold out fold k of --folds object folds"),
-    folds: int = typer.Option(5),
-    test_fraction: float = typer.Option(0.1, help="for --split clips, or marker data: test share"),
-    augment: bool = typer.Option(True, help="append the paper's transformed copies to the training set"),
+    folds: Optional[int] = typer.Option(None, help="object folds (default 5)"),
+    test_fraction: Optional[float] = typer.Option(
+        None, help="for --split clips, or marker data: test share (default 0.1)"
+    ),
+    augment: Optional[bool] = typer.Option(
+        None, help="append the paper's transformed copies to the training set (default on)"
+    ),
     epochs: Optional[int] = typer.Option(None),
     batch_size: Optional[int] = typer.Option(None, help="per process; under torchrun the global batch is world x this"),
     accumulate: Optional[int] = typer.Option(
@@ -155,58 +168,59 @@ def train(
     ),
     lr: Optional[float] = typer.Option(None),
     weight_decay: Optional[float] = typer.Option(None),
-    seed: int = typer.Option(0),
-    workers: int = typer.Option(0, help="DataLoader worker processes"),
-    device: str = typer.Option("auto"),
+    seed: Optional[int] = typer.Option(None, help="default 0"),
+    workers: Optional[int] = typer.Option(None, help="DataLoader worker processes"),
+    device: Optional[str] = typer.Option(None, help="auto (default), cpu, cuda, cuda:1, ..."),
     max_steps_per_epoch: Optional[int] = typer.Option(None, help="cap steps per epoch (smoke runs)"),
     resume: bool = typer.Option(False, help="continue from OUT/resume.pt"),
-    on_error: str = typer.Option("raise"),
+    on_error: Optional[str] = typer.Option(
+        None, help="raise (default): stop at a bad video; skip: warn and leave it out"
+    ),
     overrides: Optional[Path] = typer.Option(None, help="CSV of hand labels replacing automatic moments of slip"),
     progress: bool = typer.Option(True),
 ):
-    """Train a model on recordings or marker sequences (works under torchrun for DDP)."""
+    """Train a model on recordings or marker sequences (works under torchrun for DDP).
+
+    Settings come from the command's defaults, then --config, then the options given here, then --set;
+    the resolved tree is stored in every checkpoint and written to OUT/config.yaml."""
     from slipsense.atomic import check_output_dir
+    from slipsense.run_config import empty_tree, load_tree, merge, parse_sets
     from slipsense.train import TrainRequest, run_training
 
-    check_seed(seed)
     check_output_dir(out, "--out")
-    req = TrainRequest(
-        model=model,
-        recordings=recordings,
-        markers=markers,
-        out=out,
-        preset=preset,
-        model_overrides=_parse_sets(set_),
-        frames=frames,
-        horizon=horizon,
-        size=parse_hw(size),
-        wiggle_per_video=wiggle_per_video,
-        split=split,
-        test_objects=[o for o in (test_objects or "").split(",") if o],
-        fold=fold,
-        folds=folds,
-        test_fraction=test_fraction,
-        augment=augment,
-        seed=seed,
-        on_error=on_error,
-        overrides=overrides,
-        progress=progress,
-        train_overrides={
-            k: v
-            for k, v in dict(
-                epochs=epochs,
-                batch_size=batch_size,
-                accumulate=accumulate,
-                lr=lr,
-                weight_decay=weight_decay,
-                num_workers=workers,
-                device=device,
-                max_steps_per_epoch=max_steps_per_epoch,
-            ).items()
-            if v is not None
-        },
-    )
-    run_training(req, resume=resume)
+    options = {
+        "model": {"name": model, "preset": preset},
+        "data": dict(
+            recordings=recordings,
+            markers=markers,
+            frames=frames,
+            horizon=horizon,
+            size=list(parse_hw(size)) if size else None,
+            wiggle_per_video=wiggle_per_video,
+            split=split,
+            test_objects=test_objects,
+            fold=fold,
+            folds=folds,
+            test_fraction=test_fraction,
+            augment=augment,
+            on_error=on_error,
+            overrides=overrides,
+        ),
+        "train": dict(
+            epochs=epochs,
+            batch_size=batch_size,
+            accumulate=accumulate,
+            lr=lr,
+            weight_decay=weight_decay,
+            num_workers=workers,
+            device=device,
+            max_steps_per_epoch=max_steps_per_epoch,
+            seed=seed,
+        ),
+    }
+    tree = merge(load_tree(config) if config else empty_tree(), options, parse_sets(set_))
+    check_seed(tree["train"].get("seed", 0))
+    run_training(TrainRequest.from_tree(tree, out=out, progress=progress), resume=resume)
 
 
 @app.command()

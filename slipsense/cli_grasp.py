@@ -18,16 +18,19 @@ grasp_app = typer.Typer(
 )
 
 SET_HELP = (
-    "KEY=VALUE: a training setting (epochs, lr, chunk, negatives, hard_negatives, onset_frames, horizon, "
-    "inner_folds, positive_weight, ...) or a model setting (width, lags, dilations, ... or model.KEY)"
+    "section.key=value: train.KEY (epochs, lr, chunk, negatives, hard_negatives, onset_frames, horizon, "
+    "inner_folds, positive_weight, ...), model.KEY (width, lags, dilations, ...) or data.KEY; a bare "
+    "KEY=VALUE is a training setting if it names one, else a model setting"
 )
 
 
 def _prepare(
-    model, sets, size, epochs, seed, inner_folds, recordings, overrides, on_error, progress, threads, out=None
+    config, model, sets, size, epochs, seed, inner_folds, recordings, overrides, on_error, progress, threads, out=None
 ):
-    from slipsense.cli import _default_recordings, _parse_sets, check_seed, parse_hw
-    from slipsense.grasp_train import load_grasp_data, make_config
+    """The configuration tree (defaults < --config < options < --set), the data, and the stored metadata."""
+    from slipsense.cli import _default_recordings, check_seed, parse_hw
+    from slipsense.grasp_train import GraspTrainConfig, load_grasp_data, make_config
+    from slipsense.run_config import check_keys, empty_tree, load_tree, merge, parse_sets, to_plain
 
     if threads is not None:
         import torch
@@ -36,23 +39,37 @@ def _prepare(
     from slipsense.atomic import check_output_dir
 
     check_output_dir(out, "--out")
-    settings = _parse_sets(sets)
-    if epochs is not None:
-        settings["epochs"] = epochs
-    if inner_folds is not None:
-        settings["inner_folds"] = inner_folds
-    settings["seed"] = check_seed(seed)
-    hw = parse_hw(size)
-    cfg = make_config(model, settings, hw)
-    image_size = tuple(cfg.model_config.get("image_size") or _model_size(model))
-    root = recordings or _default_recordings()
-    runs, labels = load_grasp_data(root, overrides, image_size, on_error, progress)
+    layer = parse_sets(sets, bare="bare")
+    train_keys = set(GraspTrainConfig.__dataclass_fields__) - {"model", "model_config"}
+    for key, value in layer.pop("bare", {}).items():  # a bare key is a training setting if it names one
+        layer.setdefault("train" if key in train_keys else "model", {})[key] = value
+    options = {
+        "model": {"name": model, "image_size": list(parse_hw(size)) if size else None},
+        "data": {"recordings": recordings, "overrides": overrides, "on_error": on_error},
+        "train": {"epochs": epochs, "inner_folds": inner_folds, "seed": seed},
+    }
+    tree = merge(load_tree(config) if config else empty_tree(), options, layer)
+    check_keys(
+        tree,
+        {"train": train_keys, "data": ("recordings", "overrides", "on_error"), "model": None},
+        "grasp configuration",
+    )
+    name = tree["model"].pop("name", "motionnet")
+    tree["train"]["seed"] = check_seed(tree["train"].get("seed", 0))
+    settings = {**tree["train"], **{f"model.{k}": v for k, v in tree["model"].items()}}
+    cfg = make_config(name, settings)
+    image_size = tuple(cfg.model_config.get("image_size") or _model_size(name))
+    root = tree["data"].get("recordings") or _default_recordings()
+    overrides = tree["data"].get("overrides")
+    runs, labels = load_grasp_data(root, overrides, image_size, tree["data"].get("on_error", "raise"), progress)
     from slipsense.config import portable_path
 
+    tree["model"] = {"name": name, **cfg.model_config}
     data = {
         "recordings": portable_path(root),
         "overrides": None if overrides is None else portable_path(overrides),
         "image_size": list(image_size),
+        "config": to_plain(tree),
     }
     return cfg, runs, labels, data
 
@@ -74,7 +91,12 @@ def register(app: typer.Typer) -> None:
     @friendly
     def train(
         out: Path = typer.Option(..., help="output folder: detector.safetensors, metrics.csv, curves.png"),
-        model: str = typer.Option("motionnet", help="a model that takes whole grasps (motionnet, motion-energy)"),
+        config: Optional[Path] = typer.Option(
+            None, help="a configuration tree (YAML: model/data/train), e.g. configs/motionnet.yaml"
+        ),
+        model: Optional[str] = typer.Option(
+            None, help="a model that takes whole grasps (motionnet (default), motion-energy)"
+        ),
         fold: Optional[int] = typer.Option(
             None, help="hold out this fold of objects (with --folds); default: train on every object"
         ),
@@ -83,12 +105,12 @@ def register(app: typer.Typer) -> None:
         size: Optional[str] = typer.Option(None, help="grey frame size HxW (default: the model's, 30x40)"),
         epochs: Optional[int] = typer.Option(None, help="training epochs"),
         inner_folds: Optional[int] = typer.Option(None, help="inner folds for the operating point (0: training runs)"),
-        seed: int = typer.Option(0, help="seed of everything random"),
+        seed: Optional[int] = typer.Option(None, help="seed of everything random (default 0)"),
         recordings: Optional[Path] = typer.Option(
             None, help="recordings folder (default: $SLIPSENSE_DATA/gelsight-slip)"
         ),
         overrides: Optional[Path] = typer.Option(None, help="label overrides CSV"),
-        on_error: str = typer.Option("raise", help="raise or skip bad recordings"),
+        on_error: Optional[str] = typer.Option(None, help="raise (default) or skip bad recordings"),
         progress: bool = typer.Option(True),
         threads: Optional[int] = typer.Option(None, help="torch threads"),
     ):
@@ -97,7 +119,19 @@ def register(app: typer.Typer) -> None:
         from slipsense.grasp_train import object_split, train_detector
 
         cfg, runs, labels, data = _prepare(
-            model, sets, size, epochs, seed, inner_folds, recordings, overrides, on_error, progress, threads, out
+            config,
+            model,
+            sets,
+            size,
+            epochs,
+            seed,
+            inner_folds,
+            recordings,
+            overrides,
+            on_error,
+            progress,
+            threads,
+            out,
         )
         held: list[str] = []
         if fold is not None:
@@ -126,16 +160,19 @@ def register(app: typer.Typer) -> None:
     @friendly
     def folds_cmd(
         out: Path = typer.Option(..., help="report folder: fold<k>.json, folds.json, README.md, tradeoff.png"),
-        model: str = typer.Option("motionnet", help="a model that takes whole grasps"),
+        config: Optional[Path] = typer.Option(
+            None, help="a configuration tree (YAML: model/data/train), e.g. configs/motionnet.yaml"
+        ),
+        model: Optional[str] = typer.Option(None, help="a model that takes whole grasps (default motionnet)"),
         folds: int = typer.Option(5, help="folds by object"),
         sets: Optional[List[str]] = typer.Option(None, "--set", help=SET_HELP),
         size: Optional[str] = typer.Option(None, help="grey frame size HxW"),
         epochs: Optional[int] = typer.Option(None, help="training epochs"),
         inner_folds: Optional[int] = typer.Option(None, help="inner folds for the operating point (0: training runs)"),
-        seed: int = typer.Option(0, help="seed of everything random"),
+        seed: Optional[int] = typer.Option(None, help="seed of everything random (default 0)"),
         recordings: Optional[Path] = typer.Option(None, help="recordings folder"),
         overrides: Optional[Path] = typer.Option(None, help="label overrides CSV"),
-        on_error: str = typer.Option("raise", help="raise or skip bad recordings"),
+        on_error: Optional[str] = typer.Option(None, help="raise (default) or skip bad recordings"),
         progress: bool = typer.Option(True),
         threads: Optional[int] = typer.Option(None, help="torch threads"),
     ):
@@ -143,7 +180,19 @@ def register(app: typer.Typer) -> None:
         from slipsense.grasp_folds import run_folds
 
         cfg, runs, labels, data = _prepare(
-            model, sets, size, epochs, seed, inner_folds, recordings, overrides, on_error, progress, threads, out
+            config,
+            model,
+            sets,
+            size,
+            epochs,
+            seed,
+            inner_folds,
+            recordings,
+            overrides,
+            on_error,
+            progress,
+            threads,
+            out,
         )
         rep = run_folds(
             runs, labels, cfg, out, folds, meta={"command": _command(), **data}, progress=progress, echo=typer.echo

@@ -354,6 +354,71 @@ class TrainRequest:
     progress: bool = True
     train_overrides: dict[str, Any] = field(default_factory=dict)
 
+    #: ``data`` keys of the configuration tree (:mod:`slipsense.run_config`)
+    DATA_KEYS = (
+        "recordings",
+        "markers",
+        "frames",
+        "horizon",
+        "size",
+        "wiggle_per_video",
+        "split",
+        "test_objects",
+        "fold",
+        "folds",
+        "test_fraction",
+        "augment",
+        "on_error",
+        "overrides",
+    )
+
+    @classmethod
+    def from_tree(
+        cls, tree: dict[str, dict[str, Any]], out: Path | str = Path("runs/latest"), progress: bool = True
+    ) -> "TrainRequest":
+        """A request from a configuration tree (``model``/``data``/``train`` sections); missing keys keep
+        the defaults above, unknown keys are refused naming them."""
+        from slipsense.run_config import check_keys
+
+        train_keys = {f.name for f in fields(TrainConfig)} - {"progress"}
+        check_keys(tree, {"data": cls.DATA_KEYS, "train": train_keys, "model": None})
+        model = dict(tree.get("model") or {})
+        data = dict(tree.get("data") or {})
+        train = dict(tree.get("train") or {})
+        for key in ("recordings", "markers", "overrides"):
+            if data.get(key) is not None:
+                data[key] = Path(data[key])
+        if data.get("size") is not None:
+            size = data["size"]
+            if not (isinstance(size, (list, tuple)) and len(size) == 2 and all(isinstance(v, int) for v in size)):
+                raise ConfigError(f"data.size must be [height, width] in pixels, got {size!r}")
+            data["size"] = (int(size[0]), int(size[1]))
+        if isinstance(data.get("test_objects"), str):
+            data["test_objects"] = [o for o in data["test_objects"].split(",") if o]
+        seed = train.pop("seed", 0)
+        return cls(
+            model=model.pop("name", cls.model),
+            preset=model.pop("preset", None),
+            model_overrides=model,
+            out=Path(out),
+            progress=progress,
+            seed=seed,
+            train_overrides=train,
+            **data,
+        )
+
+    def to_tree(self) -> dict[str, dict[str, Any]]:
+        """The whole request as a configuration tree (what checkpoints store and ``config.yaml`` holds)."""
+        from slipsense.config import portable_path
+        from slipsense.run_config import to_plain
+
+        data = {k: getattr(self, k) for k in self.DATA_KEYS}
+        for key in ("recordings", "markers", "overrides"):
+            if data[key] is not None:
+                data[key] = portable_path(data[key])
+        model = {"name": self.model, **({"preset": self.preset} if self.preset else {}), **self.model_overrides}
+        return to_plain({"model": model, "data": data, "train": {**self.train_overrides, "seed": self.seed}})
+
 
 def build_model(name: str, preset: str | None, overrides: dict[str, Any], data_config: dict[str, Any]):
     """Build a model: preset (if any) < data-implied sizes < explicit overrides."""
@@ -519,7 +584,14 @@ def run_training(req: TrainRequest, resume: bool = False) -> dict[str, Any]:
     if d.main:
         out.mkdir(parents=True, exist_ok=True)
         write_text(out / "split.json", json.dumps(split_info, indent=1))
-    info = {"data": {k: v for k, v in split_info.items() if k != "test_indices"}, "preset": req.preset}
+    tree = req.to_tree()
+    resolved = {k: v for k, v in asdict(cfg).items() if k != "progress"}
+    tree["train"] = {**resolved, **tree["train"]}  # every optimisation setting, defaults included
+    if d.main:
+        from slipsense.run_config import dump_tree
+
+        write_text(out / "config.yaml", dump_tree(tree))
+    info = {"data": {k: v for k, v in split_info.items() if k != "test_indices"}, "preset": req.preset, "config": tree}
     fit(model, train_data, test_data, cfg, out, info=info, resume=resume, resume_state=state)
     if not d.main or len(test_data) == 0:
         return {}

@@ -1,0 +1,123 @@
+"""One configuration tree for every training command: ``model``, ``data`` and ``train`` sections.
+
+A run is described by a tree like ``configs/vivit-paper.yaml``::
+
+    model: {name: vivit, patch_size: [40, 40]}   # the model's name, preset and settings
+    data:  {frames: 5, size: [240, 320], split: objects, fold: 0}
+    train: {epochs: 75, batch_size: 16, lr: 3.0e-4, seed: 0}
+
+and built in layers, later ones winning: the command's defaults < ``--config FILE`` < the
+command's own options (``--epochs 3``) < ``--set section.key=value`` (a bare ``key=value`` goes to
+``model``). The resolved tree is stored whole in every checkpoint (``info["config"]``) and written
+as ``config.yaml`` beside it, so ``--config RUN/config.yaml`` repeats a run.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+from pathlib import Path
+from typing import Any, Iterable, Mapping
+
+from slipsense.errors import ConfigError, InputError
+
+SECTIONS = ("model", "data", "train")
+#: largest configuration file read (a tree is a few hundred bytes)
+MAX_BYTES = 1_000_000
+
+
+def empty_tree() -> dict[str, dict[str, Any]]:
+    return {s: {} for s in SECTIONS}
+
+
+def load_tree(path: str | Path) -> dict[str, dict[str, Any]]:
+    """Read a YAML (or JSON) tree; InputError naming the file on anything but ``section: {key: value}``."""
+    import yaml
+
+    path = Path(path)
+    try:
+        if path.stat().st_size > MAX_BYTES:
+            raise InputError(path, f"configuration file is over {MAX_BYTES:,} bytes")
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise InputError(path, "configuration file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(path, f"configuration file cannot be read: {exc}") from None
+    try:
+        doc = yaml.safe_load(text)  # safe_load: plain data only, never objects
+    except yaml.YAMLError as exc:
+        raise InputError(path, f"not valid YAML: {str(exc).splitlines()[0]}") from None
+    if doc is None:
+        doc = {}
+    if not isinstance(doc, dict):
+        raise InputError(path, f"expected sections {', '.join(SECTIONS)} at the top, got a {type(doc).__name__}")
+    tree = empty_tree()
+    for section, values in doc.items():
+        if section not in SECTIONS:
+            raise InputError(path, f"unknown section {section!r}; sections: {', '.join(SECTIONS)}")
+        if values is None:
+            continue
+        if not isinstance(values, dict) or not all(isinstance(k, str) for k in values):
+            raise InputError(path, f"section {section!r} must map names to values")
+        tree[section].update(values)
+    return tree
+
+
+def merge(tree: Mapping[str, Mapping[str, Any]], *layers: Mapping[str, Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
+    """``tree`` with each layer's values written over it (section by section, key by key)."""
+    out = {s: dict(tree.get(s) or {}) for s in SECTIONS}
+    for layer in layers:
+        for section, values in layer.items():
+            out.setdefault(section, {}).update({k: v for k, v in values.items() if v is not None})
+    return out
+
+
+def parse_sets(sets: Iterable[str] | None, bare: str = "model") -> dict[str, dict[str, Any]]:
+    """``--set section.key=value`` pairs as a tree layer; values are JSON where they parse (numbers,
+    lists, true/false), else strings. A key without a known section goes to ``bare``."""
+    layer: dict[str, dict[str, Any]] = {}
+    for item in sets or []:
+        if "=" not in item:
+            raise ConfigError(f"--set expects section.key=value, got {item!r}")
+        key, raw = item.split("=", 1)
+        key = key.strip()
+        section, _, name = key.partition(".")
+        if section not in SECTIONS or not name:
+            section, name = bare, key
+        if not name:
+            raise ConfigError(f"--set expects section.key=value, got {item!r}")
+        try:
+            value = json.loads(raw)
+        except json.JSONDecodeError:
+            value = raw
+        layer.setdefault(section, {})[name] = value
+    return layer
+
+
+def check_keys(
+    tree: Mapping[str, Mapping[str, Any]], allowed: Mapping[str, Iterable[str] | None], where: str = "configuration"
+) -> None:
+    """ConfigError naming the first key a section does not know (``None``: any key)."""
+    for section, values in tree.items():
+        known = allowed.get(section)
+        if known is None:
+            continue
+        unknown = sorted(set(values) - set(known))
+        if unknown:
+            raise ConfigError(
+                f"{where}: {section}.{unknown[0]} is not a setting; {section} settings: {', '.join(sorted(known))}"
+            )
+
+
+def to_plain(tree: Mapping[str, Any]) -> dict[str, Any]:
+    """A JSON/YAML-safe deep copy (paths and tuples become strings and lists)."""
+    return json.loads(json.dumps(copy.deepcopy(dict(tree)), default=str))
+
+
+def dump_tree(tree: Mapping[str, Any]) -> str:
+    import yaml
+
+    return yaml.safe_dump(to_plain(tree), sort_keys=False, default_flow_style=None)
+
+
+__all__ = ["SECTIONS", "check_keys", "dump_tree", "empty_tree", "load_tree", "merge", "parse_sets", "to_plain"]

@@ -1,0 +1,186 @@
+"""The configuration tree (slipsense/run_config.py): every configs/*.yaml is valid, layers override in
+order, the resolved tree is stored whole in checkpoints and repeats a run, bad files get one line."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from slipsense.checkpoint import read_info
+from slipsense.cli import app
+from slipsense.errors import ConfigError, InputError
+from slipsense.run_config import empty_tree, load_tree, merge, parse_sets
+
+CONFIGS = sorted((Path(__file__).resolve().parent.parent / "configs").glob("*.yaml"))
+runner = CliRunner()
+
+
+def test_the_shipped_configs_exist():
+    names = {p.stem for p in CONFIGS}
+    assert {"motionnet", "vivit-paper", "vivit-quick", "stnet-paper"} <= names
+
+
+@pytest.mark.parametrize("path", CONFIGS, ids=lambda p: p.stem)
+def test_every_shipped_config_builds(path):
+    """Each file names a registered model, settings it takes and training keys that exist."""
+    from slipsense.grasp_train import GraspTrainConfig, make_config
+    from slipsense.models import model_class
+    from slipsense.train import TrainConfig, TrainRequest, build_model, paper_settings
+
+    tree = load_tree(path)
+    name = tree["model"]["name"]
+    if model_class(name).input_kind == "grasp":
+        settings = {**tree["train"], **{f"model.{k}": v for k, v in tree["model"].items() if k != "name"}}
+        assert isinstance(make_config(name, settings), GraspTrainConfig)
+        return
+    req = TrainRequest.from_tree(tree)
+    TrainConfig.from_dict({**paper_settings(req.model), **req.train_overrides, "seed": req.seed})
+    import torch
+
+    with torch.device("meta"):  # no weights allocated (the paper STNet is 0.5 GB)
+        model = build_model(req.model, req.preset, req.model_overrides, {"frames": req.frames})
+    assert model.model_name == name
+
+
+def test_layers_win_in_order_and_bare_keys_go_to_model():
+    tree = merge(
+        {"model": {"name": "vivit", "dim": 8}, "train": {"epochs": 75}},
+        {"train": {"epochs": None, "lr": 0.1}},  # an option not given (None) changes nothing
+        parse_sets(["train.epochs=3", "dim=16", "model.patch_size=[20,20]", "data.split=clips", "x.y=z"]),
+    )
+    assert tree["train"] == {"epochs": 3, "lr": 0.1}
+    assert tree["model"] == {"name": "vivit", "dim": 16, "patch_size": [20, 20], "x.y": "z"}
+    assert tree["data"] == {"split": "clips"}
+    with pytest.raises(ConfigError, match="section.key=value"):
+        parse_sets(["novalue"])
+
+
+@pytest.mark.parametrize(
+    "text, problem",
+    [
+        ("model: [1, 2]\n", "must map names"),
+        ("optimiser: {lr: 1}\n", "unknown section 'optimiser'"),
+        ("- a\n- b\n", "expected sections"),
+        ("model: {name: vivit\n", "not valid YAML"),
+        ("!!python/object/apply:os.system ['echo hi']\n", "not valid YAML"),  # safe_load: no objects
+    ],
+)
+def test_bad_files_name_the_file(tmp_path, text, problem):
+    path = tmp_path / "bad.yaml"
+    path.write_text(text)
+    with pytest.raises(InputError, match=problem) as info:
+        load_tree(path)
+    assert "bad.yaml" in str(info.value)
+
+
+def _markers(path: Path) -> Path:
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(24, 4, 5, 3)).astype(np.float32)
+    np.savez(path, x=x, y=np.arange(24) % 2, groups=np.arange(24) // 2)
+    return path
+
+
+TINY_TREE = """model:
+  name: temnet
+  d_model: 8
+  heads: 2
+  blocks: 1
+  ff_dim: 8
+  head_hidden: 0
+data:
+  test_fraction: 0.25
+train:
+  epochs: 3
+  batch_size: 4
+  lr: 0.001
+"""
+
+
+def test_train_from_config_stores_the_whole_tree_and_repeats(tmp_path, cache, one_thread):
+    cfg = tmp_path / "tiny.yaml"
+    cfg.write_text(TINY_TREE)
+    data = _markers(tmp_path / "m.npz")
+    out = tmp_path / "run"
+    args = ["train", "--config", str(cfg), "--markers", str(data), "--out", str(out), "--no-progress"]
+    res = runner.invoke(app, [*args, "--epochs", "2", "--set", "train.lr=0.01", "--set", "data.test_fraction=0.5"])
+    assert res.exit_code == 0, res.output
+    tree = read_info(out / "last.safetensors")["config"]
+    assert tree["model"]["name"] == "temnet" and tree["model"]["d_model"] == 8
+    assert tree["train"]["epochs"] == 2 and tree["train"]["lr"] == 0.01 and tree["train"]["batch_size"] == 4
+    assert tree["train"]["step_size"] == 1000  # TemNet's paper setting, stored although nobody set it
+    assert tree["data"]["test_fraction"] == 0.5 and tree["data"]["markers"].endswith("m.npz")
+    again = tmp_path / "again"
+    res = runner.invoke(app, ["train", "--config", str(out / "config.yaml"), "--out", str(again), "--no-progress"])
+    assert res.exit_code == 0, res.output
+    assert read_info(again / "last.safetensors")["config"] == tree
+    assert (out / "split.json").read_text() == (again / "split.json").read_text()
+
+
+@pytest.mark.parametrize(
+    "tree, word",
+    [
+        ("model: {name: temnet}\ntrain: {epochz: 3}\n", "train.epochz is not a setting"),
+        ("model: {name: temnet}\ndata: {frame: 3}\n", "data.frame is not a setting"),
+        ("model: {name: nonet}\n", "unknown model 'nonet'"),
+    ],
+)
+def test_bad_config_is_one_line_exit_2(tmp_path, cache, tree, word):
+    cfg = tmp_path / "bad.yaml"
+    cfg.write_text(tree)
+    res = runner.invoke(
+        app,
+        [
+            "train",
+            "--config",
+            str(cfg),
+            "--markers",
+            str(_markers(tmp_path / "m.npz")),
+            "--out",
+            str(tmp_path / "run"),
+            "--no-progress",
+        ],
+    )
+    assert res.exit_code == 2 and word in res.output and "Traceback" not in res.output
+    assert len(res.output.strip().splitlines()) == 1
+
+
+def test_grasp_train_from_config_stores_the_tree(tmp_path, grasp_recordings, cache, one_thread):
+    cfg = tmp_path / "g.yaml"
+    cfg.write_text(
+        "model: {name: motionnet, width: 4, features: 8, temporal: 8, lags: [1, 5, 10], "
+        "dilations: [1, 2, 4], image_size: [12, 16]}\n"
+        "train: {epochs: 3, chunk: 16, negatives: 1, hard_negatives: 1, inner_folds: 0}\n"
+    )
+    out = tmp_path / "det"
+    res = runner.invoke(
+        app,
+        [
+            "grasp",
+            "train",
+            "--config",
+            str(cfg),
+            "--recordings",
+            str(grasp_recordings),
+            "--out",
+            str(out),
+            "--set",
+            "epochs=2",
+            "--set",
+            "model.width=3",
+            "--no-progress",
+            "--threads",
+            "1",
+        ],
+    )
+    assert res.exit_code == 0, res.output
+    info = read_info(out / "detector.safetensors")
+    tree = info["data"]["config"]
+    assert tree["train"]["epochs"] == 2 and tree["model"]["width"] == 3 and tree["model"]["name"] == "motionnet"
+    assert info["model_config"]["width"] == 3 and info["train_config"]["epochs"] == 2
+
+
+def test_empty_tree_has_the_three_sections():
+    assert set(empty_tree()) == {"model", "data", "train"}
