@@ -228,7 +228,7 @@ def train(
 def evaluate(
     checkpoint: Path = typer.Option(..., help="a .safetensors checkpoint"),
     recordings: Optional[Path] = typer.Option(None, help="evaluate on every clip of this recordings folder"),
-    split: Optional[Path] = typer.Option(None, help="a run's split.json: evaluate on its held-out part"),
+    split_file: Optional[Path] = typer.Option(None, help="a run's split.json: evaluate on its held-out part"),
     markers: Optional[Path] = typer.Option(None, help="marker-sequence .npz: evaluate on all of it"),
     json_out: Path = typer.Option(Path("evaluation.json"), "--json", help="metrics JSON"),
     png: Optional[Path] = typer.Option(None, help="confusion-matrix picture (default: beside the JSON)"),
@@ -248,7 +248,7 @@ def evaluate(
     m = evaluate_checkpoint(
         checkpoint,
         recordings=recordings,
-        split=split,
+        split=split_file,
         markers=markers,
         json_out=json_out,
         png=png,

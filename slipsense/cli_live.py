@@ -9,6 +9,7 @@ from typing import Any, Iterator, Optional, Sequence
 
 import numpy as np
 import typer
+from slipsense.sensors.spec import GELSIGHT_MINI
 
 from slipsense.errors import ConfigError, InputError
 
@@ -304,7 +305,7 @@ def register(app: typer.Typer) -> None:
         backend: str = typer.Option("torch", help="torch or onnx"),
         dtype: str = typer.Option("float32", help="float32, or int8 with --backend onnx"),
         limit: Optional[int] = typer.Option(None, help="replay only the first N runs"),
-        fps: float = typer.Option(25.0, help="frame rate, for lead times in ms"),
+        fps: float = typer.Option(GELSIGHT_MINI.fps, help="frame rate, for lead times in ms"),
         on_error: str = typer.Option("raise", help="raise or skip bad recordings folders"),
         progress: bool = typer.Option(True),
         threads: Optional[int] = typer.Option(None, help=THREADS_HELP),
@@ -361,7 +362,7 @@ def run_early_warning(
     combine: str = "max",
     backend: str = "torch",
     limit: Optional[int] = None,
-    fps: float = 25.0,
+    fps: float = GELSIGHT_MINI.fps,
     on_error: str = "raise",
     progress: bool = True,
     dtype: str = "float32",

@@ -47,9 +47,30 @@ def gelsight_clips(
     return clips, labels
 
 
+def shipped_overrides_for(recordings):
+    """The shipped hand labels (:func:`slipsense.resources.shipped_overrides`) of those ``recordings``
+    that are the shared GelSight recordings (``$SLIPSENSE_DATA/gelsight-slip``), or None."""
+    from slipsense.config import gelsight_recordings
+    from slipsense.recordings.label_csv import Overrides, read_overrides_csv
+    from slipsense.resources import shipped_overrides
+
+    shared = gelsight_recordings().resolve()
+    present: dict[tuple[str, int], set] = {}
+    for r in recordings:
+        if Path(r.path).resolve().is_relative_to(shared):
+            present.setdefault((r.object, r.experiment), set()).add(r.camera)
+    if not present:
+        return None
+    rows = read_overrides_csv(shipped_overrides())
+    keep = {k: v for k, v in rows.items() if k[:2] in present and (k[2] is None or k[2] in present[k[:2]])}
+    return Overrides(keep, rows.path, rows.lines) if keep else None
+
+
 def label_runs(recordings, overrides=None, on_error: str = "raise", progress: bool = True):
     """Label recordings run by run (:func:`~slipsense.recordings.labels.label_recordings`) and
     apply the overrides (a CSV path, read against the recordings so errors name its file and line).
+    Without ``overrides``, runs of the shared recordings get the shipped hand labels
+    (:func:`shipped_overrides_for`); to label them without any, pass a CSV holding only its header.
 
     With ``on_error="skip"`` a run that cannot be labelled (a video that does not decode, cameras
     that differ in frame count) is left out with a
@@ -67,6 +88,8 @@ def label_runs(recordings, overrides=None, on_error: str = "raise", progress: bo
     for r in recordings:
         runs.setdefault((r.object, r.experiment), []).append(r)
     known = {key: [r.camera for r in recs] for key, recs in runs.items()}
+    if overrides is None:
+        overrides = shipped_overrides_for(recordings)
     ov = read_overrides_csv(overrides, known=known) if isinstance(overrides, (str, Path)) else overrides
     if on_error == "raise":
         return label_recordings(recordings, overrides=ov, progress=progress)

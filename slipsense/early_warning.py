@@ -25,6 +25,7 @@ import numpy as np
 
 from slipsense import pergrasp
 from slipsense.errors import ConfigError, InputError
+from slipsense.sensors.spec import GELSIGHT_MINI
 
 #: Columns of the early-warning CSV, in order.
 EARLY_WARNING_COLUMNS = pergrasp.COLUMNS
@@ -54,7 +55,7 @@ def early_warning_table(
     thresholds: Sequence[float],
     debounce: int = 1,
     horizon: int = pergrasp.HORIZON,
-    fps: float = 25.0,
+    fps: float = GELSIGHT_MINI.fps,
 ) -> list[dict[str, Any]]:
     """One row (:data:`EARLY_WARNING_COLUMNS`) per threshold, pooled over ``runs``."""
     return [
@@ -138,7 +139,7 @@ def write_early_warning(
     out_dir: str | Path,
     debounce: int = 1,
     horizon: int = pergrasp.HORIZON,
-    fps: float = 25.0,
+    fps: float = GELSIGHT_MINI.fps,
     meta: Mapping[str, Any] | None = None,
 ) -> dict[str, Path]:
     """Write ``early_warning.csv``, ``early_warning.json`` (table, definitions, every run's outcome

@@ -114,7 +114,7 @@ def evaluate_checkpoint(
 
     sources = [s for s in (recordings, split, markers) if s is not None]
     if len(sources) != 1:
-        raise ConfigError("give exactly one of --recordings, --split or --markers")
+        raise ConfigError("give exactly one of --recordings, --split-file or --markers")
     import math
 
     if not isinstance(noise_std, (int, float)) or not math.isfinite(noise_std) or noise_std < 0:
@@ -132,7 +132,7 @@ def evaluate_checkpoint(
     }
     if kind == "video":
         if markers is not None:
-            raise InputError(checkpoint, "this checkpoint holds a video model; use --recordings or --split")
+            raise InputError(checkpoint, "this checkpoint holds a video model; use --recordings or --split-file")
         data_info = info.get("data", {})
         if split is not None:
             split_info = _read_split(split, "video")
@@ -165,7 +165,7 @@ def evaluate_checkpoint(
         data = ClipDataset(clips, noise_std=noise_std, seed=0)
     else:
         if recordings is not None:
-            raise InputError(checkpoint, "this checkpoint holds a marker model; use --markers or --split")
+            raise InputError(checkpoint, "this checkpoint holds a marker model; use --markers or --split-file")
         if split is not None:
             split_info = _read_split(split, "markers")
             x, y, _ = load_markers(resolve_path(split_info["markers"]))

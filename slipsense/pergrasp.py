@@ -28,6 +28,7 @@ import numpy as np
 
 from slipsense.recordings.contact import MIN_CONTACT as REST_MARGIN  # touching: this far above the rest floor
 from slipsense.recordings.contact import STARTUP_FRAMES as STARTUP  # camera start-up transient, never scored
+from slipsense.sensors.spec import GELSIGHT_MINI
 
 #: Default warning horizon: 50 frames = 2 s at 25 frames/s.
 HORIZON = 50
@@ -132,7 +133,7 @@ COLUMNS = (
 )
 
 
-def summarise(outcomes: Sequence[GraspOutcome], fps: float = 25.0) -> dict[str, Any]:
+def summarise(outcomes: Sequence[GraspOutcome], fps: float = GELSIGHT_MINI.fps) -> dict[str, Any]:
     """Pool run outcomes into one row (without threshold/debounce). ``score`` = warned rate minus
     false-positive rate: 1 for a perfect detector, 0 for one that never alarms, -1 for one always on."""
     slip = [o for o in outcomes if o.outcome in ("warned", "premature", "missed")]
@@ -168,7 +169,7 @@ def table(
     horizon: int = HORIZON,
     startup: int = STARTUP,
     rests: Sequence[np.ndarray | None] | None = None,
-    fps: float = 25.0,
+    fps: float = GELSIGHT_MINI.fps,
 ) -> list[dict[str, Any]]:
     """One row (:data:`COLUMNS`) per (threshold, debounce) over runs given as probability traces."""
     rests = rests if rests is not None else [None] * len(probabilities)

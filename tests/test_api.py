@@ -119,3 +119,22 @@ def test_wheel_carries_the_shipped_detectors_and_overrides(tmp_path):
     for name in slipsense.resources.shipped_models():
         assert f"slipsense/resources/models/{name}.safetensors" in names
     assert "slipsense/resources/gelsight-label-overrides.csv" in names
+
+
+def test_shipped_overrides_apply_to_the_shared_recordings_only(tmp_path):
+    """One data path: every command labels through data.label_runs, which gives runs of the shared
+    recordings the shipped hand labels unless told otherwise."""
+    from slipsense.config import gelsight_recordings
+    from slipsense.data import shipped_overrides_for
+    from slipsense.recordings.types import Recording
+
+    def rec(root, obj, exp, cam):
+        return Recording(
+            object=obj, experiment=exp, camera=cam, path=root / obj / f"exp_num_{exp}" / f"{cam}.avi", slipped=True
+        )
+
+    shared = gelsight_recordings()
+    ov = shipped_overrides_for([rec(shared, "screw_driver_red", 2, "camera_0"), rec(shared, "lemon", 1, "camera_0")])
+    assert ov is not None and set(ov) == {("screw_driver_red", 2, None)}
+    assert shipped_overrides_for([rec(tmp_path, "screw_driver_red", 2, "camera_0")]) is None
+    assert shipped_overrides_for([rec(shared, "lemon", 1, "camera_0")]) is None

@@ -287,7 +287,7 @@ def test_bad_split_files_are_refused(tmp_path, split, word):
             "evaluate",
             "--checkpoint",
             str(tmp_path / "run" / "last.safetensors"),
-            "--split",
+            "--split-file",
             str(path),
             "--json",
             str(json_out),

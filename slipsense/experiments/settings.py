@@ -19,11 +19,12 @@ from pathlib import Path
 from typing import Any, Iterable
 
 from slipsense.errors import ConfigError
+from slipsense.sensors.spec import GELSIGHT_MINI
 
 #: Experiment names, in report order.
 EXPERIMENTS: tuple[str, ...] = ("params", "video-compare", "frames", "noise", "stnet", "horizon", "all-models")
 
-FULL_SIZE = (240, 320)
+FULL_SIZE = GELSIGHT_MINI.image_size
 FULL_PATCH = (40, 40)
 QUICK_SIZE = (120, 160)
 QUICK_PATCH = (20, 20)

@@ -23,8 +23,9 @@ import numpy as np
 
 from slipsense.errors import ConfigError, InputError
 from slipsense.experiments.settings import Settings
+from slipsense.sensors.spec import GELSIGHT_MINI
 
-FPS = 25.0  # GelSight recordings
+FPS = GELSIGHT_MINI.fps
 
 
 def default_overrides() -> Path | None:

@@ -56,6 +56,7 @@ import numpy as np
 from ..errors import InputError
 from .marker_cache import CACHE_VERSION, _cache_file, _load_cached_track, _save_cached_track, check_track
 from .marker_detection import detect_markers, order_markers
+from .spec import GELSIGHT_MINI
 from .marker_tracking import (
     DEFAULT_MM_PER_PX,
     STARTUP_FRAMES,
@@ -143,7 +144,7 @@ def track_recording(
     path: str | Path,
     reference_index: int | None = None,
     *,
-    expected_size: tuple[int, int] | None = (240, 320),
+    expected_size: tuple[int, int] | None = GELSIGHT_MINI.image_size,
     **track_kwargs: Any,
 ) -> MarkerTrack:
     """Decode a video (:func:`slipsense.recordings.video.read_video`) and track its markers.
@@ -164,7 +165,7 @@ def track_recordings(
     cache: bool = True,
     cache_dir: str | Path | None = None,
     progress: bool = True,
-    expected_size: tuple[int, int] | None = (240, 320),
+    expected_size: tuple[int, int] | None = GELSIGHT_MINI.image_size,
     **track_kwargs: Any,
 ) -> list[MarkerTrack]:
     """Track many recordings, caching each result as ``.npz``.
