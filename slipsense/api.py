@@ -4,7 +4,7 @@
     >>> detector = slipsense.SlipDetector.pretrained(sensors=2)      # the shipped detector
     >>> reading = detector.push(frame_a, frame_b)                     # doctest: +SKIP
     >>> trained = slipsense.fit("my-recordings", "runs/mine", held_out=["mug"])   # doctest: +SKIP
-    >>> trained.held_out["per_grasp"]["warned_in_time"]               # doctest: +SKIP
+    >>> trained.held_out["per_grasp"]["warned"]               # doctest: +SKIP
     >>> report = slipsense.evaluate(trained.checkpoint, "other-recordings")         # doctest: +SKIP
     >>> report.summary()                                              # doctest: +SKIP
 
@@ -21,18 +21,18 @@ from typing import Any, Sequence
 
 from slipsense import pergrasp
 from slipsense.config import gelsight_recordings
-from slipsense.resources import shipped_overrides
 
 
 def _recordings_folder(recordings: str | Path | None) -> Path:
     return Path(recordings) if recordings is not None else gelsight_recordings()
 
 
-def _overrides(recordings: Path, overrides: str | Path | None | bool) -> Path | None:
-    """``True`` (default): the shipped overrides for the shared recordings, none for other folders."""
+def _overrides(overrides: str | Path | None | bool) -> Path | None | bool:
+    """As :func:`slipsense.data.label_runs` takes them: ``True`` (default) -> None (the shipped hand
+    labels for runs of the shared recordings), ``False``/None -> False (none), else the CSV's path."""
     if overrides is True:
-        return shipped_overrides() if recordings.resolve() == gelsight_recordings().resolve() else None
-    return None if overrides is False or overrides is None else Path(overrides)
+        return None
+    return False if overrides is False or overrides is None else Path(overrides)
 
 
 @dataclass
@@ -52,7 +52,7 @@ class TrainedDetector:
     history: list[dict[str, Any]] = field(default_factory=list)
     held_out: dict[str, Any] | None = None
 
-    def detector(self, sensors: int = 2):
+    def detector(self, sensors: int | None = None):
         """A live :class:`~slipsense.live.SlipDetector` on the trained checkpoint."""
         from slipsense.live import SlipDetector
 
@@ -77,7 +77,8 @@ def fit(
         out: output folder (``detector.safetensors``, ``metrics.csv``, ``curves.png``).
         model: a registered grasp model (``"motionnet"``, or ``"motion-energy"`` for the baseline).
         held_out: objects kept out of training and scored per grasp at the end.
-        overrides: label overrides CSV; True = the shipped one for the shared recordings.
+        overrides: label overrides CSV; True = the shipped hand labels for runs of the shared
+            recordings; False = none.
         settings: training or model settings, e.g. ``epochs=5``, ``width=8``
             (:class:`slipsense.grasp_train.GraspTrainConfig`).
     """
@@ -88,7 +89,7 @@ def fit(
     from slipsense.models import build
 
     image_size = tuple(cfg.model_config.get("image_size") or build(model).image_size)
-    runs, labels = load_grasp_data(root, _overrides(root, overrides), image_size, progress=progress)
+    runs, labels = load_grasp_data(root, _overrides(overrides), image_size, progress=progress)
     result = train_detector(runs, labels, cfg, out, held=list(held_out), progress=progress)
     held = {k: result[k] for k in ("per_grasp", "clips") if k in result} or None
     out = Path(out)
@@ -164,7 +165,8 @@ def evaluate(
     Args:
         checkpoint: default: the shipped detector.
         recordings: default: the shared GelSight recordings.
-        overrides: label overrides CSV; True = the shipped one for the shared recordings.
+        overrides: label overrides CSV; True = the shipped hand labels for runs of the shared
+            recordings; False = none.
         horizon: frames before the moment of slip in which an alarm counts as a warning in time.
         threshold, debounce: default: the checkpoint's operating point.
     """
@@ -172,14 +174,27 @@ def evaluate(
     from slipsense.live import SlipDetector
     from slipsense.recordings.folders import find_recordings, validate_recordings
 
+    import warnings
+
+    from slipsense.checkpoint import read_info
+    from slipsense.resources import shipped_model
+
     root = _recordings_folder(recordings)
+    trained_on = set(((read_info(checkpoint or shipped_model()).get("data") or {}).get("objects")) or ())
     detector = (
         SlipDetector.pretrained(sensors=2, threshold=threshold, debounce=debounce)
         if checkpoint is None
         else SlipDetector.from_checkpoint(checkpoint, sensors=2, threshold=threshold, debounce=debounce)
     )
     recs = validate_recordings(find_recordings(root), expected_size=None)
-    runs = replay_recordings(detector, recs, progress=progress, overrides=_overrides(root, overrides))
+    seen = sorted(trained_on & {r.object for r in recs})
+    if seen:
+        warnings.warn(
+            f"the detector was trained on {len(seen)} of these objects ({', '.join(seen[:5])}"
+            f"{', ...' if len(seen) > 5 else ''}): their runs do not measure objects it never saw",
+            stacklevel=2,
+        )
+    runs = replay_recordings(detector, recs, progress=progress, overrides=_overrides(overrides))
     return Evaluation(runs, detector.threshold, detector.debounce, horizon)
 
 

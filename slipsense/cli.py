@@ -6,7 +6,7 @@ import functools
 import json
 import warnings
 from pathlib import Path
-from typing import Any, List, Optional
+from typing import List, Optional
 
 import typer
 
@@ -73,20 +73,6 @@ def check_nonnegative(value: float, option: str) -> float:
     if not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
         raise ConfigError(f"{option} must be a finite number >= 0, got {value!r}")
     return value
-
-
-def _parse_sets(sets: Optional[List[str]]) -> dict[str, Any]:
-    """``--set key=value`` pairs; values are parsed as JSON where they can be (numbers, lists)."""
-    out: dict[str, Any] = {}
-    for item in sets or []:
-        if "=" not in item:
-            raise ConfigError(f"--set expects key=value, got {item!r}")
-        key, raw = item.split("=", 1)
-        try:
-            out[key.strip()] = json.loads(raw)
-        except json.JSONDecodeError:
-            out[key.strip()] = raw
-    return out
 
 
 def _default_recordings() -> Path:
@@ -184,7 +170,7 @@ def train(
     Settings come from the command's defaults, then --config, then the options given here, then --set;
     the resolved tree is stored in every checkpoint and written to OUT/config.yaml."""
     from slipsense.atomic import check_output_dir
-    from slipsense.run_config import empty_tree, load_tree, merge, parse_sets
+    from slipsense.run_config import empty_tree, given, load_tree, merge, parse_sets
     from slipsense.train import TrainRequest, run_training
 
     check_output_dir(out, "--out")
@@ -218,7 +204,7 @@ def train(
             seed=seed,
         ),
     }
-    tree = merge(load_tree(config) if config else empty_tree(), options, parse_sets(set_))
+    tree = merge(load_tree(config) if config else empty_tree(), given(options), parse_sets(set_))
     check_seed(tree["train"].get("seed", 0))
     run_training(TrainRequest.from_tree(tree, out=out, progress=progress), resume=resume)
 

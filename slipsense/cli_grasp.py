@@ -30,7 +30,7 @@ def _prepare(
     """The configuration tree (defaults < --config < options < --set), the data, and the stored metadata."""
     from slipsense.cli import _default_recordings, check_seed, parse_hw
     from slipsense.grasp_train import GraspTrainConfig, load_grasp_data, make_config
-    from slipsense.run_config import check_keys, empty_tree, load_tree, merge, parse_sets, to_plain
+    from slipsense.run_config import check_keys, empty_tree, given, load_tree, merge, parse_sets, to_plain
 
     if threads is not None:
         import torch
@@ -48,7 +48,7 @@ def _prepare(
         "data": {"recordings": recordings, "overrides": overrides, "on_error": on_error},
         "train": {"epochs": epochs, "inner_folds": inner_folds, "seed": seed},
     }
-    tree = merge(load_tree(config) if config else empty_tree(), options, layer)
+    tree = merge(load_tree(config) if config else empty_tree(), given(options), layer)
     check_keys(
         tree,
         {"train": train_keys, "data": ("recordings", "overrides", "on_error"), "model": None},
@@ -59,8 +59,11 @@ def _prepare(
     settings = {**tree["train"], **{f"model.{k}": v for k, v in tree["model"].items()}}
     cfg = make_config(name, settings)
     image_size = tuple(cfg.model_config.get("image_size") or _model_size(name))
-    root = tree["data"].get("recordings") or _default_recordings()
+    from slipsense.config import resolve_path
+
+    root = resolve_path(tree["data"].get("recordings") or _default_recordings())
     overrides = tree["data"].get("overrides")
+    overrides = resolve_path(overrides) if overrides is not None else None
     runs, labels = load_grasp_data(root, overrides, image_size, tree["data"].get("on_error", "raise"), progress)
     from slipsense.config import portable_path
 
@@ -141,6 +144,10 @@ def register(app: typer.Typer) -> None:
             held = split[fold]
         data["command"] = _command()
         res = train_detector(runs, labels, cfg, out, held, data=data, progress=progress)
+        from slipsense.atomic import write_text
+        from slipsense.run_config import dump_tree
+
+        write_text(Path(out) / "config.yaml", dump_tree(data["config"]))
         op = res["operating_point"]
         typer.echo(
             f"detector -> {res['checkpoint']} (threshold {op['threshold']:g}, debounce {op['debounce']}, "

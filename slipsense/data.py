@@ -69,8 +69,8 @@ def shipped_overrides_for(recordings):
 def label_runs(recordings, overrides=None, on_error: str = "raise", progress: bool = True):
     """Label recordings run by run (:func:`~slipsense.recordings.labels.label_recordings`) and
     apply the overrides (a CSV path, read against the recordings so errors name its file and line).
-    Without ``overrides``, runs of the shared recordings get the shipped hand labels
-    (:func:`shipped_overrides_for`); to label them without any, pass a CSV holding only its header.
+    ``overrides=None`` (default): runs of the shared recordings get the shipped hand labels
+    (:func:`shipped_overrides_for`), other folders none; ``overrides=False``: no hand labels at all.
 
     With ``on_error="skip"`` a run that cannot be labelled (a video that does not decode, cameras
     that differ in frame count) is left out with a
@@ -90,6 +90,8 @@ def label_runs(recordings, overrides=None, on_error: str = "raise", progress: bo
     known = {key: [r.camera for r in recs] for key, recs in runs.items()}
     if overrides is None:
         overrides = shipped_overrides_for(recordings)
+    elif overrides is False:
+        overrides = None
     ov = read_overrides_csv(overrides, known=known) if isinstance(overrides, (str, Path)) else overrides
     if on_error == "raise":
         return label_recordings(recordings, overrides=ov, progress=progress)

@@ -144,7 +144,7 @@ def evaluate_checkpoint(
                 resolve_path(split_info["recordings"]),
                 spec,
                 on_error=split_info.get("on_error") or on_error,
-                overrides=split_info.get("overrides") and resolve_path(split_info["overrides"]),
+                overrides=_split_overrides(split_info.get("overrides")),
                 progress=progress,
             )
             idx = split_info["test_indices"]
@@ -236,3 +236,14 @@ def _read_split(path, kind: str | None = None) -> dict[str, Any]:
     if len(set(idx)) != len(idx):
         raise InputError(path, "test_indices repeats an index")
     return info
+
+
+def _split_overrides(stored):
+    """The hand labels a split file's clips were cut with: ``"default"`` -> the shipped ones of the
+    shared recordings (None for data.label_runs), null (split files written before that default) ->
+    none (False), else the CSV's path."""
+    from slipsense.config import resolve_path
+
+    if stored == "default":
+        return None
+    return False if stored is None else resolve_path(stored)

@@ -25,8 +25,10 @@ from slipsense.grasp_train import GraspTrainConfig, evaluate_fold, object_split,
 from slipsense.recordings.runs import GraspRun, runs_summary
 
 
-def _config_key(cfg: GraspTrainConfig, folds: int, objects: Sequence[str]) -> str:
-    text = json.dumps({"cfg": cfg.to_dict(), "folds": folds, "objects": sorted(objects)}, sort_keys=True)
+def _config_key(cfg: GraspTrainConfig, folds: int, runs: Sequence[GraspRun]) -> str:
+    """What a finished fold depends on: the settings, the folds and every run's label."""
+    labels = sorted((r.object, r.experiment, r.slipped, r.moment_of_slip) for r in runs)
+    text = json.dumps({"cfg": cfg.to_dict(), "folds": folds, "labels": labels}, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
@@ -44,7 +46,7 @@ def run_folds(
     out = Path(out)
     usable = [r for r in runs if r.usable]
     split = object_split(usable, folds, cfg.seed)
-    key = _config_key(cfg, folds, [r.object for r in usable])
+    key = _config_key(cfg, folds, usable)
     results = []
     for k, held in enumerate(split):
         path = out / f"fold{k}.json"
@@ -67,8 +69,8 @@ def run_folds(
         results.append(done)
     pooled = pool_folds(results)
     report = {
-        **(meta or {}),
-        "config": cfg.to_dict(),
+        **(meta or {}),  # the command and its whole configuration tree ("config")
+        "train_config": cfg.to_dict(),
         "folds": folds,
         "data": runs_summary(runs),
         "machine": {"cpu": platform.processor() or platform.machine(), "python": platform.python_version()},
@@ -115,7 +117,7 @@ def _pct(v) -> str:
 def summary_markdown(report: dict[str, Any]) -> str:
     """The report as a short Markdown page: per-grasp and clip tables, per fold and pooled."""
     g, c = report["pooled"]["per_grasp"], report["pooled"]["clips"]
-    cfg, d = report["config"], report["data"]
+    cfg, d = report["train_config"], report["data"]
     lines = [
         f"# {cfg['model']}: leave-objects-out, {report['folds']} folds, judged per grasp",
         "",

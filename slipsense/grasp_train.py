@@ -417,7 +417,9 @@ def make_config(model: str, settings: dict[str, Any], size: tuple[int, int] | No
             model_cfg[key] = value
     if size is not None:
         model_cfg["image_size"] = list(size)
-    cfg = GraspTrainConfig(model=model, model_config=model_cfg, **train)
+    from slipsense.run_config import typed
+
+    cfg = GraspTrainConfig(model=model, model_config=model_cfg, **typed(GraspTrainConfig, train, "grasp training"))
     from slipsense.models import build
 
     build(cfg.model, **cfg.model_config)  # unknown or out-of-range model settings fail here, before any work
@@ -449,11 +451,14 @@ def _checkpoint_info(
     data: dict[str, Any],
     history: list[dict[str, Any]],
 ) -> dict[str, Any]:
+    data = dict(data)
+    tree = data.pop("config", None)  # the whole configuration tree, where every checkpoint keeps it
     return {
         "train_config": cfg.to_dict(),
         "operating_point": op,
         "history": history,
         "data": {**data, "objects": sorted({r.object for r in runs}), "runs": len(runs)},
+        **({"config": tree} if tree is not None else {}),
     }
 
 

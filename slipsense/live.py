@@ -143,7 +143,8 @@ class SlipDetector:
     Args:
         model: a slipsense model (eval mode is set here).
         threshold: alarm when the combined probability is >= this, in [0, 1].
-        sensors: frames per push (1, or 2 for both fingers).
+        sensors: frames per push (1, or 2 for both fingers); default: what a grasp model was
+            trained on (both fingers for the shipped detector), else 1.
         combine: ``"max"`` (default: alarm when either sensor sees slip) or ``"mean"``.
         backend: ``"torch"`` or ``"onnx"`` (ONNX Runtime; the parts are exported on first use).
         dtype: ``"float32"`` (default) or, with ``backend="onnx"``, ``"int8"``: the exported parts'
@@ -163,7 +164,7 @@ class SlipDetector:
         model: nn.Module,
         *,
         threshold: float = 0.5,
-        sensors: int = 1,
+        sensors: int | None = None,
         combine: str = "max",
         backend: str = "torch",
         info: Mapping[str, Any] | None = None,
@@ -171,6 +172,8 @@ class SlipDetector:
         dtype: str = "float32",
         debounce: int = 1,
     ):
+        if sensors is None:
+            sensors = getattr(model, "sensors", 1) if getattr(model, "input_kind", None) == "grasp" else 1
         _check_settings(threshold, sensors, combine, backend, dtype)
         if isinstance(debounce, bool) or not isinstance(debounce, (int, np.integer)) or not 1 <= debounce <= 1000:
             raise ConfigError(f"debounce must be a whole number of frames in 1..1000, got {debounce!r}")
@@ -207,7 +210,7 @@ class SlipDetector:
         cls,
         path: str | Path,
         threshold: float | None = None,
-        sensors: int = 1,
+        sensors: int | None = None,
         combine: str = "max",
         backend: str = "torch",
         onnx_dir: str | Path | None = None,
@@ -226,7 +229,7 @@ class SlipDetector:
 
         model, info = load_model(path)
         threshold, debounce = stored_operating_point(path, info, threshold, debounce)
-        _check_settings(threshold, sensors, combine, backend, dtype)
+        _check_settings(threshold, 1 if sensors is None else sensors, combine, backend, dtype)
         if backend == "onnx" and onnx_dir is None:
             onnx_dir = onnx_cache_dir(Path(path))
         return cls(

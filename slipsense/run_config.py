@@ -64,12 +64,18 @@ def load_tree(path: str | Path) -> dict[str, dict[str, Any]]:
 
 
 def merge(tree: Mapping[str, Mapping[str, Any]], *layers: Mapping[str, Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
-    """``tree`` with each layer's values written over it (section by section, key by key)."""
+    """``tree`` with each layer's values written over it (section by section, key by key); a None
+    value in a layer is written too (``--set data.fold=null`` clears a fold)."""
     out = {s: dict(tree.get(s) or {}) for s in SECTIONS}
     for layer in layers:
         for section, values in layer.items():
-            out.setdefault(section, {}).update({k: v for k, v in values.items() if v is not None})
+            out.setdefault(section, {}).update(values)
     return out
+
+
+def given(options: Mapping[str, Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
+    """A command's options as a tree layer: the ones given (None means "not given" there)."""
+    return {s: {k: v for k, v in values.items() if v is not None} for s, values in options.items()}
 
 
 def parse_sets(sets: Iterable[str] | None, bare: str = "model") -> dict[str, dict[str, Any]]:
@@ -109,6 +115,40 @@ def check_keys(
             )
 
 
+def typed(cls: type, values: Mapping[str, Any], where: str) -> dict[str, Any]:
+    """``values`` for dataclass ``cls`` with each value checked against its field's default type: a
+    float field takes numbers and numeric strings (YAML reads ``3e-4`` as a string); an int field
+    whole numbers; a bool field true/false; None keeps the default where the default is not None.
+    ConfigError names the key otherwise."""
+    from dataclasses import MISSING, fields
+
+    defaults = {f.name: f.default for f in fields(cls) if f.default is not MISSING}
+    out: dict[str, Any] = {}
+    for key, value in values.items():
+        default = defaults.get(key)
+        if value is None and default is not None:
+            continue
+        kind = type(default)
+        if value is None or default is None or kind not in (bool, int, float):
+            out[key] = value
+        elif kind is bool:
+            if not isinstance(value, bool):
+                raise ConfigError(f"{where}: {key} must be true or false, got {value!r}")
+            out[key] = value
+        elif kind is int:
+            if isinstance(value, bool) or not isinstance(value, int):
+                raise ConfigError(f"{where}: {key} must be a whole number, got {value!r}")
+            out[key] = value
+        else:
+            try:
+                if isinstance(value, bool):
+                    raise ValueError
+                out[key] = float(value)
+            except (TypeError, ValueError):
+                raise ConfigError(f"{where}: {key} must be a number, got {value!r}") from None
+    return out
+
+
 def to_plain(tree: Mapping[str, Any]) -> dict[str, Any]:
     """A JSON/YAML-safe deep copy (paths and tuples become strings and lists)."""
     return json.loads(json.dumps(copy.deepcopy(dict(tree)), default=str))
@@ -120,4 +160,4 @@ def dump_tree(tree: Mapping[str, Any]) -> str:
     return yaml.safe_dump(to_plain(tree), sort_keys=False, default_flow_style=None)
 
 
-__all__ = ["SECTIONS", "check_keys", "dump_tree", "empty_tree", "load_tree", "merge", "parse_sets", "to_plain"]
+__all__ = ["SECTIONS", "check_keys", "dump_tree", "empty_tree", "given", "load_tree", "merge", "parse_sets", "to_plain"]

@@ -42,6 +42,7 @@ from slipsense.errors import ConfigError, InputError
 from slipsense.distributed import Dist, RankBatches, StepPlan, all_sum, micro_batch_rng, setup  # noqa: F401
 from slipsense.evaluation import predict, progress_bar
 from slipsense.metrics import metrics_from  # noqa: F401  (re-exported)
+from slipsense.splits import SPLIT_IDENTITY, check_same_split, prepare_data  # noqa: F401
 
 
 @dataclass
@@ -82,10 +83,13 @@ class TrainConfig:
 
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> "TrainConfig":
+        from slipsense.run_config import typed
+
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(values) - known)
         if unknown:
             raise ConfigError(f"train config: unknown keys {unknown}; known: {sorted(known)}")
+        values = typed(cls, values, "train config")
         return cls(**values)
 
 
@@ -385,9 +389,11 @@ class TrainRequest:
         model = dict(tree.get("model") or {})
         data = dict(tree.get("data") or {})
         train = dict(tree.get("train") or {})
+        from slipsense.config import resolve_path
+
         for key in ("recordings", "markers", "overrides"):
             if data.get(key) is not None:
-                data[key] = Path(data[key])
+                data[key] = resolve_path(data[key])  # "$SLIPSENSE_DATA/..." as checkpoints write it
         if data.get("size") is not None:
             size = data["size"]
             if not (isinstance(size, (list, tuple)) and len(size) == 2 and all(isinstance(v, int) for v in size)):
@@ -395,6 +401,8 @@ class TrainRequest:
             data["size"] = (int(size[0]), int(size[1]))
         if isinstance(data.get("test_objects"), str):
             data["test_objects"] = [o for o in data["test_objects"].split(",") if o]
+        optional = {f.name for f in fields(cls) if f.default is None}  # None is their default anyway
+        data = {k: v for k, v in data.items() if v is not None or k in optional}
         seed = train.pop("seed", 0)
         return cls(
             model=model.pop("name", cls.model),
@@ -438,114 +446,6 @@ def build_model(name: str, preset: str | None, overrides: dict[str, Any], data_c
     config.update({k: v for k, v in data_config.items() if k in accepted})
     config.update(overrides)
     return build(name, **config)
-
-
-def prepare_data(req: TrainRequest, kind: str):
-    """Datasets and the split description for a request -> ``(train, test, split_info, data_config)``."""
-    from slipsense.datasets import ClipDataset, MarkerDataset
-
-    if kind == "video":
-        from slipsense.config import gelsight_recordings
-        from slipsense.data import gelsight_clips, spec_dict
-        from slipsense.recordings.augment import AugmentConfig
-        from slipsense.recordings.clips import ClipSpec, object_folds, split_by_clip, split_by_object
-
-        if req.markers is not None:
-            raise ConfigError(f"model {req.model!r} takes video clips: use --recordings, not --markers")
-        root = Path(req.recordings) if req.recordings else gelsight_recordings()
-        spec_kw = dict(frames=req.frames, horizon=req.horizon, wiggle_per_video=req.wiggle_per_video, seed=req.seed)
-        if req.size is not None:
-            spec_kw["size"] = req.size
-        spec = ClipSpec(**spec_kw)
-        clips, _ = gelsight_clips(root, spec, on_error=req.on_error, overrides=req.overrides, progress=req.progress)
-        if req.split == "all":  # a model to ship: every clip trains, nothing is held out
-            tr, te = np.arange(len(clips)), np.zeros(0, np.int64)
-            test_objects = []
-        elif req.split == "clips":
-            tr, te = split_by_clip(clips, test_fraction=req.test_fraction, seed=req.seed)
-            test_objects: list[str] = []
-        elif req.split == "objects":
-            objects = sorted(set(clips.objects))
-            if req.test_objects:
-                unknown = sorted(set(req.test_objects) - set(objects))
-                if unknown:
-                    raise ConfigError(f"--test-objects not in {root}: {unknown}")
-                test_objects = sorted(req.test_objects)
-            else:
-                k = 0 if req.fold is None else req.fold
-                if not 0 <= k < req.folds:
-                    raise ConfigError(f"--fold must be in 0..{req.folds - 1}")
-                test_objects = sorted(object_folds(objects, n_folds=req.folds, seed=req.seed)[k])
-            tr, te = split_by_object(clips, test_objects)
-            if len(tr) == 0:
-                raise ConfigError(
-                    f"every object of {root} is held out ({', '.join(test_objects)}): nothing is left to train on"
-                )
-        else:
-            raise ConfigError(f"--split must be objects, clips or all, got {req.split!r}")
-        size = tuple(clips.x.shape[2:4])
-        from slipsense.config import portable_path
-
-        split_info = {
-            "kind": "video",
-            "recordings": portable_path(root),
-            "clip_spec": spec_dict(spec),
-            "split": req.split,
-            "test_objects": test_objects,
-            "test_indices": [int(i) for i in te],
-            "on_error": req.on_error,
-            "overrides": portable_path(req.overrides) if req.overrides else None,
-        }
-        train = ClipDataset(clips.subset(tr), AugmentConfig(enabled=req.augment), seed=req.seed)
-        test = ClipDataset(clips.subset(te))
-        return train, test, split_info, {"frames": req.frames, "image_size": size}
-    if kind == "markers":
-        from slipsense.data import load_markers, split_groups
-
-        if req.markers is None:
-            raise ConfigError(f"model {req.model!r} takes marker sequences: give --markers FILE.npz")
-        x, y, groups = load_markers(req.markers)
-        n_groups = len(np.unique(groups))
-        if n_groups < 2:
-            raise InputError(
-                req.markers,
-                f"all {len(groups)} samples are in one group: a split that never cuts a "
-                "group leaves nothing to train on (give groups with several values)",
-            )
-        tr, te = split_groups(groups, 0.2 if req.test_fraction == 0.1 else req.test_fraction, req.seed)
-        from slipsense.config import portable_path
-
-        split_info = {"kind": "markers", "markers": portable_path(req.markers), "test_indices": [int(i) for i in te]}
-        return (
-            MarkerDataset(x[tr], y[tr]),
-            MarkerDataset(x[te], y[te]),
-            split_info,
-            {"frames": int(x.shape[1]), "markers": int(x.shape[2])},
-        )
-    raise ConfigError(f"model input kind {kind!r} is not supported")
-
-
-#: split.json entries that must not change when a run is resumed.
-SPLIT_IDENTITY = ("kind", "split", "test_objects", "test_indices", "clip_spec")
-
-
-def check_same_split(path: Path, split_info: dict[str, Any]) -> None:
-    """Refuse to resume a run whose ``split.json`` describes another split than ``split_info``."""
-    if not path.is_file():
-        return
-    try:
-        old = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:
-        raise InputError(path, f"cannot be read to check the resumed run's split ({exc})") from None
-    if not isinstance(old, dict):
-        raise InputError(path, "is not a split description (a JSON object)")
-    changed = [k for k in SPLIT_IDENTITY if (k in old or k in split_info) and old.get(k) != split_info.get(k)]
-    if changed:
-        raise InputError(
-            path,
-            f"the run was started with another data split ({', '.join(changed)} differ); "
-            "resume with the same data and split options, or use a new --out",
-        )
 
 
 def run_training(req: TrainRequest, resume: bool = False) -> dict[str, Any]:

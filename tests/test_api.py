@@ -42,8 +42,8 @@ def test_import_is_light_and_names_resolve():
 
 
 def test_pretrained_detector_streams_made_up_frames(one_thread):
-    det = slipsense.SlipDetector.pretrained(sensors=2)
-    assert det.kind == "grasp" and 0 < det.threshold <= 1
+    det = slipsense.SlipDetector.pretrained()  # a grasp model's sensors by default: both fingers
+    assert det.kind == "grasp" and det.sensors == 2 and 0 < det.threshold <= 1
     frames = np.random.default_rng(0).integers(0, 256, (15, 240, 320, 3), dtype=np.uint8)
     readings = [det.push(f, f) for f in frames]
     assert readings[0].probability is None and readings[-1].probability is not None

@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 from slipsense.checkpoint import read_info
 from slipsense.cli import app
 from slipsense.errors import ConfigError, InputError
-from slipsense.run_config import empty_tree, load_tree, merge, parse_sets
+from slipsense.run_config import empty_tree, given, load_tree, merge, parse_sets
 
 CONFIGS = sorted((Path(__file__).resolve().parent.parent / "configs").glob("*.yaml"))
 runner = CliRunner()
@@ -48,7 +48,7 @@ def test_every_shipped_config_builds(path):
 def test_layers_win_in_order_and_bare_keys_go_to_model():
     tree = merge(
         {"model": {"name": "vivit", "dim": 8}, "train": {"epochs": 75}},
-        {"train": {"epochs": None, "lr": 0.1}},  # an option not given (None) changes nothing
+        given({"train": {"epochs": None, "lr": 0.1}}),  # an option not given (None) changes nothing
         parse_sets(["train.epochs=3", "dim=16", "model.patch_size=[20,20]", "data.split=clips", "x.y=z"]),
     )
     assert tree["train"] == {"epochs": 3, "lr": 0.1}
@@ -177,10 +177,25 @@ def test_grasp_train_from_config_stores_the_tree(tmp_path, grasp_recordings, cac
     )
     assert res.exit_code == 0, res.output
     info = read_info(out / "detector.safetensors")
-    tree = info["data"]["config"]
+    tree = info["config"]
     assert tree["train"]["epochs"] == 2 and tree["model"]["width"] == 3 and tree["model"]["name"] == "motionnet"
     assert info["model_config"]["width"] == 3 and info["train_config"]["epochs"] == 2
+    assert load_tree(out / "config.yaml")["model"]["width"] == 3  # repeats the run with --config
 
 
 def test_empty_tree_has_the_three_sections():
     assert set(empty_tree()) == {"model", "data", "train"}
+
+
+def test_set_null_clears_and_yaml_spellings_are_typed(monkeypatch, tmp_path):
+    from slipsense.config import DATA_ENV
+    from slipsense.train import TrainConfig, TrainRequest
+
+    tree = merge({"data": {"fold": 2}}, parse_sets(["data.fold=null"]))
+    assert tree["data"]["fold"] is None
+    monkeypatch.setenv(DATA_ENV, str(tmp_path))
+    req = TrainRequest.from_tree({"data": {"recordings": "$SLIPSENSE_DATA/gelsight-slip", "frames": None}})
+    assert req.recordings == tmp_path / "gelsight-slip" and req.frames == 5  # as checkpoints write paths
+    assert TrainConfig.from_dict({"lr": "3e-4"}).lr == 3e-4  # YAML reads 3e-4 as a string
+    with pytest.raises(ConfigError, match="epochs must be a whole number"):
+        TrainConfig.from_dict({"epochs": "10"})

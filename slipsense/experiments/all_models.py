@@ -9,6 +9,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from slipsense.models import model_class
 from slipsense.errors import ConfigError
 from slipsense.experiments.report import Report
 from slipsense.experiments.settings import Settings
@@ -117,7 +118,7 @@ def run_all_models(
         rows.append(
             {
                 "model": name,
-                "input": "video clip" if name in ("vivit", "resnet3d50") else "marker sequence",
+                "input": "video clip" if model_class(name).input_kind == "video" else "marker sequence",
                 "preset": pre or "paper",
                 "parameters": rep.models[name]["parameters"],
                 "epochs": len(history),

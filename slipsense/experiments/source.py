@@ -91,7 +91,7 @@ class DataSource:
         shipped file only the rows naming runs this folder holds are kept (it is written for the shared
         recordings)."""
         if self.overrides is None:
-            return None
+            return False  # --no-overrides: automatic labels only, not even the shipped ones
         if self.overrides != default_overrides():
             return self.overrides
         from slipsense.recordings.label_csv import read_overrides_csv
@@ -134,8 +134,8 @@ class DataSource:
     def markers(
         self, frames: int, n_markers: int, horizon: int = 0, wiggle_per_video: int = 2, seed: int = 0
     ) -> dict[str, np.ndarray]:
-        """Real marker windows (:func:`slipsense.sensors.real.real_marker_dataset`), minus the videos
-        whose labels the overrides replace (the marker pipeline labels automatically)."""
+        """Real marker windows (:func:`slipsense.sensors.real.real_marker_dataset`), labelled as
+        :meth:`labels` labels them (the same hand labels)."""
         from slipsense.sensors.real import real_marker_dataset
 
         arrays = real_marker_dataset(
@@ -147,16 +147,8 @@ class DataSource:
             seed=seed,
             on_error=self.on_error,
             progress=self.progress,
+            overrides=self.label_overrides(),
         )
-        if self.overrides is not None:
-            replaced = {k for k, lab in self.labels().items() if lab.source == "override"}
-            keep = np.array(
-                [
-                    (str(g), int(e), str(c)) not in replaced
-                    for g, e, c in zip(arrays["groups"], arrays["experiment"], arrays["camera"])
-                ]
-            )
-            arrays = {k: v[keep] for k, v in arrays.items()}
         return arrays
 
 

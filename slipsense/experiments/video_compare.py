@@ -50,9 +50,12 @@ def run_video_compare(
     )
     rows = []
     histories = {}
+    from slipsense.models import model_class
+
     for name in ("vivit", "resnet3d50"):
         before = None
-        if name == "resnet3d50" and resnet_weights is not None:
+        takes_weights = hasattr(model_class(name), "load_weights")  # the 3D ResNet (pytorchvideo layout)
+        if takes_weights and resnet_weights is not None:
 
             def before(model, path=Path(resnet_weights)):
                 try:
@@ -84,7 +87,7 @@ def run_video_compare(
                 **{k: m[k] for k in metric_cols()},
                 "n_test": m["n_clips"],
                 "n_test_slip": m["n_slip"],
-                "initialisation": ("user weights" if name == "resnet3d50" and resnet_weights else "random"),
+                "initialisation": ("user weights" if takes_weights and resnet_weights else "random"),
             }
         )
         del model
