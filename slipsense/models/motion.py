@@ -5,9 +5,10 @@ saw turns out to be the object and the session rather than slip. MotionNet sees 
 
 * input: every frame of every sensor, grey and small, ``(B, S, N, h, w)`` float in [0, 1]
   (:func:`slipsense.recordings.runs.gray_frames`), from the end of the camera start-up on;
-* per frame and sensor, the differences to the frames ``lags`` back (default 1, 5 and 25 frames:
-  fast motion, motion over 0.2 s, change over the last second; before the first frame the first
-  frame stands in), scaled and fed to a 3-layer strided CNN -> a feature vector;
+* per frame and sensor, the differences to the frames ``lags`` back (default 1, 5, 25 and 100
+  frames: fast motion, motion over 0.2 s, change over the last second, and the grasp as it was 4 s
+  ago, which a slip leaves and a wiggle comes back to; before the first frame the first frame
+  stands in), scaled and fed to a 3-layer strided CNN -> a feature vector;
 * both sensors fused symmetrically (mean and max over sensors: the fingers are interchangeable,
   slip is a loss of the grasp, not of one pad);
 * a causal temporal convolution (dilations 1, 2, 4, 8: 31 frames, 1.2 s of context) -> slip logits
@@ -62,7 +63,7 @@ class MotionNet(GraspModel):
         self,
         sensors: int = 2,
         image_size: Sequence[int] = (30, 40),
-        lags: Sequence[int] = (1, 5, 25),
+        lags: Sequence[int] = (1, 5, 25, 100),
         width: int = 8,
         features: int = 32,
         temporal: int = 32,
