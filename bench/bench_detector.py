@@ -25,9 +25,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from slipsense.config import gelsight_recordings  # noqa: E402
 from slipsense.live import DEFAULT_CHECKPOINT, SlipDetector  # noqa: E402
 from slipsense.recordings.video import read_video  # noqa: E402
+from slipsense.resources import shipped_model  # noqa: E402
 
 TARGET_P99_MS = 2.0
-VIVIT_CHECKPOINT = Path(__file__).resolve().parent.parent / "models" / "vivit-gelsight.safetensors"
+VIVIT_CHECKPOINT = shipped_model("vivit-gelsight")
 
 
 def main(argv=None) -> int:

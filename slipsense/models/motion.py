@@ -203,7 +203,7 @@ class MotionStream:
         self._frames: deque[Tensor] = deque(maxlen=self.model.max_lag + 1)
         self._layers: list[deque[Tensor]] = [deque(maxlen=2 * d + 1) for d in self.model.dilations]
 
-    @torch.no_grad()
+    @torch.inference_mode()
     def push(self, gray: np.ndarray) -> float:
         """``gray``: uint8 ``(S, h, w)``, one frame per sensor. Returns P(slip) at this frame."""
         m = self.model
