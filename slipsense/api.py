@@ -92,28 +92,7 @@ def fit(
     runs, labels = load_grasp_data(root, _overrides(overrides), image_size, progress=progress)
     result = train_detector(runs, labels, cfg, out, held=list(held_out), progress=progress)
     held = {k: result[k] for k in ("per_grasp", "clips") if k in result} or None
-    out = Path(out)
-    history = _read_history(out / "metrics.csv")
-    return TrainedDetector(Path(result["checkpoint"]), result["operating_point"], history, held)
-
-
-def _read_history(path: Path) -> list[dict[str, Any]]:
-    import csv
-
-    if not path.is_file():
-        return []
-    with open(path, newline="", encoding="utf-8") as f:
-        return [{k: _number(v) for k, v in row.items()} for row in csv.DictReader(f)]
-
-
-def _number(text: str) -> Any:
-    try:
-        return int(text)
-    except ValueError:
-        try:
-            return float(text)
-        except ValueError:
-            return text
+    return TrainedDetector(Path(result["checkpoint"]), result["operating_point"], result["history"], held)
 
 
 @dataclass

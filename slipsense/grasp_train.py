@@ -492,7 +492,7 @@ def train_detector(
     info = _checkpoint_info(cfg, op, train, {**(data or {}), "held_out_objects": sorted(held)}, history)
     path = save_checkpoint(out / "detector.safetensors", model, info)
     _write_history(out, history)
-    result = {"checkpoint": str(path), "operating_point": op}
+    result = {"checkpoint": str(path), "operating_point": op, "history": history}
     if held:
         fold = evaluate_held_out(model, op, [r for r in usable if r.object in set(held)], labels, cfg.horizon)
         atomic.write_text(out / "held_out.json", json.dumps({"objects": sorted(held), **fold}, indent=1))
