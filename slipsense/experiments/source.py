@@ -87,20 +87,12 @@ class DataSource:
 
     def label_overrides(self):
         """The hand labels, as :func:`slipsense.data.label_runs` takes them. A user's file is passed as
-        its path (read against the recordings: it must fit them exactly, errors name its line); of the
-        shipped file only the rows naming runs this folder holds are kept (it is written for the shared
-        recordings)."""
+        its path (read against the recordings: it must fit them exactly, errors name its line); the
+        shipped file is None, which label_runs turns into its rows for the runs of the shared
+        recordings (:func:`slipsense.data.shipped_overrides_for`)."""
         if self.overrides is None:
             return False  # --no-overrides: automatic labels only, not even the shipped ones
-        if self.overrides != default_overrides():
-            return self.overrides
-        from slipsense.recordings.label_csv import read_overrides_csv
-
-        known: dict[tuple[str, int], list[str]] = {}
-        for r in self.recordings():
-            known.setdefault((r.object, r.experiment), []).append(r.camera)
-        rows = read_overrides_csv(self.overrides)
-        return {k: v for k, v in rows.items() if k[:2] in known and (k[2] is None or k[2] in known[k[:2]])} or None
+        return None if self.overrides == default_overrides() else self.overrides
 
     def labels(self):
         """``{key: VideoLabel}`` of the recordings, labelled as ``slipsense train`` labels them
