@@ -14,6 +14,25 @@ from slipsense.config import gelsight_recordings
 
 #: one run of the shared recordings that the tests read a few frames of
 REAL_RUN = gelsight_recordings() / "avocado_real" / "exp_num_1"
+#: `slipsense train` options for a tiny TemNet on made-up marker data (seconds per run)
+TINY_TRAIN_ARGS = [
+    "--model",
+    "temnet",
+    "--set",
+    "d_model=8",
+    "--set",
+    "heads=2",
+    "--set",
+    "blocks=1",
+    "--set",
+    "ff_dim=8",
+    "--set",
+    "head_hidden=0",
+    "--batch-size",
+    "4",
+    "--no-progress",
+]
+
 needs_data = pytest.mark.skipif(not (REAL_RUN / "camera_0.avi").is_file(), reason="shared GelSight data not present")
 
 

@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from conftest import TINY_TRAIN_ARGS
 from slipsense.cli import app
 
 runner = CliRunner()
@@ -166,23 +167,6 @@ def test_bad_config_values(tmp_path, args, word):
 
 
 # ------------------------------------------------------------------ issue 12: more bad-input classes
-TINY = [
-    "--model",
-    "temnet",
-    "--set",
-    "d_model=8",
-    "--set",
-    "heads=2",
-    "--set",
-    "blocks=1",
-    "--set",
-    "ff_dim=8",
-    "--set",
-    "head_hidden=0",
-    "--batch-size",
-    "4",
-    "--no-progress",
-]
 
 
 def _markers_npz(path: Path, n: int = 24, **extra) -> Path:
@@ -229,7 +213,17 @@ def run_dir(tmp_path):
     """A trained tiny TemNet run (its checkpoint) and its marker file."""
     _markers_npz(tmp_path / "m.npz")
     result = runner.invoke(
-        app, ["train", *TINY, "--markers", str(tmp_path / "m.npz"), "--out", str(tmp_path / "run"), "--epochs", "1"]
+        app,
+        [
+            "train",
+            *TINY_TRAIN_ARGS,
+            "--markers",
+            str(tmp_path / "m.npz"),
+            "--out",
+            str(tmp_path / "run"),
+            "--epochs",
+            "1",
+        ],
     )
     assert result.exit_code == 0, result.output
     return tmp_path / "run"
@@ -285,10 +279,12 @@ def test_evaluate_json_and_train_out_that_cannot_be_written(tmp_path, run_dir, u
     _one_error(result, "e.json", "cannot be written")
     (tmp_path / "afile").write_text("mine")
     result = runner.invoke(
-        app, ["train", *TINY, "--markers", str(tmp_path / "m.npz"), "--out", str(tmp_path / "afile")]
+        app, ["train", *TINY_TRAIN_ARGS, "--markers", str(tmp_path / "m.npz"), "--out", str(tmp_path / "afile")]
     )
     _one_error(result, "afile", "is a file")
-    result = runner.invoke(app, ["train", *TINY, "--markers", str(tmp_path / "m.npz"), "--out", str(unwritable / "r")])
+    result = runner.invoke(
+        app, ["train", *TINY_TRAIN_ARGS, "--markers", str(tmp_path / "m.npz"), "--out", str(unwritable / "r")]
+    )
     _one_error(result, "cannot be written")
     assert (tmp_path / "afile").read_text() == "mine" and ck.read_bytes() == before
 
@@ -431,7 +427,7 @@ def test_override_csv_errors_name_file_and_line(tmp_path, cache, row, words):
 )
 def test_marker_npz_metadata_is_checked(tmp_path, extra, word):
     path = _markers_npz(tmp_path / "meta.npz", **extra)
-    result = runner.invoke(app, ["train", *TINY, "--markers", str(path), "--out", str(tmp_path / "r")])
+    result = runner.invoke(app, ["train", *TINY_TRAIN_ARGS, "--markers", str(path), "--out", str(tmp_path / "r")])
     _one_error(result, "meta.npz", word)
 
 
@@ -440,7 +436,7 @@ def test_marker_values_out_of_range_are_refused(tmp_path):
     x[3, 2, 1, 0] = 1e30
     path = tmp_path / "huge.npz"
     np.savez(path, x=x, y=np.arange(24) % 2, groups=np.arange(24) // 2)
-    result = runner.invoke(app, ["train", *TINY, "--markers", str(path), "--out", str(tmp_path / "r")])
+    result = runner.invoke(app, ["train", *TINY_TRAIN_ARGS, "--markers", str(path), "--out", str(tmp_path / "r")])
     _one_error(result, "huge.npz", "out of range", "sample 3, frame 2, marker 1")
 
 
@@ -459,7 +455,7 @@ def test_marker_npz_reads_only_the_keys_it_uses(tmp_path):
 def test_bad_seeds(tmp_path, cmd, seed):
     _markers_npz(tmp_path / "m.npz")
     args = {
-        "train": ["train", *TINY, "--markers", str(tmp_path / "m.npz"), "--out", str(tmp_path / "r")],
+        "train": ["train", *TINY_TRAIN_ARGS, "--markers", str(tmp_path / "m.npz"), "--out", str(tmp_path / "r")],
         "simulate": ["simulate", "--out", str(tmp_path / "s.npz"), "--no-progress"],
     }[cmd]
     result = runner.invoke(app, [*args, "--seed", seed])

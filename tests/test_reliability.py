@@ -14,29 +14,13 @@ import torch
 from typer.testing import CliRunner
 
 from slipsense.checkpoint import load_resume_state, save_resume_state
+from conftest import TINY_TRAIN_ARGS
 from slipsense.cli import app
 from slipsense.errors import InputError
 
 runner = CliRunner()
 
 #: A TemNet small enough to train in a fraction of a second.
-TINY = [
-    "--model",
-    "temnet",
-    "--set",
-    "d_model=8",
-    "--set",
-    "heads=2",
-    "--set",
-    "blocks=1",
-    "--set",
-    "ff_dim=8",
-    "--set",
-    "head_hidden=0",
-    "--batch-size",
-    "4",
-    "--no-progress",
-]
 
 
 def _markers(path: Path, n: int = 24, groups=None, frames: int = 4, markers: int = 5) -> Path:
@@ -57,7 +41,9 @@ def _error_line(result) -> str:
 
 
 def _train(tmp_path, out, *extra):
-    return runner.invoke(app, ["train", *TINY, "--markers", str(tmp_path / "m.npz"), "--out", str(out), *extra])
+    return runner.invoke(
+        app, ["train", *TINY_TRAIN_ARGS, "--markers", str(tmp_path / "m.npz"), "--out", str(out), *extra]
+    )
 
 
 # ------------------------------------------------------------------------------ 1. no pickles
@@ -160,7 +146,7 @@ def test_resume_of_another_model_changes_nothing(tmp_path):
         app,
         [
             "train",
-            *TINY,
+            *TINY_TRAIN_ARGS,
             "--set",
             "ff_dim=16",
             "--markers",
@@ -177,7 +163,18 @@ def test_resume_of_another_model_changes_nothing(tmp_path):
     # another split: split.json would change
     _markers(tmp_path / "m2.npz", groups=np.arange(24) // 3)
     result = runner.invoke(
-        app, ["train", *TINY, "--markers", str(tmp_path / "m2.npz"), "--out", str(out), "--epochs", "2", "--resume"]
+        app,
+        [
+            "train",
+            *TINY_TRAIN_ARGS,
+            "--markers",
+            str(tmp_path / "m2.npz"),
+            "--out",
+            str(out),
+            "--epochs",
+            "2",
+            "--resume",
+        ],
     )
     assert result.exit_code == 2, result.output
     assert "split.json" in _error_line(result) and "test_indices" in _error_line(result)
