@@ -115,7 +115,10 @@ def register(app: typer.Typer) -> None:
         overrides: Optional[Path] = typer.Option(None, help="label overrides CSV"),
         on_error: Optional[str] = typer.Option(None, help="raise (default) or skip bad recordings"),
         progress: bool = typer.Option(True),
-        threads: Optional[int] = typer.Option(None, help="torch threads"),
+        threads: Optional[int] = typer.Option(None, help="torch threads (with --workers 1; each worker uses one)"),
+        workers: Optional[int] = typer.Option(
+            None, min=1, help="processes training side by side (default: one per core; results do not depend on it)"
+        ),
     ):
         """Train a grasp detector (and its alarm operating point, chosen on its training objects)."""
         from slipsense.errors import ConfigError
@@ -143,7 +146,7 @@ def register(app: typer.Typer) -> None:
                 raise ConfigError(f"--fold must be in 0..{len(split) - 1}, got {fold}")
             held = split[fold]
         data["command"] = _command()
-        res = train_detector(runs, labels, cfg, out, held, data=data, progress=progress)
+        res = train_detector(runs, labels, cfg, out, held, data=data, progress=progress, workers=workers)
         from slipsense.atomic import write_text
         from slipsense.run_config import dump_tree
 
@@ -181,7 +184,10 @@ def register(app: typer.Typer) -> None:
         overrides: Optional[Path] = typer.Option(None, help="label overrides CSV"),
         on_error: Optional[str] = typer.Option(None, help="raise (default) or skip bad recordings"),
         progress: bool = typer.Option(True),
-        threads: Optional[int] = typer.Option(None, help="torch threads"),
+        threads: Optional[int] = typer.Option(None, help="torch threads (with --workers 1; each worker uses one)"),
+        workers: Optional[int] = typer.Option(
+            None, min=1, help="processes training side by side (default: one per core; results do not depend on it)"
+        ),
     ):
         """Leave objects out: one detector per fold, each replayed on its unseen objects, pooled."""
         from slipsense.grasp_folds import run_folds
@@ -202,7 +208,15 @@ def register(app: typer.Typer) -> None:
             out,
         )
         rep = run_folds(
-            runs, labels, cfg, out, folds, meta={"command": _command(), **data}, progress=progress, echo=typer.echo
+            runs,
+            labels,
+            cfg,
+            out,
+            folds,
+            meta={"command": _command(), **data},
+            progress=progress,
+            echo=typer.echo,
+            workers=workers,
         )
         g, c = rep["pooled"]["per_grasp"], rep["pooled"]["clips"]
         typer.echo(

@@ -20,6 +20,9 @@ class InputError(SlipsenseError):
         self.problem = problem
         super().__init__(problem if path is None else f"{path}: {problem}")
 
+    def __reduce__(self):  # raised in a worker process, re-raised here whole
+        return (type(self), (self.path, self.problem))
+
 
 class ConfigError(SlipsenseError):
     """A configuration key is unknown or a value is out of range."""

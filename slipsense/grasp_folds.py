@@ -21,7 +21,16 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from slipsense import atomic
-from slipsense.grasp_train import GraspTrainConfig, evaluate_fold, object_split, pool_folds
+from slipsense.grasp_train import (
+    GraspTrainConfig,
+    finish_training,
+    fit_job,
+    fold_result,
+    job_weight,
+    object_split,
+    plan_training,
+    pool_folds,
+)
 from slipsense.recordings.runs import GraspRun, runs_summary
 
 
@@ -41,32 +50,58 @@ def run_folds(
     meta: dict[str, Any] | None = None,
     progress: bool = True,
     echo=print,
+    workers: int | None = None,
 ) -> dict[str, Any]:
-    """Run (or resume) the leave-objects-out evaluation into ``out``; returns the pooled report."""
+    """Run (or resume) the leave-objects-out evaluation into ``out``; returns the pooled report.
+
+    Every training of the folds not yet done (each fold's detector and its inner folds') goes to
+    one pool of ``workers`` processes (default one per core, :mod:`slipsense.parallel`); a fold is
+    written as soon as its trainings are finished."""
+    from slipsense.parallel import run_jobs
+
     out = Path(out)
     usable = [r for r in runs if r.usable]
     split = object_split(usable, folds, cfg.seed)
     key = _config_key(cfg, folds, usable)
-    results = []
-    for k, held in enumerate(split):
-        path = out / f"fold{k}.json"
-        done = _load_fold(path, key)
-        if done is None:
-            t0 = time.perf_counter()
-            done = {
-                "config_key": key,
-                "fold": k,
-                **evaluate_fold(runs, cfg, labels, held, progress=progress),
-                "seconds": round(time.perf_counter() - t0, 1),
-            }
-            atomic.write_text(path, json.dumps(done))
-        g, c = done["per_grasp"], done["clips"]
-        echo(
-            f"fold {k} ({', '.join(held)}): warned {g['warned']}/{g['slip_runs']}, false-positive grasps "
-            f"{g['false_positive_grasps']}/{g['held_runs']}, clip F1 {c['f1']:.3f} at threshold "
-            f"{done['operating_point']['threshold']:g} x{done['operating_point']['debounce']}"
-        )
-        results.append(done)
+    done: dict[int, dict[str, Any]] = {}
+    for k in range(len(split)):
+        prior = _load_fold(out / f"fold{k}.json", key)
+        if prior is not None:
+            done[k] = prior
+            _echo_fold(echo, k, split[k], prior, resumed=True)
+    plans = {k: plan_training(usable, held, cfg) for k, held in enumerate(split) if k not in done}
+    jobs = [(k, j) for k, plan in plans.items() for j in plan]
+    results: dict[int, dict[int, Any]] = {k: {} for k in plans}
+    t0 = time.perf_counter()
+
+    def finished(index: int, result: dict[str, Any]) -> None:
+        k, _ = jobs[index]
+        results[k][index] = result
+        if len(results[k]) < len(plans[k]):
+            return
+        ordered = [results[k][i] for i in sorted(results[k])]
+        _, history, op, probs = finish_training(usable, plans[k], ordered, cfg)
+        test = [usable[i] for i in plans[k][0].predict]
+        done[k] = {
+            "config_key": key,
+            "fold": k,
+            **fold_result(test, probs, op, history, labels, split[k], cfg),
+            "seconds": round(time.perf_counter() - t0, 1),  # since the pool started: folds share it
+        }
+        atomic.write_text(out / f"fold{k}.json", json.dumps(done[k]))
+        _echo_fold(echo, k, split[k], done[k])
+
+    run_jobs(
+        fit_job,
+        [j for _, j in jobs],
+        (usable, cfg),
+        workers,
+        [job_weight(j, cfg) for _, j in jobs],
+        on_done=finished,
+        progress=progress,
+        desc=f"{len(plans)} fold(s)",
+    )
+    results = [done[k] for k in range(len(split))]
     pooled = pool_folds(results)
     report = {
         **(meta or {}),  # the command and its whole configuration tree ("config")
@@ -90,6 +125,15 @@ def run_folds(
         title=f"{cfg.model}: {folds} folds by object, pooled (labels: thresholds)",
     )
     return report
+
+
+def _echo_fold(echo, k: int, held: Sequence[str], done: dict[str, Any], resumed: bool = False) -> None:
+    g, c = done["per_grasp"], done["clips"]
+    echo(
+        f"fold {k} ({', '.join(held)}){' (done before)' if resumed else ''}: warned {g['warned']}/{g['slip_runs']}, "
+        f"false-positive grasps {g['false_positive_grasps']}/{g['held_runs']}, clip F1 {c['f1']:.3f} at threshold "
+        f"{done['operating_point']['threshold']:g} x{done['operating_point']['debounce']}, {done['seconds']} s"
+    )
 
 
 def _load_fold(path: Path, key: str) -> dict[str, Any] | None:

@@ -95,10 +95,8 @@ def frame_targets(n: int, moment: int | None, onset: int, horizon: int) -> np.nd
 class _Chunks:
     """Draws training chunks from runs (frames after the start-up only)."""
 
-    def __init__(self, runs: Sequence[GraspRun], model, cfg: GraspTrainConfig):
+    def __init__(self, runs: Sequence[GraspRun], cfg: GraspTrainConfig):
         self.cfg = cfg
-        self.context = model.receptive_field - 1 + model.max_lag
-        self.length = self.context + cfg.chunk
         self.items = []
         for r in runs:
             if not r.usable:
@@ -113,9 +111,10 @@ class _Chunks:
 
     def draw(
         self, rng: np.random.Generator, hardness: list[np.ndarray] | None = None
-    ) -> list[tuple[np.ndarray, np.ndarray]]:
-        """Chunks of one epoch; ``hardness``: per run, per frame P(slip) of the current model, from
-        which ``hard_negatives`` chunk ends per run are drawn among the negative frames."""
+    ) -> list[tuple[int, list[int], np.ndarray]]:
+        """Chunks of one epoch, grouped by run: ``(run index, chunk ends, targets (C, chunk))`` with
+        the runs in random order. ``hardness``: per run, per frame P(slip) of the current model,
+        from which ``hard_negatives`` chunk ends per run are drawn among the negative frames."""
         out = []
         for i, (gray, y, moment) in enumerate(self.items):
             n = gray.shape[1]
@@ -126,28 +125,27 @@ class _Chunks:
                     ends += [int(e) for e in rng.choice(n, self.cfg.hard_negatives, p=w / w.sum())]
             if moment is not None:
                 ends.append(min(n - 1, moment + int(rng.integers(0, 6))))
-            for e in ends:
-                idx = np.arange(e - self.length + 1, e + 1).clip(min=0)  # before the start: the first frame
-                targets = np.where(
-                    np.arange(e - self.cfg.chunk + 1, e + 1) >= 0,
-                    y[np.arange(e - self.cfg.chunk + 1, e + 1).clip(min=0)],
-                    -1,
-                )
-                out.append((gray[:, idx], targets.astype(np.int64)))
-        order = rng.permutation(len(out))
-        return [out[i] for i in order]
+            frames = np.asarray(ends)[:, None] + np.arange(1 - self.cfg.chunk, 1)[None]  # (C, chunk)
+            targets = np.where(frames >= 0, y[frames.clip(min=0)], -1).astype(np.int64)
+            out.append((i, ends, targets))
+        return [out[i] for i in rng.permutation(len(out))]
 
 
-def _batches(chunks, size: int, flips: bool, rng: np.random.Generator):
-    for a in range(0, len(chunks), size):
-        part = chunks[a : a + size]
-        x = torch.from_numpy(np.stack([c[0] for c in part])).float().div_(255.0)  # (B, S, T, h, w)
-        if flips:
-            if rng.random() < 0.5:
-                x = x.flip(-1)
-            if rng.random() < 0.5:
-                x = x.flip(-2)
-        yield x, torch.from_numpy(np.stack([c[1] for c in part]))
+def _batches(chunks, items, size: int, flips: bool, rng: np.random.Generator):
+    """Batches of whole runs' chunks (about ``size`` chunks each): a run's frames are encoded once
+    for all its chunks (:meth:`~slipsense.models.base.GraspModel.chunk_logits`)."""
+    part: list = []
+    for k, item in enumerate(chunks):
+        part.append(item)
+        if sum(len(c[1]) for c in part) < size and k < len(chunks) - 1:
+            continue
+        dims = [d for d, flip in ((-1, rng.random() < 0.5), (-2, rng.random() < 0.5)) if flips and flip]
+        runs = []
+        for i, ends, _ in part:
+            x = torch.from_numpy(items[i][0]).float().div_(255.0)  # (S, N, h, w)
+            runs.append((x.flip(dims) if dims else x, ends))
+        yield runs, torch.from_numpy(np.concatenate([c[2] for c in part]))
+        part = []
 
 
 def fit_runs(
@@ -162,7 +160,7 @@ def fit_runs(
     torch.manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
     model = build(cfg.model, **cfg.model_config)
-    data = _Chunks(runs, model, cfg)
+    data = _Chunks(runs, cfg)
     if not data.items:
         raise ConfigError("no usable training runs (every run excluded, or slip runs without a moment)")
     if not any(m is not None for _, _, m in data.items):
@@ -184,12 +182,12 @@ def fit_runs(
             hardness = [p for p in _predict_items(model, data.items)]
             model.train()
         chunks = data.draw(rng, hardness)
-        ys = np.concatenate([c[1] for c in chunks])
+        ys = np.concatenate([c[2] for c in chunks])
         n_pos, n_neg = int((ys == 1).sum()), int((ys == 0).sum())
         weight = torch.tensor([1.0, cfg.positive_weight * n_neg / max(n_pos, 1)])
         total, seen, correct = 0.0, 0, 0
-        for x, y in _batches(chunks, cfg.batch_size, cfg.flips, rng):
-            logits = model.last_logits(x, cfg.chunk)
+        for x, y in _batches(chunks, data.items, cfg.batch_size, cfg.flips, rng):
+            logits = model.chunk_logits(x, cfg.chunk)
             keep = y >= 0
             if not bool(keep.any()):
                 continue
@@ -243,8 +241,99 @@ def object_split(runs: Sequence[GraspRun], folds: int, seed: int = 0) -> list[li
     return object_folds({r.object for r in runs}, folds, seed)
 
 
+@dataclass(frozen=True)
+class FitJob:
+    """One training of a plan (:func:`plan_training`): runs named by index into a shared list."""
+
+    train: tuple[int, ...]
+    predict: tuple[int, ...]  # runs replayed by the trained model
+    keep_model: bool = False  # return the weights (the detector itself, not an inner-fold one)
+
+
+def fit_job(shared: tuple[Sequence[GraspRun], GraspTrainConfig], job: FitJob, tick=lambda units: None):
+    """Run one :class:`FitJob` (in this process or a worker, :func:`slipsense.parallel.run_jobs`):
+    ``{"history", "probs" (per predicted run), "state" (weights, when kept)}``; ticks
+    ``len(job.train)`` units per epoch."""
+    runs, cfg = shared
+    model, history = fit_runs(
+        [runs[i] for i in job.train], cfg, progress=False, on_epoch=lambda _: tick(len(job.train))
+    )
+    probs = predict_runs(model, [runs[i] for i in job.predict])
+    state = {k: v.detach().clone() for k, v in model.state_dict().items()} if job.keep_model else None
+    return {"history": history, "probs": probs, "state": state}
+
+
+def job_weight(job: FitJob, cfg: GraspTrainConfig) -> float:
+    """Progress units :func:`fit_job` ticks in all."""
+    return float(len(job.train) * cfg.epochs)
+
+
+def plan_training(runs: Sequence[GraspRun], held: Sequence[str], cfg: GraspTrainConfig) -> list[FitJob]:
+    """The trainings behind one detector: first the detector on every usable run whose object is not
+    in ``held`` (replaying the held-out objects' runs), then one per inner fold of those training
+    objects (each replaying its own held-out runs), which choose the operating point. Indices are
+    into ``runs``."""
+    usable = [i for i, r in enumerate(runs) if r.usable]
+    train = tuple(i for i in usable if runs[i].object not in set(held))
+    jobs = [FitJob(train, tuple(i for i in usable if runs[i].object in set(held)), keep_model=True)]
+    if cfg.inner_folds:
+        for inner in object_split([runs[i] for i in train], cfg.inner_folds, cfg.seed):
+            jobs.append(
+                FitJob(
+                    tuple(i for i in train if runs[i].object not in inner),
+                    tuple(i for i in train if runs[i].object in inner),
+                )
+            )
+    return jobs
+
+
+def finish_training(
+    runs: Sequence[GraspRun], jobs: Sequence[FitJob], results: Sequence[dict[str, Any]], cfg: GraspTrainConfig
+):
+    """From a finished :func:`plan_training`: ``(model in eval mode, history, operating point,
+    P(slip) traces of the held-out runs)``. The operating point is chosen on the inner folds'
+    out-of-fold traces (or, with ``inner_folds=0``, on the model's own traces of its training runs)."""
+    from slipsense.models import build
+
+    model = build(cfg.model, **cfg.model_config)
+    model.load_state_dict(results[0]["state"])
+    model.eval()
+    train = [runs[i] for i in jobs[0].train]
+    if cfg.inner_folds:
+        by_index = {i: p for job, res in zip(jobs[1:], results[1:]) for i, p in zip(job.predict, res["probs"])}
+        probs = [by_index[i] for i in jobs[0].train]
+    else:
+        probs = predict_runs(model, train)
+    op = pergrasp.choose_operating_point(probs, [r.moment_of_slip for r in train], horizon=cfg.horizon)
+    op["chosen_on"] = (
+        f"{cfg.inner_folds} inner folds of the training objects" if cfg.inner_folds else "the training runs themselves"
+    )
+    return model, results[0]["history"], op, results[0]["probs"]
+
+
+def train_with_operating_point(
+    runs: Sequence[GraspRun],
+    held: Sequence[str],
+    cfg: GraspTrainConfig,
+    workers: int | None = 1,
+    progress: bool = False,
+):
+    """Train a detector on the runs of every object but ``held`` and choose its operating point on
+    those runs only (:func:`plan_training` on ``workers`` processes); returns :func:`finish_training`'s
+    ``(model, history, operating point, held-out traces)``."""
+    from slipsense.parallel import run_jobs
+
+    jobs = plan_training(runs, held, cfg)
+    if not jobs[0].train:
+        raise ConfigError("no usable training runs (every run excluded, or slip runs without a moment)")
+    results = run_jobs(
+        fit_job, jobs, (runs, cfg), workers, [job_weight(j, cfg) for j in jobs], progress=progress, desc=cfg.model
+    )
+    return finish_training(runs, jobs, results, cfg)
+
+
 def operating_point(
-    runs: Sequence[GraspRun], cfg: GraspTrainConfig, progress: bool = False, model=None
+    runs: Sequence[GraspRun], cfg: GraspTrainConfig, progress: bool = False, model=None, workers: int | None = 1
 ) -> dict[str, Any]:
     """The alarm threshold and debounce for a model trained on ``runs``, chosen on those runs only:
     on out-of-fold predictions of ``cfg.inner_folds`` inner folds by object (each inner model trained
@@ -255,14 +344,12 @@ def operating_point(
             raise ConfigError("inner_folds=0 needs the trained model")
         probs = predict_runs(model, usable)
     else:
-        probs_by_key: dict[tuple[str, int], np.ndarray] = {}
-        for k, held in enumerate(object_split(usable, cfg.inner_folds, cfg.seed)):
-            train = [r for r in usable if r.object not in held]
-            test = [r for r in usable if r.object in held]
-            inner, _ = fit_runs(train, cfg, progress=progress)
-            for r, p in zip(test, predict_runs(inner, test)):
-                probs_by_key[r.key] = p
-        probs = [probs_by_key[r.key] for r in usable]
+        from slipsense.parallel import run_jobs
+
+        jobs = plan_training(usable, (), cfg)[1:]
+        results = run_jobs(fit_job, jobs, (usable, cfg), workers, [job_weight(j, cfg) for j in jobs], progress=progress)
+        by_index = {i: p for job, res in zip(jobs, results) for i, p in zip(job.predict, res["probs"])}
+        probs = [by_index[i] for i in range(len(usable))]
     op = pergrasp.choose_operating_point(probs, [r.moment_of_slip for r in usable], horizon=cfg.horizon)
     op["chosen_on"] = (
         f"{cfg.inner_folds} inner folds of the training objects" if cfg.inner_folds else "the training runs themselves"
@@ -317,21 +404,17 @@ def clip_metrics(p: np.ndarray, y: np.ndarray, threshold: float) -> dict[str, An
     }
 
 
-def evaluate_fold(
-    runs: Sequence[GraspRun], cfg: GraspTrainConfig, labels: dict, held: Sequence[str], progress: bool = True
+def fold_result(
+    test: Sequence[GraspRun],
+    probs: Sequence[np.ndarray],
+    op: dict[str, Any],
+    history: list[dict[str, Any]],
+    labels: dict,
+    held: Sequence[str],
+    cfg: GraspTrainConfig,
 ) -> dict[str, Any]:
-    """Train on the runs of every object but ``held``, choose the operating point on those training
-    runs only (:func:`operating_point`), replay the held-out objects' runs. Returns the fold's
-    per-grasp summary and clip metrics at that operating point, plus what pooling needs: every
-    held-out run's trace and the clips' probabilities and labels."""
-    usable = [r for r in runs if r.usable]
-    train = [r for r in usable if r.object not in held]
-    test = [r for r in usable if r.object in held]
-    if not test:
-        raise ConfigError(f"no usable runs of the held-out objects {', '.join(held)}")
-    model, history = fit_runs(train, cfg, progress=progress)
-    op = operating_point(train, cfg, progress=False, model=model)
-    probs = predict_runs(model, test)
+    """A fold's per-grasp summary and clip metrics at its operating point, plus what pooling needs:
+    every held-out run's trace and the clips' probabilities and labels."""
     rests = [pergrasp.rest_mask(r.contact) for r in test]
     outs = [
         pergrasp.grasp_outcome(
@@ -365,7 +448,7 @@ def evaluate_fold(
 
 
 def pool_folds(folds: Sequence[dict[str, Any]], thresholds: Sequence[float] | None = None) -> dict[str, Any]:
-    """Pool :func:`evaluate_fold` results: per-grasp outcomes and clip decisions, each fold at its own
+    """Pool :func:`fold_result` s: per-grasp outcomes and clip decisions, each fold at its own
     operating point; and, for the trade-off curve, every fold's runs at shared ``thresholds``."""
     outcomes = [
         pergrasp.GraspOutcome(r["outcome"], r["first_alarm"], r["lead"], 0.0, 0) for f in folds for r in f["runs"]
@@ -470,9 +553,10 @@ def train_detector(
     held: Sequence[str] = (),
     data: dict[str, Any] | None = None,
     progress: bool = True,
+    workers: int | None = None,
 ) -> dict[str, Any]:
     """Train a detector on every run whose object is not in ``held``, choose its operating point on
-    those runs (inner folds), and write ``out/detector.safetensors`` (weights, full config, operating
+    those runs (inner folds, trained beside it on ``workers`` processes, default one per core), and write ``out/detector.safetensors`` (weights, full config, operating
     point), ``metrics.csv`` and ``curves.png``; with ``held`` objects, also ``held_out.json`` (their
     per-grasp outcomes and clip metrics, never used for any choice)."""
     import json
@@ -487,23 +571,23 @@ def train_detector(
     unknown = sorted(set(held) - {r.object for r in usable})
     if unknown:
         raise ConfigError(f"held-out objects without usable runs: {', '.join(unknown)}")
-    model, history = fit_runs(train, cfg, progress=progress)
-    op = operating_point(train, cfg, progress=progress, model=model)
+    model, history, op, held_probs = train_with_operating_point(runs, held, cfg, workers, progress)
     info = _checkpoint_info(cfg, op, train, {**(data or {}), "held_out_objects": sorted(held)}, history)
     path = save_checkpoint(out / "detector.safetensors", model, info)
     _write_history(out, history)
     result = {"checkpoint": str(path), "operating_point": op, "history": history}
     if held:
-        fold = evaluate_held_out(model, op, [r for r in usable if r.object in set(held)], labels, cfg.horizon)
+        test = [r for r in usable if r.object in set(held)]
+        fold = evaluate_held_out(held_probs, op, test, labels, cfg.horizon)
         atomic.write_text(out / "held_out.json", json.dumps({"objects": sorted(held), **fold}, indent=1))
         result.update(fold)
     return result
 
 
 def evaluate_held_out(
-    model, op: dict[str, Any], runs: Sequence[GraspRun], labels: dict, horizon: int
+    probs: Sequence[np.ndarray], op: dict[str, Any], runs: Sequence[GraspRun], labels: dict, horizon: int
 ) -> dict[str, Any]:
-    probs = predict_runs(model, runs)
+    """Per-grasp outcomes and clip metrics of ``runs`` from their P(slip) traces at ``op``."""
     outs = [
         pergrasp.grasp_outcome(
             pergrasp.debounce(p, op["threshold"], op["debounce"]),

@@ -126,6 +126,13 @@ class GraspModel(SlipModel):
         """A fresh incremental state with ``push(gray (S, h, w) uint8) -> probability``."""
         raise NotImplementedError
 
+    def chunk_logits(self, runs, n_out: int):
+        """What training on whole grasps calls: ``runs`` is a list of ``(gray (S, N, h, w) float,
+        chunk ends)``; returns ``(C, n_out, 2)`` logits of the ``n_out`` frames ending at each end,
+        equal (in eval mode) to ``forward`` of the whole run at those frames. A model should encode
+        a frame shared by several chunks once: training time is mostly this call."""
+        raise NotImplementedError
+
     def streaming_parts(self):
         raise ConfigError(
             f"{self.model_name} takes whole grasps of both sensors: it streams itself "
