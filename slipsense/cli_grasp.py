@@ -141,7 +141,7 @@ def register(app: typer.Typer) -> None:
         )
         held: list[str] = []
         if fold is not None:
-            split = object_split([r for r in runs if r.usable], folds, cfg.seed)
+            split = object_split([r for r in runs if r.usable], folds, cfg.folds_seed)
             if not 0 <= fold < len(split):
                 raise ConfigError(f"--fold must be in 0..{len(split) - 1}, got {fold}")
             held = split[fold]

@@ -61,7 +61,7 @@ def run_folds(
 
     out = Path(out)
     usable = [r for r in runs if r.usable]
-    split = object_split(usable, folds, cfg.seed)
+    split = object_split(usable, folds, cfg.folds_seed)
     key = _config_key(cfg, folds, usable)
     done: dict[int, dict[str, Any]] = {}
     for k in range(len(split)):
@@ -100,6 +100,7 @@ def run_folds(
         on_done=finished,
         progress=progress,
         desc=f"{len(plans)} fold(s)",
+        groups=[f"fold {k}" for k, _ in jobs],
     )
     results = [done[k] for k in range(len(split))]
     pooled = pool_folds(results)

@@ -52,6 +52,7 @@ class GraspTrainConfig:
     flips: bool = True  # random horizontal / vertical flips of whole chunks
     seed: int = 0
     inner_folds: int = 2  # for the operating point (0: choose it on the training runs themselves)
+    split_seed: int | None = None  # objects -> folds and inner folds (None: seed); set it to vary training alone
 
     def __post_init__(self):
         checks = {
@@ -66,6 +67,8 @@ class GraspTrainConfig:
             "seed": (0, 2**32 - 1),
             "inner_folds": (0, 20),
         }
+        if self.split_seed is not None:
+            checks["split_seed"] = (0, 2**32 - 1)
         for key, (lo, hi) in checks.items():
             v = getattr(self, key)
             if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
@@ -79,6 +82,11 @@ class GraspTrainConfig:
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+    @property
+    def folds_seed(self) -> int:
+        """The seed objects are split into folds by."""
+        return self.seed if self.split_seed is None else self.split_seed
 
 
 def frame_targets(n: int, moment: int | None, onset: int, horizon: int) -> np.ndarray:
@@ -277,7 +285,7 @@ def plan_training(runs: Sequence[GraspRun], held: Sequence[str], cfg: GraspTrain
     train = tuple(i for i in usable if runs[i].object not in set(held))
     jobs = [FitJob(train, tuple(i for i in usable if runs[i].object in set(held)), keep_model=True)]
     if cfg.inner_folds:
-        for inner in object_split([runs[i] for i in train], cfg.inner_folds, cfg.seed):
+        for inner in object_split([runs[i] for i in train], cfg.inner_folds, cfg.folds_seed):
             jobs.append(
                 FitJob(
                     tuple(i for i in train if runs[i].object not in inner),

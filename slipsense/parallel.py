@@ -49,6 +49,38 @@ def _in_worker(fn: Callable, index: int, job: Any) -> Any:
     return fn(_SHARED, job, lambda n: _TICKS.put((index, n)))
 
 
+class _Progress:
+    """The bar over all jobs (remaining time of the whole set) and, where jobs belong to groups
+    (the trainings of one fold), the remaining time of the earliest unfinished group."""
+
+    def __init__(self, weights: Sequence[float], groups: Sequence[str] | None, desc: str, show: bool):
+        self.weights, self.groups = list(weights), list(groups) if groups is not None else None
+        self.done = [0.0] * len(self.weights)
+        self.t0 = time.perf_counter()
+        self.bar = None
+        if show:
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=sum(self.weights), desc=desc, unit="u")
+
+    def tick(self, job: int, units: float) -> None:
+        self.done[job] += units
+        if self.bar is None:
+            return
+        self.bar.update(units)
+        if self.groups is not None:
+            rate = sum(self.done) / max(time.perf_counter() - self.t0, 1e-9)
+            for g in dict.fromkeys(self.groups):
+                left = sum(w - d for w, d, gg in zip(self.weights, self.done, self.groups) if gg == g)
+                if left > 1e-9:
+                    self.bar.set_postfix_str(f"{g}: ~{left / max(rate, 1e-9):.0f} s left", refresh=False)
+                    break
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
 def run_jobs(
     fn: Callable[[Any, Any, Callable[[float], None]], Any],
     jobs: Sequence[Any],
@@ -58,6 +90,7 @@ def run_jobs(
     on_done: Callable[[int, Any], None] | None = None,
     progress: bool = True,
     desc: str = "training",
+    groups: Sequence[str] | None = None,
 ) -> list[Any]:
     """Run ``fn(shared, job, tick)`` for every job; returns the results in job order.
 
@@ -67,22 +100,21 @@ def run_jobs(
         workers: processes (default :func:`default_workers`); 1 runs every job here, in order,
             with this process's threads.
         weights: progress units each job will tick in total (default 1 each), for the bar's
-            remaining-time estimate; the longest jobs are started first.
+            remaining-time estimate. Jobs start in the order given: put the long ones first where
+            results are not written as they come (where they are, finishing early matters more).
         on_done: called here with ``(job index, result)`` as each job finishes.
+        groups: a label per job (e.g. its fold); the bar also shows the earliest unfinished
+            group's remaining time.
     """
     n = len(jobs)
     weights = list(weights) if weights is not None else [1.0] * n
     workers = default_workers(n) if workers is None else max(1, min(int(workers), max(n, 1)))
-    bar = None
-    if progress:
-        from tqdm import tqdm
-
-        bar = tqdm(total=sum(weights), desc=f"{desc} ({n} jobs, {workers} worker{'s' * (workers > 1)})", unit="u")
+    bar = _Progress(weights, groups, f"{desc} ({n} jobs, {workers} worker{'s' * (workers > 1)})", progress)
     results: list[Any] = [None] * n
     try:
         if workers == 1:
             for i, job in enumerate(jobs):
-                results[i] = fn(shared, job, (lambda u: bar.update(u)) if bar is not None else (lambda u: None))
+                results[i] = fn(shared, job, lambda u, i=i: bar.tick(i, u))
                 if on_done is not None:
                     on_done(i, results[i])
             return results
@@ -90,9 +122,8 @@ def run_jobs(
 
         ctx = multiprocessing.get_context("spawn")
         ticks = ctx.Queue()
-        order = sorted(range(n), key=lambda i: -weights[i])  # longest first: the pool ends together
         with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker, initargs=(shared, ticks)) as pool:
-            pending = {pool.submit(_in_worker, fn, i, jobs[i]): i for i in order}
+            pending = {pool.submit(_in_worker, fn, i, jobs[i]): i for i in range(n)}
             try:
                 while pending:
                     done, _ = wait(pending, timeout=0.5, return_when=FIRST_COMPLETED)
@@ -109,15 +140,13 @@ def run_jobs(
             _drain(ticks, bar)
         return results
     finally:
-        if bar is not None:
-            bar.close()
+        bar.close()
 
 
-def _drain(ticks: Any, bar: Any) -> None:
+def _drain(ticks: Any, bar: _Progress) -> None:
     while True:
         try:
-            _, units = ticks.get_nowait()
+            job, units = ticks.get_nowait()
         except queue_mod.Empty:
             return
-        if bar is not None:
-            bar.update(units)
+        bar.tick(job, units)

@@ -141,3 +141,18 @@ def test_grasp_bad_settings_one_line(tmp_path, grasps):
         )
         assert res.exit_code == 2, (extra, res.output)
         assert res.output.strip().startswith("error:") and "Traceback" not in res.output
+
+
+def test_grasp_folds_same_results_on_one_or_two_workers(tmp_path, grasps, monkeypatch):
+    """Each training is one seeded single-thread job: where it ran does not change a number."""
+    monkeypatch.setenv("SLIPSENSE_CACHE", str(tmp_path / "cache"))
+    docs = []
+    for workers in ("1", "2"):
+        out = tmp_path / f"folds-{workers}"
+        args = ["grasp", "folds", "--out", str(out), "--recordings", str(grasps), "--folds", "2"]
+        res = CliRunner().invoke(app, [*args, "--inner-folds", "2", "--workers", workers, *SMALL])
+        assert res.exit_code == 0, res.output
+        docs.append([json.loads((out / f"fold{k}.json").read_text()) for k in (0, 1)])
+    for a, b in zip(*docs):
+        assert a["operating_point"] == b["operating_point"] and a["history"][-1]["loss"] == b["history"][-1]["loss"]
+        assert [r["probability"] for r in a["runs"]] == [r["probability"] for r in b["runs"]]

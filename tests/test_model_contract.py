@@ -84,6 +84,26 @@ def test_contract_streaming_equals_full_forward(name):
     assert abs(readings[-1].probability - full) < 1e-5
 
 
+@pytest.mark.parametrize("name", [n for n in BUILT_IN if model_class(n).input_kind == "grasp"])
+def test_contract_chunk_logits_equal_whole_run_forward(name):
+    """What grasp training computes (chunks of runs, shared frames encoded once) is the whole-run
+    forward at those frames; frames before a run's start repeat frame 0."""
+    model = _model(name)
+    runs = [_grasp_input(model, frames=n, seed=n)[0] for n in (40, 25)]
+    ends = [[39, 5, 20, 20], [24]]  # overlapping chunks, one reaching before the start, a repeat
+    with torch.no_grad():
+        got = model.chunk_logits(list(zip(runs, ends)), 8)
+        full = [model(r[None])[0] for r in runs]
+    assert got.shape == (5, 8, 2)
+    k = 0
+    for f, es in zip(full, ends):
+        for e in es:
+            frames = torch.arange(e - 7, e + 1)
+            ok = frames >= 0
+            torch.testing.assert_close(got[k][ok], f[frames[ok]], atol=1e-5, rtol=1e-5)
+            k += 1
+
+
 @pytest.mark.parametrize("name", BUILT_IN)
 def test_contract_onnx_parity(name, tmp_path):
     from slipsense.export import export_onnx

@@ -84,14 +84,24 @@ Rule = Literal["either", "both"]
 # --------------------------------------------------------------------------------------------
 
 
-def _blocks(frames: np.ndarray) -> np.ndarray:
-    """Area-average ``(T, H, W, C)`` frames into BLOCK_PX blocks: float32 ``(T, H//8, W//8, C)``."""
+def video_blocks(frames: np.ndarray) -> np.ndarray:
+    """Area-average uint8 ``(T, H, W[, C])`` frames into BLOCK_PX blocks: uint8 ``(T, H//8, W//8, C)``
+    (what the frame cache keeps of a video for the contact signal)."""
     t, h, w = frames.shape[:3]
     size = (max(1, w // BLOCK_PX), max(1, h // BLOCK_PX))
     # One frame at a time: converting a whole 450-frame video to float first would take ~400 MB.
     out = np.stack([cv2.resize(np.ascontiguousarray(f), size, interpolation=cv2.INTER_AREA) for f in frames])
-    out = out.astype(np.float32)
     return out if out.ndim == 4 else out[..., None]
+
+
+def _blocks(frames: np.ndarray) -> np.ndarray:
+    """:func:`video_blocks` as float32 (uint8 frames); other dtypes are averaged as they are."""
+    return video_blocks(frames).astype(np.float32)
+
+
+def signal_of_blocks(blocks: np.ndarray, reference: Literal["tail", "head"] = "tail") -> np.ndarray:
+    """:func:`contact_signal` from a video's :func:`video_blocks` (``T >= 2``)."""
+    return _signal(np.asarray(blocks, dtype=np.float32), reference)[0]
 
 
 def _score(blocks: np.ndarray, ref: np.ndarray) -> np.ndarray:

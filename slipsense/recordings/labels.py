@@ -45,7 +45,6 @@ from .contact import (
     STARTUP_FRAMES,
     TOP_FRACTION,
     Rule,
-    _blocks,
     _first_frame,
     _signal,
     contact_phase,
@@ -187,7 +186,8 @@ def label_run(recordings_of_one_experiment: Sequence[Recording], rule: Rule = "e
     Raises:
         InputError: a video cannot be decoded, or the cameras of the run differ in frame count.
     """
-    from .video import read_video  # imported here so this module imports without the decoder
+    from .frame_cache import video_products  # imported here so this module imports without the decoder
+    from .runs import PREFETCH_GRAY
 
     recs = sorted(recordings_of_one_experiment, key=lambda r: r.camera)
     if not recs:
@@ -198,8 +198,10 @@ def label_run(recordings_of_one_experiment: Sequence[Recording], rule: Rule = "e
         raise InputError(recs[0].path.parent, "two recordings of this run have the same camera name")
     blocks = []
     for r in recs:
-        # Keep only the block averages: the decoded video is ~100 MB, its blocks ~1.6 MB.
-        blocks.append(_blocks(read_video(r.path, expected_size=None, min_frames=2)))
+        # Keep only the block averages: the decoded video is ~100 MB, its blocks ~1.6 MB. The grey
+        # frames grasp detectors read come from the same decode, so training decodes nothing again.
+        products = video_products(r.path, ["blocks", PREFETCH_GRAY], min_frames=2)
+        blocks.append(products["blocks"].astype(np.float32))
     counts = {r.camera: len(b) for r, b in zip(recs, blocks)}
     if len(set(counts.values())) != 1:
         raise InputError(recs[0].path.parent, f"the cameras of this run differ in frame count: {counts}")

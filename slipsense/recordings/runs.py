@@ -13,21 +13,19 @@ and streaming see the same pixels.
 
 from __future__ import annotations
 
-import hashlib
 import json
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Iterable, Mapping, Sequence
 
 import cv2
 import numpy as np
 
-from .. import atomic, config
 from ..errors import InputError
 from .types import Recording, VideoLabel
 
-#: Bump when what :func:`load_runs` caches could change.
-RUNS_VERSION = "runs-1"
+#: Grey frame size labelling also caches (:mod:`.frame_cache`): the shipped grasp detector's, so
+#: that training it after labelling decodes no video again.
+PREFETCH_GRAY = "gray:30x40"
 
 
 def gray_frames(frames: np.ndarray, size: tuple[int, int]) -> np.ndarray:
@@ -74,42 +72,16 @@ class GraspRun:
         return not self.slipped or self.moment_of_slip is not None
 
 
-def _cache_file(recs: Sequence[Recording], size: tuple[int, int]) -> Path:
-    h = hashlib.sha256(RUNS_VERSION.encode())
-    for r in recs:
-        st = r.path.stat()
-        h.update(f"{r.path.resolve()}|{st.st_size}|{st.st_mtime_ns}|{size}".encode())
-    return config.cache_root() / "runs" / f"{h.hexdigest()[:24]}.npz"
-
-
-def _sha(arrays: Mapping[str, np.ndarray]) -> str:
-    h = hashlib.sha256()
-    for k in sorted(arrays):
-        h.update(k.encode())
-        h.update(np.ascontiguousarray(arrays[k]).tobytes())
-    return h.hexdigest()
-
-
-def _load_cached(path: Path) -> dict[str, np.ndarray] | None:
-    """The cached arrays when the file is whole and its checksum matches, else None (rebuild)."""
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in ("gray", "contact")}
-            stored = str(z["sha256"])
-    except Exception:  # missing, truncated, foreign: rebuild
-        return None
-    return arrays if _sha(arrays) == stored else None
-
-
 def _decode_run(recs: Sequence[Recording], size: tuple[int, int]) -> dict[str, np.ndarray]:
-    from .contact import contact_signal
-    from .video import read_video
+    from .contact import signal_of_blocks
+    from .frame_cache import video_products
 
     grays, contacts = [], []
+    gray = f"gray:{size[0]}x{size[1]}"
     for r in recs:
-        video = read_video(r.path, expected_size=None, min_frames=2)
-        grays.append(gray_frames(video, size))
-        contacts.append(contact_signal(video).astype(np.float32))
+        products = video_products(r.path, ["blocks", gray], min_frames=2)
+        grays.append(products[gray])
+        contacts.append(signal_of_blocks(products["blocks"]))
     counts = {r.camera: len(g) for r, g in zip(recs, grays)}
     if len(set(counts.values())) != 1:
         raise InputError(recs[0].path.parent, f"the cameras of this run differ in frame count: {counts}")
@@ -149,12 +121,7 @@ def load_runs(
             raise InputError(recs[0].path.parent, f"run has {len(recs)} camera video(s), expected {sensors}")
         if any(r.key not in labels for r in recs):
             continue  # excluded by an override
-        path = _cache_file(recs, size)
-        arrays = _load_cached(path)
-        if arrays is None:
-            arrays = _decode_run(recs, size)
-            digest = _sha(arrays)
-            atomic.write_with(path, lambda tmp: np.savez(tmp, sha256=np.array(digest), **arrays))
+        arrays = _decode_run(recs, size)
         labs = [labels[r.key] for r in recs]
         moment = next((l.moment_of_slip for l in labs if l.moment_of_slip is not None), None)
         slipped = any(l.slipped for l in labs)

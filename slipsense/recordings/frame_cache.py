@@ -1,0 +1,124 @@
+"""Decoded frames, kept once per video: labelling, training and replay never decode a video twice.
+
+A 450-frame recording takes tens of milliseconds to decode and its 240 x 320 colour frames are
+100 MB, but what the commands read of it is small:
+
+* ``"blocks"``: uint8 ``(T, H/8, W/8, 3)`` 8 x 8 pixel block averages, what the contact signal and
+  so the automatic labels and the "gel at rest" masks are computed from
+  (:func:`slipsense.recordings.contact.signal_of_blocks`), 1.6 MB;
+* ``"gray:HxW"``: uint8 ``(T, h, w)`` grey frames at the size a grasp detector reads
+  (:func:`slipsense.recordings.runs.gray_frames`), 0.5 MB at 30 x 40.
+
+:func:`video_products` returns the ones asked for; whatever is missing is computed from a single
+decode of the video and written under ``<cache root>/frames/`` as ``.npy`` (read back
+memory-mapped) with a ``.json`` beside it holding its sha256 and the video's identity (resolved
+path, size, mtime). An entry that fails its checksum or names another video is computed again, with
+a :class:`~slipsense.errors.CacheWarning`; a cache that cannot be written is a warning too, never an
+error.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import re
+import warnings
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from .. import atomic, config
+from ..errors import CacheWarning, InputError
+
+#: Bump when what a product holds could change (the block or grey conversion).
+FRAMES_VERSION = "frames-1"
+
+_GRAY = re.compile(r"^gray:(\d+)x(\d+)$")
+
+
+def _identity(path: Path) -> dict:
+    st = path.stat()
+    return {"path": str(path.resolve()), "bytes": int(st.st_size), "mtime_ns": int(st.st_mtime_ns)}
+
+
+def _entry(path: Path, product: str) -> Path:
+    key = json.dumps([FRAMES_VERSION, product, _identity(path)], sort_keys=True)
+    return config.cache_root() / "frames" / f"{hashlib.sha256(key.encode()).hexdigest()[:32]}.npy"
+
+
+def _check_product(product: str) -> None:
+    if product != "blocks" and not _GRAY.match(product):
+        raise ValueError(f"unknown frame product {product!r} (blocks or gray:HxW)")
+
+
+def _compute(video: np.ndarray, product: str) -> np.ndarray:
+    if product == "blocks":
+        from .contact import video_blocks
+
+        return video_blocks(video)
+    from .runs import gray_frames
+
+    h, w = (int(v) for v in _GRAY.match(product).groups())
+    return gray_frames(video, (h, w))
+
+
+def _load(entry: Path, identity: dict) -> np.ndarray | None:
+    """The cached array (memory-mapped) when whole and made from this video, else None."""
+    side = entry.with_suffix(".json")
+    if not entry.exists() or not side.exists():
+        return None
+    try:
+        meta = json.loads(side.read_text())
+        arr = np.load(entry, mmap_mode="r", allow_pickle=False)
+        ok = meta.get("video") == identity and meta.get("sha256") == hashlib.sha256(memoryview(arr)).hexdigest()
+    except (OSError, ValueError, TypeError):
+        ok = False
+    if not ok:
+        warnings.warn(f"{entry}: frame cache entry failed its checks; decoding the video again", CacheWarning, 2)
+        return None
+    return arr
+
+
+def _store(entry: Path, identity: dict, arr: np.ndarray) -> None:
+    arr = np.ascontiguousarray(arr)
+    try:
+        atomic.write_with(entry, lambda tmp: np.save(tmp, arr, allow_pickle=False))
+        meta = {"video": identity, "sha256": hashlib.sha256(memoryview(arr)).hexdigest(), "shape": list(arr.shape)}
+        atomic.write_text(entry.with_suffix(".json"), json.dumps(meta))  # written last: marks the entry whole
+    except OSError as exc:
+        warnings.warn(f"{entry}: cannot write the frame cache ({exc}); continuing without it", CacheWarning, 2)
+
+
+def video_products(path: str | Path, products: Sequence[str], min_frames: int = 2) -> dict[str, np.ndarray]:
+    """``{product: uint8 array}`` of one video (see the module notes), decoding it at most once.
+
+    Raises :class:`~slipsense.errors.InputError` naming ``path`` when it must be decoded and cannot
+    be (:func:`slipsense.recordings.video.read_video`), or has fewer than ``min_frames`` frames.
+    """
+    from .video import read_video
+
+    path = Path(path)
+    if not products:
+        return {}
+    for p in products:
+        _check_product(p)
+    try:
+        identity = _identity(path)
+    except OSError as exc:
+        read_video(path, expected_size=None, min_frames=min_frames)  # raises its own one-line error
+        raise InputError(path, f"cannot read ({exc.strerror or exc})") from None
+    out: dict[str, np.ndarray] = {}
+    for p in products:
+        arr = _load(_entry(path, p), identity)
+        if arr is not None:
+            out[p] = arr
+    missing = [p for p in products if p not in out]
+    if missing:
+        video = read_video(path, expected_size=None, min_frames=min_frames)
+        for p in missing:
+            out[p] = _compute(video, p)
+            _store(_entry(path, p), identity, out[p])
+    if len(next(iter(out.values()))) < min_frames:
+        raise InputError(path, f"only {len(next(iter(out.values())))} frame(s), need at least {min_frames}")
+    return out

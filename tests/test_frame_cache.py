@@ -1,0 +1,79 @@
+"""The frame cache: a video is decoded once across labelling and loading whole runs; what it holds
+equals what decoding gives; a damaged entry is computed again with a CacheWarning."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+from slipsense.errors import CacheWarning, InputError
+from slipsense.recordings import video as video_mod
+from slipsense.recordings.contact import contact_signal, signal_of_blocks, video_blocks
+from slipsense.recordings.folders import find_recordings
+from slipsense.recordings.frame_cache import video_products
+from slipsense.recordings.labels import label_recordings
+from slipsense.recordings.runs import gray_frames, load_runs
+
+
+@pytest.fixture
+def decodes(monkeypatch):
+    """Counts full decodes of videos."""
+    calls: list[str] = []
+    real = video_mod.read_video
+
+    def counting(path, *a, **kw):
+        calls.append(str(path))
+        return real(path, *a, **kw)
+
+    monkeypatch.setattr(video_mod, "read_video", counting)
+    return calls
+
+
+def test_products_equal_decoding(grasp_recordings, cache):
+    path = grasp_recordings / "obj0" / "exp_num_1" / "camera_0.avi"
+    video = video_mod.read_video(path, expected_size=None)
+    got = video_products(path, ["blocks", "gray:16x20"])
+    np.testing.assert_array_equal(got["blocks"], video_blocks(video))
+    np.testing.assert_array_equal(got["gray:16x20"], gray_frames(video, (16, 20)))
+    np.testing.assert_array_equal(signal_of_blocks(got["blocks"]), contact_signal(video))
+    again = video_products(path, ["gray:16x20"])["gray:16x20"]  # from the cache, memory-mapped
+    assert isinstance(again, np.memmap) and np.array_equal(again, got["gray:16x20"])
+
+
+def test_label_then_load_runs_decodes_each_video_once(grasp_recordings, cache, decodes):
+    recs = find_recordings(grasp_recordings)
+    labels = label_recordings(recs, progress=False)
+    assert sorted(decodes) == sorted(str(r.path) for r in recs)
+    decodes.clear()
+    runs = load_runs(recs, labels, (30, 40), progress=False)  # the size labelling caches too
+    assert decodes == [] and len(runs) == 8 and runs[0].gray.shape[2:] == (30, 40)
+    load_runs(recs, labels, (12, 16), progress=False)  # another size: one decode per video, then none
+    assert len(decodes) == len(recs)
+    load_runs(recs, labels, (12, 16), progress=False)
+    assert len(decodes) == len(recs)
+
+
+def test_damaged_entry_is_recomputed(grasp_recordings, cache, decodes):
+    path = grasp_recordings / "obj1" / "exp_num_2" / "camera_2.avi"
+    first = np.array(video_products(path, ["gray:16x20"])["gray:16x20"])
+    (entry,) = (cache / "frames").glob("*.npy")
+    raw = bytearray(entry.read_bytes())
+    raw[-1] ^= 0xFF  # one grey level of the last frame
+    entry.write_bytes(bytes(raw))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        again = video_products(path, ["gray:16x20"])["gray:16x20"]
+    assert any(issubclass(w.category, CacheWarning) and "failed its checks" in str(w.message) for w in caught)
+    np.testing.assert_array_equal(again, first)
+    assert len(decodes) == 2
+
+
+def test_bad_video_names_the_file(tmp_path, cache):
+    bad = tmp_path / "camera_0.avi"
+    bad.write_bytes(b"not a video")
+    with pytest.raises(InputError, match="camera_0.avi"):
+        video_products(bad, ["blocks"])
+    with pytest.raises(InputError, match="missing.avi"):
+        video_products(tmp_path / "missing.avi", ["blocks"])
