@@ -5,7 +5,7 @@
 # clip (the paper's protocol). Outputs: reports/main/. Extra arguments go to `slipsense grasp train`.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-bash scripts/setup.sh
+bash scripts/setup.sh core
 out=reports/main
 mkdir -p "$out"
 overrides=configs/gelsight-label-overrides.csv

@@ -1,13 +1,22 @@
 #!/usr/bin/env bash
 # Create .venv beside the checkout and install slipsense with pinned dependencies.
+#   bash scripts/setup.sh        everything: the library, ONNX export, the test and lint tools
+#   bash scripts/setup.sh core   the library alone (what scripts/main.sh needs; seconds less)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 if [ ! -x .venv/bin/python ]; then
     python3 -m venv .venv
 fi
-# torch first and pinned: an unpinned resolver pass could pull a multi-GB CUDA build.
-.venv/bin/python -m pip install --quiet --disable-pip-version-check torch==2.13.0
-.venv/bin/python -m pip install --quiet --disable-pip-version-check -e ".[export,test]"
+extras="[export,test]"
+if [ "${1:-}" = "core" ]; then
+    extras=""
+fi
+# torch pinned and in the same resolver pass: an unpinned one could pull a multi-GB CUDA build.
+# --no-compile: Python compiles the modules it imports on first use, not torch's thousands up front.
+.venv/bin/python -m pip install --quiet --disable-pip-version-check --no-compile torch==2.13.0 -e ".${extras}"
+if [ -z "$extras" ]; then
+    exit 0
+fi
 # vit-pytorch only serves the benchmarks as a reference; its package __init__ imports torchvision,
 # which does not import beside this torch, so it is installed without dependencies.
-.venv/bin/python -m pip install --quiet --disable-pip-version-check --no-deps vit-pytorch==1.26.11
+.venv/bin/python -m pip install --quiet --disable-pip-version-check --no-compile --no-deps vit-pytorch==1.26.11

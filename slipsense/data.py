@@ -93,6 +93,10 @@ def label_runs(recordings, overrides=None, on_error: str = "raise", progress: bo
     elif overrides is False:
         overrides = None
     ov = read_overrides_csv(overrides, known=known) if isinstance(overrides, (str, Path)) else overrides
+    from slipsense.recordings.frame_cache import prefetch
+    from slipsense.recordings.labels import LABEL_PRODUCTS
+
+    prefetch([r.path for r in recordings], LABEL_PRODUCTS, progress=progress)  # all cores decode
     if on_error == "raise":
         return label_recordings(recordings, overrides=ov, progress=progress)
     labels: dict = {}

@@ -88,7 +88,8 @@ def replay_recordings(
     Slipped runs without a moment of slip are left out (nothing to warn of).
     """
     from slipsense.data import label_runs
-    from slipsense.recordings.contact import contact_signal
+    from slipsense.recordings.contact import signal_of_blocks
+    from slipsense.recordings.frame_cache import video_products
     from slipsense.recordings.video import read_video
 
     if detector.kind not in ("video", "grasp"):
@@ -121,14 +122,19 @@ def replay_recordings(
         slipped = any(l.slipped for l in labs)
         if slipped and moment is None:
             continue
-        videos = [read_video(r.path, expected_size=None, min_frames=1) for r in cams]
-        n = len(videos[0])
-        if any(len(v) != n for v in videos):
-            raise InputError(
-                cams[0].path.parent, f"the cameras of this run differ in frame count: {[len(v) for v in videos]}"
-            )
-        trace = detector.replay(*videos)
-        rest = pergrasp.rest_mask(np.stack([contact_signal(v) for v in videos])) if n > 1 else None
+        # grey frames and contact blocks come from the frame cache (no decode after labelling);
+        # a model on colour frames replays the decoded video
+        gray = f"gray:{detector.gray_size[0]}x{detector.gray_size[1]}" if detector.kind == "grasp" else None
+        cached = [video_products(r.path, ["blocks", *([gray] if gray else [])], min_frames=1) for r in cams]
+        n = len(cached[0]["blocks"])
+        if any(len(c["blocks"]) != n for c in cached):
+            counts = [len(c["blocks"]) for c in cached]
+            raise InputError(cams[0].path.parent, f"the cameras of this run differ in frame count: {counts}")
+        if gray:
+            trace = detector.replay_gray(np.stack([c[gray] for c in cached]))
+        else:
+            trace = detector.replay(*[read_video(r.path, expected_size=None, min_frames=1) for r in cams])
+        rest = pergrasp.rest_mask(np.stack([signal_of_blocks(c["blocks"]) for c in cached])) if n > 1 else None
         out.append(RunTrace(key[0], key[1], slipped, moment, n, trace.probability, rest))
     return out
 

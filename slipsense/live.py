@@ -423,12 +423,29 @@ class SlipDetector:
     def _replay_grasp(self, streams: list[np.ndarray]) -> Trace:
         from slipsense.recordings.runs import gray_frames
 
-        n = len(streams[0])
+        return self.replay_gray(np.stack([gray_frames(s, self.gray_size) for s in streams]))
+
+    def replay_gray(self, gray: np.ndarray) -> Trace:
+        """:meth:`replay` of a grasp model from grey frames already at its size: uint8 ``(S, N, h,
+        w)`` (:func:`slipsense.recordings.runs.gray_frames`, as the frame cache keeps them)."""
+        if self.kind != "grasp":
+            raise ConfigError(f"{self.model_name} does not read grey frames: use replay()")
+        if (
+            gray.dtype != np.uint8
+            or gray.ndim != 4
+            or gray.shape[0] != self.sensors
+            or gray.shape[2:] != self.gray_size
+        ):
+            raise InputError(
+                None,
+                f"replay_gray takes uint8 (S={self.sensors}, N, {self.gray_size[0]}, {self.gray_size[1]}), got {gray.dtype} {gray.shape}",
+            )
+        n = gray.shape[1]
         p = np.full(n, np.nan)
         if n > self.startup:
-            gray = np.stack([gray_frames(s[self.startup :], self.gray_size) for s in streams])
             with torch.no_grad():
-                logits = self.model(torch.from_numpy(gray[None]).float().div_(255.0))[0]
+                x = torch.from_numpy(np.ascontiguousarray(gray[None, :, self.startup :])).float().div_(255.0)
+                logits = self.model(x)[0]
             p[self.startup :] = torch.softmax(logits, dim=-1)[:, 1].double().numpy()
         return Trace(p, np.repeat(p[:, None], self.sensors, axis=1), self.threshold, self.debounce)
 

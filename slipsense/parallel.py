@@ -38,14 +38,19 @@ def default_workers(jobs: int) -> int:
 
 
 def _init_worker(shared: Any, ticks: Any) -> None:
-    import torch
-
     global _SHARED, _TICKS
-    torch.set_num_threads(1)
+    os.environ["OMP_NUM_THREADS"] = "1"  # before torch starts its thread pool, if a job imports it
+    import cv2
+
+    cv2.setNumThreads(1)
     _SHARED, _TICKS = shared, ticks
 
 
 def _in_worker(fn: Callable, index: int, job: Any) -> Any:
+    import sys
+
+    if "torch" in sys.modules:  # imported with fn's module: one thread, whatever it read at import
+        sys.modules["torch"].set_num_threads(1)
     return fn(_SHARED, job, lambda n: _TICKS.put((index, n)))
 
 

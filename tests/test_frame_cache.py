@@ -77,3 +77,21 @@ def test_bad_video_names_the_file(tmp_path, cache):
         video_products(bad, ["blocks"])
     with pytest.raises(InputError, match="missing.avi"):
         video_products(tmp_path / "missing.avi", ["blocks"])
+
+
+def test_replay_from_cached_grey_equals_replay_of_videos(grasp_recordings, cache):
+    import torch
+
+    from slipsense.live import SlipDetector
+    from slipsense.models import build
+
+    torch.manual_seed(0)
+    model = build("motionnet", image_size=(16, 20), width=4, features=8, temporal=8, lags=(1, 5), dilations=(1, 2))
+    det = SlipDetector(model.eval())
+    run = grasp_recordings / "obj2" / "exp_num_1"
+    paths = [run / f"camera_{c}.avi" for c in (0, 2)]
+    videos = [video_mod.read_video(p, expected_size=None) for p in paths]
+    gray = np.stack([video_products(p, ["gray:16x20"])["gray:16x20"] for p in paths])
+    np.testing.assert_array_equal(det.replay_gray(gray).probability, det.replay(*videos).probability)
+    with pytest.raises(InputError, match="replay_gray takes uint8"):
+        det.replay_gray(gray[:, :, :8])

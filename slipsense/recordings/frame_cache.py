@@ -122,3 +122,35 @@ def video_products(path: str | Path, products: Sequence[str], min_frames: int = 
     if len(next(iter(out.values()))) < min_frames:
         raise InputError(path, f"only {len(next(iter(out.values())))} frame(s), need at least {min_frames}")
     return out
+
+
+def _is_cached(path: Path, products: Sequence[str]) -> bool:
+    try:
+        return all(_entry(path, p).with_suffix(".json").exists() for p in products)
+    except OSError:
+        return False
+
+
+def _prefetch_one(products: Sequence[str], path: Path, tick) -> str | None:
+    try:
+        video_products(path, products)
+    except (InputError, ValueError) as exc:  # the caller's own pass reports it, with its on_error rules
+        return str(exc)
+    finally:
+        tick(1)
+    return None
+
+
+def prefetch(
+    paths: Sequence[str | Path], products: Sequence[str], workers: int | None = None, progress: bool = True
+) -> int:
+    """Decode the videos among ``paths`` whose ``products`` are not cached yet, on ``workers``
+    processes (default one per core; :mod:`slipsense.parallel`), so that what reads them next finds
+    them cached. Videos that cannot be decoded are left for that reader to report. Returns how many
+    were decoded."""
+    from slipsense.parallel import run_jobs
+
+    missing = [Path(p) for p in paths if not _is_cached(Path(p), products)]
+    if len(missing) >= 4:  # fewer: starting workers costs more than decoding here
+        run_jobs(_prefetch_one, missing, list(products), workers, progress=progress, desc="decoding videos")
+    return len(missing)

@@ -64,6 +64,11 @@ from .label_csv import (
 )
 from .types import Recording, VideoLabel
 
+#: What labelling reads of each video through the frame cache: the 8 x 8 blocks of the contact
+#: signal, and from the same decode the grey frames the shipped grasp detector reads (30 x 40), so
+#: that training it after labelling decodes nothing again.
+LABEL_PRODUCTS = ("blocks", "gray:30x40")
+
 __all__ = [
     "ACTIVE_CHANGE",
     "ACTIVE_WINDOW",
@@ -187,7 +192,6 @@ def label_run(recordings_of_one_experiment: Sequence[Recording], rule: Rule = "e
         InputError: a video cannot be decoded, or the cameras of the run differ in frame count.
     """
     from .frame_cache import video_products  # imported here so this module imports without the decoder
-    from .runs import PREFETCH_GRAY
 
     recs = sorted(recordings_of_one_experiment, key=lambda r: r.camera)
     if not recs:
@@ -200,7 +204,7 @@ def label_run(recordings_of_one_experiment: Sequence[Recording], rule: Rule = "e
     for r in recs:
         # Keep only the block averages: the decoded video is ~100 MB, its blocks ~1.6 MB. The grey
         # frames grasp detectors read come from the same decode, so training decodes nothing again.
-        products = video_products(r.path, ["blocks", PREFETCH_GRAY], min_frames=2)
+        products = video_products(r.path, LABEL_PRODUCTS, min_frames=2)
         blocks.append(products["blocks"].astype(np.float32))
     counts = {r.camera: len(b) for r, b in zip(recs, blocks)}
     if len(set(counts.values())) != 1:

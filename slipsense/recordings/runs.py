@@ -23,10 +23,6 @@ import numpy as np
 from ..errors import InputError
 from .types import Recording, VideoLabel
 
-#: Grey frame size labelling also caches (:mod:`.frame_cache`): the shipped grasp detector's, so
-#: that training it after labelling decodes no video again.
-PREFETCH_GRAY = "gray:30x40"
-
 
 def gray_frames(frames: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     """uint8 BGR ``(N, H, W, 3)`` or one ``(H, W, 3)`` frame -> uint8 grey ``(N, h, w)`` / ``(h, w)``
