@@ -14,7 +14,7 @@ What is measured, on one thread, on the shared recordings (fold 0's training obj
   (a frame = both sensors' images at one instant) and their ratio;
 * **clip task** (the paper's ViViT on 5-frame 240 x 320 clips, `slipsense train --model vivit`):
   forward, backward and Adam on batches of 32 clips, frames per second;
-* **compute bound**: multiply-adds per frame (hooks on every convolution and linear layer), this
+* **compute bound**: multiply-adds per frame (``torch.utils.flop_counter``), this
   machine's float32 GFLOP/s on one thread (a 1024 x 1024 matrix product), so frames per second
   if training ran at that rate (forward + backward = 3x the forward's work);
 * **profile**: the operators of the current grasp step by self time (torch.profiler);
@@ -159,26 +159,13 @@ def grasp_profile(runs, cfg) -> list[dict]:
 
 
 def count_macs(model, x) -> int:
-    """Multiply-adds of convolutions and linear layers in one forward of ``x``."""
-    macs = [0]
+    """Multiply-adds of one forward of ``x`` (every matrix product and convolution, counted by
+    ``torch.utils.flop_counter``: half its FLOPs)."""
+    from torch.utils.flop_counter import FlopCounterMode
 
-    def hook(mod, inp, out):
-        if isinstance(mod, (torch.nn.Conv1d, torch.nn.Conv2d, torch.nn.Conv3d)):
-            k = int(np.prod(mod.kernel_size)) * (mod.in_channels // mod.groups)
-            macs[0] += int(out.numel()) * k
-        elif isinstance(mod, torch.nn.Linear):
-            macs[0] += int(out.numel()) * mod.in_features
-
-    handles = [
-        m.register_forward_hook(hook)
-        for m in model.modules()
-        if isinstance(m, (torch.nn.Conv1d, torch.nn.Conv2d, torch.nn.Conv3d, torch.nn.Linear))
-    ]
-    with torch.no_grad():
+    with torch.no_grad(), FlopCounterMode(display=False) as counter:
         model(x)
-    for h in handles:
-        h.remove()
-    return macs[0]
+    return counter.get_total_flops() // 2
 
 
 def machine_gflops(seconds: float = 2.0) -> float:
@@ -302,7 +289,8 @@ def main(argv=None) -> int:
     from slipsense.experiments import cpu_description
 
     cfg = G.make_config("motionnet", {})  # the shipped recipe's model and training settings
-    runs, _ = G.load_grasp_data(gelsight_recordings(), None, tuple(cfg.model_config.get("image_size") or (30, 40)))
+    size = tuple(cfg.model_config.get("image_size") or (30, 40))
+    runs, _ = G.load_grasp_data(gelsight_recordings(), None, size, progress=False)
     usable = [r for r in runs if r.usable]
     held = G.object_split(usable, 5, 0)[0]
     train = [r for r in usable if r.object not in held]

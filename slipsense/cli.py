@@ -212,8 +212,12 @@ def train(
 @app.command()
 @friendly
 def evaluate(
-    checkpoint: Path = typer.Option(..., help="a .safetensors checkpoint"),
-    recordings: Optional[Path] = typer.Option(None, help="evaluate on every clip of this recordings folder"),
+    checkpoint: Optional[Path] = typer.Option(
+        None, help="a .safetensors checkpoint (default: the shipped detector, judged per grasp)"
+    ),
+    recordings: Optional[Path] = typer.Option(
+        None, help="evaluate on this recordings folder (every clip; every run per grasp for a grasp detector)"
+    ),
     split_file: Optional[Path] = typer.Option(None, help="a run's split.json: evaluate on its held-out part"),
     markers: Optional[Path] = typer.Option(None, help="marker-sequence .npz: evaluate on all of it"),
     json_out: Path = typer.Option(Path("evaluation.json"), "--json", help="metrics JSON"),
@@ -224,9 +228,16 @@ def evaluate(
     progress: bool = typer.Option(True),
     dtype: str = typer.Option("float32", help="inference numerics: float32, bfloat16 (STNet/TemNet) or int8 weights"),
 ):
-    """Evaluate a checkpoint: accuracy, precision, recall, F1 and a confusion matrix."""
+    """Evaluate a checkpoint: a grasp detector per grasp (every run replayed: slips warned in time,
+    premature, missed, false-positive grasps), a clip or marker model per clip (accuracy, precision,
+    recall, F1 and a confusion matrix)."""
     from slipsense.atomic import check_output_file
     from slipsense.evaluation import evaluate_checkpoint
+
+    if checkpoint is None:
+        from slipsense.resources import shipped_model
+
+        checkpoint = shipped_model()
 
     check_nonnegative(noise_std, "--noise-std")
     check_output_file(json_out, "--json")
@@ -244,6 +255,9 @@ def evaluate(
         progress=progress,
         dtype=dtype,
     )
+    if "per_grasp" in m:
+        typer.echo(json.dumps(m["per_grasp"], default=float))
+        return
     typer.echo(
         json.dumps({k: m[k] for k in ("accuracy", "precision", "recall", "f1", "n_clips", "n_slip", "n_wiggle")})
     )

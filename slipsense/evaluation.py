@@ -112,15 +112,17 @@ def evaluate_checkpoint(
     from slipsense.data import clip_spec_from, gelsight_clips, load_markers
     from slipsense.datasets import ClipDataset, MarkerDataset
 
-    sources = [s for s in (recordings, split, markers) if s is not None]
-    if len(sources) != 1:
-        raise ConfigError("give exactly one of --recordings, --split-file or --markers")
     import math
 
     if not isinstance(noise_std, (int, float)) or not math.isfinite(noise_std) or noise_std < 0:
         raise ConfigError(f"--noise-std must be a finite number >= 0, got {noise_std!r}")
     model, info = load_model(checkpoint)
     kind = model.input_kind
+    if kind == "grasp":
+        return _evaluate_grasps(checkpoint, recordings, split, markers, json_out, overrides, progress, dtype)
+    sources = [s for s in (recordings, split, markers) if s is not None]
+    if len(sources) != 1:
+        raise ConfigError("give exactly one of --recordings, --split-file or --markers")
     model = at_dtype(model.eval(), dtype)
     from slipsense.config import portable_path
 
@@ -185,6 +187,43 @@ def evaluate_checkpoint(
 
     with torch.inference_mode():
         return evaluate_model(model, data, json_out, png, extra=extra, progress=progress)
+
+
+def _evaluate_grasps(checkpoint, recordings, split, markers, json_out, overrides, progress, dtype) -> dict[str, Any]:
+    """A grasp detector is judged per grasp (:func:`slipsense.api.evaluate`: every run of the
+    recordings folder replayed from its first frame, both sensors, at the checkpoint's operating
+    point); the JSON holds the summary and each run's outcome."""
+    from dataclasses import asdict
+
+    from slipsense.api import evaluate as evaluate_grasps
+    from slipsense.config import portable_path
+
+    if split is not None or markers is not None:
+        raise InputError(
+            split or markers,
+            f"{checkpoint} holds a grasp detector (whole runs of both sensors): evaluate it on a "
+            "recordings folder (--recordings; default: the shared recordings)",
+        )
+    if dtype != "float32":
+        raise ConfigError(f"a grasp detector is evaluated in float32 (--dtype {dtype} is for clip and marker models)")
+    ev = evaluate_grasps(checkpoint, recordings, overrides=True if overrides is None else overrides, progress=progress)
+    doc = {
+        "checkpoint": portable_path(checkpoint),
+        "recordings": None if recordings is None else portable_path(recordings),
+        "threshold": ev.threshold,
+        "debounce": ev.debounce,
+        "horizon": ev.horizon,
+        "per_grasp": ev.summary(),
+        "runs": [
+            {"object": r.object, "experiment": r.experiment, "moment_of_slip": r.moment_of_slip, **asdict(o)}
+            for r, o in zip(ev.runs, ev.outcomes())
+        ],
+    }
+    if json_out is not None:
+        from slipsense import atomic
+
+        atomic.write_text(json_out, json.dumps(doc, indent=1, default=float))
+    return doc
 
 
 #: Keys a split file (a run's ``split.json``) needs, by data kind.

@@ -120,7 +120,9 @@ def check_same_split(path: Path, split_info: dict[str, Any]) -> None:
         raise InputError(path, f"cannot be read to check the resumed run's split ({exc})") from None
     if not isinstance(old, dict):
         raise InputError(path, "is not a split description (a JSON object)")
-    changed = [k for k in SPLIT_IDENTITY if (k in old or k in split_info) and old.get(k) != split_info.get(k)]
+    # compared as JSON reads them back: a clip size (48, 64) is written as the list [48, 64]
+    now = json.loads(json.dumps(split_info, default=str))
+    changed = [k for k in SPLIT_IDENTITY if (k in old or k in now) and old.get(k) != now.get(k)]
     if changed:
         raise InputError(
             path,

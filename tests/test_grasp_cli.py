@@ -105,6 +105,16 @@ def test_grasp_train_then_early_warning(tmp_path, grasps, monkeypatch):
     doc = json.loads((ew / "early_warning.json").read_text())
     assert doc["operating_point"]["threshold"] == info["operating_point"]["threshold"]
     assert len(doc["runs"]) == 8
+    # `slipsense evaluate` judges a grasp detector per grasp, with the same outcomes as early-warning
+    ev = tmp_path / "eval.json"
+    args = ["evaluate", "--checkpoint", str(out / "detector.safetensors"), "--recordings", str(grasps)]
+    res = CliRunner().invoke(app, [*args, "--json", str(ev), "--no-progress"])
+    assert res.exit_code == 0, res.output
+    got = json.loads(ev.read_text())
+    assert got["threshold"] == info["operating_point"]["threshold"] and len(got["runs"]) == 8
+    assert got["per_grasp"]["slip_runs"] == 4 and got["per_grasp"]["held_runs"] == 4
+    res = CliRunner().invoke(app, [*args[:3], "--split-file", str(ev), "--json", str(tmp_path / "e2.json")])
+    assert res.exit_code == 2 and "holds a grasp detector" in res.output
 
 
 def test_grasp_folds_resume(tmp_path, grasps, monkeypatch):

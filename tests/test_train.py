@@ -133,3 +133,17 @@ def test_pooling_folds_sums_confusions(tmp_path):
     assert out["pooled"]["recall"] == pytest.approx(5 / 7) and out["pooled"]["precision"] == pytest.approx(5 / 6)
     with pytest.raises(InputError, match="evaluation.json"):
         pool([tmp_path / "missing"])
+
+
+def test_resume_split_check_reads_tuples_as_json_does(tmp_path):
+    """A clip size given as a tuple is written to split.json as a list: the same split, not another."""
+    import json
+
+    from slipsense.errors import InputError
+    from slipsense.splits import check_same_split
+
+    info = {"kind": "video", "split": "objects", "test_objects": ["cup"], "clip_spec": {"size": (48, 64)}}
+    (tmp_path / "split.json").write_text(json.dumps(info))
+    check_same_split(tmp_path / "split.json", info)  # nothing changed: no error
+    with pytest.raises(InputError, match="clip_spec differ"):
+        check_same_split(tmp_path / "split.json", {**info, "clip_spec": {"size": (60, 80)}})
