@@ -243,7 +243,9 @@ def _wall_commands(which: str, out: Path) -> list[str]:
 def wall_time(checkout: Path, which: str) -> float:
     """Seconds of one command in ``checkout``, with an empty cache (its venv set up before)."""
     with tempfile.TemporaryDirectory() as tmp:
-        env = {**os.environ, "SLIPSENSE_CACHE": str(Path(tmp) / "cache")}
+        # the data this checkout reads, wherever the other checkout lies
+        data = str(gelsight_recordings().resolve().parent)
+        env = {**os.environ, "SLIPSENSE_CACHE": str(Path(tmp) / "cache"), "SLIPSENSE_DATA": data}
         cmd = _wall_commands(which, Path(tmp) / "out")
         if which != "main":
             cmd = [*cmd, "--no-progress"]
@@ -263,6 +265,7 @@ def walls(kinds: list[str], reference: str | None) -> list[dict]:
         subprocess.run(["bash", "scripts/setup.sh"], cwd=ROOT, check=True)
         for kind in kinds:
             row = {"command": " ".join(_wall_commands(kind, Path("OUT"))), "current_s": wall_time(ROOT, kind)}
+            print(row, flush=True)
             if ref_dir is not None:
                 row["reference_s"] = wall_time(ref_dir, kind)
                 row["ratio"] = row["reference_s"] / row["current_s"]

@@ -96,9 +96,11 @@ def label_runs(recordings, overrides=None, on_error: str = "raise", progress: bo
     from slipsense.recordings.frame_cache import prefetch
     from slipsense.recordings.labels import LABEL_PRODUCTS
 
-    prefetch([r.path for r in recordings], LABEL_PRODUCTS, progress=progress)  # all cores decode
-    if on_error == "raise":
-        return label_recordings(recordings, overrides=ov, progress=progress)
+    if on_error == "raise":  # runs not labelled yet are labelled on every core, decoding as they go
+        labels = label_recordings(recordings, overrides=ov, progress=progress)
+        prefetch([r.path for r in recordings], LABEL_PRODUCTS, progress=progress)  # labels cached, frames not
+        return labels
+    prefetch([r.path for r in recordings], LABEL_PRODUCTS, progress=progress)  # decoding on every core
     labels: dict = {}
     skipped: set = set()
     items = list(runs.items())

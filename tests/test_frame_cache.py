@@ -44,7 +44,7 @@ def test_products_equal_decoding(grasp_recordings, cache):
 
 def test_label_then_load_runs_decodes_each_video_once(grasp_recordings, cache, decodes):
     recs = find_recordings(grasp_recordings)
-    labels = label_recordings(recs, progress=False)
+    labels = label_recordings(recs, progress=False, workers=1)  # here, where the decodes are counted
     assert sorted(decodes) == sorted(str(r.path) for r in recs)
     decodes.clear()
     runs = load_runs(recs, labels, (30, 40), progress=False)  # the size labelling caches too

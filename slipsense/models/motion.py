@@ -125,16 +125,19 @@ class MotionNet(GraspModel):
     def differences(self, gray: Tensor) -> Tensor:
         """``(B, S, N, h, w)`` -> ``(B, S, N, L, h, w)``: frame minus the frame ``lag`` back (the first
         frame standing in before the start), scaled."""
-        n = gray.shape[2]
-        return self._lagged(gray, torch.arange(n, device=gray.device), dim=2).movedim(-1, 3)
+        at = torch.arange(gray.shape[2], device=gray.device)
+        return self._lagged(gray, at, self._pasts(at), dim=2).movedim(-1, 3)
 
-    def _lagged(self, gray: Tensor, at: Tensor, dim: int) -> Tensor:
-        """Scaled differences at frame indices ``at`` (>= 0) along ``dim`` of ``gray``, lags last:
-        ``(..., h, w, L)``. Moved to after the frame axis this is a channels-last view of the
-        images, on which the strided convolutions run about a third faster than on planar ones."""
-        now = gray.index_select(dim, at)
-        past = [gray.index_select(dim, (at - lag).clamp(min=0)) for lag in self.lags]
-        return torch.stack([now - p for p in past], dim=-1) * self.diff_scale
+    def _pasts(self, at: Tensor) -> list[Tensor]:
+        """Per lag, the frame indices ``lag`` before ``at`` (the first frame standing in before 0)."""
+        return [(at - lag).clamp(min=0) for lag in self.lags]
+
+    def _lagged(self, gray: Tensor, now: Tensor, pasts: Sequence[Tensor], dim: int) -> Tensor:
+        """Scaled differences of the frames ``now`` and, per lag, ``pasts`` along ``dim`` of ``gray``,
+        lags last: ``(..., h, w, L)``. Moved to after the frame axis this is a channels-last view of
+        the images, on which the strided convolutions run about a third faster than on planar ones."""
+        cur = gray.index_select(dim, now)
+        return torch.stack([cur - gray.index_select(dim, p) for p in pasts], dim=-1) * self.diff_scale
 
     def encode(self, diffs: Tensor) -> Tensor:
         """``(B, S, N, L, h, w)`` differences -> ``(B, N, 2F)`` fused per-frame features."""
@@ -174,7 +177,7 @@ class MotionNet(GraspModel):
         if t < need + self.max_lag:
             raise InputError(None, f"motionnet chunk of {t} frames is shorter than {need + self.max_lag}")
         at = torch.arange(t - need, t, device=gray.device)
-        return self.classify(self.encode(self._lagged(gray, at, dim=2).movedim(-1, 3)))
+        return self.classify(self.encode(self._lagged(gray, at, self._pasts(at), dim=2).movedim(-1, 3)))
 
     def chunk_logits(self, runs: Sequence[tuple[Tensor, Sequence[int]]], n_out: int) -> Tensor:
         """Logits of chunks of whole runs, each frame encoded once however many chunks share it.
@@ -191,16 +194,22 @@ class MotionNet(GraspModel):
             once, where one chunk at a time would count shared frames again.
         """
         need = n_out + self.receptive_field - 1
-        diffs, gathers, offset = [], [], 0
+        grays, now, pasts, gathers = [], [], [], []
+        frames = distinct = 0  # frames of the runs so far, distinct frames so far
         for gray, ends in runs:
             if gray.ndim != 4 or gray.shape[0] != self.sensors or tuple(gray.shape[2:]) != self.image_size:
                 raise InputError(None, f"motionnet chunk_logits takes runs (S, N, h, w), got {tuple(gray.shape)}")
             rows = (torch.as_tensor(list(ends))[:, None] + torch.arange(1 - need, 1)[None]).clamp(min=0)
             at, where = torch.unique(rows, return_inverse=True)  # the distinct frames, and each chunk slot's
-            diffs.append(self._lagged(gray, at, dim=1))  # (S, U, h, w, L)
-            gathers.append(where + offset)
-            offset += len(at)
-        feats = self.encode(torch.cat(diffs, dim=1).movedim(-1, 2)[None])[0]  # (U, 2F)
+            grays.append(gray)
+            now.append(at + frames)
+            pasts.append([p + frames for p in self._pasts(at)])
+            gathers.append(where + distinct)
+            frames, distinct = frames + gray.shape[1], distinct + len(at)
+        gray = torch.cat(grays, dim=1) if len(grays) > 1 else grays[0]  # the runs' frames one after another
+        by_lag = [torch.cat(p) for p in zip(*pasts)]
+        diffs = self._lagged(gray, torch.cat(now), by_lag, dim=1)  # (S, U, h, w, L)
+        feats = self.encode(diffs.movedim(-1, 2)[None])[0]  # (U, 2F)
         return self.classify(feats[torch.cat(gathers)])
 
     def check_input(self, x: Tensor) -> None:

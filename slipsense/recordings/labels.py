@@ -229,12 +229,29 @@ def _group_runs(recordings: Iterable[Recording]) -> dict[tuple[str, int], list[R
     return dict(sorted(runs.items()))
 
 
+def _label_one(rule: Rule, recs: list[Recording], tick) -> list[VideoLabel]:
+    labels = label_run(recs, rule=rule)
+    tick(1)
+    return labels
+
+
+def _label_runs(runs: list[list[Recording]], rule: Rule, progress: bool, workers: int | None) -> list[list[VideoLabel]]:
+    """:func:`label_run` of every run, on ``workers`` processes (default one per core) when there are
+    several runs (decoding and the contact signals are most of a fresh labelling's time)."""
+    if len(runs) < 4 or workers == 1:  # fewer runs: starting workers would cost more than it saves
+        return [label_run(recs, rule=rule) for recs in runs]
+    from slipsense.parallel import run_jobs
+
+    return run_jobs(_label_one, runs, rule, workers, progress=progress, desc="labelling runs")
+
+
 def label_recordings(
     recordings: Iterable[Recording],
     overrides: Mapping[tuple[str, int, str | None], int | None] | str | Path | None = None,
     progress: bool = True,
     cache: bool = True,
     rule: Rule = "either",
+    workers: int | None = None,
 ) -> dict[Key, VideoLabel]:
     """Label all recordings, run by run, then apply hand-made overrides.
 
@@ -252,6 +269,8 @@ def label_recordings(
             labels are possible for the videos (:func:`check_run_labels`); otherwise the run is
             labelled again with a :class:`~slipsense.errors.CacheWarning`.
         rule: see :func:`find_moment_of_slip`.
+        workers: processes labelling the runs the cache has no labels for (default: one per core;
+            :mod:`slipsense.parallel`).
 
     Returns:
         ``{(object, experiment, camera): VideoLabel}`` sorted by key.
@@ -264,30 +283,28 @@ def label_recordings(
     known = {key: [r.camera for r in recs] for key, recs in runs.items()}
     if isinstance(overrides, (str, Path)):
         overrides = read_overrides_csv(overrides, known=known)
-    items = list(runs.items())
-    if progress:
-        from tqdm import tqdm
-
-        items = tqdm(items, desc="labelling runs", unit="run")
     labels: dict[Key, VideoLabel] = {}
-    for _key, recs in items:
+    todo: list[tuple[list[Recording], Path | None]] = []  # runs the cache cannot answer
+    for recs in runs.values():
         cached_path = _cache_file(recs, rule) if cache else None
         run_labels = _load_cached(cached_path, recs, rule) if cached_path is not None else None
         if run_labels is None:
-            run_labels = label_run(recs, rule=rule)
-            if cached_path is not None:
-                try:
-                    _write_cache(cached_path, recs, rule, run_labels)
-                except OSError as exc:
-                    import warnings
+            todo.append((recs, cached_path))
+        else:
+            labels.update((label.key, label) for label in run_labels)
+    for (recs, cached_path), run_labels in zip(todo, _label_runs([r for r, _ in todo], rule, progress, workers)):
+        if cached_path is not None:
+            try:
+                _write_cache(cached_path, recs, rule, run_labels)
+            except OSError as exc:
+                import warnings
 
-                    warnings.warn(
-                        f"{cached_path}: cannot write the label cache ({exc}); continuing without it",
-                        CacheWarning,
-                        stacklevel=2,
-                    )
-        for label in run_labels:
-            labels[label.key] = label
+                warnings.warn(
+                    f"{cached_path}: cannot write the label cache ({exc}); continuing without it",
+                    CacheWarning,
+                    stacklevel=2,
+                )
+        labels.update((label.key, label) for label in run_labels)
     if overrides:
         labels = apply_overrides(labels, overrides)
     return dict(sorted(labels.items()))
