@@ -8,12 +8,14 @@ This is not data parallelism: each job is one whole, seeded, single-thread train
 does not depend on how many workers ran beside it (one training spread over processes is torchrun
 DDP's job, :mod:`slipsense.distributed`).
 
-The pool is :class:`concurrent.futures.ProcessPoolExecutor` (spawned workers: no forked torch
-state); the data every job reads is sent to each worker once, jobs name what they need of it.
+The pool is :class:`concurrent.futures.ProcessPoolExecutor` with forked workers on Linux (the data
+every job reads is inherited, not copied; jobs name what they need of it) and spawned ones
+elsewhere (the data is then sent to each worker once).
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import queue as queue_mod
 import time
@@ -37,13 +39,36 @@ def default_workers(jobs: int) -> int:
     return max(1, min(available_cores(), jobs))
 
 
+def _context():
+    """Forked workers on Linux: they start at once with ``shared`` already in memory (nothing is
+    pickled), and a user's script that calls :func:`slipsense.fit` needs no ``if __name__ ==
+    "__main__"`` guard (a spawned worker imports the main script again). Elsewhere, spawned."""
+    import multiprocessing
+    import sys
+
+    method = "fork" if sys.platform == "linux" and "fork" in multiprocessing.get_all_start_methods() else "spawn"
+    return multiprocessing.get_context(method)
+
+
 def _init_worker(shared: Any, ticks: Any) -> None:
     global _SHARED, _TICKS
     os.environ["OMP_NUM_THREADS"] = "1"  # before torch starts its thread pool, if a job imports it
+    _SHARED, _TICKS = shared, ticks
+
+
+@contextlib.contextmanager
+def _opencv_without_pool():
+    """OpenCV on one thread here while workers are forked: a forked child that finds OpenCV's
+    thread pool (whose threads stay behind in the parent) hangs in it; with no pool there is
+    nothing to find. The parent's setting is restored afterwards."""
     import cv2
 
+    before = cv2.getNumThreads()
     cv2.setNumThreads(1)
-    _SHARED, _TICKS = shared, ticks
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(before)
 
 
 def _in_worker(fn: Callable, index: int, job: Any) -> Any:
@@ -123,11 +148,12 @@ def run_jobs(
                 if on_done is not None:
                     on_done(i, results[i])
             return results
-        import multiprocessing
-
-        ctx = multiprocessing.get_context("spawn")
+        ctx = _context()
         ticks = ctx.Queue()
-        with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker, initargs=(shared, ticks)) as pool:
+        with (
+            _opencv_without_pool(),
+            ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker, initargs=(shared, ticks)) as pool,
+        ):
             pending = {pool.submit(_in_worker, fn, i, jobs[i]): i for i in range(n)}
             try:
                 while pending:
