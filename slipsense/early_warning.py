@@ -88,7 +88,6 @@ def replay_recordings(
     Slipped runs without a moment of slip are left out (nothing to warn of).
     """
     from slipsense.data import label_runs
-    from slipsense.recordings.contact import signal_of_blocks
     from slipsense.recordings.frame_cache import video_products
     from slipsense.recordings.video import read_video
 
@@ -125,16 +124,16 @@ def replay_recordings(
         # grey frames and contact blocks come from the frame cache (no decode after labelling);
         # a model on colour frames replays the decoded video
         gray = f"gray:{detector.gray_size[0]}x{detector.gray_size[1]}" if detector.kind == "grasp" else None
-        cached = [video_products(r.path, ["blocks", *([gray] if gray else [])], min_frames=1) for r in cams]
-        n = len(cached[0]["blocks"])
-        if any(len(c["blocks"]) != n for c in cached):
-            counts = [len(c["blocks"]) for c in cached]
+        cached = [video_products(r.path, ["contact", *([gray] if gray else [])], min_frames=1) for r in cams]
+        n = len(cached[0]["contact"])
+        if any(len(c["contact"]) != n for c in cached):
+            counts = [len(c["contact"]) for c in cached]
             raise InputError(cams[0].path.parent, f"the cameras of this run differ in frame count: {counts}")
         if gray:
             trace = detector.replay_gray(np.stack([c[gray] for c in cached]))
         else:
             trace = detector.replay(*[read_video(r.path, expected_size=None, min_frames=1) for r in cams])
-        rest = pergrasp.rest_mask(np.stack([signal_of_blocks(c["blocks"]) for c in cached])) if n > 1 else None
+        rest = pergrasp.rest_mask(np.stack([c["contact"] for c in cached])) if n > 1 else None
         out.append(RunTrace(key[0], key[1], slipped, moment, n, trace.probability, rest))
     return out
 

@@ -150,8 +150,8 @@ def _batches(chunks, items, size: int, flips: bool, rng: np.random.Generator):
         dims = [d for d, flip in ((-1, rng.random() < 0.5), (-2, rng.random() < 0.5)) if flips and flip]
         runs = []
         for i, ends, _ in part:
-            x = torch.from_numpy(items[i][0]).float().div_(255.0)  # (S, N, h, w)
-            runs.append((x.flip(dims) if dims else x, ends))
+            x = torch.from_numpy(items[i][0])  # uint8 (S, N, h, w): flipped before it is 4x larger
+            runs.append(((x.flip(dims) if dims else x).float().div_(255.0), ends))
         yield runs, torch.from_numpy(np.concatenate([c[2] for c in part]))
         part = []
 

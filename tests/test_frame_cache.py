@@ -34,7 +34,8 @@ def decodes(monkeypatch):
 def test_products_equal_decoding(grasp_recordings, cache):
     path = grasp_recordings / "obj0" / "exp_num_1" / "camera_0.avi"
     video = video_mod.read_video(path, expected_size=None)
-    got = video_products(path, ["blocks", "gray:16x20"])
+    got = video_products(path, ["blocks", "gray:16x20", "contact"])
+    np.testing.assert_array_equal(got["contact"], contact_signal(video))
     np.testing.assert_array_equal(got["blocks"], video_blocks(video))
     np.testing.assert_array_equal(got["gray:16x20"], gray_frames(video, (16, 20)))
     np.testing.assert_array_equal(signal_of_blocks(got["blocks"]), contact_signal(video))

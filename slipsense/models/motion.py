@@ -137,7 +137,10 @@ class MotionNet(GraspModel):
         lags last: ``(..., h, w, L)``. Moved to after the frame axis this is a channels-last view of
         the images, on which the strided convolutions run about a third faster than on planar ones."""
         cur = gray.index_select(dim, now)
-        return torch.stack([cur - gray.index_select(dim, p) for p in pasts], dim=-1) * self.diff_scale
+        out = cur.new_empty((*cur.shape, len(pasts)))
+        for i, p in enumerate(pasts):  # written in place: no stacked copy
+            torch.sub(cur, gray.index_select(dim, p), out=out[..., i])
+        return out.mul_(self.diff_scale)
 
     def encode(self, diffs: Tensor) -> Tensor:
         """``(B, S, N, L, h, w)`` differences -> ``(B, N, 2F)`` fused per-frame features."""

@@ -6,6 +6,9 @@ A 450-frame recording takes tens of milliseconds to decode and its 240 x 320 col
 * ``"blocks"``: uint8 ``(T, H/8, W/8, 3)`` 8 x 8 pixel block averages, what the contact signal and
   so the automatic labels and the "gel at rest" masks are computed from
   (:func:`slipsense.recordings.contact.signal_of_blocks`), 1.6 MB;
+* ``"contact"``: float32 ``(T,)``, the contact signal itself
+  (:func:`slipsense.recordings.contact.contact_signal`), which training and replays read to score
+  alarms while no gel is touched;
 * ``"gray:HxW"``: uint8 ``(T, h, w)`` grey frames at the size a grasp detector reads
   (:func:`slipsense.recordings.runs.gray_frames`), 0.5 MB at 30 x 40.
 
@@ -48,15 +51,19 @@ def _entry(path: Path, product: str) -> Path:
 
 
 def _check_product(product: str) -> None:
-    if product != "blocks" and not _GRAY.match(product):
-        raise ValueError(f"unknown frame product {product!r} (blocks or gray:HxW)")
+    if product not in ("blocks", "contact") and not _GRAY.match(product):
+        raise ValueError(f"unknown frame product {product!r} (blocks, contact or gray:HxW)")
 
 
 def _compute(video: np.ndarray, product: str) -> np.ndarray:
-    if product == "blocks":
-        from .contact import video_blocks
+    if product in ("blocks", "contact"):
+        from .contact import signal_of_blocks, video_blocks
 
-        return video_blocks(video)
+        blocks = video_blocks(video)
+        if product == "blocks":
+            return blocks
+        # one frame has no contact signal (it needs the gel at rest to compare with): none is read
+        return signal_of_blocks(blocks).astype(np.float32) if len(blocks) > 1 else np.zeros(len(blocks), np.float32)
     from .runs import gray_frames
 
     h, w = (int(v) for v in _GRAY.match(product).groups())
@@ -91,7 +98,7 @@ def _store(entry: Path, identity: dict, arr: np.ndarray) -> None:
 
 
 def video_products(path: str | Path, products: Sequence[str], min_frames: int = 2) -> dict[str, np.ndarray]:
-    """``{product: uint8 array}`` of one video (see the module notes), decoding it at most once.
+    """``{product: array}`` of one video (see the module notes), decoding it at most once.
 
     Raises :class:`~slipsense.errors.InputError` naming ``path`` when it must be decoded and cannot
     be (:func:`slipsense.recordings.video.read_video`), or has fewer than ``min_frames`` frames.

@@ -65,9 +65,9 @@ from .label_csv import (
 from .types import Recording, VideoLabel
 
 #: What labelling reads of each video through the frame cache: the 8 x 8 blocks of the contact
-#: signal, and from the same decode the grey frames the shipped grasp detector reads (30 x 40), so
-#: that training it after labelling decodes nothing again.
-LABEL_PRODUCTS = ("blocks", "gray:30x40")
+#: signal, and from the same decode the contact signal and the grey frames the shipped grasp
+#: detector reads (30 x 40), so that training it after labelling decodes nothing again.
+LABEL_PRODUCTS = ("blocks", "contact", "gray:30x40")
 
 __all__ = [
     "ACTIVE_CHANGE",

@@ -69,15 +69,14 @@ class GraspRun:
 
 
 def _decode_run(recs: Sequence[Recording], size: tuple[int, int]) -> dict[str, np.ndarray]:
-    from .contact import signal_of_blocks
     from .frame_cache import video_products
 
     grays, contacts = [], []
     gray = f"gray:{size[0]}x{size[1]}"
     for r in recs:
-        products = video_products(r.path, ["blocks", gray], min_frames=2)
+        products = video_products(r.path, ["contact", gray], min_frames=2)
         grays.append(products[gray])
-        contacts.append(signal_of_blocks(products["blocks"]))
+        contacts.append(products["contact"])
     counts = {r.camera: len(g) for r, g in zip(recs, grays)}
     if len(set(counts.values())) != 1:
         raise InputError(recs[0].path.parent, f"the cameras of this run differ in frame count: {counts}")
