@@ -196,7 +196,7 @@ def summary_markdown(report: dict[str, Any]) -> str:
         "",
         "## Folds",
         "",
-        "| fold | objects | threshold x debounce | warned | false-positive grasps | clip F1 | seconds |",
+        "| fold | objects | threshold x debounce | warned | false-positive grasps | clip F1 | done after (s) |",
         "|---:|---|---:|---:|---:|---:|---:|",
     ]
     for f in report["per_fold"]:
