@@ -335,11 +335,7 @@ def finish_training(
         probs = [by_index[i] for i in jobs[0].train]
     else:
         probs = predict_runs(model, train)
-    op = pergrasp.choose_operating_point(probs, [r.moment_of_slip for r in train], horizon=cfg.horizon)
-    op["chosen_on"] = (
-        f"{cfg.inner_folds} inner folds of the training objects" if cfg.inner_folds else "the training runs themselves"
-    )
-    return model, results[0]["history"], op, results[0]["probs"]
+    return model, results[0]["history"], _chosen_operating_point(probs, train, cfg), results[0]["probs"]
 
 
 def train_with_operating_point(
@@ -381,7 +377,12 @@ def operating_point(
         results = run_jobs(fit_job, jobs, (usable, cfg), workers, [job_weight(j, cfg) for j in jobs], progress=progress)
         by_index = {i: p for job, res in zip(jobs, results) for i, p in zip(job.predict, res["probs"])}
         probs = [by_index[i] for i in range(len(usable))]
-    op = pergrasp.choose_operating_point(probs, [r.moment_of_slip for r in usable], horizon=cfg.horizon)
+    return _chosen_operating_point(probs, usable, cfg)
+
+
+def _chosen_operating_point(probs: Sequence[np.ndarray], runs: Sequence[GraspRun], cfg: GraspTrainConfig) -> dict:
+    """The threshold and debounce that best separate ``runs``' slips from their held grasps, and on what."""
+    op = pergrasp.choose_operating_point(probs, [r.moment_of_slip for r in runs], horizon=cfg.horizon)
     op["chosen_on"] = (
         f"{cfg.inner_folds} inner folds of the training objects" if cfg.inner_folds else "the training runs themselves"
     )
@@ -447,12 +448,7 @@ def fold_result(
     """A fold's per-grasp summary and clip metrics at its operating point, plus what pooling needs:
     every held-out run's trace and the clips' probabilities and labels."""
     rests = [pergrasp.rest_mask(r.contact) for r in test]
-    outs = [
-        pergrasp.grasp_outcome(
-            pergrasp.debounce(p, op["threshold"], op["debounce"]), r.moment_of_slip, cfg.horizon, rest=rest
-        )
-        for r, p, rest in zip(test, probs, rests)
-    ]
+    outs = _outcomes(test, probs, op, cfg.horizon, rests)
     p, y = clip_scores(test, probs, labels)
     return {
         "objects": sorted(held),
@@ -619,17 +615,19 @@ def evaluate_held_out(
     probs: Sequence[np.ndarray], op: dict[str, Any], runs: Sequence[GraspRun], labels: dict, horizon: int
 ) -> dict[str, Any]:
     """Per-grasp outcomes and clip metrics of ``runs`` from their P(slip) traces at ``op``."""
-    outs = [
-        pergrasp.grasp_outcome(
-            pergrasp.debounce(p, op["threshold"], op["debounce"]),
-            r.moment_of_slip,
-            horizon,
-            rest=pergrasp.rest_mask(r.contact),
-        )
-        for r, p in zip(runs, probs)
-    ]
+    outs = _outcomes(runs, probs, op, horizon, [pergrasp.rest_mask(r.contact) for r in runs])
     p, y = clip_scores(runs, probs, labels)
     return {"per_grasp": pergrasp.summarise(outs), "clips": clip_metrics(p, y, op["threshold"])}
+
+
+def _outcomes(runs, probs, op: dict[str, Any], horizon: int, rests) -> list[pergrasp.GraspOutcome]:
+    """Each run's per-grasp verdict at the operating point ``op``."""
+    return [
+        pergrasp.grasp_outcome(
+            pergrasp.debounce(p, op["threshold"], op["debounce"]), r.moment_of_slip, horizon, rest=rest
+        )
+        for r, p, rest in zip(runs, probs, rests)
+    ]
 
 
 def _write_history(out, history: list[dict[str, Any]]) -> None:
