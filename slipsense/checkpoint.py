@@ -177,6 +177,9 @@ def load_model(path: str | Path, expect_model: str | None = None) -> tuple[nn.Mo
             raise InputError(
                 path, f"weight {key} has shape {tuple(state[key].shape)}, model expects {tuple(ref.shape)}"
             )
+        if state[key].is_floating_point() != ref.is_floating_point():
+            # load_state_dict would cast int64 weights to float silently: nonsense predictions, no error
+            raise InputError(path, f"weight {key} is stored as {state[key].dtype}, model expects {ref.dtype}")
         if state[key].is_floating_point() and not torch.isfinite(state[key]).all():
             raise InputError(path, f"weight {key} contains NaN or inf")
     model.load_state_dict(state)

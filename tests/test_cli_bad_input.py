@@ -15,6 +15,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+import torch
 from typer.testing import CliRunner
 
 from conftest import TINY_TRAIN_ARGS
@@ -118,6 +119,26 @@ def test_corrupt_and_foreign_checkpoints(tmp_path):
     bad.write_bytes(b"\x00" * 100)
     result = runner.invoke(app, ["evaluate", "--checkpoint", str(bad), "--markers", str(tmp_path / "m.npz")])
     assert result.exit_code == 2 and "bad.safetensors" in _error_line(result)
+
+
+def test_checkpoint_with_weights_of_another_dtype_is_refused(tmp_path):
+    """int64 weights would be cast to float by load_state_dict: nonsense predictions and exit 0."""
+    from safetensors.torch import load_file, save_file
+
+    from slipsense.checkpoint import META_KEY, read_info
+    from slipsense.live import DEFAULT_CHECKPOINT
+
+    info = read_info(DEFAULT_CHECKPOINT)
+    state = {
+        k: (v * 1000).to(torch.int64) if v.is_floating_point() else v
+        for k, v in load_file(str(DEFAULT_CHECKPOINT)).items()
+    }
+    bad = tmp_path / "int64.safetensors"
+    save_file(state, str(bad), metadata={META_KEY: json.dumps(info)})
+    result = runner.invoke(app, ["evaluate", "--checkpoint", str(bad), "--recordings", str(tmp_path)])
+    assert result.exit_code == 2, result.output
+    line = _error_line(result)
+    assert "int64.safetensors" in line and "torch.int64" in line, line
 
 
 @pytest.mark.parametrize(
@@ -326,7 +347,7 @@ def _rewrite_config(src: Path, dst: Path, **changes) -> Path:
             info["model_config"] = v
         else:
             info["model_config"][k] = v
-    save_file(tensors, str(dst), metadata={"slipsense": json.dumps(info)})
+    save_file(tensors, str(dst), metadata={META_KEY: json.dumps(info)})
     return dst
 
 
