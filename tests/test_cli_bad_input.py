@@ -347,7 +347,7 @@ def _rewrite_config(src: Path, dst: Path, **changes) -> Path:
             info["model_config"] = v
         else:
             info["model_config"][k] = v
-    save_file(tensors, str(dst), metadata={META_KEY: json.dumps(info)})
+    save_file(tensors, str(dst), metadata={"slipsense": json.dumps(info)})
     return dst
 
 
