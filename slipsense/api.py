@@ -159,11 +159,13 @@ def evaluate(
     from slipsense.resources import shipped_model
 
     root = _recordings_folder(recordings)
-    trained_on = set(((read_info(checkpoint or shipped_model()).get("data") or {}).get("objects")) or ())
+    info = read_info(checkpoint or shipped_model())
+    trained_on = set(((info.get("data") or {}).get("objects")) or ())
+    sensors = info["model_config"].get("sensors") or 2  # a clip model sees both fingers, alarm on either
     detector = (
-        SlipDetector.pretrained(sensors=2, threshold=threshold, debounce=debounce)
+        SlipDetector.pretrained(sensors=sensors, threshold=threshold, debounce=debounce)
         if checkpoint is None
-        else SlipDetector.from_checkpoint(checkpoint, sensors=2, threshold=threshold, debounce=debounce)
+        else SlipDetector.from_checkpoint(checkpoint, sensors=sensors, threshold=threshold, debounce=debounce)
     )
     recs = validate_recordings(find_recordings(root), expected_size=None)
     seen = sorted(trained_on & {r.object for r in recs})

@@ -65,6 +65,13 @@ def _prepare(
     overrides = tree["data"].get("overrides")
     overrides = resolve_path(overrides) if overrides is not None else None
     runs, labels = load_grasp_data(root, overrides, image_size, tree["data"].get("on_error", "raise"), progress)
+    from slipsense.models import build
+
+    sensors = build(name, **cfg.model_config).sensors
+    if sensors == 1:  # a one-finger detector: each camera of a run is a grasp of its own
+        from slipsense.recordings.runs import per_sensor
+
+        runs = per_sensor(runs)
     from slipsense.config import portable_path
 
     tree["model"] = {"name": name, **cfg.model_config}
@@ -72,6 +79,7 @@ def _prepare(
         "recordings": portable_path(root),
         "overrides": None if overrides is None else portable_path(overrides),
         "image_size": list(image_size),
+        "sensors_per_grasp": sensors,
         "config": to_plain(tree),
     }
     return cfg, runs, labels, data

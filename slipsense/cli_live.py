@@ -44,10 +44,11 @@ def _set_threads(threads: Optional[int]) -> None:
     torch.set_num_threads(threads)
 
 
-def _checkpoint(path: Optional[Path]) -> Path:
-    from slipsense.live import DEFAULT_CHECKPOINT
+def _checkpoint(path: Optional[Path], sensors: int | None = None) -> Path:
+    """The checkpoint given, else the shipped detector for ``sensors`` (one finger or both)."""
+    from slipsense.resources import default_model_name, shipped_model
 
-    path = path or DEFAULT_CHECKPOINT
+    path = path or shipped_model(default_model_name(sensors))
     if not Path(path).is_file():
         raise InputError(path, "checkpoint not found (pass --checkpoint CKPT)")
     return Path(path)
@@ -181,24 +182,33 @@ def watch_source(
 
     from slipsense.atomic import check_output_file
 
-    ckpt = _checkpoint(checkpoint)
     if out is not None:
         check_output_file(out, "--out")
         AnnotatedWriter(out)  # refuse a wrong suffix before any work
-    model, info = load_model(ckpt)
+    if checkpoint is None:  # the shipped detectors read videos: one for one finger, one for both
+        src = open_source(source, "video")
+        ckpt = _checkpoint(None, src.sensors)
+        model, info = load_model(ckpt)
+    else:
+        ckpt = _checkpoint(checkpoint)
+        model, info = load_model(ckpt)
+        src = open_source(source, model.input_kind, getattr(model, "markers", None))
     threshold, debounce = stored_operating_point(ckpt, info, threshold, None)
-    src = open_source(source, model.input_kind, getattr(model, "markers", None))
-    det = SlipDetector(
-        model,
-        threshold=threshold,
-        sensors=src.sensors,
-        combine=combine,
-        backend=backend,
-        info=info,
-        onnx_dir=onnx_cache_dir(ckpt) if backend == "onnx" else None,
-        dtype=dtype,
-        debounce=debounce,
-    )
+    try:
+        det = SlipDetector(
+            model,
+            threshold=threshold,
+            sensors=src.sensors,
+            combine=combine,
+            backend=backend,
+            info=info,
+            onnx_dir=onnx_cache_dir(ckpt) if backend == "onnx" else None,
+            dtype=dtype,
+            debounce=debounce,
+        )
+    except ConfigError as exc:  # e.g. one camera given to a two-finger model: name the checkpoint
+        src.close()
+        raise InputError(ckpt, str(exc)) from None
     annot = Annotator(det.threshold, det.sensors) if out is not None else None
     writer = AnnotatedWriter(out) if out is not None else None
     onsets: list[int] = []
@@ -399,8 +409,11 @@ def run_early_warning(
     lab = read_labels_csv(labels) if labels is not None else None
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # a checkpoint without a threshold: the table covers thresholds anyway
+        from slipsense.checkpoint import read_info
+
+        fixed = read_info(ckpt)["model_config"].get("sensors")  # a model trained on so many fingers
         det = SlipDetector.from_checkpoint(
-            ckpt, sensors=counts[0], combine=combine, backend=backend, dtype=dtype, debounce=debounce
+            ckpt, sensors=fixed or counts[0], combine=combine, backend=backend, dtype=dtype, debounce=debounce
         )
     if det.threshold not in ths:
         ths = sorted(ths + [det.threshold])

@@ -42,6 +42,7 @@ class RunTrace:
     n_frames: int
     probability: np.ndarray  # (N,) combined; NaN where the detector gives no answer yet
     rest: np.ndarray | None = field(default=None, repr=False)  # (N,) bool: no sensor touched
+    camera: str | None = None  # the one camera replayed, for a one-finger detector (else all of them)
 
     def outcome(
         self, threshold: float, debounce: int = 1, horizon: int = pergrasp.HORIZON, startup: int = pergrasp.STARTUP
@@ -107,35 +108,48 @@ def replay_recordings(
     out = []
     for key in items:
         cams = sorted(runs[key], key=lambda r: r.camera)
-        if len(cams) != detector.sensors:
-            raise InputError(
-                cams[0].path.parent,
-                f"run has {len(cams)} camera video(s), the detector takes {detector.sensors} sensor(s)",
-            )
-        labs = []
-        for r in cams:
-            if r.key not in labels:
-                raise InputError(r.path, "no label for this video")
-            labs.append(labels[r.key])
-        moment = next((l.moment_of_slip for l in labs if l.moment_of_slip is not None), None)
-        slipped = any(l.slipped for l in labs)
-        if slipped and moment is None:
-            continue
-        # grey frames and contact blocks come from the frame cache (no decode after labelling);
-        # a model on colour frames replays the decoded video
-        gray = f"gray:{detector.gray_size[0]}x{detector.gray_size[1]}" if detector.kind == "grasp" else None
-        cached = [video_products(r.path, ["contact", *([gray] if gray else [])], min_frames=1) for r in cams]
-        n = len(cached[0]["contact"])
-        if any(len(c["contact"]) != n for c in cached):
-            counts = [len(c["contact"]) for c in cached]
-            raise InputError(cams[0].path.parent, f"the cameras of this run differ in frame count: {counts}")
-        if gray:
-            trace = detector.replay_gray(np.stack([c[gray] for c in cached]))
+        if detector.sensors == 1 and len(cams) > 1:  # one finger: each camera is a grasp of its own
+            groups = [[c] for c in cams]
         else:
-            trace = detector.replay(*[read_video(r.path, expected_size=None, min_frames=1) for r in cams])
-        rest = pergrasp.rest_mask(np.stack([c["contact"] for c in cached])) if n > 1 else None
-        out.append(RunTrace(key[0], key[1], slipped, moment, n, trace.probability, rest))
+            groups = [cams]
+        for group in groups:
+            trace = _replay_run(detector, key, group, cams, labels, read_video, video_products)
+            if trace is not None:
+                out.append(trace)
     return out
+
+
+def _replay_run(detector, key, cams, run_cams, labels, read_video, video_products) -> RunTrace | None:
+    """One run (or one camera of it) replayed; None for a slip without a moment of slip."""
+    if len(cams) != detector.sensors:
+        raise InputError(
+            cams[0].path.parent,
+            f"run has {len(cams)} camera video(s), the detector takes {detector.sensors} sensor(s)",
+        )
+    labs = []
+    for r in run_cams:  # the run's label is its cameras' (the grasp is lost for both fingers)
+        if r.key not in labels:
+            raise InputError(r.path, "no label for this video")
+        labs.append(labels[r.key])
+    moment = next((l.moment_of_slip for l in labs if l.moment_of_slip is not None), None)
+    slipped = any(l.slipped for l in labs)
+    if slipped and moment is None:
+        return None
+    # grey frames and contact blocks come from the frame cache (no decode after labelling);
+    # a model on colour frames replays the decoded video
+    gray = detector.cache_product
+    cached = [video_products(r.path, ["contact", *([gray] if gray else [])], min_frames=1) for r in cams]
+    n = len(cached[0]["contact"])
+    if any(len(c["contact"]) != n for c in cached):
+        counts = [len(c["contact"]) for c in cached]
+        raise InputError(cams[0].path.parent, f"the cameras of this run differ in frame count: {counts}")
+    if gray:
+        trace = detector.replay_cached(np.stack([c[gray] for c in cached]))
+    else:
+        trace = detector.replay(*[read_video(r.path, expected_size=None, min_frames=1) for r in cams])
+    rest = pergrasp.rest_mask(np.stack([c["contact"] for c in cached])) if n > 1 else None
+    camera = cams[0].camera if len(cams) < len(run_cams) else None
+    return RunTrace(key[0], key[1], slipped, moment, n, trace.probability, rest, camera)
 
 
 def write_early_warning(

@@ -86,48 +86,37 @@ def exportable(model: nn.Module) -> nn.Module:
 def example_inputs(
     model: nn.Module, geometry: Mapping[str, Any], batch: int = 2, seed: int = 0
 ) -> dict[str, torch.Tensor]:
-    """Random example inputs ``{"model", "frame", "window"}`` of the shapes each file takes."""
-    g = torch.Generator().manual_seed(seed)
-    t = geometry["frames"]
-    if geometry["kind"] == "video":
-        h, w = geometry["image_size"]
-        full = torch.rand(batch, t, 3, h, w, generator=g)
-        frame = full[:, 0]
-    else:
-        m = geometry["markers"]
-        full = torch.randn(batch, t, m, 3, generator=g)
-        frame = full[:, 0]
-    out = {"model": full}
-    frame_part, _ = model.streaming_parts()
-    if frame_part is None:
-        out["window"] = full
-    else:
-        out["frame"] = frame
-        with torch.no_grad():
-            tokens = frame_part(full.flatten(0, 1)).unflatten(0, (batch, t))
-        if model.slot_tokens:
-            tokens = tokens[:, torch.arange(t), torch.arange(t)]  # frame k at slot k
-        out["window"] = tokens.contiguous()
-    return out
+    """Random example inputs ``{"model", "frame", "window"}`` of the files a clip model exports."""
+    from slipsense.models.base import clip_example_inputs
+
+    return clip_example_inputs(model, geometry, batch=batch, seed=seed)
 
 
 def export_module(
     module: nn.Module,
-    example: torch.Tensor,
+    example: torch.Tensor | tuple[torch.Tensor, ...],
     path: str | Path,
-    input_name: str,
-    output_name: str,
+    input_name: str | list[str],
+    output_name: str | list[str],
     batch: int | None = None,
+    dynamic: Mapping[str, Mapping[int, str]] | None = None,
 ) -> str:
-    """Export ``module(example)`` to ``path`` (atomically); returns the exporter that worked.
+    """Export ``module(*example)`` to ``path`` (atomically); returns the exporter that worked.
 
-    ``batch=None`` makes axis 0 dynamic; an int fixes it (the example is cut or repeated to it).
+    ``dynamic`` names the free axes per input/output name; without it, ``batch=None`` makes axis 0
+    of every input and output free and an int fixes it (the example is cut or repeated to it).
     Tries the TorchScript exporter, then the dynamo exporter; raises InputError with both reasons.
     """
     path = Path(path)
-    if batch is not None:
-        reps = -(-batch // example.shape[0])
-        example = example.repeat(reps, *[1] * (example.dim() - 1))[:batch]
+    examples = example if isinstance(example, tuple) else (example,)
+    inputs = [input_name] if isinstance(input_name, str) else list(input_name)
+    outputs = [output_name] if isinstance(output_name, str) else list(output_name)
+    if dynamic is None:
+        if batch is not None:
+            examples = tuple(e.repeat(-(-batch // e.shape[0]), *[1] * (e.dim() - 1))[:batch] for e in examples)
+            dynamic = {}
+        else:
+            dynamic = {name: {0: "batch"} for name in inputs + outputs}
     module = module.eval()
     errors = []
     for exporter in ("torchscript", "dynamo"):
@@ -136,26 +125,32 @@ def export_module(
                 if exporter == "torchscript":
                     torch.onnx.export(
                         module,
-                        (example,),
+                        examples,
                         str(tmp),
                         dynamo=False,
                         opset_version=TORCHSCRIPT_OPSET,
-                        input_names=[input_name],
-                        output_names=[output_name],
+                        input_names=inputs,
+                        output_names=outputs,
                         do_constant_folding=True,
-                        dynamic_axes=None
-                        if batch is not None
-                        else {input_name: {0: "batch"}, output_name: {0: "batch"}},
+                        dynamic_axes={k: dict(v) for k, v in dynamic.items()} or None,
                     )
                 else:
-                    shapes = None if batch is not None else ({0: torch.export.Dim("batch", min=1, max=65536)},)
+                    dims: dict[str, Any] = {}
+                    shapes = tuple(
+                        {
+                            axis: dims.setdefault(label, torch.export.Dim(label, min=1, max=65536))
+                            for axis, label in dynamic.get(name, {}).items()
+                        }
+                        or None
+                        for name in inputs
+                    )
                     program = torch.onnx.export(
                         module,
-                        (example,),
+                        examples,
                         dynamo=True,
-                        input_names=[input_name],
-                        output_names=[output_name],
-                        dynamic_shapes=shapes,
+                        input_names=inputs,
+                        output_names=outputs,
+                        dynamic_shapes=shapes if any(shapes) else None,
                         optimize=True,
                         verbose=False,
                     )
@@ -233,26 +228,55 @@ def onnx_session(path: str | Path, threads: int | None = None):
         ) from None
 
 
-def run_onnx(session, x: np.ndarray | torch.Tensor) -> np.ndarray:
-    """Run a one-input session on ``x``; returns its first output."""
-    if isinstance(x, torch.Tensor):
-        x = x.detach().cpu().numpy()
-    return session.run(None, {session.get_inputs()[0].name: np.ascontiguousarray(x, dtype=np.float32)})[0]
+def run_onnx(session, *x: np.ndarray | torch.Tensor) -> np.ndarray:
+    """Run a session on ``x`` (its inputs in order); returns its first output."""
+    arrays = [v.detach().cpu().numpy() if isinstance(v, torch.Tensor) else v for v in x]
+    feed = {i.name: np.ascontiguousarray(a) for i, a in zip(session.get_inputs(), arrays)}
+    return session.run(None, feed)[0]
 
 
-def max_abs_diff(path: str | Path, module: nn.Module, x: torch.Tensor) -> float:
-    """Largest |ONNX Runtime - PyTorch| of ``module`` exported at ``path`` on input ``x``."""
+def max_abs_diff(path: str | Path, module: nn.Module, x: torch.Tensor | tuple[torch.Tensor, ...]) -> float:
+    """Largest |ONNX Runtime - PyTorch| over every output of ``module`` exported at ``path``, on ``x``."""
+    xs = x if isinstance(x, tuple) else (x,)
     with torch.no_grad():
-        ref = module.eval()(x).float().numpy()
-    return float(np.abs(run_onnx(onnx_session(path), x) - ref).max())
+        ref = module.eval()(*xs)
+    refs = ref if isinstance(ref, (tuple, list)) else (ref,)
+    session = onnx_session(path)
+    feed = {i.name: v.numpy() for i, v in zip(session.get_inputs(), xs)}
+    got = session.run(None, feed)
+    return max(float(np.abs(g - r.float().numpy()).max()) for g, r in zip(got, refs))
 
 
-def _names(kind: str) -> dict[str, tuple[str, str]]:
-    return {
-        "model": ("video" if kind == "video" else "markers", "logits"),
-        "frame": ("frames" if kind == "video" else "clouds", "tokens"),
-        "window": ("tokens", "logits"),
-    }
+def _streaming_names(model: nn.Module, geometry: Mapping[str, Any]) -> list[str]:
+    return list(model.streaming_modules(geometry))
+
+
+def export_parts(
+    model: nn.Module,
+    folder: str | Path,
+    names: list[str],
+    *,
+    geometry: Mapping[str, Any],
+    batch: int | None = None,
+    verify: bool = True,
+    prefix: str = "",
+) -> ExportResult:
+    """Write the model's ONNX files ``names`` (:meth:`SlipModel.onnx_parts`) into ``folder`` as
+    ``<prefix><name>.onnx``, verified against the model as it runs in PyTorch."""
+    parts = exportable(model).onnx_parts(geometry, batch)
+    ref = {"model": model.eval(), **model.eval().streaming_modules(geometry)}
+    result = ExportResult()
+    folder = Path(folder)
+    for key in names:
+        part = parts[key]
+        path = folder / f"{prefix}{key}.onnx"
+        result.exporter[key] = export_module(
+            part.module, part.example, path, part.inputs, part.outputs, dynamic=part.dynamic
+        )
+        result.paths[key] = path
+        if verify:
+            result.max_abs_diff[key] = max_abs_diff(path, ref[key], part.example)
+    return result
 
 
 def export_streaming_parts(
@@ -264,26 +288,11 @@ def export_streaming_parts(
     verify: bool = True,
     prefix: str = "",
 ) -> ExportResult:
-    """Write ``<prefix>frame.onnx`` (if the model has a frame part) and ``<prefix>window.onnx`` into ``folder``."""
+    """Write the modules a stream runs (``frame.onnx`` and ``window.onnx`` for a clip model,
+    ``frame.onnx`` and ``step.onnx`` for MotionNet) into ``folder``."""
     geometry = geometry or window_geometry(model)
-    m = exportable(model)
-    frame_part, window_part = m.streaming_parts()
-    ref_parts = dict(zip(("frame", "window"), model.eval().streaming_parts()))  # verify against the model as run
-    examples = example_inputs(m, geometry, batch=batch or 2)
-    names = _names(geometry["kind"])
-    result = ExportResult()
-    folder = Path(folder)
-    for key, part in (("frame", frame_part), ("window", window_part)):
-        if part is None:
-            continue
-        # without a frame part the window part is the whole model and takes the model's input
-        inp, out = names[key] if frame_part is not None else names["model"]
-        path = folder / f"{prefix}{key}.onnx"
-        result.exporter[key] = export_module(part, examples[key], path, inp, out, batch)
-        result.paths[key] = path
-        if verify:
-            result.max_abs_diff[key] = max_abs_diff(path, ref_parts[key], examples[key])
-    return result
+    names = _streaming_names(model, geometry)
+    return export_parts(model, folder, names, geometry=geometry, batch=batch, verify=verify, prefix=prefix)
 
 
 def export_onnx(
@@ -296,8 +305,8 @@ def export_onnx(
     info: Mapping[str, Any] | None = None,
 ) -> ExportResult:
     """Export a checkpoint (or a model) to ONNX: the whole model at ``out_path`` and, with
-    ``streaming`` and a model that has them (ViViT, STNet, TemNet), the live detector's two parts
-    beside it as ``<stem>.frame.onnx`` and ``<stem>.window.onnx``.
+    ``streaming``, the modules the live detector runs beside it as ``<stem>.<name>.onnx`` (ViViT,
+    STNet, TemNet: ``frame`` and ``window``; MotionNet: ``frame`` and ``step``; a 3D ResNet has none).
 
     Args:
         checkpoint_or_model: a ``.safetensors`` checkpoint path or a slipsense model.
@@ -316,18 +325,19 @@ def export_onnx(
     out_path = Path(out_path)
     if batch is not None and (isinstance(batch, bool) or not isinstance(batch, int) or batch < 1):
         raise InputError(None, f"batch must be a positive integer or None (dynamic), got {batch!r}")
-    m = exportable(model)
-    examples = example_inputs(m, geometry, batch=batch or 2)
-    inp, out = _names(geometry["kind"])["model"]
     result = ExportResult()
-    result.exporter["model"] = export_module(m, examples["model"], out_path, inp, out, batch)
+    stem = out_path.name[: -len(".onnx")] if out_path.name.endswith(".onnx") else out_path.name
+    part = exportable(model).onnx_parts(geometry, batch)["model"]
+    result.exporter["model"] = export_module(
+        part.module, part.example, out_path, part.inputs, part.outputs, dynamic=part.dynamic
+    )
     result.paths["model"] = out_path
     if verify:
-        result.max_abs_diff["model"] = max_abs_diff(out_path, model.eval(), examples["model"])
-    if streaming and model.streaming_parts()[0] is not None:
-        stem = out_path.name[: -len(".onnx")] if out_path.name.endswith(".onnx") else out_path.name
-        parts = export_streaming_parts(
-            model, out_path.parent, geometry=geometry, batch=batch, verify=verify, prefix=f"{stem}."
+        result.max_abs_diff["model"] = max_abs_diff(out_path, model.eval(), part.example)
+    names = _streaming_names(model, geometry)
+    if streaming and names != ["window"]:  # a lone window part is the whole model again
+        parts = export_parts(
+            model, out_path.parent, names, geometry=geometry, batch=batch, verify=verify, prefix=f"{stem}."
         )
         result.paths.update(parts.paths)
         result.exporter.update(parts.exporter)
@@ -402,9 +412,10 @@ def check_parts(folder: str | Path, names: list[str], key: Mapping[str, Any]) ->
 
 def cached_streaming_parts(
     model: nn.Module, folder: str | Path, geometry: Mapping[str, Any], dtype: str = "float32"
-) -> tuple[Path | None, Path]:
-    """The model's streaming parts as ONNX files in ``folder``, exported unless a verified copy is
-    there: ``(frame.onnx or None, window.onnx)``, their ``*.int8.onnx`` copies for ``dtype="int8"``.
+) -> dict[str, Path]:
+    """The model's streaming modules as ONNX files in ``folder``, exported unless a verified copy is
+    there: ``{name: path}`` (``frame.onnx``, ``window.onnx`` / ``step.onnx``), their ``*.int8.onnx``
+    copies for ``dtype="int8"``.
 
     ``folder/parts.json`` (written last) records the model's name, config, geometry, dtype, the
     library versions and each file's sha256; files that do not match it (damaged, half written,
@@ -416,10 +427,9 @@ def cached_streaming_parts(
     from slipsense.errors import CacheWarning
 
     folder = Path(folder)
-    has_frame = model.streaming_parts()[0] is not None
-    names = (["frame.onnx"] if has_frame else []) + ["window.onnx"]
-    if dtype == "int8":
-        names = [n.replace(".onnx", ".int8.onnx") for n in names]
+    parts = _streaming_names(model, geometry)
+    suffix = ".int8.onnx" if dtype == "int8" else ".onnx"
+    names = [p + suffix for p in parts]
     key = _parts_key(model, geometry, dtype)
     why = check_parts(folder, names, key)
     if why is not None:
@@ -428,12 +438,11 @@ def cached_streaming_parts(
         (folder / PARTS_MANIFEST).unlink(missing_ok=True)
         export_streaming_parts(model, folder, geometry=geometry, verify=False)
         if dtype == "int8":
-            for src in (["frame.onnx"] if has_frame else []) + ["window.onnx"]:
-                quantize_int8(folder / src, folder / src.replace(".onnx", ".int8.onnx"))
+            for p in parts:
+                quantize_int8(folder / f"{p}.onnx", folder / f"{p}.int8.onnx")
         manifest = {"format": PARTS_FORMAT, "key": key, "files": {n: _file_sha256(folder / n) for n in names}}
         write_text(folder / PARTS_MANIFEST, json.dumps(manifest, indent=1))
-    paths = [folder / n for n in names]
-    return (paths[0] if has_frame else None), paths[-1]
+    return {p: folder / n for p, n in zip(parts, names)}
 
 
 __all__ = [
@@ -443,6 +452,7 @@ __all__ = [
     "example_inputs",
     "export_module",
     "export_onnx",
+    "export_parts",
     "export_streaming_parts",
     "exportable",
     "max_abs_diff",

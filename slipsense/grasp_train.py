@@ -462,6 +462,7 @@ def fold_result(
             {
                 "object": r.object,
                 "experiment": r.experiment,
+                "cameras": list(r.cameras),
                 "moment_of_slip": r.moment_of_slip,
                 "outcome": o.outcome,
                 "first_alarm": o.first_alarm,

@@ -1,5 +1,6 @@
-"""Where the live detector's two streaming parts run: PyTorch, or ONNX Runtime with the parts
-exported once and cached (numpy in, numpy out either way)."""
+"""Where a stream's named modules run: PyTorch, or ONNX Runtime with the modules exported once and
+cached (numpy in, numpy out either way). A stream calls ``runner(name, *arrays) -> list of arrays``
+and never knows which."""
 
 from __future__ import annotations
 
@@ -11,36 +12,36 @@ import numpy as np
 import torch
 from torch import nn
 
+from slipsense.errors import ConfigError
+
+BACKENDS = ("torch", "onnx")
+DTYPES = ("float32", "int8")
+
 
 class TorchRunner:
     # no_grad, not inference_mode: tensors a model caches during an inference-mode call (ViViT keeps
     # scratch buffers) could not be updated in place by a later ordinary call on the same model.
-    def __init__(self, frame_part: nn.Module | None, window_part: nn.Module):
-        self.frame_part, self.window_part = frame_part, window_part
+    def __init__(self, modules: Mapping[str, nn.Module]):
+        self.modules = dict(modules)
 
-    def frame(self, x: np.ndarray) -> np.ndarray:
+    def __call__(self, name: str, *arrays: np.ndarray) -> list[np.ndarray]:
         with torch.no_grad():
-            return self.frame_part(torch.from_numpy(x)).numpy()
-
-    def window(self, x: np.ndarray) -> np.ndarray:
-        with torch.no_grad():
-            return self.window_part(torch.from_numpy(x)).float().numpy()
+            out = self.modules[name](*(torch.from_numpy(a) for a in arrays))
+        outs = out if isinstance(out, (tuple, list)) else (out,)
+        return [o.float().numpy() for o in outs]
 
 
 class OnnxRunner:
-    def __init__(self, frame_path: Path | None, window_path: Path):
+    def __init__(self, paths: Mapping[str, Path]):
         from slipsense.export import onnx_session
 
-        self.frame_sess = None if frame_path is None else onnx_session(frame_path)
-        self.window_sess = onnx_session(window_path)
-        self._frame_in = None if self.frame_sess is None else self.frame_sess.get_inputs()[0].name
-        self._window_in = self.window_sess.get_inputs()[0].name
+        self.sessions = {name: onnx_session(path) for name, path in paths.items()}
+        self._inputs = {name: [i.name for i in s.get_inputs()] for name, s in self.sessions.items()}
 
-    def frame(self, x: np.ndarray) -> np.ndarray:
-        return self.frame_sess.run(None, {self._frame_in: x})[0]
-
-    def window(self, x: np.ndarray) -> np.ndarray:
-        return self.window_sess.run(None, {self._window_in: x})[0]
+    def __call__(self, name: str, *arrays: np.ndarray) -> list[np.ndarray]:
+        # an exporter may drop an input the graph does not use: feed only the ones the file declares
+        feed = dict(zip(self._inputs[name], arrays))
+        return self.sessions[name].run(None, feed)
 
 
 def onnx_cache_dir(checkpoint: Path) -> Path:
@@ -57,12 +58,26 @@ def onnx_cache_dir(checkpoint: Path) -> Path:
     return cache_root() / "onnx" / h.hexdigest()[:24]
 
 
-def exported_parts(
-    model: nn.Module, geometry: Mapping[str, Any], folder: Path, dtype: str = "float32"
-) -> tuple[Path | None, Path]:
-    """The model's streaming parts as ONNX files in ``folder``, exported unless a verified copy is
-    there (:func:`slipsense.export.cached_streaming_parts`); ``dtype="int8"``: their dynamically
-    quantized copies."""
+def make_runner(
+    model: nn.Module, geometry: Mapping[str, Any], backend: str, dtype: str = "float32", onnx_dir: Any = None
+) -> tuple[TorchRunner | OnnxRunner, Any]:
+    """The runner of ``model``'s streaming modules on ``backend``; returns ``(runner, tmpdir)``,
+    ``tmpdir`` a :class:`tempfile.TemporaryDirectory` to clean up when no ``onnx_dir`` was given for
+    ONNX (else None). ONNX parts already in ``onnx_dir`` are reused when their manifest matches."""
+    if backend not in BACKENDS:
+        raise ConfigError(f"backend must be one of {BACKENDS}, got {backend!r}")
+    if dtype not in DTYPES:
+        raise ConfigError(f"dtype must be one of {DTYPES}, got {dtype!r}")
+    if backend == "torch":
+        if dtype != "float32":
+            raise ConfigError("dtype 'int8' needs backend 'onnx' (ONNX Runtime dynamic quantization)")
+        return TorchRunner(model.streaming_modules(geometry)), None
+    tmpdir = None
+    if onnx_dir is None:
+        import tempfile
+
+        tmpdir = tempfile.TemporaryDirectory(prefix="slipsense-onnx-")
+        onnx_dir = tmpdir.name
     from slipsense.export import cached_streaming_parts
 
-    return cached_streaming_parts(model, folder, geometry, dtype)
+    return OnnxRunner(cached_streaming_parts(model, Path(onnx_dir), geometry, dtype)), tmpdir

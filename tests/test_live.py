@@ -206,7 +206,7 @@ def test_bad_frames_raise_input_error(vivit):
         det.push(good, "frame.png")
     with pytest.raises(InputError, match="2 frame"):
         det.push(good)
-    assert not det._cache  # nothing was pushed by the failed calls
+    assert not det._stream._cache  # nothing was pushed by the failed calls
     assert det.push(good, good).index == 0
 
     stnet = SlipDetector(_model("stnet", **STNET_SMALL))

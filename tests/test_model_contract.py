@@ -9,7 +9,6 @@ import pytest
 import torch
 
 from slipsense.checkpoint import load_model, save_checkpoint
-from slipsense.errors import ConfigError
 from slipsense.live import SlipDetector
 from slipsense.models import SlipModel, available, build, model_class, window_geometry
 
@@ -69,7 +68,7 @@ def test_contract_streaming_equals_full_forward(name):
             full = torch.softmax(model(x)[0], dim=-1)[:, 1].numpy()
         stream = model.stream()
         gray = (x[0].numpy() * 255.0).round().astype(np.uint8)  # the stream takes uint8 grey frames
-        pushed = np.array([stream.push(gray[:, t]) for t in range(gray.shape[1])])
+        pushed = np.array([stream.push_gray(gray[:, t]) for t in range(gray.shape[1])])
         with torch.no_grad():
             requant = torch.softmax(model(torch.from_numpy(gray[None]).float() / 255.0)[0], dim=-1)[:, 1].numpy()
         np.testing.assert_allclose(pushed, requant, atol=1e-5)
@@ -108,14 +107,38 @@ def test_contract_chunk_logits_equal_whole_run_forward(name):
 def test_contract_onnx_parity(name, tmp_path):
     from slipsense.export import export_onnx
 
+    from slipsense.export import onnx_session, run_onnx
+
     model = _model(name)
-    if model.input_kind == "grasp":
-        with pytest.raises(ConfigError, match="no ONNX export"):
-            export_onnx(model, tmp_path / "m.onnx")
-        return
     result = export_onnx(model, tmp_path / "m.onnx")
     assert result.max_abs_diff and max(result.max_abs_diff.values()) <= 1e-4
+    if model.input_kind == "grasp":
+        assert set(result.paths) == {"model", "frame", "step"}
+        x = _grasp_input(model, frames=57)  # another length than the export's example: frames are free
+        with torch.no_grad():
+            ref = model(x).numpy()
+        assert np.abs(run_onnx(onnx_session(result.paths["model"]), x) - ref).max() <= 1e-4
+        return
     assert ("frame" in result.paths) == (model.streaming_parts()[0] is not None)
+
+
+@pytest.mark.parametrize("name", BUILT_IN)
+def test_contract_onnx_stream_equals_torch_stream(name, tmp_path):
+    """Every model streams on ONNX Runtime with the probabilities it gives on PyTorch."""
+    model = _model(name)
+    sensors = getattr(model, "sensors", 1) if model.input_kind == "grasp" else 1
+    dets = [SlipDetector(model, sensors=sensors, backend=b, onnx_dir=tmp_path / "onnx") for b in ("torch", "onnx")]
+    rng = np.random.default_rng(0)
+    geo = dets[0].geometry
+    if geo["kind"] == "markers":
+        frames = [[rng.normal(0, 3, (geo["markers"], 3)).astype(np.float32)] * sensors for _ in range(8)]
+    else:
+        size = geo.get("image_size") or (24, 32)
+        frames = [[rng.integers(0, 256, (*size, 3), dtype=np.uint8) for _ in range(sensors)] for _ in range(20)]
+    got = np.array([[d.push(*f).probability for d in dets] for f in frames], dtype=float)
+    answered = ~np.isnan(got[:, 0])
+    assert answered.any() and np.array_equal(answered, ~np.isnan(got[:, 1]))
+    np.testing.assert_allclose(got[answered, 1], got[answered, 0], atol=1e-5)
 
 
 @pytest.mark.parametrize("name", BUILT_IN)

@@ -29,7 +29,7 @@ def test_causal_and_stream_equals_forward():
         tail = torch.softmax(m.last_logits(g, 5), -1)[0, :, 1].numpy()
     assert np.allclose(tail, full[-5:], atol=1e-5)
     st = m.stream()
-    pushed = [st.push((g[0, :, t] * 255).round().byte().numpy()) for t in range(50)]
+    pushed = [st.push_gray((g[0, :, t] * 255).round().byte().numpy()) for t in range(50)]
     assert np.allclose(pushed, full, atol=1e-5)
 
 
@@ -110,7 +110,7 @@ def test_detector_pushes_like_replay_and_guards_input(tmp_path):
     assert [r.alarm for r in readings] == trace.alarm.tolist()
     with pytest.raises(InputError, match="earlier frames"):
         det.push(vids[0][0][:40], vids[1][0])
-    with pytest.raises(ConfigError):
+    with pytest.raises(InputError, match="m.safetensors: .*2 sensor"):
         SlipDetector.from_checkpoint(path, sensors=1)
 
 
@@ -125,7 +125,7 @@ def test_checkpoint_without_threshold_warns(tmp_path):
 
 def test_nan_probability_raises_the_alarm():
     det = SlipDetector(_model(), sensors=2, threshold=0.5)
-    det._stream.push = lambda gray: float("nan")
+    det._stream.push_gray = lambda gray: float("nan")
     frame = np.zeros((16, 20, 3), np.uint8)
     readings = [det.push(frame, frame) for _ in range(12)]
     assert readings[-1].alarm
@@ -139,7 +139,7 @@ def test_motion_energy_baseline_streams_and_trains():
     with torch.no_grad():
         full = torch.softmax(m(g), -1)[0, :, 1].numpy()
     st = m.stream()
-    assert np.allclose([st.push((g[0, :, t] * 255).round().byte().numpy()) for t in range(30)], full, atol=1e-5)
+    assert np.allclose([st.push_gray((g[0, :, t] * 255).round().byte().numpy()) for t in range(30)], full, atol=1e-5)
     cfg = GraspTrainConfig(
         model="motion-energy",
         model_config={"image_size": [16, 20], "lags": [1, 5, 10]},

@@ -210,11 +210,12 @@ def test_onnx_parts_cache_is_verified(tmp_path, monkeypatch):
     real = export.export_streaming_parts
     monkeypatch.setattr(export, "export_streaming_parts", lambda *a, **k: calls.append(1) or real(*a, **k))
     folder = tmp_path / "parts"
-    frame, window = export.cached_streaming_parts(model, folder, geometry)
+    paths = export.cached_streaming_parts(model, folder, geometry)
+    frame, window = paths["frame"], paths["window"]
     assert frame.is_file() and window.is_file() and calls == [1]
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        assert export.cached_streaming_parts(model, folder, geometry) == (frame, window)
+        assert export.cached_streaming_parts(model, folder, geometry) == paths
     assert calls == [1]  # verified and reused
 
     window.write_bytes(window.read_bytes()[:-10])  # damaged

@@ -18,6 +18,12 @@ The kinds:
 * :class:`GraspModel` — whole grasps of all sensors at once, ``(B, S, N, h, w)`` grey in [0, 1],
   logits at every frame ``(B, N, 2)``; streams itself (:meth:`GraspModel.stream`).
 
+Every model streams: :meth:`SlipModel.stream` gives the live detector an object that takes one frame
+per sensor and answers per-sensor slip probabilities (:class:`Stream`); clip models get a window
+stream (:mod:`slipsense.models.streams`), a grasp model brings its own. What runs inside a stream is
+a few named modules (:meth:`SlipModel.streaming_modules`), run on PyTorch or, exported through
+:meth:`SlipModel.onnx_parts`, on ONNX Runtime (:mod:`slipsense.runners`).
+
 Optional hooks, with defaults that suit a plain network: :meth:`SlipModel.streaming_parts`
 (what the live detector caches per frame), :meth:`SlipModel.exportable` (an ONNX-friendly copy),
 :meth:`SlipModel.attention` (a heat map for the live view), :meth:`SlipModel.reduced_precision`,
@@ -27,7 +33,8 @@ Optional hooks, with defaults that suit a plain network: :meth:`SlipModel.stream
 from __future__ import annotations
 
 import copy
-from typing import Any, Callable, Mapping
+from dataclasses import dataclass
+from typing import Any, Callable, Mapping, Protocol, Sequence
 
 import numpy as np
 import torch
@@ -43,6 +50,43 @@ DEFAULT_FRAMES = 5
 MAX_SETTING = 100_000
 #: Models with more parameters are refused before their weights are allocated.
 MAX_PARAMETERS = 1_000_000_000
+
+
+@dataclass
+class OnnxPart:
+    """One ONNX file of a model: ``module(*example)`` exported with these input and output names;
+    ``dynamic`` names the axes left free per input/output name (``{"video": {0: "batch"}}``), the rest
+    are fixed to the example's."""
+
+    module: nn.Module
+    example: tuple[Tensor, ...]
+    inputs: list[str]
+    outputs: list[str]
+    dynamic: dict[str, dict[int, str]]
+
+
+class Stream(Protocol):
+    """What :meth:`SlipModel.stream` returns: the model run one frame per sensor at a time.
+
+    ``push(frames, index)``: one raw frame per sensor (uint8 ``(H, W, 3)`` BGR images, or float
+    ``(M, 3)`` marker clouds), checked (InputError naming frame ``index`` and the sensor; nothing
+    changes then) -> ``(S,)`` per-sensor slip probabilities, or None while the model cannot answer
+    yet (window not full, camera start-up). ``replay(streams)``: the same for whole recordings at
+    once, one ``(N, ...)`` array per sensor -> ``(N, S)`` with NaN where push would give None.
+    ``attention(sensor)``: a heat map of the latest window, or None.
+    """
+
+    sensors: int
+
+    def reset(self) -> None: ...
+
+    def push(self, frames: Sequence[Any], index: int) -> np.ndarray | None: ...
+
+    def replay(self, streams: Sequence[np.ndarray]) -> np.ndarray: ...
+
+    def attention(self, sensor: int) -> np.ndarray | None: ...
+
+    def describe(self) -> dict[str, Any]: ...
 
 
 class SlipModel(nn.Module):
@@ -82,6 +126,34 @@ class SlipModel(nn.Module):
     def exportable(self) -> nn.Module:
         """An eval-mode copy set up for ONNX tracing."""
         return copy.deepcopy(self).eval()
+
+    def stream(
+        self,
+        *,
+        sensors: int = 1,
+        info: Mapping[str, Any] | None = None,
+        backend: str = "torch",
+        dtype: str = "float32",
+        onnx_dir: Any = None,
+    ) -> Stream:
+        """A fresh :class:`Stream` of this model over ``sensors`` sensors (default: a sliding window
+        over the frame-part outputs, :class:`slipsense.models.streams.WindowStream`). ``info``: the
+        checkpoint's config; ``backend``/``dtype``/``onnx_dir`` as :class:`slipsense.live.SlipDetector`."""
+        from slipsense.models.streams import WindowStream
+
+        return WindowStream(self, sensors=sensors, info=info, backend=backend, dtype=dtype, onnx_dir=onnx_dir)
+
+    def streaming_modules(self, geometry: Mapping[str, Any]) -> dict[str, nn.Module]:
+        """The named modules a stream runs (``{"frame", "window"}`` by default, from
+        :meth:`streaming_parts`; no ``"frame"`` when nothing can be cached)."""
+        frame_part, window_part = self.streaming_parts()
+        return {**({"frame": frame_part} if frame_part is not None else {}), "window": window_part}
+
+    def onnx_parts(self, geometry: Mapping[str, Any], batch: int | None = None) -> dict[str, OnnxPart]:
+        """What ``slipsense export`` writes (call it on :meth:`exportable`): ``"model"`` (the whole
+        network) and the :meth:`streaming_modules` with example inputs. ``batch`` None leaves the
+        batch axis free, an int fixes it."""
+        return clip_onnx_parts(self, geometry, batch)
 
     def attention(self, window: Tensor) -> np.ndarray | None:
         """Where the model looks in one window ``(1, T, ...)``, for heat maps; None when it cannot say."""
@@ -135,19 +207,11 @@ class GraspModel(SlipModel):
 
     def streaming_parts(self):
         raise ConfigError(
-            f"{self.model_name} takes whole grasps of both sensors: it streams itself "
-            f"(stream()) and has no frame/window parts"
+            f"{self.model_name} takes whole grasps: it streams itself (stream()) and has no frame/window parts"
         )
 
     def window_geometry(self, spec: Mapping[str, Any]) -> dict[str, Any]:
-        raise ConfigError(
-            f"{self.model_name} takes whole grasps of both sensors: it has no clip window "
-            f"and no ONNX export yet (it streams on PyTorch in under 2 ms)"
-        )
-
-    def exportable(self) -> nn.Module:
-        self.window_geometry({})  # raises: one line, not a tracer's traceback
-        return super().exportable()
+        return {"kind": "grasp", "frames": 1, "sensors": int(self.sensors), "gray_size": tuple(self.image_size)}
 
 
 def window_geometry(model: nn.Module, info: Mapping[str, Any] | None = None) -> dict[str, Any]:
@@ -221,6 +285,52 @@ def build_registered(name: str, **config: Any) -> SlipModel:
         return cls(**config)
     except TypeError as exc:
         raise ConfigError(f"model {name!r}: {exc}") from None
+
+
+def clip_example_inputs(
+    model: SlipModel, geometry: Mapping[str, Any], batch: int = 2, seed: int = 0
+) -> dict[str, Tensor]:
+    """Random example inputs ``{"model", "frame"?, "window"}`` of a clip model's files."""
+    g = torch.Generator().manual_seed(seed)
+    t = geometry["frames"]
+    if geometry["kind"] == "video":
+        full = torch.rand(batch, t, 3, *geometry["image_size"], generator=g)
+    else:
+        full = torch.randn(batch, t, geometry["markers"], 3, generator=g)
+    out = {"model": full}
+    frame_part, _ = model.streaming_parts()
+    if frame_part is None:
+        out["window"] = full
+        return out
+    out["frame"] = full[:, 0]
+    with torch.no_grad():
+        tokens = frame_part(full.flatten(0, 1)).unflatten(0, (batch, t))
+    if model.slot_tokens:
+        tokens = tokens[:, torch.arange(t), torch.arange(t)]  # frame k at slot k
+    out["window"] = tokens.contiguous()
+    return out
+
+
+def clip_onnx_parts(model: SlipModel, geometry: Mapping[str, Any], batch: int | None) -> dict[str, OnnxPart]:
+    """The files of a clip model: the whole network and its frame/window parts, batch axis 0."""
+    examples = clip_example_inputs(model, geometry, batch=batch or 2)
+    if batch is not None:
+        examples = {k: v.repeat(-(-batch // v.shape[0]), *[1] * (v.dim() - 1))[:batch] for k, v in examples.items()}
+    video = geometry["kind"] == "video"
+    names = {
+        "model": ("video" if video else "markers", "logits"),
+        "frame": ("frames" if video else "clouds", "tokens"),
+        "window": ("tokens", "logits"),
+    }
+    modules = {"model": model, **model.streaming_modules(geometry)}
+    if "frame" not in modules:  # the window part is the whole model and takes the model's input
+        names["window"] = names["model"]
+    parts = {}
+    for key, module in modules.items():
+        inp, out = names[key]
+        dyn = {} if batch is not None else {inp: {0: "batch"}, out: {0: "batch"}}
+        parts[key] = OnnxPart(module, (examples[key],), [inp], [out], dyn)
+    return parts
 
 
 def check_video_values(x: Tensor) -> None:

@@ -90,6 +90,7 @@ class MotionNet(GraspModel):
         self.sensors, self.image_size, self.lags = int(sensors), image_size, lags
         self.width, self.features, self.temporal = int(width), int(features), int(temporal)
         self.dilations, self.dropout_p, self.diff_scale = dilations, float(dropout), float(diff_scale)
+        self._in_place = True  # differences written in place (False in the copy ONNX export traces)
         w = self.width
         self.encoder = nn.Sequential(_conv(len(lags), w, 5, 2), _conv(w, 2 * w, 3, 2), _conv(2 * w, 2 * w, 3, 2))
         self.project = nn.Linear(4 * w, self.features)
@@ -126,7 +127,7 @@ class MotionNet(GraspModel):
         """``(B, S, N, h, w)`` -> ``(B, S, N, L, h, w)``: frame minus the frame ``lag`` back (the first
         frame standing in before the start), scaled."""
         at = torch.arange(gray.shape[2], device=gray.device)
-        return self._lagged(gray, at, self._pasts(at), dim=2).movedim(-1, 3)
+        return self._lagged(gray, at, self._pasts(at), dim=2).movedim(5, 3)  # positive axes: ONNX Transpose
 
     def _pasts(self, at: Tensor) -> list[Tensor]:
         """Per lag, the frame indices ``lag`` before ``at`` (the first frame standing in before 0)."""
@@ -137,6 +138,8 @@ class MotionNet(GraspModel):
         lags last: ``(..., h, w, L)``. Moved to after the frame axis this is a channels-last view of
         the images, on which the strided convolutions run about a third faster than on planar ones."""
         cur = gray.index_select(dim, now)
+        if not self._in_place:  # the ONNX tracer does not follow writes into views of a new tensor
+            return torch.stack([cur - gray.index_select(dim, p) for p in pasts], dim=-1) * self.diff_scale
         out = cur.new_empty((*cur.shape, len(pasts)))
         for i, p in enumerate(pasts):  # written in place: no stacked copy
             torch.sub(cur, gray.index_select(dim, p), out=out[..., i])
@@ -167,8 +170,9 @@ class MotionNet(GraspModel):
         """``(B, S, N, h, w)`` grey frames in [0, 1] -> ``(B, N, 2)`` slip logits at every frame."""
         self.check_input(gray)
         feats = self.encode(self.differences(gray))
-        pad = feats[:, :1].expand(-1, self.receptive_field - 1, -1)
-        return self.classify(torch.cat([pad, feats], dim=1))
+        if self.receptive_field > 1:
+            feats = torch.cat([feats[:, :1].expand(-1, self.receptive_field - 1, -1), feats], dim=1)
+        return self.classify(feats)
 
     def last_logits(self, gray: Tensor, n_out: int) -> Tensor:
         """Logits of the last ``n_out`` frames of ``(B, S, T, h, w)`` computed from the frames within
@@ -180,7 +184,7 @@ class MotionNet(GraspModel):
         if t < need + self.max_lag:
             raise InputError(None, f"motionnet chunk of {t} frames is shorter than {need + self.max_lag}")
         at = torch.arange(t - need, t, device=gray.device)
-        return self.classify(self.encode(self._lagged(gray, at, self._pasts(at), dim=2).movedim(-1, 3)))
+        return self.classify(self.encode(self._lagged(gray, at, self._pasts(at), dim=2).movedim(5, 3)))
 
     def chunk_logits(self, runs: Sequence[tuple[Tensor, Sequence[int]]], n_out: int) -> Tensor:
         """Logits of chunks of whole runs, each frame encoded once however many chunks share it.
@@ -225,49 +229,240 @@ class MotionNet(GraspModel):
         if not x.dtype.is_floating_point or not bool(torch.isfinite(x).all()):
             raise InputError(None, "motionnet input must be finite floats in [0, 1]")
 
-    def stream(self) -> "MotionStream":
-        """A frame-by-frame runner of this model (eval mode)."""
-        return MotionStream(self)
+    def stream(
+        self,
+        *,
+        sensors: int | None = None,
+        info=None,
+        backend: str = "torch",
+        dtype: str = "float32",
+        onnx_dir=None,
+    ) -> "MotionStream":
+        """A frame-by-frame runner of this model (eval mode); see :class:`MotionStream`."""
+        return MotionStream(self, sensors=sensors, info=info, backend=backend, dtype=dtype, onnx_dir=onnx_dir)
+
+    def exportable(self) -> nn.Module:
+        copy = super().exportable()
+        copy._in_place = False
+        return copy
+
+    def streaming_modules(self, geometry=None) -> dict[str, nn.Module]:
+        """``frame``: differences ``(1, S, L, h, w)`` -> fused features ``(1, 2F)``; ``step``: one
+        temporal step, its state as inputs and outputs (:class:`MotionStep`)."""
+        return {"frame": MotionFrame(self), "step": MotionStep(self)}
+
+    def onnx_parts(self, geometry=None, batch: int | None = None) -> dict:
+        """``model``: ``gray (B, S, N, h, w)`` -> ``logits (B, N, 2)`` (batch and frames free);
+        ``frame`` and ``step`` as :meth:`streaming_modules` (one frame at a time, no free axis)."""
+        from slipsense.models.base import OnnxPart
+
+        g = torch.Generator().manual_seed(0)
+        b = batch or 1
+        gray = torch.rand(b, self.sensors, max(8, self.max_lag // 4), *self.image_size, generator=g)
+        diffs = torch.randn(1, self.sensors, len(self.lags), *self.image_size, generator=g) * 0.1
+        step = MotionStep(self)
+        states = [torch.randn(1, *shape, generator=g) for shape in step.state_shapes]
+        feat = torch.randn(1, step.feature_size, generator=g)
+        free = {} if batch is not None else {0: "batch"}
+        state_in = [f"state{i}" for i in range(len(states))]
+        return {
+            "model": OnnxPart(
+                self, (gray,), ["gray"], ["logits"], {"gray": {**free, 2: "frames"}, "logits": {**free, 1: "frames"}}
+            ),
+            "frame": OnnxPart(MotionFrame(self), (diffs,), ["differences"], ["features"], {}),
+            "step": OnnxPart(
+                step,
+                (feat, torch.ones(1), *states),
+                ["features", "fresh", *state_in],
+                ["logits", *(f"{n}_next" for n in state_in)],
+                {},
+            ),
+        }
+
+
+class MotionFrame(nn.Module):
+    """The per-frame part of :class:`MotionNet`: differences ``(1, S, L, h, w)`` -> features ``(1, 2F)``."""
+
+    def __init__(self, net: MotionNet):
+        super().__init__()
+        self.net = net
+
+    def forward(self, diffs: Tensor) -> Tensor:
+        return self.net.encode(diffs[:, :, None])[:, 0]
+
+
+class MotionStep(nn.Module):
+    """One step of :class:`MotionNet`'s causal temporal stack, its state passed in and out.
+
+    Inputs: ``features (1, C0)``, ``fresh (1,)`` (1 on the first frame: every state is filled with
+    that frame's input, the way the whole-run forward repeats the first feature), and per temporal
+    layer ``state_i (1, C_i, 2 * dilation_i + 1)``, the inputs its newest output needs. Outputs:
+    ``logits (1, 2)`` and the next states. The kernel-3 convolution of dilation ``d`` over ``2d + 1``
+    inputs gives exactly the newest output.
+    """
+
+    def __init__(self, net: MotionNet):
+        super().__init__()
+        self.net = net
+        self.layers = list(getattr(net, "tcn", ()))
+        self.feature_size = 2 * net.features if self.layers else len(net.lags)
+        self.state_shapes = [(conv.in_channels, 2 * d + 1) for conv, d in zip(self.layers, net.dilations)]
+
+    def forward(self, feat: Tensor, fresh: Tensor, *states: Tensor):
+        x, nxt = feat, []
+        first = fresh.reshape(1, 1, 1) > 0.5
+        for i, (conv, buf) in enumerate(zip(self.layers, states)):
+            col = x[:, :, None]
+            buf = torch.where(first, col.expand_as(buf), torch.cat([buf[:, :, 1:], col], dim=2))
+            nxt.append(buf)
+            y = F.relu(conv(buf))[:, :, -1]
+            x = y + x if i > 0 else y
+        return (self.net.head(x), *nxt)
 
 
 class MotionStream:
-    """Push one grey frame per sensor, get the slip probability of that frame.
+    """Push one frame per sensor, get the slip probability of that frame (fused over sensors).
 
-    Keeps the last ``max_lag + 1`` frames and, per temporal layer, the ``2 * dilation + 1`` inputs
-    its newest output needs, so each push encodes one frame per sensor and computes one output per
-    layer: the same numbers as :meth:`MotionNet.forward` over the whole sequence (repeating the first
-    input to the left of every layer equals repeating the first feature to the left of the stack).
+    Keeps the last ``max_lag + 1`` grey frames and the temporal stack's state, so each push encodes
+    one frame per sensor and computes one output per layer: the same numbers as
+    :meth:`MotionNet.forward` over the whole sequence (repeating the first input to the left of every
+    layer equals repeating the first feature to the left of the stack). The frame encoder and the
+    step run on PyTorch or, exported to ONNX, on ONNX Runtime (``backend``).
+
+    ``sensors``: frames per push; the model fuses any number of sensors symmetrically, but was
+    trained on ``model.sensors`` and is refused others. The first ``startup`` frames (the camera's
+    start-up transient, from the checkpoint's operating point) get no answer.
     """
 
-    def __init__(self, model: MotionNet):
+    def __init__(self, model: MotionNet, *, sensors=None, info=None, backend="torch", dtype="float32", onnx_dir=None):
+        from slipsense.pergrasp import STARTUP
+        from slipsense.runners import make_runner
+
         self.model = model.eval()
+        self.sensors = model.sensors if sensors is None else int(sensors)
+        if self.sensors != model.sensors:
+            hint = (
+                " (the shipped one-finger detector: SlipDetector.pretrained('motionnet-gelsight-1'))"
+                if self.sensors == 1
+                else ""
+            )
+            raise ConfigError(
+                f"{model.model_name} was trained on {model.sensors} sensor(s) seen together; "
+                f"the detector was given sensors={self.sensors}{hint}"
+            )
+        if dtype != "float32":
+            raise ConfigError(
+                f"{model.model_name} streams in float32 only (it needs no more to stay under 2 ms per push)"
+            )
+        self.gray_size = tuple(model.image_size)
+        self.startup = int(((info or {}).get("operating_point") or {}).get("startup", STARTUP))
+        self.geometry = {**model.window_geometry({}), "startup": self.startup}
+        self._run, self.tmpdir = make_runner(model, self.geometry, backend, dtype, onnx_dir)
+        self._step = MotionStep(model)
         self.reset()
 
-    def reset(self) -> None:
-        self._frames: deque[Tensor] = deque(maxlen=self.model.max_lag + 1)
-        self._layers: list[deque[Tensor]] = [deque(maxlen=2 * d + 1) for d in self.model.dilations]
+    def describe(self) -> dict:
+        return dict(self.geometry)
 
-    @torch.inference_mode()
-    def push(self, gray: np.ndarray) -> float:
-        """``gray``: uint8 ``(S, h, w)``, one frame per sensor. Returns P(slip) at this frame."""
+    def reset(self) -> None:
+        self._frames: deque[np.ndarray] = deque(maxlen=self.model.max_lag + 1)
+        self._states = [np.zeros((1, *shape), np.float32) for shape in self._step.state_shapes]
+        self._shapes: dict[int, tuple] = {}
+        self._pushed = 0
+
+    @property
+    def ready(self) -> bool:
+        return self._pushed > self.startup
+
+    def push_gray(self, gray: np.ndarray) -> float:
+        """``gray``: uint8 ``(S, h, w)``, one frame per sensor at the model's size. Returns P(slip)."""
         m = self.model
-        frame = torch.from_numpy(np.ascontiguousarray(gray)).float().div_(255.0)
-        if not self._frames:
+        frame = gray.astype(np.float32) / np.float32(255.0)
+        fresh = not self._frames
+        if fresh:
             self._frames.extend([frame] * (m.max_lag + 1))
         else:
             self._frames.append(frame)
-        past = [self._frames[-1 - lag] for lag in m.lags]
-        diffs = torch.stack([frame - p for p in past], dim=1) * m.diff_scale  # (S, L, h, w)
-        x = m.encode(diffs[None, :, None])[0, 0]  # (2F,)
-        for i, (conv, buf) in enumerate(zip(getattr(m, "tcn", ()), self._layers)):
-            if not buf:
-                buf.extend([x] * buf.maxlen)
-            else:
-                buf.append(x)
-            y = F.relu(conv(torch.stack(tuple(buf), dim=1)[None]))[0, :, -1]
-            x = y + x if i > 0 else y
-        logits = m.head(x)
-        return float(torch.softmax(logits, dim=0)[1])
+        diffs = np.empty((1, gray.shape[0], len(m.lags), *gray.shape[1:]), np.float32)
+        for i, lag in enumerate(m.lags):
+            np.subtract(frame, self._frames[-1 - lag], out=diffs[0, :, i])
+        diffs *= np.float32(m.diff_scale)
+        feat = self._run("frame", diffs)[0]
+        logits, *self._states = self._run("step", feat, np.array([float(fresh)], np.float32), *self._states)
+        return float(slip_probability_of(logits[0]))
+
+    def push(self, frames, index: int):
+        from slipsense.models.streams import check_image
+        from slipsense.recordings.runs import gray_frames
+
+        gray = np.empty((self.sensors, *self.gray_size), dtype=np.uint8)
+        for s, f in enumerate(frames):
+            image = check_image(f, f"frame {index}, sensor {s}", None)
+            if self._shapes.setdefault(s, image.shape) != image.shape:
+                raise InputError(
+                    None,
+                    f"frame {index}, sensor {s}: image is {image.shape[1]}x{image.shape[0]}, "
+                    f"the earlier frames of this sensor were {self._shapes[s][1]}x"
+                    f"{self._shapes[s][0]} (call reset() to start a new stream)",
+                )
+            gray[s] = gray_frames(image, self.gray_size)
+        self._pushed += 1
+        if self._pushed <= self.startup:  # the camera's start-up transient is not the scene
+            return None
+        return np.full(self.sensors, self.push_gray(gray))
+
+    def replay(self, streams) -> np.ndarray:
+        from slipsense.models.streams import check_video_stream
+        from slipsense.recordings.runs import gray_frames
+
+        streams = [check_video_stream(s, f"sensor {i}") for i, s in enumerate(streams)]
+        return self.replay_gray(np.stack([gray_frames(s, self.gray_size) for s in streams]))
+
+    @property
+    def cache_product(self) -> str:
+        """The frame cache's name of what :meth:`replay_cached` takes."""
+        return f"gray:{self.gray_size[0]}x{self.gray_size[1]}"
+
+    def replay_cached(self, gray: np.ndarray) -> np.ndarray:
+        return self.replay_gray(gray)
+
+    def replay_gray(self, gray: np.ndarray) -> np.ndarray:
+        """:meth:`replay` from grey frames already at the model's size: uint8 ``(S, N, h, w)``
+        (:func:`slipsense.recordings.runs.gray_frames`, as the frame cache keeps them) -> ``(N, S)``.
+        Runs the whole-run forward on PyTorch (the same numbers as pushing, faster)."""
+        if (
+            gray.dtype != np.uint8
+            or gray.ndim != 4
+            or gray.shape[0] != self.sensors
+            or gray.shape[2:] != self.gray_size
+        ):
+            raise InputError(
+                None,
+                f"replay_gray takes uint8 (S={self.sensors}, N, {self.gray_size[0]}, {self.gray_size[1]}), "
+                f"got {gray.dtype} {gray.shape}",
+            )
+        n = gray.shape[1]
+        p = np.full(n, np.nan)
+        if n > self.startup:
+            with torch.no_grad():
+                x = torch.from_numpy(np.ascontiguousarray(gray[None, :, self.startup :])).float().div_(255.0)
+                logits = self.model(x)[0]
+            p[self.startup :] = torch.softmax(logits, dim=-1)[:, 1].double().numpy()
+        return np.repeat(p[:, None], self.sensors, axis=1)
+
+    def attention(self, sensor: int):
+        return None
+
+    def close(self) -> None:
+        if self.tmpdir is not None:
+            self.tmpdir.cleanup()
+            self.tmpdir = None
+
+
+def slip_probability_of(logits: np.ndarray) -> float:
+    z = np.asarray(logits, dtype=np.float64)
+    e = np.exp(z - z.max())
+    return float(e[1] / e.sum())
 
 
 @register("motion-energy")

@@ -134,6 +134,16 @@ def load_runs(
     return runs
 
 
+def per_sensor(runs: Sequence[GraspRun]) -> list[GraspRun]:
+    """Each camera of each run as a grasp of its own (``gray (1, N, h, w)``): what a detector for one
+    finger trains and is judged on. A run's cameras share its label (the grasp is lost for both)."""
+    return [
+        GraspRun(r.object, r.experiment, r.slipped, r.moment_of_slip, r.gray[s : s + 1], r.contact[s : s + 1], (cam,))
+        for r in runs
+        for s, cam in enumerate(r.cameras)
+    ]
+
+
 def runs_summary(runs: Sequence[GraspRun]) -> dict[str, int]:
     """Counts a report states: runs, slip runs with a moment, slip runs without one, runs that held."""
     return {

@@ -15,6 +15,8 @@ from pathlib import Path
 
 #: The default detector: motionnet trained on all 29 shared objects (see docs/grasp-detector.md).
 DEFAULT_MODEL = "motionnet-gelsight"
+#: The default for one finger: the same recipe trained on each camera alone (configs/motionnet-1sensor.yaml).
+ONE_SENSOR_MODEL = "motionnet-gelsight-1"
 #: The paper-faithful ViViT, kept for reproduction.
 PAPER_MODEL = "vivit-gelsight"
 
@@ -29,6 +31,11 @@ def shipped_model(name: str = DEFAULT_MODEL) -> Path:
     return _path("models", f"{name}.safetensors")
 
 
+def default_model_name(sensors: int | None = None) -> str:
+    """The shipped detector for ``sensors`` sensors per push: one finger or both (the default)."""
+    return ONE_SENSOR_MODEL if sensors == 1 else DEFAULT_MODEL
+
+
 def shipped_models() -> list[str]:
     """Names of the shipped checkpoints."""
     return sorted(p.name[: -len(".safetensors")] for p in _path("models").glob("*.safetensors"))
@@ -39,4 +46,12 @@ def shipped_overrides() -> Path:
     return _path("gelsight-label-overrides.csv")
 
 
-__all__ = ["DEFAULT_MODEL", "PAPER_MODEL", "shipped_model", "shipped_models", "shipped_overrides"]
+__all__ = [
+    "DEFAULT_MODEL",
+    "ONE_SENSOR_MODEL",
+    "PAPER_MODEL",
+    "default_model_name",
+    "shipped_model",
+    "shipped_models",
+    "shipped_overrides",
+]
