@@ -27,18 +27,17 @@ SET_HELP = (
 def _prepare(
     config, model, sets, size, epochs, seed, inner_folds, recordings, overrides, on_error, progress, threads, out=None
 ):
-    """The configuration tree (defaults < --config < options < --set), the data, and the stored metadata."""
-    from slipsense.cli import _default_recordings, check_seed, parse_hw
-    from slipsense.grasp_train import GraspTrainConfig, load_grasp_data, make_config
-    from slipsense.run_config import check_keys, empty_tree, given, load_tree, merge, parse_sets, to_plain
+    """The configuration tree's training config, data and stored metadata (:func:`prepare_tree`)."""
+    tree = _grasp_tree(config, model, sets, size, epochs, seed, inner_folds, recordings, overrides, on_error)
+    return prepare_tree(tree, progress, threads, out)
 
-    if threads is not None:
-        import torch
 
-        torch.set_num_threads(threads)
-    from slipsense.atomic import check_output_dir
+def _grasp_tree(config, model, sets, size, epochs, seed, inner_folds, recordings, overrides, on_error):
+    """The configuration tree: defaults < --config < options < --set."""
+    from slipsense.cli import parse_hw
+    from slipsense.grasp_train import GraspTrainConfig
+    from slipsense.run_config import empty_tree, given, load_tree, merge, parse_sets
 
-    check_output_dir(out, "--out")
     layer = parse_sets(sets, bare="bare")
     train_keys = set(GraspTrainConfig.__dataclass_fields__) - {"model", "model_config"}
     for key, value in layer.pop("bare", {}).items():  # a bare key is a training setting if it names one
@@ -48,7 +47,24 @@ def _prepare(
         "data": {"recordings": recordings, "overrides": overrides, "on_error": on_error},
         "train": {"epochs": epochs, "inner_folds": inner_folds, "seed": seed},
     }
-    tree = merge(load_tree(config) if config else empty_tree(), given(options), layer)
+    return merge(load_tree(config) if config else empty_tree(), given(options), layer)
+
+
+def prepare_tree(tree, progress: bool = True, threads: int | None = None, out=None):
+    """From a grasp configuration tree (model / data / train sections): the training config, the
+    runs, their labels and the metadata checkpoints keep."""
+    from slipsense.cli import _default_recordings, check_seed
+    from slipsense.grasp_train import GraspTrainConfig, load_grasp_data, make_config
+    from slipsense.run_config import check_keys, to_plain
+
+    if threads is not None:
+        import torch
+
+        torch.set_num_threads(threads)
+    from slipsense.atomic import check_output_dir
+
+    check_output_dir(out, "--out")
+    train_keys = set(GraspTrainConfig.__dataclass_fields__) - {"model", "model_config"}
     check_keys(
         tree,
         {"train": train_keys, "data": ("recordings", "overrides", "on_error"), "model": None},
@@ -83,6 +99,54 @@ def _prepare(
         "config": to_plain(tree),
     }
     return cfg, runs, labels, data
+
+
+def train_from_tree(
+    tree,
+    out,
+    *,
+    held: list[str] | None = None,
+    fold: int | None = None,
+    folds: int = 5,
+    progress: bool = True,
+    resume: bool = False,
+    workers: int | None = None,
+    threads: int | None = None,
+    echo=typer.echo,
+) -> dict:
+    """Train a grasp detector from a configuration tree (what ``slipsense grasp train`` and
+    ``slipsense train --model motionnet`` run): every object but ``held`` (or fold ``fold`` of
+    ``folds``), writing ``out/detector.safetensors``, ``metrics.csv``, ``curves.png``, ``config.yaml``."""
+    from slipsense.atomic import write_text
+    from slipsense.errors import ConfigError
+    from slipsense.grasp_train import object_split, train_detector
+    from slipsense.run_config import dump_tree
+
+    cfg, runs, labels, data = prepare_tree(tree, progress, threads, out)
+    held = list(held or [])
+    if fold is not None:
+        split = object_split([r for r in runs if r.usable], folds, cfg.folds_seed)
+        if not 0 <= fold < len(split):
+            raise ConfigError(f"--fold must be in 0..{len(split) - 1}, got {fold}")
+        held = split[fold]
+    data["command"] = _command()
+    res = train_detector(runs, labels, cfg, out, held, data=data, progress=progress, workers=workers, resume=resume)
+    write_text(Path(out) / "config.yaml", dump_tree(data["config"]))
+    op = res["operating_point"]
+    echo(
+        f"detector -> {res['checkpoint']} (threshold {op['threshold']:g}, debounce {op['debounce']}, "
+        f"chosen on {op['chosen_on']})"
+    )
+    if held:
+        g, c = res["per_grasp"], res["clips"]
+        echo(
+            f"held-out objects ({', '.join(held)}): warned in time {g['warned']}/{g['slip_runs']}, "
+            f"premature {g['premature']}, missed {g['missed']}, false-positive grasps "
+            f"{g['false_positive_grasps']}/{g['held_runs']}; clips: accuracy {c['accuracy']:.3f} "
+            f"(always-wiggle {c['always_wiggle_accuracy']:.3f}), balanced {c['balanced_accuracy']:.3f}, "
+            f"F1 {c['f1']:.3f}"
+        )
+    return res
 
 
 def _model_size(name: str) -> tuple[int, int]:
@@ -127,52 +191,13 @@ def register(app: typer.Typer) -> None:
         workers: Optional[int] = typer.Option(
             None, min=1, help="processes training side by side (default: one per core; results do not depend on it)"
         ),
+        resume: bool = typer.Option(False, help="continue a killed training from OUT/resume/ (same weights)"),
     ):
         """Train a grasp detector (and its alarm operating point, chosen on its training objects)."""
-        from slipsense.errors import ConfigError
-        from slipsense.grasp_train import object_split, train_detector
-
-        cfg, runs, labels, data = _prepare(
-            config,
-            model,
-            sets,
-            size,
-            epochs,
-            seed,
-            inner_folds,
-            recordings,
-            overrides,
-            on_error,
-            progress,
-            threads,
-            out,
+        tree = _grasp_tree(config, model, sets, size, epochs, seed, inner_folds, recordings, overrides, on_error)
+        train_from_tree(
+            tree, out, fold=fold, folds=folds, progress=progress, resume=resume, workers=workers, threads=threads
         )
-        held: list[str] = []
-        if fold is not None:
-            split = object_split([r for r in runs if r.usable], folds, cfg.folds_seed)
-            if not 0 <= fold < len(split):
-                raise ConfigError(f"--fold must be in 0..{len(split) - 1}, got {fold}")
-            held = split[fold]
-        data["command"] = _command()
-        res = train_detector(runs, labels, cfg, out, held, data=data, progress=progress, workers=workers)
-        from slipsense.atomic import write_text
-        from slipsense.run_config import dump_tree
-
-        write_text(Path(out) / "config.yaml", dump_tree(data["config"]))
-        op = res["operating_point"]
-        typer.echo(
-            f"detector -> {res['checkpoint']} (threshold {op['threshold']:g}, debounce {op['debounce']}, "
-            f"chosen on {op['chosen_on']})"
-        )
-        if held:
-            g, c = res["per_grasp"], res["clips"]
-            typer.echo(
-                f"held-out objects ({', '.join(held)}): warned in time {g['warned']}/{g['slip_runs']}, "
-                f"premature {g['premature']}, missed {g['missed']}, false-positive grasps "
-                f"{g['false_positive_grasps']}/{g['held_runs']}; clips: accuracy {c['accuracy']:.3f} "
-                f"(always-wiggle {c['always_wiggle_accuracy']:.3f}), balanced {c['balanced_accuracy']:.3f}, "
-                f"F1 {c['f1']:.3f}"
-            )
 
     @grasp_app.command("folds")
     @friendly

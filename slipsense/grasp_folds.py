@@ -172,6 +172,11 @@ def summary_markdown(report: dict[str, Any]) -> str:
         f"without one (left out), {d['held']} that held. Horizon {cfg['horizon']} frames (2 s at 25 frames/s); operating point "
         f"chosen per fold on its training objects only ({cfg['inner_folds']} inner folds; 0 = on the training "
         f"runs themselves).",
+        *(
+            ["", "One finger: each camera of a run is a grasp of its own (a run's two cameras count twice)."]
+            if report.get("sensors_per_grasp") == 1
+            else []
+        ),
         "",
         "## Per grasp (pooled over folds, each fold at its own operating point)",
         "",

@@ -18,9 +18,11 @@ and negative frames get equal total weight in the loss.
 
 from __future__ import annotations
 
+import json
 import math
 import time
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -161,8 +163,14 @@ def fit_runs(
     cfg: GraspTrainConfig,
     progress: bool = True,
     on_epoch: Callable[[dict[str, Any]], None] | None = None,
+    state_path=None,
 ):
-    """Train ``cfg.model`` on ``runs``; returns ``(model in eval mode, per-epoch metrics)``."""
+    """Train ``cfg.model`` on ``runs``; returns ``(model in eval mode, per-epoch metrics)``.
+
+    ``state_path``: after every epoch the whole training state (weights, optimizer, schedule, both
+    random generators, the mined hard negatives, the metrics) is written there atomically, and a
+    training that finds a state there continues from it: killed at any moment and started again, it
+    ends with the weights an uninterrupted training gives, bit for bit."""
     from slipsense.models import build
 
     torch.manual_seed(cfg.seed)
@@ -177,7 +185,11 @@ def fit_runs(
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=cfg.epochs)
     history = []
     hardness = None
-    epochs = range(cfg.epochs)
+    start = 0
+    identity = {"config": cfg.to_dict(), "runs": [[r.object, r.experiment, list(r.cameras)] for r in runs]}
+    if state_path is not None and Path(state_path).is_file():
+        start, history, hardness = _restore(state_path, identity, model, opt, sched, rng)
+    epochs = range(start, cfg.epochs)
     if progress:
         from tqdm import tqdm
 
@@ -217,9 +229,50 @@ def fit_runs(
             "seconds": time.perf_counter() - t0,
         }
         history.append(row)
+        if state_path is not None:
+            _save_state(state_path, identity, epoch + 1, model, opt, sched, rng, hardness, history)
         if on_epoch is not None:
             on_epoch(row)
     return model.eval(), history
+
+
+def _save_state(path, identity, epoch, model, opt, sched, rng, hardness, history) -> None:
+    from slipsense.checkpoint import save_resume_state
+
+    save_resume_state(
+        path,
+        {
+            "identity": json.dumps(identity, sort_keys=True),
+            "epoch": epoch,
+            "model": model.state_dict(),
+            "optimizer": opt.state_dict(),
+            "scheduler": sched.state_dict(),
+            "rng": {"numpy": rng.bit_generator.state, "torch": torch.get_rng_state()},
+            "hardness": None if hardness is None else [torch.from_numpy(np.asarray(h)) for h in hardness],
+            "history": history,
+            "best": 0.0,
+        },
+    )
+
+
+def _restore(path, identity, model, opt, sched, rng):
+    """Load a state :func:`_save_state` wrote into the training's objects; ``(epoch, history, hardness)``."""
+    from slipsense.checkpoint import load_resume_state
+    from slipsense.errors import InputError
+
+    state = load_resume_state(path)
+    if state.get("identity") != json.dumps(identity, sort_keys=True):
+        raise InputError(path, "resume state of another training (settings or runs differ); use a new --out")
+    try:
+        model.load_state_dict(state["model"])
+        opt.load_state_dict(state["optimizer"])
+        sched.load_state_dict(state["scheduler"])
+        rng.bit_generator.state = state["rng"]["numpy"]
+        torch.set_rng_state(state["rng"]["torch"])
+    except (KeyError, TypeError, ValueError, RuntimeError) as exc:
+        raise InputError(path, f"resume state does not fit this training ({type(exc).__name__}: {exc})") from None
+    hardness = state.get("hardness")
+    return state["epoch"], state["history"], None if hardness is None else [h.numpy() for h in hardness]
 
 
 def _trim_heap() -> None:
@@ -279,6 +332,7 @@ class FitJob:
     train: tuple[int, ...]
     predict: tuple[int, ...]  # runs replayed by the trained model
     keep_model: bool = False  # return the weights (the detector itself, not an inner-fold one)
+    state_path: str | None = None  # where the training keeps its resume state (None: nowhere)
 
 
 def fit_job(shared: tuple[Sequence[GraspRun], GraspTrainConfig], job: FitJob, tick=lambda units: None):
@@ -287,7 +341,11 @@ def fit_job(shared: tuple[Sequence[GraspRun], GraspTrainConfig], job: FitJob, ti
     ``len(job.train)`` units per epoch."""
     runs, cfg = shared
     model, history = fit_runs(
-        [runs[i] for i in job.train], cfg, progress=False, on_epoch=lambda _: tick(len(job.train))
+        [runs[i] for i in job.train],
+        cfg,
+        progress=False,
+        on_epoch=lambda _: tick(len(job.train)),
+        state_path=job.state_path,
     )
     probs = predict_runs(model, [runs[i] for i in job.predict])
     state = {k: v.detach().clone() for k, v in model.state_dict().items()} if job.keep_model else None
@@ -344,13 +402,20 @@ def train_with_operating_point(
     cfg: GraspTrainConfig,
     workers: int | None = 1,
     progress: bool = False,
+    state_dir=None,
 ):
     """Train a detector on the runs of every object but ``held`` and choose its operating point on
     those runs only (:func:`plan_training` on ``workers`` processes); returns :func:`finish_training`'s
-    ``(model, history, operating point, held-out traces)``."""
+    ``(model, history, operating point, held-out traces)``. ``state_dir``: each training keeps its
+    resume state there (``job<k>.state``) and continues from one it finds (:func:`fit_runs`)."""
+    import dataclasses
+
     from slipsense.parallel import run_jobs
 
     jobs = plan_training(runs, held, cfg)
+    if state_dir is not None:
+        Path(state_dir).mkdir(parents=True, exist_ok=True)
+        jobs = [dataclasses.replace(j, state_path=str(Path(state_dir) / f"job{k}.state")) for k, j in enumerate(jobs)]
     if not jobs[0].train:
         raise ConfigError("no usable training runs (every run excluded, or slip runs without a moment)")
     results = run_jobs(
@@ -582,24 +647,30 @@ def train_detector(
     data: dict[str, Any] | None = None,
     progress: bool = True,
     workers: int | None = None,
+    resume: bool = False,
 ) -> dict[str, Any]:
     """Train a detector on every run whose object is not in ``held``, choose its operating point on
-    those runs (inner folds, trained beside it on ``workers`` processes, default one per core), and write ``out/detector.safetensors`` (weights, full config, operating
-    point), ``metrics.csv`` and ``curves.png``; with ``held`` objects, also ``held_out.json`` (their
-    per-grasp outcomes and clip metrics, never used for any choice)."""
-    import json
-    from pathlib import Path
+    those runs (inner folds, trained beside it on ``workers`` processes, default one per core), and
+    write ``out/detector.safetensors`` (weights, full config, operating point), ``metrics.csv`` and
+    ``curves.png``; with ``held`` objects, also ``held_out.json`` (their per-grasp outcomes and clip
+    metrics, never used for any choice).
 
+    Every training keeps its state in ``out/resume/`` after each epoch; ``resume=True`` continues
+    from there (a killed run ends with the weights of an uninterrupted one), else it starts afresh."""
     from slipsense import atomic
     from slipsense.checkpoint import save_checkpoint
 
     out = Path(out)
+    state_dir = out / "resume"
+    if not resume and state_dir.is_dir():
+        for stale in state_dir.glob("job*.state"):
+            stale.unlink()
     usable = [r for r in runs if r.usable]
     train = [r for r in usable if r.object not in set(held)]
     unknown = sorted(set(held) - {r.object for r in usable})
     if unknown:
         raise ConfigError(f"held-out objects without usable runs: {', '.join(unknown)}")
-    model, history, op, held_probs = train_with_operating_point(runs, held, cfg, workers, progress)
+    model, history, op, held_probs = train_with_operating_point(runs, held, cfg, workers, progress, state_dir)
     info = _checkpoint_info(cfg, op, train, {**(data or {}), "held_out_objects": sorted(held)}, history)
     path = save_checkpoint(out / "detector.safetensors", model, info)
     _write_history(out, history)

@@ -166,3 +166,64 @@ def test_grasp_folds_same_results_on_one_or_two_workers(tmp_path, grasps, monkey
     for a, b in zip(*docs):
         assert a["operating_point"] == b["operating_point"] and a["history"][-1]["loss"] == b["history"][-1]["loss"]
         assert [r["probability"] for r in a["runs"]] == [r["probability"] for r in b["runs"]]
+
+
+def _weights(path):
+    from safetensors.torch import load_file
+
+    return load_file(str(path))
+
+
+def test_train_model_motionnet_resumes_after_sigkill(tmp_path, grasps, monkeypatch):
+    """`slipsense train --model motionnet` trains the default detector through the grasp task;
+    SIGKILLed mid-training and started again with --resume it ends with the weights of an
+    uninterrupted run."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    monkeypatch.setenv("SLIPSENSE_CACHE", str(tmp_path / "cache"))
+    args = [
+        "train",
+        "--model",
+        "motionnet",
+        "--recordings",
+        str(grasps),
+        "--test-objects",
+        "obj3",
+        "--set",
+        "train.inner_folds=0",
+        "--set",
+        "train.mine_every=1",
+        *[a for a in SMALL if a not in ("--threads", "1")],
+    ]
+    args[args.index("--epochs") + 1] = "40"
+    whole = CliRunner().invoke(app, [*args, "--out", str(tmp_path / "whole")])
+    assert whole.exit_code == 0, whole.output
+    assert "held-out objects (obj3)" in whole.output
+
+    cut = tmp_path / "cut"
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    code = "import sys; from slipsense.cli import main; sys.argv = ['slipsense'] + sys.argv[1:]; main()"
+    proc = subprocess.Popen([sys.executable, "-c", code, *args, "--out", str(cut)], env=env)
+    state = cut / "resume" / "job0.state"
+    deadline = time.time() + 120
+    while not state.exists() and proc.poll() is None and time.time() < deadline:
+        time.sleep(0.005)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert state.exists() and not (cut / "detector.safetensors").exists()
+    resumed = CliRunner().invoke(app, [*args, "--out", str(cut), "--resume"])
+    assert resumed.exit_code == 0, resumed.output
+    a, b = _weights(tmp_path / "whole" / "detector.safetensors"), _weights(cut / "detector.safetensors")
+    assert a.keys() == b.keys() and all(bool((a[k] == b[k]).all()) for k in a)
+
+
+def test_train_model_motionnet_refuses_clip_options(tmp_path, grasps):
+    res = CliRunner().invoke(
+        app,
+        ["train", "--model", "motionnet", "--recordings", str(grasps), "--frames", "5", "--out", str(tmp_path / "r")],
+    )
+    assert res.exit_code == 2 and "frames" in res.output and "clip models" in res.output

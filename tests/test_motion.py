@@ -160,3 +160,43 @@ def test_build_refuses_huge_settings_before_allocating():
         build("vivit", dim=10**9)
     with pytest.raises(ConfigError, match="parameters is beyond"):
         build("vivit", dim=50_000, mlp_dim=50_000)
+
+
+class _Killed(Exception):
+    pass
+
+
+def test_grasp_training_resumed_after_a_kill_equals_an_uninterrupted_one(tmp_path):
+    """The state written after each epoch (weights, optimizer, schedule, both generators, mined hard
+    negatives) makes a resumed training bit-identical, hard-negative mining and dropout included."""
+    cfg = GraspTrainConfig(
+        model_config={"image_size": [16, 20], "width": 4, "features": 8, "temporal": 8, "lags": [1, 5, 10]},
+        epochs=5,
+        batch_size=4,
+        chunk=12,
+        negatives=2,
+        hard_negatives=1,
+        mine_every=1,
+        inner_folds=0,
+    )
+    runs = _runs()
+    whole, hist = fit_runs(runs, cfg, progress=False)
+
+    state = tmp_path / "job0.state"
+
+    def kill_after_two(row):
+        if row["epoch"] == 2:
+            raise _Killed
+
+    with pytest.raises(_Killed):
+        fit_runs(runs, cfg, progress=False, on_epoch=kill_after_two, state_path=state)
+    epochs_after = []
+    resumed, hist2 = fit_runs(runs, cfg, progress=False, on_epoch=epochs_after.append, state_path=state)
+    assert [r["epoch"] for r in epochs_after] == [3, 4, 5]  # only the epochs not done before
+    for key, value in whole.state_dict().items():
+        assert torch.equal(value, resumed.state_dict()[key]), key
+    assert [r["loss"] for r in hist2] == [r["loss"] for r in hist]
+
+    other = GraspTrainConfig(**{**cfg.to_dict(), "lr": 1e-3})
+    with pytest.raises(InputError, match="another training"):
+        fit_runs(runs, other, progress=False, state_path=state)

@@ -105,6 +105,9 @@ class SlipModel(nn.Module):
     paper_training: dict[str, Any] = {}
     #: named configurations, e.g. the paper's size and a compact one (``slipsense train --preset``)
     presets: dict[str, dict[str, Any]] = {}
+    #: what ``slipsense train`` runs for it: ``"clips"`` (windows cut from recordings or marker
+    #: sequences, :mod:`slipsense.train`) or ``"grasps"`` (whole runs, :mod:`slipsense.grasp_train`)
+    training_task: str = "clips"
 
     def config(self) -> dict[str, Any]:
         raise NotImplementedError(f"{type(self).__name__} must define config()")
@@ -193,6 +196,7 @@ class GraspModel(SlipModel):
     :meth:`stream` instead of cutting windows."""
 
     input_kind = "grasp"
+    training_task = "grasps"
 
     def stream(self):
         """A fresh incremental state with ``push(gray (S, h, w) uint8) -> probability``."""
