@@ -9,7 +9,6 @@ from typing import Any, Iterator, Optional, Sequence
 
 import numpy as np
 import typer
-from slipsense.sensors.spec import GELSIGHT_MINI
 
 from slipsense.errors import ConfigError, InputError
 
@@ -194,6 +193,9 @@ def watch_source(
         model, info = load_model(ckpt)
         src = open_source(source, model.input_kind, getattr(model, "markers", None))
     threshold, debounce = stored_operating_point(ckpt, info, threshold, None)
+    from slipsense.sensors.spec import sensor_of
+
+    sensor_of(info, ckpt)  # a malformed sensor spec is named with its file
     try:
         det = SlipDetector(
             model,
@@ -209,8 +211,8 @@ def watch_source(
     except ConfigError as exc:  # e.g. one camera given to a two-finger model: name the checkpoint
         src.close()
         raise InputError(ckpt, str(exc)) from None
-    annot = Annotator(det.threshold, det.sensors) if out is not None else None
-    writer = AnnotatedWriter(out) if out is not None else None
+    annot = Annotator(det.threshold, det.sensors, fps=det.sensor.fps) if out is not None else None
+    writer = AnnotatedWriter(out, fps=det.sensor.fps) if out is not None else None
     onsets: list[int] = []
     previous = False
     n = 0
@@ -315,7 +317,9 @@ def register(app: typer.Typer) -> None:
         backend: str = typer.Option("torch", help="torch or onnx"),
         dtype: str = typer.Option("float32", help="float32, or int8 with --backend onnx"),
         limit: Optional[int] = typer.Option(None, help="replay only the first N runs"),
-        fps: float = typer.Option(GELSIGHT_MINI.fps, help="frame rate, for lead times in ms"),
+        fps: Optional[float] = typer.Option(
+            None, help="frame rate, for lead times in ms (default: the checkpoint's sensor's)"
+        ),
         on_error: str = typer.Option("raise", help="raise or skip bad recordings folders"),
         progress: bool = typer.Option(True),
         threads: Optional[int] = typer.Option(None, help=THREADS_HELP),
@@ -372,7 +376,7 @@ def run_early_warning(
     combine: str = "max",
     backend: str = "torch",
     limit: Optional[int] = None,
-    fps: float = GELSIGHT_MINI.fps,
+    fps: float | None = None,
     on_error: str = "raise",
     progress: bool = True,
     dtype: str = "float32",
@@ -390,7 +394,7 @@ def run_early_warning(
     ths = parse_thresholds(thresholds) if isinstance(thresholds, str) else [float(t) for t in thresholds]
     if limit is not None and limit < 1:
         raise ConfigError(f"--limit must be a positive integer, got {limit}")
-    if not fps > 0:
+    if fps is not None and not fps > 0:
         raise ConfigError(f"--fps must be positive, got {fps}")
     if isinstance(horizon, bool) or not isinstance(horizon, int) or not 1 <= horizon <= 100_000:
         raise ConfigError(f"--horizon must be a whole number of frames >= 1, got {horizon!r}")
@@ -431,6 +435,7 @@ def run_early_warning(
         "sensors": det.sensors,
         "operating_point": {"threshold": det.threshold, "debounce": det.debounce},
     }
+    fps = fps or det.sensor.fps
     paths = write_early_warning(runs, ths, out, debounce=det.debounce, horizon=horizon, fps=fps, meta=meta)
     rows = early_warning_table(runs, ths, det.debounce, horizon, fps)
     slips = sum(r.slipped for r in runs)

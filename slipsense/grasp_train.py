@@ -629,8 +629,11 @@ def _checkpoint_info(
 ) -> dict[str, Any]:
     data = dict(data)
     tree = data.pop("config", None)  # the whole configuration tree, where every checkpoint keeps it
+    from slipsense.sensors.spec import GELSIGHT_MINI
+
     return {
         "train_config": cfg.to_dict(),
+        "sensor": GELSIGHT_MINI.to_dict(),  # grasps are read from GelSight recording folders
         "operating_point": op,
         "history": history,
         "data": {**data, "objects": sorted({r.object for r in runs}), "runs": len(runs)},

@@ -118,7 +118,8 @@ class SlipDetector:
             Parts already there are reused, so give each model its own folder.
 
     Attributes: ``geometry`` (what the model takes: ``kind``, ``frames``, ``image_size`` /
-    ``markers`` / ``gray_size``), ``sensors``, ``threshold``, ``debounce``.
+    ``markers`` / ``gray_size``), ``sensors``, ``threshold``, ``debounce``, ``sensor`` (the
+    :class:`~slipsense.sensors.spec.SensorSpec` the checkpoint was trained on: frame rate, size).
     """
 
     def __init__(
@@ -145,6 +146,10 @@ class SlipDetector:
         self.model_name = model.model_name
         self.threshold, self.sensors, self.combine, self.backend = float(threshold), int(sensors), combine, backend
         self.debounce, self.dtype = int(debounce), dtype
+        from slipsense.sensors.spec import sensor_of
+
+        #: the sensor the model was trained on (:class:`~slipsense.sensors.spec.SensorSpec`, from the checkpoint)
+        self.sensor = sensor_of(info)
         self._stream = model.stream(sensors=self.sensors, info=info, backend=backend, dtype=dtype, onnx_dir=onnx_dir)
         self.reset()
 
@@ -170,7 +175,10 @@ class SlipDetector:
         """
         from slipsense.checkpoint import load_model
 
+        from slipsense.sensors.spec import sensor_of
+
         model, info = load_model(path)
+        sensor_of(info, path)  # a malformed sensor spec is named with its file
         threshold, debounce = stored_operating_point(path, info, threshold, debounce)
         _check_settings(threshold, 1 if sensors is None else sensors, combine, backend, dtype)
         if backend == "onnx" and onnx_dir is None:

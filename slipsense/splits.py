@@ -79,7 +79,10 @@ def prepare_data(req, kind: str):
         }
         train = ClipDataset(clips.subset(tr), AugmentConfig(enabled=req.augment), seed=req.seed)
         test = ClipDataset(clips.subset(te))
-        return train, test, split_info, {"frames": req.frames, "image_size": size}
+        from slipsense.sensors.spec import GELSIGHT_MINI
+
+        sensor = GELSIGHT_MINI.to_dict()
+        return train, test, split_info, {"frames": req.frames, "image_size": size, "sensor": sensor}
     if kind == "markers":
         from slipsense.data import load_markers, split_groups
 
@@ -101,9 +104,23 @@ def prepare_data(req, kind: str):
             MarkerDataset(x[tr], y[tr]),
             MarkerDataset(x[te], y[te]),
             split_info,
-            {"frames": int(x.shape[1]), "markers": int(x.shape[2])},
+            {"frames": int(x.shape[1]), "markers": int(x.shape[2]), "sensor": _marker_sensor(req.markers, x)},
         )
     raise ConfigError(f"model input kind {kind!r} is not supported")
+
+
+def _marker_sensor(path, x: np.ndarray) -> dict[str, Any]:
+    """The sensor of a marker file: its frame rate (the file's ``fps``, else the binocular sensor's)
+    and marker count."""
+    from dataclasses import replace
+
+    from slipsense.sensors.spec import BINOCULAR_MARKERS
+
+    fps = BINOCULAR_MARKERS.fps
+    with np.load(path, allow_pickle=False) as z:
+        if "fps" in z.files and np.ndim(z["fps"]) == 0 and 0 < float(z["fps"]) <= 10_000:
+            fps = float(z["fps"])
+    return replace(BINOCULAR_MARKERS, name="markers", fps=fps, markers=int(x.shape[2])).to_dict()
 
 
 #: split.json entries that must not change when a run is resumed.

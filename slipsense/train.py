@@ -464,6 +464,7 @@ def run_training(req: TrainRequest, resume: bool = False) -> dict[str, Any]:
     settings = {**paper_settings(req.model), "seed": req.seed, "progress": req.progress, **req.train_overrides}
     cfg = TrainConfig.from_dict(settings)
     train_data, test_data, split_info, data_config = prepare_data(req, kind)
+    sensor = data_config.pop("sensor")
     seed_everything(req.seed)
     model = build_model(req.model, req.preset, req.model_overrides, data_config)
     out = Path(req.out)
@@ -491,7 +492,12 @@ def run_training(req: TrainRequest, resume: bool = False) -> dict[str, Any]:
         from slipsense.run_config import dump_tree
 
         write_text(out / "config.yaml", dump_tree(tree))
-    info = {"data": {k: v for k, v in split_info.items() if k != "test_indices"}, "preset": req.preset, "config": tree}
+    info = {
+        "data": {k: v for k, v in split_info.items() if k != "test_indices"},
+        "sensor": sensor,
+        "preset": req.preset,
+        "config": tree,
+    }
     fit(model, train_data, test_data, cfg, out, info=info, resume=resume, resume_state=state)
     if not d.main or len(test_data) == 0:
         return {}

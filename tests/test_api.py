@@ -138,3 +138,36 @@ def test_shipped_overrides_apply_to_the_shared_recordings_only(tmp_path):
     assert ov is not None and set(ov) == {("screw_driver_red", 2, None)}
     assert shipped_overrides_for([rec(tmp_path, "screw_driver_red", 2, "camera_0")]) is None
     assert shipped_overrides_for([rec(shared, "lemon", 1, "camera_0")]) is None
+
+
+def test_shipped_detectors_record_their_sensor_and_one_finger_has_its_own(one_thread):
+    from slipsense.checkpoint import read_info
+    from slipsense.sensors.spec import GELSIGHT_MINI, SensorSpec
+
+    for name in slipsense.resources.shipped_models():
+        spec = SensorSpec.from_dict(read_info(slipsense.resources.shipped_model(name))["sensor"])
+        assert spec == GELSIGHT_MINI
+    one, two = slipsense.SlipDetector.pretrained(sensors=1), slipsense.SlipDetector.pretrained()
+    assert (one.sensors, two.sensors) == (1, 2) and one.sensor.fps == 25.0
+    frame = np.full((240, 320, 3), 120, np.uint8)
+    readings = [one.push(frame) for _ in range(15)]
+    assert readings[9].probability is None and readings[-1].probability is not None
+
+
+@needs_data
+def test_watch_one_camera_uses_the_one_finger_detector(tmp_path, cache, one_thread):
+    """`slipsense watch RUN/camera_0.avi`: one GelSight, the shipped one-finger detector."""
+    from typer.testing import CliRunner
+
+    from conftest import REAL_RUN
+    from slipsense.cli import app
+
+    res = CliRunner().invoke(app, ["watch", str(REAL_RUN / "camera_0.avi"), "--max-frames", "40", "--quiet"])
+    assert res.exit_code == 0, res.output
+    two = slipsense.SlipDetector.pretrained()  # two-finger model given one camera: one line, exit 2
+    assert two.sensors == 2
+    ckpt = slipsense.resources.shipped_model("motionnet-gelsight")
+    res = CliRunner().invoke(
+        app, ["watch", str(REAL_RUN / "camera_0.avi"), "--checkpoint", str(ckpt), "--max-frames", "5"]
+    )
+    assert res.exit_code == 2 and "motionnet-gelsight.safetensors" in res.output and "2 sensor" in res.output

@@ -529,3 +529,26 @@ def test_corrupt_and_foreign_videos_make_no_library_log_noise(tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert proc.stderr == "", proc.stderr  # no "[mpeg4 @ 0x...] ac-tex damaged", no "[ WARN:0] ..."
     assert "refused" in proc.stdout and "fake.avi" in proc.stdout
+
+
+@pytest.mark.parametrize("sensor", [{"name": "x", "output": "video", "fps": -1}, {"name": "x", "fps": 25}, "mini"])
+def test_checkpoint_with_a_malformed_sensor_spec_is_refused(tmp_path, sensor):
+    from safetensors.torch import load_file, save_file
+
+    from slipsense.checkpoint import META_KEY, read_info
+    from slipsense.live import DEFAULT_CHECKPOINT
+
+    info = {**read_info(DEFAULT_CHECKPOINT), "sensor": sensor}
+    bad = tmp_path / "sensor.safetensors"
+    save_file(load_file(str(DEFAULT_CHECKPOINT)), str(bad), metadata={META_KEY: json.dumps(info)})
+    run = tmp_path / "run"
+    run.mkdir()
+    for cam in (0, 2):
+        w = cv2.VideoWriter(str(run / f"camera_{cam}.avi"), cv2.VideoWriter_fourcc(*"XVID"), 25, (64, 48))
+        for _ in range(3):
+            w.write(np.zeros((48, 64, 3), np.uint8))
+        w.release()
+    result = runner.invoke(app, ["watch", str(run), "--checkpoint", str(bad)])
+    assert result.exit_code == 2, result.output
+    line = _error_line(result)
+    assert "sensor.safetensors" in line and "sensor" in line, line

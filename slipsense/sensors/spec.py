@@ -12,7 +12,8 @@ A new sensor is one :class:`SensorSpec` here (and, for a new recording layout, a
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass, fields
+from typing import Any, Mapping
 
 
 @dataclass(frozen=True)
@@ -42,6 +43,44 @@ class SensorSpec:
     def frames_to_ms(self, frames: float) -> float:
         return 1000.0 * float(frames) / self.fps
 
+    def to_dict(self) -> dict[str, Any]:
+        """The spec as JSON-ready data (what checkpoints keep under ``"sensor"``)."""
+        d = asdict(self)
+        if self.image_size is not None:
+            d["image_size"] = list(self.image_size)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> "SensorSpec":
+        """Inverse of :meth:`to_dict`; ValueError naming what is wrong."""
+        if not isinstance(d, Mapping):
+            raise ValueError(f"sensor spec must be a mapping, got {type(d).__name__}")
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(d) - known)
+        if unknown:
+            raise ValueError(f"sensor spec has unknown keys {unknown}")
+        if not isinstance(d.get("name"), str) or d.get("output") not in ("video", "markers"):
+            raise ValueError("sensor spec needs a name and output 'video' or 'markers'")
+        fps = d.get("fps")
+        if isinstance(fps, bool) or not isinstance(fps, (int, float)) or not 0 < fps <= 10_000:
+            raise ValueError(f"sensor fps must be a number in (0, 10000], got {fps!r}")
+        size = d.get("image_size")
+        if size is not None and not (
+            isinstance(size, (list, tuple))
+            and len(size) == 2
+            and all(isinstance(v, int) and 0 < v <= 100_000 for v in size)
+        ):
+            raise ValueError(f"sensor image_size must be [height, width], got {size!r}")
+        markers = d.get("markers")
+        if markers is not None and (
+            isinstance(markers, bool) or not isinstance(markers, int) or not 0 < markers <= 100_000
+        ):
+            raise ValueError(f"sensor markers must be a positive integer, got {markers!r}")
+        for key in ("camera_glob", "experiment_pattern", "slip_marker"):
+            if d.get(key) is not None and not isinstance(d[key], str):
+                raise ValueError(f"sensor {key} must be text")
+        return cls(**{**d, "fps": float(fps), "image_size": None if size is None else (int(size[0]), int(size[1]))})
+
 
 #: Two GelSight Mini sensors on the fingers of a Franka Panda: the ViViT study's recordings
 #: (``<object>/exp_num_<N>/camera_0.avi`` and ``camera_2.avi``, ``slip.txt`` when it slipped).
@@ -61,4 +100,22 @@ BINOCULAR_MARKERS = SensorSpec(name="binocular-markers", output="markers", fps=2
 
 SENSORS = {s.name: s for s in (GELSIGHT_MINI, BINOCULAR_MARKERS)}
 
-__all__ = ["BINOCULAR_MARKERS", "GELSIGHT_MINI", "SENSORS", "SensorSpec"]
+
+def sensor_of(info: Mapping[str, Any] | None, path: Any = None) -> SensorSpec:
+    """The sensor a checkpoint was trained on (its ``info["sensor"]``). Checkpoints written before
+    the sensor travelled with the model get the sensor of their data: the binocular marker sensor for
+    marker models, else the GelSight Mini. InputError naming ``path`` for a malformed spec."""
+    info = info or {}
+    spec = info.get("sensor")
+    if spec is None:
+        kind = ((info.get("data") or {}).get("kind")) if isinstance(info.get("data"), Mapping) else None
+        return BINOCULAR_MARKERS if kind == "markers" else GELSIGHT_MINI
+    try:
+        return SensorSpec.from_dict(spec)
+    except ValueError as exc:
+        from slipsense.errors import InputError
+
+        raise InputError(path, f"checkpoint sensor spec is malformed ({exc})") from None
+
+
+__all__ = ["BINOCULAR_MARKERS", "GELSIGHT_MINI", "SENSORS", "SensorSpec", "sensor_of"]
