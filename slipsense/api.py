@@ -108,6 +108,7 @@ class Evaluation:
     threshold: float
     debounce: int
     horizon: int = pergrasp.HORIZON
+    labels: dict | None = None  # {(object, experiment, camera): VideoLabel} of the replayed videos
 
     def outcomes(self) -> list[pergrasp.GraspOutcome]:
         return [r.outcome(self.threshold, self.debounce, self.horizon) for r in self.runs]
@@ -115,6 +116,15 @@ class Evaluation:
     def summary(self) -> dict[str, Any]:
         """Slips warned in time / premature / missed, false-positive grasps, alarms at rest, lead times."""
         return pergrasp.summarise(self.outcomes())
+
+    def clips(self, frames: int = 5) -> dict[str, Any]:
+        """The papers' protocol on the same traces: every ``frames``-frame clip the project cuts from
+        these runs, scored by the probability at its last frame, at the operating point and at 0.5
+        (accuracy beside the always-wiggle baseline, balanced accuracy, precision, recall, F1)."""
+        from slipsense.grasp_train import clip_metrics, clip_scores
+
+        p, y = clip_scores(self.runs, [r.probability for r in self.runs], self.labels or {}, frames)
+        return {"operating_point": clip_metrics(p, y, self.threshold), "at_0.5": clip_metrics(p, y, 0.5)}
 
     def to_json(self, path: str | Path) -> Path:
         from slipsense.atomic import write_text
@@ -175,8 +185,11 @@ def evaluate(
             f"{', ...' if len(seen) > 5 else ''}): their runs do not measure objects it never saw",
             stacklevel=2,
         )
-    runs = replay_recordings(detector, recs, progress=progress, overrides=_overrides(overrides))
-    return Evaluation(runs, detector.threshold, detector.debounce, horizon)
+    from slipsense.data import label_runs
+
+    labels = label_runs(recs, _overrides(overrides), progress=progress)
+    runs = replay_recordings(detector, recs, labels, progress=progress)
+    return Evaluation(runs, detector.threshold, detector.debounce, horizon, labels)
 
 
 __all__ = ["Evaluation", "TrainedDetector", "evaluate", "fit"]

@@ -300,7 +300,14 @@ def evaluate(
         dtype=dtype,
     )
     if "per_grasp" in m:
-        typer.echo(json.dumps(m["per_grasp"], default=float))
+        g, c = m["per_grasp"], m["clips"]["operating_point"]
+        typer.echo(json.dumps(g, default=float))
+        typer.echo(
+            f"per grasp: warned in time {g['warned']}/{g['slip_runs']}, premature {g['premature']}, missed "
+            f"{g['missed']}, false-positive grasps {g['false_positive_grasps']}/{g['held_runs']}; clips at the "
+            f"operating point: accuracy {c['accuracy']:.3f} (always-wiggle {c['always_wiggle_accuracy']:.3f}), "
+            f"balanced {c['balanced_accuracy']:.3f}, F1 {c['f1']:.3f} -> {json_out}"
+        )
         return
     typer.echo(
         json.dumps({k: m[k] for k in ("accuracy", "precision", "recall", "f1", "n_clips", "n_slip", "n_wiggle")})

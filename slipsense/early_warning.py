@@ -42,7 +42,7 @@ class RunTrace:
     n_frames: int
     probability: np.ndarray  # (N,) combined; NaN where the detector gives no answer yet
     rest: np.ndarray | None = field(default=None, repr=False)  # (N,) bool: no sensor touched
-    camera: str | None = None  # the one camera replayed, for a one-finger detector (else all of them)
+    cameras: tuple[str, ...] = ()  # the cameras replayed: one for a one-finger detector, else all
 
     def outcome(
         self, threshold: float, debounce: int = 1, horizon: int = pergrasp.HORIZON, startup: int = pergrasp.STARTUP
@@ -148,8 +148,7 @@ def _replay_run(detector, key, cams, run_cams, labels, read_video, video_product
     else:
         trace = detector.replay(*[read_video(r.path, expected_size=None, min_frames=1) for r in cams])
     rest = pergrasp.rest_mask(np.stack([c["contact"] for c in cached])) if n > 1 else None
-    camera = cams[0].camera if len(cams) < len(run_cams) else None
-    return RunTrace(key[0], key[1], slipped, moment, n, trace.probability, rest, camera)
+    return RunTrace(key[0], key[1], slipped, moment, n, trace.probability, rest, tuple(c.camera for c in cams))
 
 
 def write_early_warning(

@@ -214,8 +214,15 @@ def _evaluate_grasps(checkpoint, recordings, split, markers, json_out, overrides
         "debounce": ev.debounce,
         "horizon": ev.horizon,
         "per_grasp": ev.summary(),
+        "clips": ev.clips(),
         "runs": [
-            {"object": r.object, "experiment": r.experiment, "moment_of_slip": r.moment_of_slip, **asdict(o)}
+            {
+                "object": r.object,
+                "experiment": r.experiment,
+                "cameras": list(r.cameras),
+                "moment_of_slip": r.moment_of_slip,
+                **asdict(o),
+            }
             for r, o in zip(ev.runs, ev.outcomes())
         ],
     }
