@@ -34,7 +34,8 @@ def gelsight_clips(
     from slipsense.recordings.folders import find_recordings, validate_recordings
 
     recordings = find_recordings(recordings_dir, on_error=on_error)
-    recordings = validate_recordings(recordings, on_error=on_error)
+    # any frame size: clips are resized to the spec's size, as grasps and the live detector resize
+    recordings = validate_recordings(recordings, on_error=on_error, expected_size=None)
     if not recordings:
         raise InputError(recordings_dir, "no usable recordings")
     labels = label_runs(recordings, overrides=overrides, on_error=on_error, progress=progress)

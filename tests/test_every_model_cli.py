@@ -1,0 +1,76 @@
+"""One product: every registered model goes through the same verbs on the command line.
+
+For each model (at its contract size): ``slipsense train --model NAME`` for one epoch, ``--resume``
+of the finished run (nothing left to do: the same weights), ``slipsense evaluate`` (per grasp for a
+grasp model, per clip for clip and marker models), ``slipsense export`` (ONNX files verified against
+PyTorch) and ``slipsense watch`` (a recording, or a marker stream). A new registered model is covered
+by this test without a line of its own; what differs per kind is only the data it is given.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from safetensors.torch import load_file
+from typer.testing import CliRunner
+
+from slipsense.cli import app
+from slipsense.models import available, model_class
+
+BUILT_IN = [name for name in available() if not name.startswith("test-")]
+
+
+def _markers(path, frames: int, markers: int):
+    rng = np.random.default_rng(0)
+    x = rng.normal(0, 1, (24, frames, markers, 3)).astype(np.float32)
+    y = (x[:, -1, :, 0].mean(1) > 0).astype(np.int64)
+    np.savez(path, x=x, y=y, groups=np.arange(24) // 2)
+    np.save(path.with_suffix(".npy"), x[:10].reshape(-1, markers, 3))  # a 40-frame stream
+    return path
+
+
+def _invoke(args):
+    res = CliRunner().invoke(app, [str(a) for a in args])
+    assert res.exit_code == 0, f"{args[0]}: {res.output}"
+    return res
+
+
+@pytest.mark.parametrize("name", BUILT_IN)
+def test_every_model_trains_resumes_evaluates_exports_and_streams(name, tmp_path, grasp_recordings, cache):
+    cls = model_class(name)
+    small = cls.small_config()
+    sets = [x for k, v in small.items() for x in ("--set", f"model.{k}={json.dumps(v)}")]
+    out = tmp_path / "run"
+    run_folder = grasp_recordings / "obj0" / "exp_num_1"
+    if cls.input_kind == "markers":
+        npz = _markers(tmp_path / "m.npz", small["frames"], small["markers"])
+        data, stream = ["--markers", npz], npz.with_suffix(".npy")
+    elif cls.input_kind == "video":
+        size = small.get("image_size", [48, 64])
+        data = ["--recordings", grasp_recordings, "--frames", small["frames"], "--size", f"{size[0]}x{size[1]}"]
+        stream = run_folder
+    else:
+        data, stream = ["--recordings", grasp_recordings, "--set", "train.inner_folds=0"], run_folder
+    train = ["train", "--model", name, *sets, *data, "--epochs", 1, "--test-objects", "obj3", "--no-progress"]
+    _invoke([*train, "--out", out])
+    ckpt = out / ("detector.safetensors" if cls.training_task == "grasps" else "last.safetensors")
+    before = load_file(str(ckpt))
+    _invoke([*train, "--out", out, "--resume"])
+    after = load_file(str(ckpt))
+    assert before.keys() == after.keys() and all(bool((before[k] == after[k]).all()) for k in before)
+
+    where = (
+        ["--recordings", grasp_recordings] if cls.training_task == "grasps" else ["--split-file", out / "split.json"]
+    )
+    _invoke(["evaluate", "--checkpoint", ckpt, *where, "--json", tmp_path / "e.json", "--no-progress"])
+    doc = json.loads((tmp_path / "e.json").read_text())
+    assert ("per_grasp" in doc) == (cls.training_task == "grasps") and ("accuracy" in doc or "clips" in doc)
+
+    res = _invoke(["export", "--checkpoint", ckpt, "--out", tmp_path / "m.onnx"])
+    diffs = [float(line.rsplit("= ", 1)[1].rstrip(")")) for line in res.output.splitlines() if "max |onnx" in line]
+    assert (tmp_path / "m.onnx").is_file() and diffs and max(diffs) <= 1e-4
+
+    res = _invoke(["watch", stream, "--checkpoint", ckpt, "--max-frames", 30, "--threshold", 0.5])
+    assert sum(line.startswith("frame") for line in res.output.splitlines()) == 30
