@@ -5,7 +5,7 @@
 
 What is timed: ``SlipDetector.push(frame)`` with one sensor and a full window, i.e. everything a
 live loop pays per camera frame: input checks, uint8 -> float conversion, the frame part on the new
-frame and the window part on the window (see :mod:`slipsense.live`). Random weights (latency does
+frame and the window part on the window (see :mod:`slipsense.streaming.detector`). Random weights (latency does
 not depend on them) and random inputs of the real sizes:
 
 * ``vivit``      — the paper's ViViT: 240 x 320 frames, 40 x 40 patches, 5 frames, dim 8;
@@ -36,7 +36,7 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from slipsense.live import SlipDetector  # noqa: E402
+from slipsense.streaming.detector import SlipDetector  # noqa: E402
 from slipsense.models import build, count_parameters  # noqa: E402
 from slipsense.models.stnet import PRESETS  # noqa: E402
 
@@ -150,7 +150,7 @@ def main(argv=None) -> int:
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
     import onnxruntime as ort
-    import slipsense.export as export
+    import slipsense.streaming.export as export
 
     # every ONNX Runtime session the detector opens gets the same thread count as torch
     plain_session = export.onnx_session

@@ -9,7 +9,7 @@ What is measured, on one thread, on the shared recordings (fold 0's training obj
   shipped recipe (48 scored frames per chunk), trained step by step (forward, backward, AdamW) two
   ways side by side in one run: *reference*, the step as it was (16 chunks from 16 runs per batch,
   every chunk's 78 frames encoded, planar difference channels, a finite check of the input) and
-  *current* (:func:`slipsense.grasp_train.fit_runs`' step: the chunks of ~3 runs per batch, each
+  *current* (:func:`slipsense.training.grasps.fit_runs`' step: the chunks of ~3 runs per batch, each
   distinct frame encoded once, channels-last differences). Throughput in scored frames per second
   (a frame = both sensors' images at one instant) and their ratio;
 * **clip task** (the paper's ViViT on 5-frame 240 x 320 clips, `slipsense train --model vivit`):
@@ -45,8 +45,9 @@ import torch.nn.functional as F
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
-from slipsense import grasp_train as G  # noqa: E402
-from slipsense import pergrasp  # noqa: E402
+from slipsense.training import grasps as G  # noqa: E402
+from slipsense.training.grasp_detector import object_split  # noqa: E402
+from slipsense.evaluation import pergrasp  # noqa: E402
 from slipsense.config import gelsight_recordings  # noqa: E402
 from slipsense.models import build  # noqa: E402
 
@@ -203,7 +204,7 @@ def clip_throughput(seconds: float) -> dict:
 
 
 def replay_speed(run_dir: Path) -> dict:
-    from slipsense.live import SlipDetector
+    from slipsense.streaming.detector import SlipDetector
     from slipsense.recordings.video import read_video
 
     videos = [read_video(run_dir / f"camera_{c}.avi") for c in (0, 2)]
@@ -295,7 +296,7 @@ def main(argv=None) -> int:
     size = tuple(cfg.model_config.get("image_size") or (30, 40))
     runs, _ = G.load_grasp_data(gelsight_recordings(), None, size, progress=False)
     usable = [r for r in runs if r.usable]
-    held = G.object_split(usable, 5, 0)[0]
+    held = object_split(usable, 5, 0)[0]
     train = [r for r in usable if r.object not in held]
     grasp = grasp_throughput(train, cfg, args.seconds)
     model = build(cfg.model, **cfg.model_config).eval()

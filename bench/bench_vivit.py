@@ -101,7 +101,7 @@ def onnx_runner(model: ViViT, threads: int):
         return None
     import tempfile
 
-    from slipsense.export import export_onnx, onnx_session
+    from slipsense.streaming.export import export_onnx, onnx_session
 
     folder = Path(tempfile.mkdtemp(prefix="bench-vivit-"))
     path = export_onnx(model, folder / "vivit.onnx", streaming=False, verify=False).paths["model"]

@@ -9,4 +9,4 @@ report=${REPORT:-reports/vivit-folds/folds.json}
 for k in 0 1 2 3 4; do
     .venv/bin/slipsense train --config configs/vivit-folds.yaml --fold "$k" --out "$out/fold$k" --no-progress "$@"
 done
-.venv/bin/python -m slipsense.folds "$out"/fold* --json "$report"
+.venv/bin/python -m slipsense.evaluation.clip_folds "$out"/fold* --json "$report"

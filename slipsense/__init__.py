@@ -17,9 +17,9 @@ __version__ = "0.1.0"
 
 #: public name -> module that defines it
 _EXPORTS = {
-    "SlipDetector": "slipsense.live",
-    "Reading": "slipsense.live",
-    "Trace": "slipsense.live",
+    "SlipDetector": "slipsense.streaming.detector",
+    "Reading": "slipsense.streaming.detector",
+    "Trace": "slipsense.streaming.detector",
     "fit": "slipsense.api",
     "evaluate": "slipsense.api",
     "TrainedDetector": "slipsense.api",

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
 
-from slipsense import pergrasp
+from slipsense.evaluation import pergrasp
 from slipsense.config import gelsight_recordings
 
 
@@ -53,8 +53,8 @@ class TrainedDetector:
     held_out: dict[str, Any] | None = None
 
     def detector(self, sensors: int | None = None):
-        """A live :class:`~slipsense.live.SlipDetector` on the trained checkpoint."""
-        from slipsense.live import SlipDetector
+        """A live :class:`~slipsense.streaming.detector.SlipDetector` on the trained checkpoint."""
+        from slipsense.streaming.detector import SlipDetector
 
         return SlipDetector.from_checkpoint(self.checkpoint, sensors=sensors)
 
@@ -80,9 +80,10 @@ def fit(
         overrides: label overrides CSV; True = the shipped hand labels for runs of the shared
             recordings; False = none.
         settings: training or model settings, e.g. ``epochs=5``, ``width=8``
-            (:class:`slipsense.grasp_train.GraspTrainConfig`).
+            (:class:`slipsense.training.grasps.GraspTrainConfig`).
     """
-    from slipsense.grasp_train import load_grasp_data, make_config, train_detector
+    from slipsense.training.grasp_detector import train_detector
+    from slipsense.training.grasps import load_grasp_data, make_config
 
     root = _recordings_folder(recordings)
     cfg = make_config(model, {**settings, "seed": seed})
@@ -100,7 +101,7 @@ class Evaluation:
     """What :func:`evaluate` returns: every run replayed as live use would, judged per grasp.
 
     Attributes:
-        runs: one :class:`~slipsense.early_warning.RunTrace` per replayed run (probabilities per frame).
+        runs: one :class:`~slipsense.evaluation.early_warning.RunTrace` per replayed run (probabilities per frame).
         threshold, debounce, horizon: the operating point and horizon (frames) the outcomes use.
     """
 
@@ -121,7 +122,7 @@ class Evaluation:
         """The papers' protocol on the same traces: every ``frames``-frame clip the project cuts from
         these runs, scored by the probability at its last frame, at the operating point and at 0.5
         (accuracy beside the always-wiggle baseline, balanced accuracy, precision, recall, F1)."""
-        from slipsense.grasp_train import clip_metrics, clip_scores
+        from slipsense.evaluation.grasp_scores import clip_metrics, clip_scores
 
         p, y = clip_scores(self.runs, [r.probability for r in self.runs], self.labels or {}, frames)
         return {"operating_point": clip_metrics(p, y, self.threshold), "at_0.5": clip_metrics(p, y, 0.5)}
@@ -159,8 +160,8 @@ def evaluate(
         horizon: frames before the moment of slip in which an alarm counts as a warning in time.
         threshold, debounce: default: the checkpoint's operating point.
     """
-    from slipsense.early_warning import replay_recordings
-    from slipsense.live import SlipDetector
+    from slipsense.evaluation.early_warning import replay_recordings
+    from slipsense.streaming.detector import SlipDetector
     from slipsense.recordings.folders import find_recordings, validate_recordings
 
     import warnings

@@ -126,7 +126,7 @@ def test_checkpoint_with_weights_of_another_dtype_is_refused(tmp_path):
     from safetensors.torch import load_file, save_file
 
     from slipsense.checkpoint import META_KEY, read_info
-    from slipsense.live import DEFAULT_CHECKPOINT
+    from slipsense.streaming.detector import DEFAULT_CHECKPOINT
 
     info = read_info(DEFAULT_CHECKPOINT)
     state = {
@@ -536,7 +536,7 @@ def test_checkpoint_with_a_malformed_sensor_spec_is_refused(tmp_path, sensor):
     from safetensors.torch import load_file, save_file
 
     from slipsense.checkpoint import META_KEY, read_info
-    from slipsense.live import DEFAULT_CHECKPOINT
+    from slipsense.streaming.detector import DEFAULT_CHECKPOINT
 
     info = {**read_info(DEFAULT_CHECKPOINT), "sensor": sensor}
     bad = tmp_path / "sensor.safetensors"

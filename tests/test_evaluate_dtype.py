@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 from slipsense.checkpoint import save_checkpoint
 from slipsense.cli import app
 from slipsense.errors import ConfigError
-from slipsense.evaluation import evaluate_checkpoint
+from slipsense.evaluation.evaluate import evaluate_checkpoint
 from slipsense.models import build, at_dtype
 
 runner = CliRunner()

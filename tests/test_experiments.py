@@ -1,4 +1,4 @@
-"""Experiment commands (slipsense.experiments, slipsense.cli_experiments) on tiny in-memory data."""
+"""Experiment commands (slipsense.experiments, slipsense.cli.experiments) on tiny in-memory data."""
 
 from __future__ import annotations
 

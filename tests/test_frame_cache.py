@@ -83,7 +83,7 @@ def test_bad_video_names_the_file(tmp_path, cache):
 def test_replay_from_cached_grey_equals_replay_of_videos(grasp_recordings, cache):
     import torch
 
-    from slipsense.live import SlipDetector
+    from slipsense.streaming.detector import SlipDetector
     from slipsense.models import build
 
     torch.manual_seed(0)

@@ -19,8 +19,8 @@ from slipsense.checkpoint import save_checkpoint
 from slipsense.cli import app
 from slipsense.config import gelsight_recordings
 from slipsense.errors import ConfigError, InputError
-from slipsense.early_warning import EARLY_WARNING_COLUMNS, RunTrace, early_warning_table
-from slipsense.live import Reading, SlipDetector, slip_probability
+from slipsense.evaluation.early_warning import EARLY_WARNING_COLUMNS, RunTrace, early_warning_table
+from slipsense.streaming.detector import Reading, SlipDetector, slip_probability
 from slipsense.models import build
 
 VIVIT_SMALL = dict(image_size=(48, 64), patch_size=(16, 16), frames=5, dim=8, heads=2, dim_head=16, mlp_dim=8)
@@ -432,7 +432,7 @@ def _as_input(clip: np.ndarray) -> torch.Tensor:
 @needs_ort
 @needs_data
 def test_onnx_vivit_matches_torch_on_real_clips(tmp_path, real_clips):
-    from slipsense.export import export_onnx, onnx_session, run_onnx
+    from slipsense.streaming.export import export_onnx, onnx_session, run_onnx
 
     model = _model("vivit")  # the paper's configuration: 240 x 320, 40 x 40 patches, 5 frames
     res = export_onnx(model, tmp_path / "vivit.onnx", verify=False)  # verified here, on real frames
@@ -463,7 +463,7 @@ def test_onnx_vivit_matches_torch_on_real_clips(tmp_path, real_clips):
 @needs_ort
 @needs_data
 def test_onnx_stnet_matches_torch_on_real_markers(tmp_path, real_clips):
-    from slipsense.export import export_onnx, onnx_session, run_onnx
+    from slipsense.streaming.export import export_onnx, onnx_session, run_onnx
     from slipsense.sensors.markers import marker_sequences, track_markers
 
     clouds = np.stack([marker_sequences(track_markers(c, source="clip"), 20) for c in real_clips])[:, :4]
@@ -480,7 +480,7 @@ def test_onnx_stnet_matches_torch_on_real_markers(tmp_path, real_clips):
 @needs_ort
 @needs_data
 def test_onnx_resnet3d_matches_torch_on_real_clips(tmp_path, real_clips):
-    from slipsense.export import export_onnx, onnx_session, run_onnx
+    from slipsense.streaming.export import export_onnx, onnx_session, run_onnx
 
     model = _model("resnet3d50", **RESNET_TINY)
     small = [np.stack([cv2.resize(f, (160, 120), interpolation=cv2.INTER_AREA) for f in c[:4]]) for c in real_clips]
@@ -496,7 +496,7 @@ def test_onnx_resnet3d_matches_torch_on_real_clips(tmp_path, real_clips):
 
 @needs_ort
 def test_onnx_factorised_vivit_parts(tmp_path):
-    from slipsense.export import export_onnx
+    from slipsense.streaming.export import export_onnx
 
     model = _model("vivit", positions="factorised", **VIVIT_SMALL)
     res = export_onnx(model, tmp_path / "f.onnx")
@@ -520,7 +520,7 @@ def test_export_command(tmp_path, vivit_ckpt):
     assert res.exit_code == 0, res.output
     assert out.is_file() and (tmp_path / "m.frame.onnx").is_file() and (tmp_path / "m.window.onnx").is_file()
     assert "max |onnx - torch|" in res.output
-    from slipsense.export import onnx_session
+    from slipsense.streaming.export import onnx_session
 
     assert onnx_session(out).get_inputs()[0].shape == [1, 5, 3, 48, 64]
 

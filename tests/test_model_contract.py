@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from slipsense.checkpoint import load_model, save_checkpoint
-from slipsense.live import SlipDetector
+from slipsense.streaming.detector import SlipDetector
 from slipsense.models import SlipModel, available, build, model_class, window_geometry
 
 BUILT_IN = [name for name in available() if not name.startswith("test-")]
@@ -105,9 +105,9 @@ def test_contract_chunk_logits_equal_whole_run_forward(name):
 
 @pytest.mark.parametrize("name", BUILT_IN)
 def test_contract_onnx_parity(name, tmp_path):
-    from slipsense.export import export_onnx
+    from slipsense.streaming.export import export_onnx
 
-    from slipsense.export import onnx_session, run_onnx
+    from slipsense.streaming.export import onnx_session, run_onnx
 
     model = _model(name)
     result = export_onnx(model, tmp_path / "m.onnx")

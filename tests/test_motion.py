@@ -5,8 +5,9 @@ import pytest
 import torch
 
 from slipsense.errors import ConfigError, InputError
-from slipsense.grasp_train import GraspTrainConfig, fit_runs, frame_targets, operating_point, predict_runs
-from slipsense.live import SlipDetector
+from slipsense.training.grasp_detector import operating_point
+from slipsense.training.grasps import GraspTrainConfig, fit_runs, frame_targets, predict_runs
+from slipsense.streaming.detector import SlipDetector
 from slipsense.models import build
 from slipsense.recordings.runs import GraspRun
 

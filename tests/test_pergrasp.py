@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from slipsense import pergrasp
+from slipsense.evaluation import pergrasp
 
 
 def _runs(rng, n_slip=6, n_held=6, n=200):

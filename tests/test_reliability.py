@@ -247,7 +247,7 @@ def test_fit_refuses_an_empty_training_set(tmp_path):
     from slipsense.datasets import MarkerDataset
     from slipsense.errors import ConfigError
     from slipsense.models import build
-    from slipsense.train import TrainConfig, fit
+    from slipsense.training.clips import TrainConfig, fit
 
     model = build("temnet", frames=4, markers=5, d_model=8, heads=2, blocks=1, ff_dim=8, head_hidden=0)
     empty = MarkerDataset(np.zeros((0, 4, 5, 3), np.float32), np.zeros(0, np.int64))

@@ -200,8 +200,8 @@ def test_marker_cache_checks_checksum_inputs_and_arrays(tmp_path, monkeypatch):
 # ------------------------------------------------------------------------------------ ONNX parts
 def test_onnx_parts_cache_is_verified(tmp_path, monkeypatch):
     pytest.importorskip("onnxruntime")
-    from slipsense import export
-    from slipsense.live import window_geometry
+    from slipsense.streaming import export
+    from slipsense.streaming.detector import window_geometry
     from slipsense.models import build
 
     model = build("temnet", frames=4, markers=5, d_model=8, heads=2, blocks=1, ff_dim=8, head_hidden=0).eval()

@@ -19,7 +19,7 @@ import torch.nn as nn
 from torch.utils.data import Dataset
 
 from slipsense.models import MarkerModel, register
-from slipsense.train import StepPlan, TrainConfig, fit, seed_everything
+from slipsense.training.clips import StepPlan, TrainConfig, fit, seed_everything
 
 N_ITEMS = 67
 

@@ -26,9 +26,9 @@ def test_the_shipped_configs_exist():
 @pytest.mark.parametrize("path", CONFIGS, ids=lambda p: p.stem)
 def test_every_shipped_config_builds(path):
     """Each file names a registered model, settings it takes and training keys that exist."""
-    from slipsense.grasp_train import GraspTrainConfig, make_config
+    from slipsense.training.grasps import GraspTrainConfig, make_config
     from slipsense.models import model_class
-    from slipsense.train import TrainConfig, TrainRequest, build_model, paper_settings
+    from slipsense.training.clips import TrainConfig, TrainRequest, build_model, paper_settings
 
     tree = load_tree(path)
     name = tree["model"]["name"]
@@ -189,7 +189,7 @@ def test_empty_tree_has_the_three_sections():
 
 def test_set_null_clears_and_yaml_spellings_are_typed(monkeypatch, tmp_path):
     from slipsense.config import DATA_ENV
-    from slipsense.train import TrainConfig, TrainRequest
+    from slipsense.training.clips import TrainConfig, TrainRequest
 
     tree = merge({"data": {"fold": 2}}, parse_sets(["data.fold=null"]))
     assert tree["data"]["fold"] is None

@@ -13,7 +13,7 @@ import torch
 
 from slipsense.checkpoint import load_model, read_info, save_checkpoint
 from slipsense.errors import ConfigError, InputError
-from slipsense.train import TrainConfig
+from slipsense.training.clips import TrainConfig
 
 SCRIPT = Path(__file__).parent / "support" / "tiny_train.py"
 
@@ -113,7 +113,7 @@ def test_train_config_rejects_bad_values():
 
 
 def test_pooling_folds_sums_confusions(tmp_path):
-    from slipsense.folds import pool
+    from slipsense.evaluation.clip_folds import pool
 
     for k, cm in enumerate(([[8, 0], [2, 2]], [[5, 1], [0, 3]])):
         (tmp_path / f"f{k}").mkdir()
@@ -140,7 +140,7 @@ def test_resume_split_check_reads_tuples_as_json_does(tmp_path):
     import json
 
     from slipsense.errors import InputError
-    from slipsense.splits import check_same_split
+    from slipsense.training.splits import check_same_split
 
     info = {"kind": "video", "split": "objects", "test_objects": ["cup"], "clip_spec": {"size": (48, 64)}}
     (tmp_path / "split.json").write_text(json.dumps(info))

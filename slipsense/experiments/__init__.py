@@ -17,7 +17,7 @@ Modules: :mod:`~slipsense.experiments.settings` (:class:`Settings`: full, quick 
 :mod:`~slipsense.experiments.training` (train, score, time); one module per experiment
 (``params``, ``video_compare``, ``frames``, ``noise``, ``stnet``, ``horizon``, ``all_models``); and
 :mod:`~slipsense.experiments.results` (docs/results.md). The commands are in
-:mod:`slipsense.cli_experiments`.
+:mod:`slipsense.cli.experiments`.
 """
 
 from slipsense.experiments.settings import EXPERIMENTS, FULL_PATCH, FULL_SIZE, QUICK_PATCH, QUICK_SIZE, TITLES, Settings

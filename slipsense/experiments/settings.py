@@ -1,7 +1,7 @@
 """What every experiment command accepts: :class:`Settings`, the experiment names and titles.
 
 The default ("full") is the papers' setting: 240 x 320 clips, ViViT patches 40 x 40, training
-settings of :func:`slipsense.train.paper_settings` (ViViT 75 epochs, 3D ResNet-50 10, STNet/TemNet
+settings of :func:`slipsense.training.clips.paper_settings` (ViViT 75 epochs, 3D ResNet-50 10, STNet/TemNet
 100). ``quick`` is a documented smaller setting for a CPU: 120 x 160 clips with 20 x 20 patches (the
 same 6 x 8 patch grid) and each model's ``quick_epochs``; its outputs say "quick" in the table, the
 figure title and ``config.json``. ``epochs``, ``size`` (and ``patch``, ``batch_size``, ``lr``,
@@ -149,7 +149,7 @@ class Settings:
     def train_config(self, name: str):
         """Training settings for model ``name``: paper < quick < --epochs/--batch-size/--lr < per-model."""
         from slipsense.models import model_class
-        from slipsense.train import TrainConfig, paper_settings
+        from slipsense.training.clips import TrainConfig, paper_settings
 
         values: dict[str, Any] = paper_settings(name)
         if self.quick:

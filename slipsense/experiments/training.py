@@ -24,8 +24,8 @@ def _device_of(model):
 
 def score(model, data, batch_size: int = 32) -> dict[str, Any]:
     """Metrics of ``model`` on ``data`` (on the model's device)."""
-    from slipsense.evaluation import predict
-    from slipsense.metrics import metrics_from
+    from slipsense.evaluation.evaluate import predict
+    from slipsense.evaluation.metrics import metrics_from
 
     p, y = predict(model, data, batch_size=batch_size, device=_device_of(model))
     return metrics_from(p, y)
@@ -53,7 +53,7 @@ def train_model(
     before_fit: Callable[[Any], None] | None = None,
 ):
     """Build (seeded) and train one model into ``OUT/runs/<label>``; returns ``(model, history)``."""
-    from slipsense.train import build_model, fit, seed_everything
+    from slipsense.training.clips import build_model, fit, seed_everything
 
     cfg = settings.train_config(name)
     seed_everything(settings.seed)

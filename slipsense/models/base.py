@@ -22,7 +22,7 @@ Every model streams: :meth:`SlipModel.stream` gives the live detector an object 
 per sensor and answers per-sensor slip probabilities (:class:`Stream`); clip models get a window
 stream (:mod:`slipsense.models.streams`), a grasp model brings its own. What runs inside a stream is
 a few named modules (:meth:`SlipModel.streaming_modules`), run on PyTorch or, exported through
-:meth:`SlipModel.onnx_parts`, on ONNX Runtime (:mod:`slipsense.runners`).
+:meth:`SlipModel.onnx_parts`, on ONNX Runtime (:mod:`slipsense.streaming.runners`).
 
 Optional hooks, with defaults that suit a plain network: :meth:`SlipModel.streaming_parts`
 (what the live detector caches per frame), :meth:`SlipModel.exportable` (an ONNX-friendly copy),
@@ -101,12 +101,12 @@ class SlipModel(nn.Module):
     slot_tokens: bool = False
     #: epochs of the experiments' quick setting
     quick_epochs: int = 10
-    #: the training settings of the model's paper (slipsense.train.TrainConfig keys)
+    #: the training settings of the model's paper (slipsense.training.clips.TrainConfig keys)
     paper_training: dict[str, Any] = {}
     #: named configurations, e.g. the paper's size and a compact one (``slipsense train --preset``)
     presets: dict[str, dict[str, Any]] = {}
     #: what ``slipsense train`` runs for it: ``"clips"`` (windows cut from recordings or marker
-    #: sequences, :mod:`slipsense.train`) or ``"grasps"`` (whole runs, :mod:`slipsense.grasp_train`)
+    #: sequences, :mod:`slipsense.training.clips`) or ``"grasps"`` (whole runs, :mod:`slipsense.training.grasps`)
     training_task: str = "clips"
 
     def config(self) -> dict[str, Any]:
@@ -141,7 +141,7 @@ class SlipModel(nn.Module):
     ) -> Stream:
         """A fresh :class:`Stream` of this model over ``sensors`` sensors (default: a sliding window
         over the frame-part outputs, :class:`slipsense.models.streams.WindowStream`). ``info``: the
-        checkpoint's config; ``backend``/``dtype``/``onnx_dir`` as :class:`slipsense.live.SlipDetector`."""
+        checkpoint's config; ``backend``/``dtype``/``onnx_dir`` as :class:`slipsense.streaming.detector.SlipDetector`."""
         from slipsense.models.streams import WindowStream
 
         return WindowStream(self, sensors=sensors, info=info, backend=backend, dtype=dtype, onnx_dir=onnx_dir)

@@ -335,8 +335,8 @@ class MotionStream:
     """
 
     def __init__(self, model: MotionNet, *, sensors=None, info=None, backend="torch", dtype="float32", onnx_dir=None):
-        from slipsense.pergrasp import STARTUP
-        from slipsense.runners import make_runner
+        from slipsense.evaluation.pergrasp import STARTUP
+        from slipsense.streaming.runners import make_runner
 
         self.model = model.eval()
         self.sensors = model.sensors if sensors is None else int(sensors)

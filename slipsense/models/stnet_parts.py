@@ -2,7 +2,7 @@
 
 A window's frames pass the S codecs and the fusion layer one by one, so the live detector runs
 :class:`MarkerFramePart` once per pushed frame and :class:`MarkerWindowPart` on the cached window
-(:mod:`slipsense.export` writes both as ONNX). With relative input every frame is seen against its
+(:mod:`slipsense.streaming.export` writes both as ONNX). With relative input every frame is seen against its
 window's first frame and nothing can be cached.
 """
 

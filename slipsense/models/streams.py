@@ -59,7 +59,7 @@ class WindowStream:
         onnx_dir: Any = None,
     ):
         from slipsense.models.base import window_geometry
-        from slipsense.runners import make_runner
+        from slipsense.streaming.runners import make_runner
 
         self.model, self.sensors = model.eval(), int(sensors)
         self.geometry = window_geometry(model, info)

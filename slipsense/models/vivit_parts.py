@@ -1,7 +1,7 @@
 """ViViT's streaming parts (what the live detector caches per frame) and its ONNX-friendly patch embedding.
 
-The live detector (:mod:`slipsense.live`) runs :class:`ViViTFramePart` once per pushed frame and
-:class:`ViViTWindowPart` on the cached window; :mod:`slipsense.export` writes both as ONNX.
+The live detector (:mod:`slipsense.streaming.detector`) runs :class:`ViViTFramePart` once per pushed frame and
+:class:`ViViTWindowPart` on the cached window; :mod:`slipsense.streaming.export` writes both as ONNX.
 """
 
 from __future__ import annotations

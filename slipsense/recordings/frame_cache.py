@@ -152,10 +152,10 @@ def prefetch(
     paths: Sequence[str | Path], products: Sequence[str], workers: int | None = None, progress: bool = True
 ) -> int:
     """Decode the videos among ``paths`` whose ``products`` are not cached yet, on ``workers``
-    processes (default one per core; :mod:`slipsense.parallel`), so that what reads them next finds
+    processes (default one per core; :mod:`slipsense.training.parallel`), so that what reads them next finds
     them cached. Videos that cannot be decoded are left for that reader to report. Returns how many
     were decoded."""
-    from slipsense.parallel import run_jobs
+    from slipsense.training.parallel import run_jobs
 
     missing = [Path(p) for p in paths if not _is_cached(Path(p), products)]
     if len(missing) >= 4:  # fewer: starting workers costs more than decoding here

@@ -18,7 +18,7 @@ import torch.nn as nn
 from torch.utils.data import Dataset
 
 from slipsense.models import MarkerModel, register
-from slipsense.train import TrainConfig, fit, seed_everything
+from slipsense.training.clips import TrainConfig, fit, seed_everything
 
 
 @register("test-tiny")

@@ -39,10 +39,10 @@ from slipsense.atomic import write_text
 from slipsense.models import available, model_class, settings_of
 from slipsense.checkpoint import load_resume_state, save_checkpoint, save_resume_state
 from slipsense.errors import ConfigError, InputError
-from slipsense.distributed import Dist, RankBatches, StepPlan, all_sum, micro_batch_rng, setup  # noqa: F401
-from slipsense.evaluation import predict, progress_bar
-from slipsense.metrics import metrics_from  # noqa: F401  (re-exported)
-from slipsense.splits import SPLIT_IDENTITY, check_same_split, prepare_data  # noqa: F401
+from slipsense.training.distributed import Dist, RankBatches, StepPlan, all_sum, micro_batch_rng, setup  # noqa: F401
+from slipsense.evaluation.evaluate import predict, progress_bar
+from slipsense.evaluation.metrics import metrics_from  # noqa: F401  (re-exported)
+from slipsense.training.splits import SPLIT_IDENTITY, check_same_split, prepare_data  # noqa: F401
 
 
 @dataclass
@@ -451,7 +451,7 @@ def build_model(name: str, preset: str | None, overrides: dict[str, Any], data_c
 def run_training(req: TrainRequest, resume: bool = False) -> dict[str, Any]:
     """Prepare data, build and train the model, then evaluate ``last.safetensors`` on the held-out
     part; returns the evaluation metrics (rank 0) or ``{}`` (other ranks)."""
-    from slipsense.evaluation import evaluate_model
+    from slipsense.evaluation.evaluate import evaluate_model
 
     cls = model_class(req.model)
     kind = cls.input_kind

@@ -35,7 +35,7 @@ def _prepare(
 def _grasp_tree(config, model, sets, size, epochs, seed, inner_folds, recordings, overrides, on_error):
     """The configuration tree: defaults < --config < options < --set."""
     from slipsense.cli import parse_hw
-    from slipsense.grasp_train import GraspTrainConfig
+    from slipsense.training.grasps import GraspTrainConfig
     from slipsense.run_config import empty_tree, given, load_tree, merge, parse_sets
 
     layer = parse_sets(sets, bare="bare")
@@ -54,7 +54,7 @@ def prepare_tree(tree, progress: bool = True, threads: int | None = None, out=No
     """From a grasp configuration tree (model / data / train sections): the training config, the
     runs, their labels and the metadata checkpoints keep."""
     from slipsense.cli import _default_recordings, check_seed
-    from slipsense.grasp_train import GraspTrainConfig, load_grasp_data, make_config
+    from slipsense.training.grasps import GraspTrainConfig, load_grasp_data, make_config
     from slipsense.run_config import check_keys, to_plain
 
     if threads is not None:
@@ -119,7 +119,7 @@ def train_from_tree(
     ``folds``), writing ``out/detector.safetensors``, ``metrics.csv``, ``curves.png``, ``config.yaml``."""
     from slipsense.atomic import write_text
     from slipsense.errors import ConfigError
-    from slipsense.grasp_train import object_split, train_detector
+    from slipsense.training.grasp_detector import object_split, train_detector
     from slipsense.run_config import dump_tree
 
     cfg, runs, labels, data = prepare_tree(tree, progress, threads, out)
@@ -223,7 +223,7 @@ def register(app: typer.Typer) -> None:
         ),
     ):
         """Leave objects out: one detector per fold, each replayed on its unseen objects, pooled."""
-        from slipsense.grasp_folds import run_folds
+        from slipsense.evaluation.folds import run_folds
 
         cfg, runs, labels, data = _prepare(
             config,

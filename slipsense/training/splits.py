@@ -19,7 +19,7 @@ from slipsense.errors import ConfigError, InputError
 
 
 def prepare_data(req, kind: str):
-    """Datasets and the split description for a :class:`~slipsense.train.TrainRequest` ->
+    """Datasets and the split description for a :class:`~slipsense.training.clips.TrainRequest` ->
     ``(train, test, split_info, data_config)``."""
     from slipsense.datasets import ClipDataset, MarkerDataset
 

@@ -33,7 +33,7 @@ class TorchRunner:
 
 class OnnxRunner:
     def __init__(self, paths: Mapping[str, Path]):
-        from slipsense.export import onnx_session
+        from slipsense.streaming.export import onnx_session
 
         self.sessions = {name: onnx_session(path) for name, path in paths.items()}
         self._inputs = {name: [i.name for i in s.get_inputs()] for name, s in self.sessions.items()}
@@ -78,6 +78,6 @@ def make_runner(
 
         tmpdir = tempfile.TemporaryDirectory(prefix="slipsense-onnx-")
         onnx_dir = tmpdir.name
-    from slipsense.export import cached_streaming_parts
+    from slipsense.streaming.export import cached_streaming_parts
 
     return OnnxRunner(cached_streaming_parts(model, Path(onnx_dir), geometry, dtype)), tmpdir

@@ -176,8 +176,8 @@ def watch_source(
     """Stream ``source`` through the detector; print a line per frame; optionally write an annotated
     GIF/video. Returns ``{"frames", "alarm_onsets", "first_alarm", "out"}``."""
     from slipsense.checkpoint import load_model
-    from slipsense.annotate import AnnotatedWriter, Annotator
-    from slipsense.live import SlipDetector, onnx_cache_dir, stored_operating_point
+    from slipsense.streaming.annotate import AnnotatedWriter, Annotator
+    from slipsense.streaming.detector import SlipDetector, onnx_cache_dir, stored_operating_point
 
     from slipsense.atomic import check_output_file
 
@@ -355,7 +355,7 @@ def register(app: typer.Typer) -> None:
         verify: bool = typer.Option(True, help="compare ONNX Runtime with PyTorch on a random input"),
     ):
         """Export a checkpoint to ONNX (and the live detector's streaming parts)."""
-        from slipsense.export import export_onnx
+        from slipsense.streaming.export import export_onnx
 
         result = export_onnx(_checkpoint(checkpoint), out, batch=batch, streaming=streaming, verify=verify)
         for key, path in result.paths.items():
@@ -386,8 +386,8 @@ def run_early_warning(
 ) -> str:
     """The ``early-warning`` command as a function; returns the summary text it prints."""
     from slipsense.config import gelsight_recordings
-    from slipsense.early_warning import early_warning_table, replay_recordings, write_early_warning
-    from slipsense.live import SlipDetector
+    from slipsense.evaluation.early_warning import early_warning_table, replay_recordings, write_early_warning
+    from slipsense.streaming.detector import SlipDetector
     from slipsense.recordings.folders import find_recordings
     from slipsense.recordings.label_csv import read_labels_csv
 

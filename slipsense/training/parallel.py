@@ -6,7 +6,7 @@ fold's detector and its inner folds' detectors). Small convolutions use a second
 thread each finish such a set of jobs about ``W`` times sooner than one process of ``W`` threads.
 This is not data parallelism: each job is one whole, seeded, single-thread training, so its result
 does not depend on how many workers ran beside it (one training spread over processes is torchrun
-DDP's job, :mod:`slipsense.distributed`).
+DDP's job, :mod:`slipsense.training.distributed`).
 
 The pool is :class:`concurrent.futures.ProcessPoolExecutor` with forked workers on Linux (the data
 every job reads is inherited, not copied; jobs name what they need of it) and spawned ones

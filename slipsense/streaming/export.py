@@ -1,6 +1,6 @@
 """ONNX export of slipsense models, and of the two streaming parts the live detector runs.
 
-    >>> from slipsense.export import export_onnx
+    >>> from slipsense.streaming.export import export_onnx
     >>> result = export_onnx("models/vivit-gelsight.safetensors", "vivit.onnx")   # doctest: +SKIP
     >>> result.paths      # {"model": vivit.onnx, "frame": vivit.frame.onnx, "window": vivit.window.onnx}
 
@@ -8,7 +8,7 @@ Files (inputs float32; ``B``/``N`` is the batch axis, dynamic unless ``batch`` i
 
 * ``model``  — the whole network: ``video`` ``(B, T, 3, H, W)`` in [0, 1], BGR (ViViT, 3D ResNet) or
   ``markers`` ``(B, T, M, 3)`` mm (STNet, TemNet) -> ``logits`` ``(B, 2)``.
-* ``frame``  — streaming frame part (see :mod:`slipsense.live`): ViViT ``frames`` ``(N, 3, H, W)`` ->
+* ``frame``  — streaming frame part (see :mod:`slipsense.streaming.detector`): ViViT ``frames`` ``(N, 3, H, W)`` ->
   ``tokens`` ``(N, T, dim)`` (the frame encoded at every window slot); STNet/TemNet ``clouds``
   ``(N, M, 3)`` -> ``tokens`` ``(N, d_model)``.
 * ``window`` — streaming window part: ``tokens`` ``(B, T, dim | d_model)`` -> ``logits`` ``(B, 2)``.

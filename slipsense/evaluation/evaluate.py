@@ -13,7 +13,7 @@ from torch import nn
 from torch.utils.data import DataLoader, Dataset, Subset
 
 from slipsense.atomic import write_text
-from slipsense.distributed import Dist
+from slipsense.training.distributed import Dist
 from slipsense.errors import ConfigError, InputError
 
 
@@ -70,7 +70,7 @@ def evaluate_model(
     """Metrics of ``model`` on a Dataset of ``(x, y)``: accuracy, precision, recall, F1, counts,
     confusion matrix; optionally written to ``json_out`` and drawn to ``png``."""
     from slipsense.plots import plot_confusion
-    from slipsense.metrics import metrics_from
+    from slipsense.evaluation.metrics import metrics_from
 
     if len(data) == 0:
         raise InputError(None, "nothing to evaluate: the data set is empty")

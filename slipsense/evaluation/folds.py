@@ -21,16 +21,9 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from slipsense import atomic
-from slipsense.grasp_train import (
-    GraspTrainConfig,
-    finish_training,
-    fit_job,
-    fold_result,
-    job_weight,
-    object_split,
-    plan_training,
-    pool_folds,
-)
+from slipsense.evaluation.grasp_scores import fold_result, pool_folds
+from slipsense.training.grasp_detector import finish_training, fit_job, job_weight, object_split, plan_training
+from slipsense.training.grasps import GraspTrainConfig
 from slipsense.recordings.runs import GraspRun, runs_summary
 
 
@@ -55,9 +48,9 @@ def run_folds(
     """Run (or resume) the leave-objects-out evaluation into ``out``; returns the pooled report.
 
     Every training of the folds not yet done (each fold's detector and its inner folds') goes to
-    one pool of ``workers`` processes (default one per core, :mod:`slipsense.parallel`); a fold is
+    one pool of ``workers`` processes (default one per core, :mod:`slipsense.training.parallel`); a fold is
     written as soon as its trainings are finished."""
-    from slipsense.parallel import run_jobs
+    from slipsense.training.parallel import run_jobs
 
     out = Path(out)
     usable = [r for r in runs if r.usable]
@@ -118,7 +111,7 @@ def run_folds(
     }
     atomic.write_text(out / "folds.json", json.dumps(_json_safe(report), indent=1))
     atomic.write_text(out / "README.md", summary_markdown(report))
-    from slipsense.early_warning import plot_tradeoff
+    from slipsense.evaluation.early_warning import plot_tradeoff
 
     plot_tradeoff(
         pooled["curve"],

@@ -1,4 +1,4 @@
-"""Pool the held-out evaluations of cross-validation folds: ``python -m slipsense.folds RUN... --json OUT``.
+"""Pool the held-out evaluations of cross-validation folds: ``python -m slipsense.evaluation.clip_folds RUN... --json OUT``.
 
 Each run folder holds ``evaluation.json`` (written by ``slipsense train``); the pooled scores come
 from the summed confusion matrices, so every held-out clip counts once.
@@ -14,7 +14,7 @@ import numpy as np
 
 from slipsense.atomic import write_text
 from slipsense.errors import InputError
-from slipsense.metrics import scores
+from slipsense.evaluation.metrics import scores
 
 
 def pool(run_dirs: list[Path]) -> dict:

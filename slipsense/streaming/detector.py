@@ -11,11 +11,11 @@ detector's own: the operating point (threshold, debounce), combining sensors, fr
 the readings. Nothing here depends on the kind of model.
 
 Backends: ``"torch"`` runs the stream's modules as PyTorch modules; ``"onnx"`` exports them once
-(:mod:`slipsense.export`, cached under ``<cache_root>/onnx``) and runs them on ONNX Runtime.
+(:mod:`slipsense.streaming.export`, cached under ``<cache_root>/onnx``) and runs them on ONNX Runtime.
 Heat maps (:meth:`SlipDetector.heatmap`) always use the PyTorch model.
 
 :meth:`SlipDetector.replay` computes the same probabilities for whole recordings at once: what
-:mod:`slipsense.early_warning` and the evaluation use.
+:mod:`slipsense.evaluation.early_warning` and the evaluation use.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from slipsense.errors import ConfigError, InputError
 from slipsense.models.base import SlipModel, window_geometry
 from slipsense.models.streams import slip_probability
 from slipsense.resources import shipped_model
-from slipsense.runners import BACKENDS, DTYPES, onnx_cache_dir
+from slipsense.streaming.runners import BACKENDS, DTYPES, onnx_cache_dir
 from slipsense.sensors.spec import GELSIGHT_MINI
 
 #: Frame rate of the GelSight recordings (frames per second): converts frames to milliseconds.
@@ -78,7 +78,7 @@ class Trace:
     @property
     def alarm(self) -> np.ndarray:
         """``(N,)`` bool: probability >= threshold for ``debounce`` frames in a row (NaN: no answer yet)."""
-        from slipsense.pergrasp import debounce
+        from slipsense.evaluation.pergrasp import debounce
 
         return debounce(self.probability, self.threshold, self.debounce)
 

@@ -171,7 +171,7 @@ def train(
     the resolved tree is stored in every checkpoint and written to OUT/config.yaml."""
     from slipsense.atomic import check_output_dir
     from slipsense.run_config import empty_tree, given, load_tree, merge, parse_sets
-    from slipsense.train import TrainRequest, run_training
+    from slipsense.training.clips import TrainRequest, run_training
 
     check_output_dir(out, "--out")
     options = {
@@ -210,7 +210,7 @@ def train(
 
     name = tree["model"].get("name") or TrainRequest.model
     if name in available() and model_class(name).training_task == "grasps":
-        from slipsense.cli_grasp import train_from_tree
+        from slipsense.cli.grasp import train_from_tree
 
         held, fold, folds = _grasp_split(tree, name)
         train_from_tree(tree, out, held=held, fold=fold, folds=folds, progress=progress, resume=resume)
@@ -241,7 +241,7 @@ def _grasp_split(tree, name: str):
         )
     if data.get("size") is not None:
         tree["model"]["image_size"] = list(data.pop("size"))
-    from slipsense.grasp_train import GraspTrainConfig
+    from slipsense.training.grasps import GraspTrainConfig
     from slipsense.models import model_class, settings_of
 
     model_keys = settings_of(model_class(name)) | {"name"}
@@ -276,7 +276,7 @@ def evaluate(
     premature, missed, false-positive grasps), a clip or marker model per clip (accuracy, precision,
     recall, F1 and a confusion matrix)."""
     from slipsense.atomic import check_output_file
-    from slipsense.evaluation import evaluate_checkpoint
+    from slipsense.evaluation.evaluate import evaluate_checkpoint
 
     if checkpoint is None:
         from slipsense.resources import shipped_model
@@ -328,7 +328,7 @@ def _register_extensions() -> None:
     """Commands defined beside their subsystems (live detection, export, sensors, experiments)."""
     import importlib
 
-    for mod in ("slipsense.cli_live", "slipsense.cli_sensors", "slipsense.cli_experiments", "slipsense.cli_grasp"):
+    for mod in ("slipsense.cli.live", "slipsense.cli.sensors", "slipsense.cli.experiments", "slipsense.cli.grasp"):
         try:
             importlib.import_module(mod).register(app)
         except ModuleNotFoundError as exc:

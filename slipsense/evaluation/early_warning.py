@@ -1,8 +1,8 @@
 """Early warning: replay recordings through a streaming detector and judge it per grasp.
 
 Every run is replayed from its first frame with all its cameras, exactly as the live detector
-would see it (:meth:`slipsense.live.SlipDetector.replay`), then scored with
-:mod:`slipsense.pergrasp`: slips warned in time (first alarm within ``horizon`` frames before the
+would see it (:meth:`slipsense.streaming.detector.SlipDetector.replay`), then scored with
+:mod:`slipsense.evaluation.pergrasp`: slips warned in time (first alarm within ``horizon`` frames before the
 moment of slip), premature and missed; grasps that held yet alarmed; alarms while no gel is
 touched. One row per alarm threshold, at the detector's debounce.
 
@@ -23,7 +23,7 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from slipsense import pergrasp
+from slipsense.evaluation import pergrasp
 from slipsense.errors import ConfigError, InputError
 from slipsense.sensors.spec import GELSIGHT_MINI
 
@@ -80,7 +80,7 @@ def replay_recordings(
     """Replay every run (all cameras of an experiment as the detector's sensors) through ``detector``.
 
     Args:
-        detector: a :class:`~slipsense.live.SlipDetector` on video frames; ``sensors`` = cameras per run.
+        detector: a :class:`~slipsense.streaming.detector.SlipDetector` on video frames; ``sensors`` = cameras per run.
         recordings: :class:`~slipsense.recordings.types.Recording` s (``find_recordings``).
         labels: ``{(object, experiment, camera): VideoLabel}``; default: the automatic labels with
             ``overrides`` (:func:`slipsense.data.label_runs`).

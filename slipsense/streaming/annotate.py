@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 
 from slipsense.errors import InputError
-from slipsense.live import FPS, Reading
+from slipsense.streaming.detector import FPS, Reading
 
 #: Seconds of probability history the trace panel shows.
 TRACE_SECONDS = 6.0

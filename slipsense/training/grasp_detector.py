@@ -1,0 +1,247 @@
+"""A grasp detector as users get it: its trainings planned (the detector itself and the inner folds
+that choose its operating point), run side by side (:mod:`slipsense.training.parallel`), and written
+as one checkpoint with its operating point, metrics and curves.
+
+:func:`train_detector` is what ``slipsense train --model motionnet`` and ``slipsense grasp train``
+run; :func:`plan_training` / :func:`fit_job` / :func:`finish_training` are its parts, which
+``slipsense grasp folds`` runs for every fold in one pool (:mod:`slipsense.evaluation.folds`).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from slipsense.errors import ConfigError
+from slipsense.evaluation import pergrasp
+from slipsense.evaluation.grasp_scores import evaluate_held_out
+from slipsense.recordings.runs import GraspRun
+from slipsense.training.grasps import GraspTrainConfig, fit_runs, predict_runs
+
+
+def object_split(runs: Sequence[GraspRun], folds: int, seed: int = 0) -> list[list[str]]:
+    """Objects of ``runs`` in ``folds`` folds (:func:`slipsense.recordings.clips.object_folds`)."""
+    from slipsense.recordings.clips import object_folds
+
+    return object_folds({r.object for r in runs}, folds, seed)
+
+
+@dataclass(frozen=True)
+class FitJob:
+    """One training of a plan (:func:`plan_training`): runs named by index into a shared list."""
+
+    train: tuple[int, ...]
+    predict: tuple[int, ...]  # runs replayed by the trained model
+    keep_model: bool = False  # return the weights (the detector itself, not an inner-fold one)
+    state_path: str | None = None  # where the training keeps its resume state (None: nowhere)
+
+
+def fit_job(shared: tuple[Sequence[GraspRun], GraspTrainConfig], job: FitJob, tick=lambda units: None):
+    """Run one :class:`FitJob` (in this process or a worker, :func:`slipsense.training.parallel.run_jobs`):
+    ``{"history", "probs" (per predicted run), "state" (weights, when kept)}``; ticks
+    ``len(job.train)`` units per epoch."""
+    runs, cfg = shared
+    model, history = fit_runs(
+        [runs[i] for i in job.train],
+        cfg,
+        progress=False,
+        on_epoch=lambda _: tick(len(job.train)),
+        state_path=job.state_path,
+    )
+    probs = predict_runs(model, [runs[i] for i in job.predict])
+    state = {k: v.detach().clone() for k, v in model.state_dict().items()} if job.keep_model else None
+    return {"history": history, "probs": probs, "state": state}
+
+
+def job_weight(job: FitJob, cfg: GraspTrainConfig) -> float:
+    """Progress units :func:`fit_job` ticks in all."""
+    return float(len(job.train) * cfg.epochs)
+
+
+def plan_training(runs: Sequence[GraspRun], held: Sequence[str], cfg: GraspTrainConfig) -> list[FitJob]:
+    """The trainings behind one detector: first the detector on every usable run whose object is not
+    in ``held`` (replaying the held-out objects' runs), then one per inner fold of those training
+    objects (each replaying its own held-out runs), which choose the operating point. Indices are
+    into ``runs``."""
+    usable = [i for i, r in enumerate(runs) if r.usable]
+    train = tuple(i for i in usable if runs[i].object not in set(held))
+    jobs = [FitJob(train, tuple(i for i in usable if runs[i].object in set(held)), keep_model=True)]
+    if cfg.inner_folds:
+        for inner in object_split([runs[i] for i in train], cfg.inner_folds, cfg.folds_seed):
+            jobs.append(
+                FitJob(
+                    tuple(i for i in train if runs[i].object not in inner),
+                    tuple(i for i in train if runs[i].object in inner),
+                )
+            )
+    return jobs
+
+
+def finish_training(
+    runs: Sequence[GraspRun], jobs: Sequence[FitJob], results: Sequence[dict[str, Any]], cfg: GraspTrainConfig
+):
+    """From a finished :func:`plan_training`: ``(model in eval mode, history, operating point,
+    P(slip) traces of the held-out runs)``. The operating point is chosen on the inner folds'
+    out-of-fold traces (or, with ``inner_folds=0``, on the model's own traces of its training runs)."""
+    from slipsense.models import build
+
+    model = build(cfg.model, **cfg.model_config)
+    model.load_state_dict(results[0]["state"])
+    model.eval()
+    train = [runs[i] for i in jobs[0].train]
+    if cfg.inner_folds:
+        by_index = {i: p for job, res in zip(jobs[1:], results[1:]) for i, p in zip(job.predict, res["probs"])}
+        probs = [by_index[i] for i in jobs[0].train]
+    else:
+        probs = predict_runs(model, train)
+    return model, results[0]["history"], _chosen_operating_point(probs, train, cfg), results[0]["probs"]
+
+
+def train_with_operating_point(
+    runs: Sequence[GraspRun],
+    held: Sequence[str],
+    cfg: GraspTrainConfig,
+    workers: int | None = 1,
+    progress: bool = False,
+    state_dir=None,
+):
+    """Train a detector on the runs of every object but ``held`` and choose its operating point on
+    those runs only (:func:`plan_training` on ``workers`` processes); returns :func:`finish_training`'s
+    ``(model, history, operating point, held-out traces)``. ``state_dir``: each training keeps its
+    resume state there (``job<k>.state``) and continues from one it finds (:func:`fit_runs`)."""
+    import dataclasses
+
+    from slipsense.training.parallel import run_jobs
+
+    jobs = plan_training(runs, held, cfg)
+    if state_dir is not None:
+        Path(state_dir).mkdir(parents=True, exist_ok=True)
+        jobs = [dataclasses.replace(j, state_path=str(Path(state_dir) / f"job{k}.state")) for k, j in enumerate(jobs)]
+    if not jobs[0].train:
+        raise ConfigError("no usable training runs (every run excluded, or slip runs without a moment)")
+    results = run_jobs(
+        fit_job, jobs, (runs, cfg), workers, [job_weight(j, cfg) for j in jobs], progress=progress, desc=cfg.model
+    )
+    return finish_training(runs, jobs, results, cfg)
+
+
+def operating_point(
+    runs: Sequence[GraspRun], cfg: GraspTrainConfig, progress: bool = False, model=None, workers: int | None = 1
+) -> dict[str, Any]:
+    """The alarm threshold and debounce for a model trained on ``runs``, chosen on those runs only:
+    on out-of-fold predictions of ``cfg.inner_folds`` inner folds by object (each inner model trained
+    like the outer one), or, with ``inner_folds=0``, on ``model``'s own predictions of ``runs``."""
+    usable = [r for r in runs if r.usable]
+    if cfg.inner_folds == 0:
+        if model is None:
+            raise ConfigError("inner_folds=0 needs the trained model")
+        probs = predict_runs(model, usable)
+    else:
+        from slipsense.training.parallel import run_jobs
+
+        jobs = plan_training(usable, (), cfg)[1:]
+        results = run_jobs(fit_job, jobs, (usable, cfg), workers, [job_weight(j, cfg) for j in jobs], progress=progress)
+        by_index = {i: p for job, res in zip(jobs, results) for i, p in zip(job.predict, res["probs"])}
+        probs = [by_index[i] for i in range(len(usable))]
+    return _chosen_operating_point(probs, usable, cfg)
+
+
+def _chosen_operating_point(probs: Sequence[np.ndarray], runs: Sequence[GraspRun], cfg: GraspTrainConfig) -> dict:
+    """The threshold and debounce that best separate ``runs``' slips from their held grasps, and on what."""
+    op = pergrasp.choose_operating_point(probs, [r.moment_of_slip for r in runs], horizon=cfg.horizon)
+    op["chosen_on"] = (
+        f"{cfg.inner_folds} inner folds of the training objects" if cfg.inner_folds else "the training runs themselves"
+    )
+    return op
+
+
+def _checkpoint_info(
+    cfg: GraspTrainConfig,
+    op: dict[str, Any],
+    runs: Sequence[GraspRun],
+    data: dict[str, Any],
+    history: list[dict[str, Any]],
+) -> dict[str, Any]:
+    data = dict(data)
+    tree = data.pop("config", None)  # the whole configuration tree, where every checkpoint keeps it
+    from slipsense.sensors.spec import GELSIGHT_MINI
+
+    return {
+        "train_config": cfg.to_dict(),
+        "sensor": GELSIGHT_MINI.to_dict(),  # grasps are read from GelSight recording folders
+        "operating_point": op,
+        "history": history,
+        "data": {**data, "objects": sorted({r.object for r in runs}), "runs": len(runs)},
+        **({"config": tree} if tree is not None else {}),
+    }
+
+
+def train_detector(
+    runs: Sequence[GraspRun],
+    labels: dict,
+    cfg: GraspTrainConfig,
+    out,
+    held: Sequence[str] = (),
+    data: dict[str, Any] | None = None,
+    progress: bool = True,
+    workers: int | None = None,
+    resume: bool = False,
+) -> dict[str, Any]:
+    """Train a detector on every run whose object is not in ``held``, choose its operating point on
+    those runs (inner folds, trained beside it on ``workers`` processes, default one per core), and
+    write ``out/detector.safetensors`` (weights, full config, operating point), ``metrics.csv`` and
+    ``curves.png``; with ``held`` objects, also ``held_out.json`` (their per-grasp outcomes and clip
+    metrics, never used for any choice).
+
+    Every training keeps its state in ``out/resume/`` after each epoch; ``resume=True`` continues
+    from there (a killed run ends with the weights of an uninterrupted one), else it starts afresh."""
+    from slipsense import atomic
+    from slipsense.checkpoint import save_checkpoint
+
+    out = Path(out)
+    state_dir = out / "resume"
+    if not resume and state_dir.is_dir():
+        for stale in state_dir.glob("job*.state"):
+            stale.unlink()
+    usable = [r for r in runs if r.usable]
+    train = [r for r in usable if r.object not in set(held)]
+    unknown = sorted(set(held) - {r.object for r in usable})
+    if unknown:
+        raise ConfigError(f"held-out objects without usable runs: {', '.join(unknown)}")
+    model, history, op, held_probs = train_with_operating_point(runs, held, cfg, workers, progress, state_dir)
+    info = _checkpoint_info(cfg, op, train, {**(data or {}), "held_out_objects": sorted(held)}, history)
+    path = save_checkpoint(out / "detector.safetensors", model, info)
+    _write_history(out, history)
+    result = {"checkpoint": str(path), "operating_point": op, "history": history}
+    if held:
+        test = [r for r in usable if r.object in set(held)]
+        fold = evaluate_held_out(held_probs, op, test, labels, cfg.horizon)
+        atomic.write_text(out / "held_out.json", json.dumps({"objects": sorted(held), **fold}, indent=1))
+        result.update(fold)
+    return result
+
+
+def _write_history(out, history: list[dict[str, Any]]) -> None:
+    import csv
+    import io
+
+    from slipsense import atomic
+    from slipsense.plots import _plt, save_figure
+
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=list(history[0]), lineterminator="\n")
+    w.writeheader()
+    w.writerows(history)
+    atomic.write_text(out / "metrics.csv", buf.getvalue())
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(5.2, 3.4))
+    ax.plot([h["epoch"] for h in history], [h["loss"] for h in history], marker=".", label="loss (weighted)")
+    ax.plot([h["epoch"] for h in history], [h["frame_accuracy"] for h in history], marker=".", label="frame accuracy")
+    ax.set_xlabel("epoch")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    save_figure(fig, out / "curves.png")
