@@ -178,7 +178,7 @@ def evaluate(
         if checkpoint is None
         else SlipDetector.from_checkpoint(checkpoint, sensors=sensors, threshold=threshold, debounce=debounce)
     )
-    recs = validate_recordings(find_recordings(root), expected_size=None)
+    recs = validate_recordings(find_recordings(root, sensor=detector.sensor), expected_size=None)
     seen = sorted(trained_on & {r.object for r in recs})
     if seen:
         warnings.warn(

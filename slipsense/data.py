@@ -25,15 +25,18 @@ def gelsight_clips(
     on_error: str = "raise",
     overrides: str | Path | None = None,
     progress: bool = True,
+    sensor=None,
 ):
     """Labelled clips of every video under ``recordings_dir`` (labels and clips are cached).
 
-    Returns ``(clipset, labels)``; ``spec`` is a :class:`~slipsense.recordings.clips.ClipSpec`.
+    Returns ``(clipset, labels)``; ``spec`` is a :class:`~slipsense.recordings.clips.ClipSpec`;
+    ``sensor`` (default the GelSight Mini) names the folder layout.
     """
     from slipsense.recordings.clips import load_or_build_clips
     from slipsense.recordings.folders import find_recordings, validate_recordings
+    from slipsense.sensors.spec import GELSIGHT_MINI
 
-    recordings = find_recordings(recordings_dir, on_error=on_error)
+    recordings = find_recordings(recordings_dir, on_error=on_error, sensor=sensor or GELSIGHT_MINI)
     # any frame size: clips are resized to the spec's size, as grasps and the live detector resize
     recordings = validate_recordings(recordings, on_error=on_error, expected_size=None)
     if not recordings:

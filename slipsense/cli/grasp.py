@@ -67,7 +67,7 @@ def prepare_tree(tree, progress: bool = True, threads: int | None = None, out=No
     train_keys = set(GraspTrainConfig.__dataclass_fields__) - {"model", "model_config"}
     check_keys(
         tree,
-        {"train": train_keys, "data": ("recordings", "overrides", "on_error"), "model": None},
+        {"train": train_keys, "data": ("recordings", "overrides", "on_error", "sensor"), "model": None},
         "grasp configuration",
     )
     name = tree["model"].pop("name", "motionnet")
@@ -80,7 +80,12 @@ def prepare_tree(tree, progress: bool = True, threads: int | None = None, out=No
     root = resolve_path(tree["data"].get("recordings") or _default_recordings())
     overrides = tree["data"].get("overrides")
     overrides = resolve_path(overrides) if overrides is not None else None
-    runs, labels = load_grasp_data(root, overrides, image_size, tree["data"].get("on_error", "raise"), progress)
+    from slipsense.sensors.spec import GELSIGHT_MINI, sensor_named
+
+    sensor = sensor_named(tree["data"]["sensor"]) if tree["data"].get("sensor") else GELSIGHT_MINI
+    runs, labels = load_grasp_data(
+        root, overrides, image_size, tree["data"].get("on_error", "raise"), progress, sensor=sensor
+    )
     from slipsense.models import build
 
     sensors = build(name, **cfg.model_config).sensors
@@ -96,6 +101,7 @@ def prepare_tree(tree, progress: bool = True, threads: int | None = None, out=No
         "overrides": None if overrides is None else portable_path(overrides),
         "image_size": list(image_size),
         "sensors_per_grasp": sensors,
+        "sensor": sensor.to_dict(),
         "config": to_plain(tree),
     }
     return cfg, runs, labels, data

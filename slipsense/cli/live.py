@@ -77,7 +77,7 @@ class Source:
             self._close()
 
 
-def open_source(source: str, kind: str, markers: int | None = None) -> Source:
+def open_source(source: str, kind: str, markers: int | None = None, camera_glob: str | None = None) -> Source:
     """A video file, a recordings experiment folder (its ``camera_*.avi`` videos as sensors), a
     marker ``.npy`` (``(T, M, 3)`` or ``(S, T, M, 3)`` mm) or a camera index (``0``, ``1``, ...).
 
@@ -87,11 +87,12 @@ def open_source(source: str, kind: str, markers: int | None = None) -> Source:
     from slipsense.recordings.folders import CAMERA_GLOB
     from slipsense.recordings.video import read_video
 
+    camera_glob = camera_glob or CAMERA_GLOB  # the sensor's camera files (the GelSight study's by default)
     path = Path(source)
     if path.is_dir():
-        cams = sorted(p for p in path.glob(CAMERA_GLOB) if p.is_file())
+        cams = sorted(p for p in path.glob(camera_glob) if p.is_file())
         if not cams:
-            raise InputError(path, f"folder holds no {CAMERA_GLOB} videos (expected a recordings experiment folder)")
+            raise InputError(path, f"folder holds no {camera_glob} videos (expected a recordings experiment folder)")
         videos = [read_video(p, expected_size=None, min_frames=1) for p in cams]
         if len({len(v) for v in videos}) != 1:
             raise InputError(path, f"the camera videos differ in frame count: {[len(v) for v in videos]}")
@@ -189,13 +190,13 @@ def watch_source(
         ckpt = _checkpoint(None, src.sensors)
         model, info = load_model(ckpt)
     else:
+        from slipsense.sensors.spec import sensor_of
+
         ckpt = _checkpoint(checkpoint)
         model, info = load_model(ckpt)
-        src = open_source(source, model.input_kind, getattr(model, "markers", None))
+        glob = sensor_of(info, ckpt).camera_glob  # a malformed sensor spec is named with its file
+        src = open_source(source, model.input_kind, getattr(model, "markers", None), glob)
     threshold, debounce = stored_operating_point(ckpt, info, threshold, None)
-    from slipsense.sensors.spec import sensor_of
-
-    sensor_of(info, ckpt)  # a malformed sensor spec is named with its file
     try:
         det = SlipDetector(
             model,
@@ -401,9 +402,13 @@ def run_early_warning(
     from slipsense.atomic import check_output_dir
 
     check_output_dir(out, "--out")
+    from slipsense.checkpoint import read_info
+    from slipsense.sensors.spec import sensor_of
+
     ckpt = _checkpoint(checkpoint)
+    info = read_info(ckpt)
     root = Path(recordings) if recordings else gelsight_recordings()
-    recs = find_recordings(root, on_error=on_error)
+    recs = find_recordings(root, on_error=on_error, sensor=sensor_of(info, ckpt))
     per_run: dict[tuple[str, int], int] = {}
     for r in recs:
         per_run[(r.object, r.experiment)] = per_run.get((r.object, r.experiment), 0) + 1
@@ -413,9 +418,7 @@ def run_early_warning(
     lab = read_labels_csv(labels) if labels is not None else None
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # a checkpoint without a threshold: the table covers thresholds anyway
-        from slipsense.checkpoint import read_info
-
-        fixed = read_info(ckpt)["model_config"].get("sensors")  # a model trained on so many fingers
+        fixed = info["model_config"].get("sensors")  # a model trained on so many fingers
         det = SlipDetector.from_checkpoint(
             ckpt, sensors=fixed or counts[0], combine=combine, backend=backend, dtype=dtype, debounce=debounce
         )

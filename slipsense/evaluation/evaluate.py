@@ -135,7 +135,10 @@ def evaluate_checkpoint(
     if kind == "video":
         if markers is not None:
             raise InputError(checkpoint, "this checkpoint holds a video model; use --recordings or --split-file")
+        from slipsense.sensors.spec import sensor_of
+
         data_info = info.get("data", {})
+        sensor = sensor_of(info, checkpoint)  # the recordings layout of the sensor it was trained on
         if split is not None:
             split_info = _read_split(split, "video")
             try:
@@ -148,6 +151,7 @@ def evaluate_checkpoint(
                 on_error=split_info.get("on_error") or on_error,
                 overrides=_split_overrides(split_info.get("overrides")),
                 progress=progress,
+                sensor=sensor,
             )
             idx = split_info["test_indices"]
             if max(idx) >= len(clips):
@@ -161,7 +165,12 @@ def evaluate_checkpoint(
             if "clip_spec" not in data_info:
                 raise InputError(checkpoint, "checkpoint has no clip settings (data.clip_spec)")
             clips, _ = gelsight_clips(
-                recordings, clip_spec_from(data_info), on_error=on_error, overrides=overrides, progress=progress
+                recordings,
+                clip_spec_from(data_info),
+                on_error=on_error,
+                overrides=overrides,
+                progress=progress,
+                sensor=sensor,
             )
             extra.update(recordings=portable_path(recordings), objects=sorted(set(clips.objects)))
         data = ClipDataset(clips, noise_std=noise_std, seed=0)

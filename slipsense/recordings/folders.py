@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Iterable, Literal
 
 from ..errors import ConfigError, InputError
-from ..sensors.spec import GELSIGHT_MINI
+from ..sensors.spec import GELSIGHT_MINI, SensorSpec
 from .types import Recording
 from .video import probe_video
 
@@ -55,11 +55,15 @@ def _visible_dirs(folder: Path) -> list[Path]:
     return sorted(p for p in folder.iterdir() if p.is_dir() and not p.name.startswith("."))
 
 
-def find_recordings(root: str | Path, on_error: OnError = "raise") -> list[Recording]:
+def find_recordings(
+    root: str | Path, on_error: OnError = "raise", sensor: SensorSpec = GELSIGHT_MINI
+) -> list[Recording]:
     """List every camera video under ``root``, sorted by (object, experiment, camera).
 
     Args:
         root: folder holding one sub-folder per object, e.g. ``config.gelsight_recordings()``.
+        sensor: whose folder layout to read (its ``experiment_pattern``, ``camera_glob`` and
+            ``slip_marker``; the GelSight study's by default, as the names below say).
         on_error: ``"raise"`` or ``"skip"`` for problems inside object folders: an experiment
             folder whose name does not match ``exp_num_<N>``, one without ``camera_*.avi``
             videos, an object folder without experiments, two folders naming the same experiment.
@@ -87,15 +91,22 @@ def find_recordings(root: str | Path, on_error: OnError = "raise") -> list[Recor
         raise InputError(root, "no object folders (expected <object>/exp_num_<N>/camera_*.avi)")
 
     found: list[Recording] = []
+    if not (sensor.experiment_pattern and sensor.camera_glob and sensor.slip_marker):
+        raise ConfigError(
+            f"sensor {sensor.name!r} names no recordings layout (experiment_pattern, camera_glob, slip_marker)"
+        )
     for obj_dir in objects:
-        found.extend(_object_recordings(obj_dir, on_error))
+        found.extend(_object_recordings(obj_dir, on_error, sensor))
     if not found:
         raise InputError(root, "no usable recordings found")
     found.sort(key=lambda r: r.key)
     return found
 
 
-def _object_recordings(obj_dir: Path, on_error: str) -> list[Recording]:
+def _object_recordings(obj_dir: Path, on_error: str, sensor: SensorSpec = GELSIGHT_MINI) -> list[Recording]:
+    experiment_re = re.compile(sensor.experiment_pattern)
+    camera_glob, slip_marker = sensor.camera_glob, sensor.slip_marker
+    camera_prefix = camera_glob.split("*")[0].lower()
     try:
         exp_dirs = _visible_dirs(obj_dir)
     except PermissionError:
@@ -107,9 +118,9 @@ def _object_recordings(obj_dir: Path, on_error: str) -> list[Recording]:
     out: list[Recording] = []
     seen: dict[int, Path] = {}
     for exp_dir in exp_dirs:
-        m = EXPERIMENT_RE.match(exp_dir.name)
+        m = experiment_re.match(exp_dir.name)
         if m is None:
-            report(exp_dir, "folder name does not match exp_num_<N>", on_error)
+            report(exp_dir, f"folder name does not match {sensor.experiment_pattern} (an experiment folder)", on_error)
             continue
         number = int(m.group(1))
         if number in seen:
@@ -117,21 +128,21 @@ def _object_recordings(obj_dir: Path, on_error: str) -> list[Recording]:
             report(exp_dir, f"experiment {number} also found as {seen[number].name}", on_error)
             continue
         try:
-            cameras = sorted(p for p in exp_dir.glob(CAMERA_GLOB) if p.is_file())
+            cameras = sorted(p for p in exp_dir.glob(camera_glob) if p.is_file())
         except PermissionError:
             report(exp_dir, "experiment folder is not readable (permission denied)", on_error)
             continue
         # camera_2.AVI, Camera_0.avi, camera_0.mp4: look like sensor videos but are not read;
         # say so rather than label the run from the other camera alone without a word.
         for p in sorted(exp_dir.iterdir()):
-            if p.is_file() and p.name.lower().startswith("camera_") and p not in cameras:
+            if p.is_file() and camera_prefix and p.name.lower().startswith(camera_prefix) and p not in cameras:
                 warnings.warn(
-                    f"{p}: not used (sensor videos are read from files named {CAMERA_GLOB}, lower case)",
+                    f"{p}: not used (sensor videos are read from files named {camera_glob}, lower case)",
                     SkippedInputWarning,
                     stacklevel=3,
                 )
         if not cameras:
-            report(exp_dir, f"experiment folder holds no {CAMERA_GLOB} video", on_error)
+            report(exp_dir, f"experiment folder holds no {camera_glob} video", on_error)
             continue
         if len(cameras) == 1:
             warnings.warn(
@@ -140,7 +151,7 @@ def _object_recordings(obj_dir: Path, on_error: str) -> list[Recording]:
                 stacklevel=3,
             )
         seen[number] = exp_dir
-        slipped = (exp_dir / SLIP_MARKER).exists()
+        slipped = (exp_dir / slip_marker).exists()
         out.extend(
             Recording(object=obj_dir.name, experiment=number, camera=cam.stem, path=cam, slipped=slipped)
             for cam in cameras

@@ -101,6 +101,23 @@ BINOCULAR_MARKERS = SensorSpec(name="binocular-markers", output="markers", fps=2
 SENSORS = {s.name: s for s in (GELSIGHT_MINI, BINOCULAR_MARKERS)}
 
 
+def register_sensor(spec: SensorSpec) -> SensorSpec:
+    """Make ``spec`` known by its name (``--set data.sensor=NAME``; checkpoints carry the spec itself)."""
+    if not isinstance(spec, SensorSpec):
+        raise TypeError(f"register_sensor takes a SensorSpec, got {type(spec).__name__}")
+    SENSORS[spec.name] = spec
+    return spec
+
+
+def sensor_named(name: str) -> SensorSpec:
+    """The registered sensor ``name``; ConfigError listing the known ones otherwise."""
+    if name not in SENSORS:
+        from slipsense.errors import ConfigError
+
+        raise ConfigError(f"unknown sensor {name!r}; known: {', '.join(sorted(SENSORS))}")
+    return SENSORS[name]
+
+
 def sensor_of(info: Mapping[str, Any] | None, path: Any = None) -> SensorSpec:
     """The sensor a checkpoint was trained on (its ``info["sensor"]``). Checkpoints written before
     the sensor travelled with the model get the sensor of their data: the binocular marker sensor for
@@ -118,4 +135,12 @@ def sensor_of(info: Mapping[str, Any] | None, path: Any = None) -> SensorSpec:
         raise InputError(path, f"checkpoint sensor spec is malformed ({exc})") from None
 
 
-__all__ = ["BINOCULAR_MARKERS", "GELSIGHT_MINI", "SENSORS", "SensorSpec", "sensor_of"]
+__all__ = [
+    "BINOCULAR_MARKERS",
+    "GELSIGHT_MINI",
+    "SENSORS",
+    "SensorSpec",
+    "register_sensor",
+    "sensor_named",
+    "sensor_of",
+]

@@ -355,6 +355,7 @@ class TrainRequest:
     seed: int = 0
     on_error: str = "raise"
     overrides: Path | None = None  # CSV of hand labels replacing automatic moments of slip
+    sensor: str | None = None  # a registered sensor's name (its recordings layout); None: the GelSight Mini
     progress: bool = True
     train_overrides: dict[str, Any] = field(default_factory=dict)
 
@@ -374,6 +375,7 @@ class TrainRequest:
         "augment",
         "on_error",
         "overrides",
+        "sensor",
     )
 
     @classmethod

@@ -166,13 +166,14 @@ def _checkpoint_info(
     data: dict[str, Any],
     history: list[dict[str, Any]],
 ) -> dict[str, Any]:
-    data = dict(data)
-    tree = data.pop("config", None)  # the whole configuration tree, where every checkpoint keeps it
     from slipsense.sensors.spec import GELSIGHT_MINI
 
+    data = dict(data)
+    tree = data.pop("config", None)  # the whole configuration tree, where every checkpoint keeps it
+    sensor = data.pop("sensor", None) or GELSIGHT_MINI.to_dict()  # the sensor whose recordings it read
     return {
         "train_config": cfg.to_dict(),
-        "sensor": GELSIGHT_MINI.to_dict(),  # grasps are read from GelSight recording folders
+        "sensor": sensor,
         "operating_point": op,
         "history": history,
         "data": {**data, "objects": sorted({r.object for r in runs}), "runs": len(runs)},

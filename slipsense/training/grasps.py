@@ -342,14 +342,23 @@ def make_config(model: str, settings: dict[str, Any], size: tuple[int, int] | No
 
 
 def load_grasp_data(
-    recordings, overrides=None, image_size: tuple[int, int] = (30, 40), on_error: str = "raise", progress: bool = True
+    recordings,
+    overrides=None,
+    image_size: tuple[int, int] = (30, 40),
+    on_error: str = "raise",
+    progress: bool = True,
+    sensor=None,
 ) -> tuple[list[GraspRun], dict]:
-    """Labelled whole runs of a recordings folder (``(runs, labels)``), labels with overrides."""
+    """Labelled whole runs of a recordings folder (``(runs, labels)``), labels with overrides;
+    ``sensor`` (a :class:`~slipsense.sensors.spec.SensorSpec`, default the GelSight Mini) names the
+    folder layout."""
     from slipsense.data import label_runs
     from slipsense.recordings.folders import find_recordings, validate_recordings
     from slipsense.recordings.runs import load_runs
+    from slipsense.sensors.spec import GELSIGHT_MINI
 
-    recs = validate_recordings(find_recordings(recordings, on_error=on_error), on_error=on_error, expected_size=None)
+    found = find_recordings(recordings, on_error=on_error, sensor=sensor or GELSIGHT_MINI)
+    recs = validate_recordings(found, on_error=on_error, expected_size=None)
     if not recs:
         from slipsense.errors import InputError
 

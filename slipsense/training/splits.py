@@ -36,7 +36,12 @@ def prepare_data(req, kind: str):
         if req.size is not None:
             spec_kw["size"] = req.size
         spec = ClipSpec(**spec_kw)
-        clips, _ = gelsight_clips(root, spec, on_error=req.on_error, overrides=req.overrides, progress=req.progress)
+        from slipsense.sensors.spec import GELSIGHT_MINI, sensor_named
+
+        sensor = sensor_named(req.sensor) if req.sensor else GELSIGHT_MINI
+        clips, _ = gelsight_clips(
+            root, spec, on_error=req.on_error, overrides=req.overrides, progress=req.progress, sensor=sensor
+        )
         if req.split == "all":  # a model to ship: every clip trains, nothing is held out
             tr, te = np.arange(len(clips)), np.zeros(0, np.int64)
             test_objects = []
@@ -79,10 +84,7 @@ def prepare_data(req, kind: str):
         }
         train = ClipDataset(clips.subset(tr), AugmentConfig(enabled=req.augment), seed=req.seed)
         test = ClipDataset(clips.subset(te))
-        from slipsense.sensors.spec import GELSIGHT_MINI
-
-        sensor = GELSIGHT_MINI.to_dict()
-        return train, test, split_info, {"frames": req.frames, "image_size": size, "sensor": sensor}
+        return train, test, split_info, {"frames": req.frames, "image_size": size, "sensor": sensor.to_dict()}
     if kind == "markers":
         from slipsense.data import load_markers, split_groups
 
