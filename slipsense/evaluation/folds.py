@@ -22,7 +22,14 @@ from typing import Any, Sequence
 
 from slipsense import atomic
 from slipsense.evaluation.grasp_scores import fold_result, pool_folds
-from slipsense.training.grasp_detector import finish_training, fit_job, job_weight, object_split, plan_training
+from slipsense.training.grasp_detector import (
+    finish_training,
+    fit_job,
+    inner_traces,
+    job_weight,
+    object_split,
+    plan_training,
+)
 from slipsense.training.grasps import GraspTrainConfig
 from slipsense.recordings.runs import GraspRun, runs_summary
 
@@ -79,6 +86,10 @@ def run_folds(
             "config_key": key,
             "fold": k,
             **fold_result(test, probs, op, history, labels, split[k], cfg),
+            # what chose the operating point, kept so another rule can be chosen on it later
+            "inner": _traces([usable[i] for i in plans[k][0].train], inner_traces(plans[k], ordered))
+            if cfg.inner_folds
+            else [],
             "seconds": round(time.perf_counter() - t0, 1),  # since the pool started: folds share it
         }
         atomic.write_text(out / f"fold{k}.json", json.dumps(done[k]))
@@ -119,6 +130,20 @@ def run_folds(
         title=f"{cfg.model}: {folds} folds by object, pooled (labels: thresholds)",
     )
     return report
+
+
+def _traces(runs: Sequence[GraspRun], probs) -> list[dict[str, Any]]:
+    """Runs with their P(slip) traces, compactly (3 decimals, None for no answer)."""
+    return [
+        {
+            "object": r.object,
+            "experiment": r.experiment,
+            "cameras": list(r.cameras),
+            "moment_of_slip": r.moment_of_slip,
+            "probability": [None if math.isnan(v) else round(float(v), 3) for v in p],
+        }
+        for r, p in zip(runs, probs)
+    ]
 
 
 def _echo_fold(echo, k: int, held: Sequence[str], done: dict[str, Any], resumed: bool = False) -> None:

@@ -93,12 +93,15 @@ def finish_training(
     model.load_state_dict(results[0]["state"])
     model.eval()
     train = [runs[i] for i in jobs[0].train]
-    if cfg.inner_folds:
-        by_index = {i: p for job, res in zip(jobs[1:], results[1:]) for i, p in zip(job.predict, res["probs"])}
-        probs = [by_index[i] for i in jobs[0].train]
-    else:
-        probs = predict_runs(model, train)
+    probs = inner_traces(jobs, results) if cfg.inner_folds else predict_runs(model, train)
     return model, results[0]["history"], _chosen_operating_point(probs, train, cfg), results[0]["probs"]
+
+
+def inner_traces(jobs: Sequence[FitJob], results: Sequence[dict[str, Any]]) -> list[np.ndarray]:
+    """The out-of-fold P(slip) traces of the detector's training runs (``jobs[0].train``, in that
+    order), each from the inner-fold model that did not train on its object."""
+    by_index = {i: p for job, res in zip(jobs[1:], results[1:]) for i, p in zip(job.predict, res["probs"])}
+    return [by_index[i] for i in jobs[0].train]
 
 
 def train_with_operating_point(
