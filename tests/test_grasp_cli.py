@@ -230,3 +230,20 @@ def test_train_model_motionnet_refuses_clip_options(tmp_path, grasps):
         ["train", "--model", "motionnet", "--recordings", str(grasps), "--frames", "5", "--out", str(tmp_path / "r")],
     )
     assert res.exit_code == 2 and "frames" in res.output and "clip models" in res.output
+
+
+def test_grasp_training_under_torchrun_is_refused(tmp_path, grasps, monkeypatch):
+    monkeypatch.setenv("WORLD_SIZE", "2")
+    res = CliRunner().invoke(
+        app, ["train", "--model", "motionnet", "--recordings", str(grasps), "--out", str(tmp_path / "r")]
+    )
+    assert res.exit_code == 2 and "torchrun is for clip models" in res.output
+
+
+def test_python_m_slipsense_cli_runs():
+    """`torchrun ... -m slipsense.cli train ...` needs the package to run as a module."""
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-m", "slipsense.cli", "models"], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0 and "motionnet" in out.stdout, out.stderr

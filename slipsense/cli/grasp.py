@@ -128,6 +128,13 @@ def train_from_tree(
     from slipsense.training.grasp_detector import object_split, train_detector
     from slipsense.run_config import dump_tree
 
+    import os
+
+    if int(os.environ.get("WORLD_SIZE", "1")) > 1:  # every rank would train the same and write the same files
+        raise ConfigError(
+            f"{tree['model'].get('name', 'motionnet')} trains on whole grasps, one process per training "
+            "(--workers runs the detector and its inner folds side by side); torchrun is for clip models"
+        )
     cfg, runs, labels, data = prepare_tree(tree, progress, threads, out)
     held = list(held or [])
     if fold is not None:
