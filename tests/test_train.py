@@ -50,6 +50,14 @@ def test_ddp_two_processes_match_one_process(tmp_path):
     assert len(rows) == 4  # header + 3 epochs, written once (rank 0 only)
 
 
+def test_ddp_equals_one_process_for_an_odd_dataset_size(tmp_path):
+    """61 items, steps of 16: the last step's 13 items go 8 to rank 0 and 5 to rank 1, each rank's
+    loss weighted by its share, no item repeated or dropped: the weights of 1 process x 16."""
+    _run([tmp_path / "single", 16, 2, "--items=61"])
+    _run([tmp_path / "ddp", 8, 2, "--items=61"], torchrun=True)
+    _assert_same(_weights(tmp_path / "single"), _weights(tmp_path / "ddp"), atol=1e-5)
+
+
 def test_resume_after_sigkill_matches_uninterrupted(tmp_path):
     _run([tmp_path / "full", 16, 5])
     # 64 items per epoch: dies in the middle of epoch 4, after the epoch-3 checkpoint.

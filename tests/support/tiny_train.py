@@ -1,6 +1,6 @@
 """A tiny training job for the DDP and resume tests, runnable as a script (also under torchrun).
 
-    python tiny_train.py OUT_DIR BATCH_SIZE EPOCHS [KILL_AFTER_ITEMS] [--resume]
+    python tiny_train.py OUT_DIR BATCH_SIZE EPOCHS [KILL_AFTER_ITEMS] [--resume] [--items=N]
 
 Writes ``OUT_DIR/final.pt`` (the state dict) on rank 0. With KILL_AFTER_ITEMS the process
 SIGKILLs itself after reading that many training items: a kill mid-epoch, at a point that no
@@ -55,7 +55,8 @@ class Toy(Dataset):
 
 def main(argv):
     resume = "--resume" in argv
-    args = [a for a in argv if a != "--resume"]
+    items = next((int(a.split("=", 1)[1]) for a in argv if a.startswith("--items=")), 64)
+    args = [a for a in argv if a != "--resume" and not a.startswith("--items=")]
     out, batch, epochs = args[0], int(args[1]), int(args[2])
     kill_after = int(args[3]) if len(args) > 3 else None
     seed_everything(0)
@@ -63,7 +64,7 @@ def main(argv):
     cfg = TrainConfig(
         epochs=epochs, batch_size=batch, lr=1e-2, weight_decay=1e-4, step_size=2, gamma=0.5, seed=0, progress=False
     )
-    fit(model, Toy(kill_after=kill_after), Toy(16), cfg, out, resume=resume)
+    fit(model, Toy(items, kill_after=kill_after), Toy(16), cfg, out, resume=resume)
     if int(os.environ.get("RANK", "0")) == 0:
         torch.save(model.state_dict(), os.path.join(out, "final.pt"))
 
