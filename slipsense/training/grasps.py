@@ -307,15 +307,10 @@ def _predict_items(model, items) -> list[np.ndarray]:
 @torch.no_grad()
 def predict_runs(model, runs: Sequence[GraspRun]) -> list[np.ndarray]:
     """P(slip) at every frame of every run, as a replay from the first frame gives it; NaN during
-    the camera start-up (the detector does not answer there)."""
-    out = []
-    for r in runs:
-        s = pergrasp.STARTUP if r.n_frames > pergrasp.STARTUP + 1 else 0
-        p = np.full(r.n_frames, np.nan)
-        x = torch.from_numpy(r.gray[None, :, s:]).float().div_(255.0)
-        p[s:] = torch.softmax(model(x)[0], dim=-1)[:, 1].double().numpy()
-        out.append(p)
-    return out
+    the camera start-up (the detector does not answer there). The model's own stream replays them
+    (:meth:`~slipsense.models.base.SlipModel.stream`): the numbers the live detector gives."""
+    stream = model.stream()
+    return [stream.replay_cached(r.gray)[:, 0] for r in runs]
 
 
 def make_config(model: str, settings: dict[str, Any], size: tuple[int, int] | None = None) -> GraspTrainConfig:
