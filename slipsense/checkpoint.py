@@ -39,6 +39,23 @@ def save_checkpoint(path: str | Path, model: nn.Module, info: dict[str, Any]) ->
     return path
 
 
+def update_info(path: str | Path, updates: dict[str, Any]) -> Path:
+    """Rewrite a checkpoint's config with ``updates`` merged in (weights unchanged; atomic)."""
+    from safetensors import safe_open
+
+    path = Path(path)
+    with safe_open(str(path), framework="pt") as fh:
+        meta = dict(fh.metadata() or {})
+        tensors = {k: fh.get_tensor(k) for k in fh.keys()}
+    info = {**json.loads(meta[META_KEY]), **updates}
+    meta[META_KEY] = json.dumps(info)
+    from safetensors.torch import save_file
+
+    with atomic_path(path) as tmp:
+        save_file(tensors, str(tmp), metadata=meta)
+    return path
+
+
 def read_info(path: str | Path) -> dict[str, Any]:
     """The config stored in a checkpoint, without loading its weights."""
     from safetensors import safe_open

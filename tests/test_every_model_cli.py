@@ -16,6 +16,7 @@ import pytest
 from safetensors.torch import load_file
 from typer.testing import CliRunner
 
+from slipsense.checkpoint import read_info
 from slipsense.cli import app
 from slipsense.models import available, model_class
 
@@ -56,6 +57,9 @@ def test_every_model_trains_resumes_evaluates_exports_and_streams(name, tmp_path
     train = ["train", "--model", name, *sets, *data, "--epochs", 1, "--test-objects", "obj3", "--no-progress"]
     _invoke([*train, "--out", out])
     ckpt = out / ("detector.safetensors" if cls.training_task == "grasps" else "last.safetensors")
+    op = read_info(ckpt).get("operating_point")  # every detector on recordings alarms at a chosen point
+    assert (op is not None) == (cls.input_kind != "markers")
+    assert op is None or ("training" in op["chosen_on"] and 0 <= op["threshold"] <= 1)
     before = load_file(str(ckpt))
     _invoke([*train, "--out", out, "--resume"])
     after = load_file(str(ckpt))

@@ -62,6 +62,7 @@ class TrainConfig:
     progress: bool = True
     max_steps_per_epoch: int | None = None  # cap for smoke runs and tests
     accumulate: int = 1  # micro-batches per process per step: global batch = world x batch_size x accumulate
+    operating_point: bool = True  # after training, choose the alarm threshold on the training runs (video models)
 
     def __post_init__(self):
         checks = [
@@ -430,6 +431,26 @@ class TrainRequest:
         return to_plain({"model": model, "data": data, "train": {**self.train_overrides, "seed": self.seed}})
 
 
+def _store_operating_point(out: Path, split_info: dict[str, Any], req: "TrainRequest") -> None:
+    """Choose the alarm operating point on the training objects' runs and write it into the run's
+    checkpoints (:mod:`slipsense.training.operating_point`)."""
+    from slipsense.checkpoint import read_info, update_info
+    from slipsense.config import resolve_path
+    from slipsense.recordings.folders import find_recordings
+    from slipsense.sensors.spec import sensor_of
+    from slipsense.training.operating_point import choose_on_training_runs
+
+    root = resolve_path(split_info["recordings"])
+    held = set(split_info.get("test_objects") or ())
+    sensor = sensor_of(read_info(out / "last.safetensors"))
+    objects = sorted({r.object for r in find_recordings(root, on_error="skip", sensor=sensor)} - held)
+    op = choose_on_training_runs(out / "last.safetensors", root, objects, req.overrides, req.progress)
+    for name in ("last.safetensors", "best.safetensors"):
+        if (out / name).is_file():
+            update_info(out / name, {"operating_point": op})
+    print(f"operating point: threshold {op['threshold']:g}, debounce {op['debounce']} ({op['chosen_on']})")
+
+
 def build_model(name: str, preset: str | None, overrides: dict[str, Any], data_config: dict[str, Any]):
     """Build a model: preset (if any) < data-implied sizes < explicit overrides."""
     from slipsense.models import build
@@ -501,6 +522,8 @@ def run_training(req: TrainRequest, resume: bool = False) -> dict[str, Any]:
         "config": tree,
     }
     fit(model, train_data, test_data, cfg, out, info=info, resume=resume, resume_state=state)
+    if d.main and cfg.operating_point and kind == "video" and split_info.get("split") in ("objects", "all"):
+        _store_operating_point(out, split_info, req)
     if not d.main or len(test_data) == 0:
         return {}
     from slipsense.checkpoint import load_model
