@@ -169,6 +169,24 @@ def test_grasp_folds_same_results_on_one_or_two_workers(tmp_path, grasps, monkey
     for a, b in zip(*docs):
         assert a["operating_point"] == b["operating_point"] and a["history"][-1]["loss"] == b["history"][-1]["loss"]
         assert [r["probability"] for r in a["runs"]] == [r["probability"] for r in b["runs"]]
+        assert a["inner"] and len(a["inner"]) == 4  # the 4 training runs' out-of-fold traces are kept
+
+    # another operating-point rule chosen on the kept inner traces, without training
+    rep = tmp_path / "strict"
+    res = CliRunner().invoke(
+        app, ["grasp", "rechoose", str(tmp_path / "folds-1"), "--out", str(rep), "--max-held-alarm", "0"]
+    )
+    assert res.exit_code == 0, res.output
+    doc = json.loads((rep / "folds.json").read_text())
+    assert doc["train_config"]["max_held_alarm"] == 0 and "95%" in (rep / "README.md").read_text()
+    for f in doc["per_fold"]:
+        assert "0% of held grasps" in f["operating_point"]["rule"]
+    assert "warned_low" in doc["curve"][0] and (rep / "tradeoff.png").is_file()
+    old = tmp_path / "folds-1" / "fold0.json"  # a fold file written before inner traces were kept
+    fold = json.loads(old.read_text())
+    old.write_text(json.dumps({**fold, "inner": []}))
+    res = CliRunner().invoke(app, ["grasp", "rechoose", str(tmp_path / "folds-1"), "--out", str(tmp_path / "x")])
+    assert res.exit_code == 2 and "fold0.json" in res.output and "inner-fold traces" in res.output
 
 
 def _weights(path):

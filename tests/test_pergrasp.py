@@ -82,3 +82,48 @@ def test_operating_point_prefers_separating_threshold():
         probs.append(p)
     op = pergrasp.choose_operating_point(probs, moments)
     assert 0.3 <= op["threshold"] < 0.8 and op["score_on_training_runs"] == pytest.approx(1.0)
+
+
+def _peaks(slip_peak: float, held_peaks, n=200, moment=150):
+    """Traces of 0.01 with one 10-frame peak: before the moment in slip runs, mid-run in held ones."""
+    probs, moments = [], []
+    for _ in range(10):
+        p = np.full(n, 0.01)
+        p[moment - 10 : moment + 1] = slip_peak
+        probs.append(p)
+        moments.append(moment)
+    for peak in held_peaks:
+        p = np.full(n, 0.01)
+        p[80:90] = peak
+        probs.append(p)
+        moments.append(None)
+    return probs, moments
+
+
+def test_at_most_k_percent_of_held_grasps_rule():
+    held = [i / 20 for i in range(20)]  # 0 .. 0.95: the quietest held grasp never alarms above 0.95
+    probs, moments = _peaks(0.97, held)
+    op = pergrasp.choose_operating_point(probs, moments, max_held_alarm=0.05)
+    assert op["threshold"] == 0.97 and op["warned_rate_on_training_runs"] == 1.0
+    assert op["false_positive_rate_on_training_runs"] == 0.0 and "5%" in op["rule"]
+    # slips no louder than the held grasps: the rule keeps its promise and warns of nothing
+    probs, moments = _peaks(0.5, held)
+    op = pergrasp.choose_operating_point(probs, moments, max_held_alarm=0.05)
+    assert op["false_positive_rate_on_training_runs"] <= 0.05 and op["warned_rate_on_training_runs"] == 0.0
+    # an always-on detector: no point is quiet enough, the quietest is taken (still 100%)
+    on = [np.ones(200) for _ in moments]
+    op = pergrasp.choose_operating_point(on, moments, max_held_alarm=0.05)
+    assert op["false_positive_rate_on_training_runs"] == 1.0
+    with pytest.raises(Exception, match="fraction"):
+        pergrasp.choose_operating_point(probs, moments, max_held_alarm=5)
+
+
+def test_bootstrap_intervals_hold_the_rates_and_trivial_detectors_have_none():
+    probs, moments = _peaks(0.97, [i / 20 for i in range(20)])
+    rows = pergrasp.bootstrap_curve(probs, moments, [0.5, 0.97], samples=500)
+    for r in rows:
+        assert r["warned_low"] <= r["warned_rate"] <= r["warned_high"]
+        assert r["fp_low"] <= r["false_positive_rate"] <= r["fp_high"]
+    assert rows[0]["false_positive_rate"] == 0.5 and rows[0]["fp_low"] < 0.5 < rows[0]["fp_high"]  # peaks 0.5 .. 0.95
+    on = pergrasp.bootstrap_curve([np.ones(200) for _ in moments], moments, [0.5], samples=200)[0]
+    assert on["fp_low"] == on["fp_high"] == 1.0 and on["warned_low"] == on["warned_high"] == 0.0

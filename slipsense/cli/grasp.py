@@ -274,4 +274,32 @@ def register(app: typer.Typer) -> None:
             f"-> {out}/README.md"
         )
 
+    @grasp_app.command("rechoose")
+    @friendly
+    def rechoose_cmd(
+        src: Path = typer.Argument(
+            ..., help="a `slipsense grasp folds` report folder (its fold files keep inner traces)"
+        ),
+        out: Path = typer.Option(..., help="report folder to write: README.md, folds.json, tradeoff.png"),
+        max_held_alarm: Optional[float] = typer.Option(
+            0.05, help="at most this fraction of held grasps may alarm (0.05: 5%); a negative value: best score"
+        ),
+    ):
+        """Choose every fold's operating point again by another rule, on its training objects' inner
+        traces, and pool: no training (seconds)."""
+        from slipsense.atomic import check_output_dir
+        from slipsense.evaluation.folds import rechoose
+
+        check_output_dir(out, "--out")
+        k = None if max_held_alarm is not None and max_held_alarm < 0 else max_held_alarm
+        rep = rechoose(src, out, k, command=_command(), echo=typer.echo)
+        g = rep["pooled"]["per_grasp"]
+        ci = g.get("intervals", {})
+        typer.echo(
+            f"pooled: warned in time {g['warned']}/{g['slip_runs']} (95% {100 * ci.get('warned_low', float('nan')):.0f}-"
+            f"{100 * ci.get('warned_high', float('nan')):.0f}%), premature {g['premature']}; false-positive grasps "
+            f"{g['false_positive_grasps']}/{g['held_runs']} (95% {100 * ci.get('fp_low', float('nan')):.0f}-"
+            f"{100 * ci.get('fp_high', float('nan')):.0f}%) -> {out}/README.md"
+        )
+
     app.add_typer(grasp_app, name="grasp")

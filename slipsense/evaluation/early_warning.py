@@ -218,13 +218,18 @@ def _json_safe(row: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def plot_tradeoff(rows: Sequence[Mapping[str, Any]], path: str | Path, title: str = "") -> None:
-    """Slips warned in time against grasps that held yet alarmed, one labelled point per threshold."""
+    """Slips warned in time against grasps that held yet alarmed, one labelled point per threshold
+    (with 95% bootstrap intervals over runs where the rows carry them)."""
     from slipsense.plots import _plt, save_figure
 
     plt = _plt()
     fig, ax = plt.subplots(figsize=(5.2, 4.2))
     xs = [r["false_positive_rate"] for r in rows]
     ys = [r["warned_rate"] for r in rows]
+    if all("warned_low" in r for r in rows):  # bootstrap intervals over runs (pergrasp.bootstrap_curve)
+        xerr = [[x - r["fp_low"] for x, r in zip(xs, rows)], [r["fp_high"] - x for x, r in zip(xs, rows)]]
+        yerr = [[y - r["warned_low"] for y, r in zip(ys, rows)], [r["warned_high"] - y for y, r in zip(ys, rows)]]
+        ax.errorbar(xs, ys, xerr=xerr, yerr=yerr, fmt="none", ecolor="tab:blue", alpha=0.25, lw=1)
     ax.plot(xs, ys, marker="o")
     points: dict[tuple[float, float], list[float]] = {}  # thresholds landing on one point share a label
     for r, x, y in zip(rows, xs, ys):

@@ -20,6 +20,8 @@ import time
 from pathlib import Path
 from typing import Any, Sequence
 
+import numpy as np
+
 from slipsense import atomic
 from slipsense.evaluation.grasp_scores import fold_result, pool_folds
 from slipsense.training.grasp_detector import (
@@ -132,15 +134,67 @@ def run_folds(
     return report
 
 
+def rechoose(src, out, max_held_alarm: float | None, command: str = "", echo=print) -> dict[str, Any]:
+    """The folds of ``src`` (a ``slipsense grasp folds`` report) with every fold's operating point
+    chosen again by another rule, on the inner folds' traces its fold file keeps (training objects
+    only), each fold scored again on its held-out traces, pooled, written into ``out`` (README.md,
+    folds.json, tradeoff.png). No training: a rule is compared with another in seconds."""
+    from slipsense.errors import InputError
+    from slipsense.evaluation import pergrasp
+    from slipsense.evaluation.grasp_scores import fold_at
+
+    src, out = Path(src), Path(out)
+    try:
+        report = json.loads((src / "folds.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise InputError(src / "folds.json", f"is not a folds report ({exc})") from None
+    cfg = {**report["train_config"], "max_held_alarm": max_held_alarm}
+    folds = []
+    for k in range(int(report["folds"])):
+        path = src / f"fold{k}.json"
+        try:
+            fold = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, ValueError) as exc:
+            raise InputError(path, f"cannot be read ({exc})") from None
+        if not fold.get("inner"):
+            raise InputError(path, "keeps no inner-fold traces (written before they were kept, or inner_folds=0)")
+        probs = [np.array([np.nan if v is None else v for v in r["probability"]]) for r in fold["inner"]]
+        op = pergrasp.choose_operating_point(
+            probs, [r["moment_of_slip"] for r in fold["inner"]], horizon=cfg["horizon"], max_held_alarm=max_held_alarm
+        )
+        op["chosen_on"] = f"{cfg['inner_folds']} inner folds of the training objects (kept traces)"
+        folds.append(fold_at(fold, op, cfg["horizon"]))
+        _echo_fold(echo, k, fold["objects"], folds[-1])
+    pooled = pool_folds(folds)
+    new = {
+        **{k: v for k, v in report.items() if k not in ("pooled", "curve", "per_fold")},
+        "command": command or report.get("command", ""),
+        "rechosen_from": str(src),
+        "train_config": cfg,
+        "pooled": {k: v for k, v in pooled.items() if k != "curve"},
+        "curve": pooled["curve"],
+        "per_fold": [
+            {k: f[k] for k in ("fold", "objects", "operating_point", "per_grasp", "clips", "seconds")} for f in folds
+        ],
+    }
+    out.mkdir(parents=True, exist_ok=True)
+    atomic.write_text(out / "folds.json", json.dumps(_json_safe(new), indent=1))
+    atomic.write_text(out / "README.md", summary_markdown(new))
+    from slipsense.evaluation.early_warning import plot_tradeoff
+
+    plot_tradeoff(pooled["curve"], out / "tradeoff.png", title=f"{cfg['model']}: folds pooled, {_rule(new)}")
+    return new
+
+
 def _traces(runs: Sequence[GraspRun], probs) -> list[dict[str, Any]]:
-    """Runs with their P(slip) traces, compactly (3 decimals, None for no answer)."""
+    """Runs with their P(slip) traces, compactly (4 decimals as the held-out traces, None for no answer)."""
     return [
         {
             "object": r.object,
             "experiment": r.experiment,
             "cameras": list(r.cameras),
             "moment_of_slip": r.moment_of_slip,
-            "probability": [None if math.isnan(v) else round(float(v), 3) for v in p],
+            "probability": [None if math.isnan(v) else round(float(v), 4) for v in p],
         }
         for r, p in zip(runs, probs)
     ]
@@ -177,6 +231,23 @@ def _pct(v) -> str:
     return "-" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{100 * v:.1f}%"
 
 
+def _rule(report: dict[str, Any]) -> str:
+    k = report["train_config"].get("max_held_alarm")
+    return "best score" if k is None else f"at most {100 * k:g}% of held grasps alarming"
+
+
+def _interval_lines(g: dict[str, Any]) -> list[str]:
+    ci = g.get("intervals")
+    if not ci:
+        return []
+    return [
+        "",
+        f"95% bootstrap intervals over runs ({ci['samples']} resamples): warned in time "
+        f"{_pct(ci['warned_low'])}-{_pct(ci['warned_high'])}, false-positive grasps "
+        f"{_pct(ci['fp_low'])}-{_pct(ci['fp_high'])}.",
+    ]
+
+
 def summary_markdown(report: dict[str, Any]) -> str:
     """The report as a short Markdown page: per-grasp and clip tables, per fold and pooled."""
     g, c = report["pooled"]["per_grasp"], report["pooled"]["clips"]
@@ -189,7 +260,7 @@ def summary_markdown(report: dict[str, Any]) -> str:
         f"Runs: {d['runs']}: {d['slip_with_moment']} slips with a moment of slip, {d['slip_without_moment']} slips "
         f"without one (left out), {d['held']} that held. Horizon {cfg['horizon']} frames (2 s at 25 frames/s); operating point "
         f"chosen per fold on its training objects only ({cfg['inner_folds']} inner folds; 0 = on the training "
-        f"runs themselves).",
+        f"runs themselves; rule: {_rule(report)}).",
         *(
             ["", "One finger: each camera of a run is a grasp of its own (a run's two cameras count twice)."]
             if report.get("sensors_per_grasp") == 1
@@ -204,6 +275,7 @@ def summary_markdown(report: dict[str, Any]) -> str:
         f"| {g['slip_runs']} | {g['warned']} ({_pct(g['warned_rate'])}) | {g['premature']} | {g['missed']} | "
         f"{g['median_lead_frames'] if g['median_lead_frames'] is not None else '-'} frames | {g['held_runs']} | "
         f"{g['false_positive_grasps']} ({_pct(g['false_positive_rate'])}) | {g['runs_alarming_at_rest']} |",
+        *_interval_lines(g),
         "",
         "## Per clip (the paper's 5-frame clips, scored at their last frame)",
         "",

@@ -126,6 +126,10 @@ def pool_folds(folds: Sequence[dict[str, Any]], thresholds: Sequence[float] | No
             rests.append(rest)
     debounce = int(np.median([f["operating_point"]["debounce"] for f in folds]))
     curve = pergrasp.table(traces, moments, thresholds, (debounce,), rests=rests)
+    intervals = pergrasp.bootstrap_curve(traces, moments, thresholds, debounce)
+    for row, ci in zip(curve, intervals):
+        row.update({k: ci[k] for k in ("warned_low", "warned_high", "fp_low", "fp_high")})
+    per_grasp["intervals"] = pergrasp.bootstrap_rates([o.outcome for o in outcomes])
     p_all = np.concatenate([np.asarray(f["clip_probability"], dtype=np.float64) for f in folds])
     return {
         "per_grasp": per_grasp,
@@ -153,3 +157,28 @@ def _outcomes(runs, probs, op: dict[str, Any], horizon: int, rests) -> list[perg
         )
         for r, p, rest in zip(runs, probs, rests)
     ]
+
+
+def fold_at(fold: dict[str, Any], op: dict[str, Any], horizon: int) -> dict[str, Any]:
+    """A fold written by :func:`fold_result` scored again at another operating point ``op``, from
+    the held-out traces and clip probabilities it keeps (4 decimals: a threshold within 5e-5 of a
+    kept probability may decide differently than the full-precision trace would)."""
+    runs, outs = [], []
+    for r in fold["runs"]:
+        p = np.array([np.nan if v is None else v for v in r["probability"]], dtype=np.float64)
+        rest = np.zeros(len(p), dtype=bool)
+        rest[r["rest"]] = True
+        o = pergrasp.grasp_outcome(
+            pergrasp.debounce(p, op["threshold"], op["debounce"]), r["moment_of_slip"], horizon, rest=rest
+        )
+        outs.append(o)
+        runs.append({**r, "outcome": o.outcome, "first_alarm": o.first_alarm, "lead": o.lead})
+    p = np.asarray(fold["clip_probability"], dtype=np.float64)
+    y = np.asarray(fold["clip_label"], dtype=np.int64)
+    return {
+        **fold,
+        "operating_point": op,
+        "per_grasp": pergrasp.summarise(outs),
+        "clips": clip_metrics(p, y, op["threshold"]),
+        "runs": runs,
+    }

@@ -184,6 +184,11 @@ def table(
     return rows
 
 
+#: Thresholds the "at most K% of held grasps alarm" rule may also take: a class-balanced detector
+#: puts many calm frames above 0.999.
+FINE_TAIL = (0.9995, 0.9998, 0.9999)
+
+
 def choose_operating_point(
     probabilities: Sequence[np.ndarray],
     moments: Sequence[int | None],
@@ -191,15 +196,38 @@ def choose_operating_point(
     debounces: Sequence[int] = (1, 2, 3, 5),
     horizon: int = HORIZON,
     startup: int = STARTUP,
+    max_held_alarm: float | None = None,
 ) -> dict[str, Any]:
-    """The (threshold, debounce) with the best :func:`summarise` score on these runs (ties: the
-    shortest debounce, then the middle of the tying thresholds, for a margin on both sides). Call it on training runs only (out-of-fold
-    predictions of inner folds): choosing it on test runs is tuning on the test set."""
+    """The (threshold, debounce) to alarm at, chosen on these runs. Call it on training runs only
+    (out-of-fold predictions of inner folds): choosing it on test runs is tuning on the test set.
+
+    ``max_held_alarm`` None: the best :func:`summarise` score (warned rate minus false-positive
+    rate; ties: the shortest debounce, then the middle of the tying thresholds, for a margin on both
+    sides). ``max_held_alarm=K``: the rule a user states, "at most a fraction K of the grasps that
+    hold may alarm": among the points whose false-positive grasps are at most ``K`` of the held runs,
+    the one that warns in time of the most slips (ties: fewer false positives, fewer premature
+    warnings, the shortest debounce, the middle threshold); when none is that quiet, the quietest.
+    """
     if thresholds is None:
-        thresholds = THRESHOLDS
+        thresholds = THRESHOLDS if max_held_alarm is None else tuple(sorted(set(THRESHOLDS) | set(FINE_TAIL)))
     rows = table(probabilities, moments, thresholds, debounces, horizon, startup)
-    top = max(round(r["score"], 9) for r in rows)
-    tied = [r for r in rows if round(r["score"], 9) == top]
+    if max_held_alarm is None:
+        top = max(round(r["score"], 9) for r in rows)
+        tied = [r for r in rows if round(r["score"], 9) == top]
+        rule = "best score (warned rate - false-positive rate)"
+    else:
+        if not 0.0 <= float(max_held_alarm) <= 1.0:
+            from slipsense.errors import ConfigError
+
+            raise ConfigError(f"max_held_alarm must be a fraction in [0, 1], got {max_held_alarm!r}")
+        ok = [r for r in rows if r["false_positive_grasps"] <= max_held_alarm * r["held_runs"] + 1e-9]
+        if not ok:
+            least = min(r["false_positive_grasps"] for r in rows)
+            ok = [r for r in rows if r["false_positive_grasps"] == least]
+        key = lambda r: (r["warned"], -r["false_positive_grasps"], -r["premature"])  # noqa: E731
+        top = max(key(r) for r in ok)
+        tied = [r for r in ok if key(r) == top]
+        rule = f"at most {100 * max_held_alarm:g}% of held grasps alarming"
     k = min(r["debounce"] for r in tied)
     tied = sorted((r for r in tied if r["debounce"] == k), key=lambda r: r["threshold"])
     best = tied[(len(tied) - 1) // 2]
@@ -208,5 +236,74 @@ def choose_operating_point(
         "debounce": best["debounce"],
         "horizon": horizon,
         "startup": startup,
+        "rule": rule,
         "score_on_training_runs": best["score"],
+        "warned_rate_on_training_runs": best["warned_rate"],
+        "false_positive_rate_on_training_runs": best["false_positive_rate"],
     }
+
+
+def bootstrap_rates(outcomes: Sequence[str], samples: int = 2000, seed: int = 0, level: float = 0.95) -> dict[str, Any]:
+    """Bootstrap intervals over runs of the warned-in-time and false-positive rates of fixed
+    outcomes (e.g. folds pooled, each at its own operating point): ``{"warned_low", "warned_high",
+    "fp_low", "fp_high", "samples"}``."""
+    rng = np.random.default_rng(seed)
+    slip = np.array([o == "warned" for o in outcomes if o in ("warned", "premature", "missed")], dtype=float)
+    held = np.array([o == "false_positive" for o in outcomes if o in ("false_positive", "clean")], dtype=float)
+    lo, hi = 100 * (1 - level) / 2, 100 * (1 + level) / 2
+    out: dict[str, Any] = {"samples": samples, "level": level}
+    for name, hits in (("warned", slip), ("fp", held)):
+        if not hits.size:
+            out.update({f"{name}_low": math.nan, f"{name}_high": math.nan})
+            continue
+        means = hits[rng.integers(0, hits.size, (samples, hits.size))].mean(axis=1)
+        out.update({f"{name}_low": float(np.percentile(means, lo)), f"{name}_high": float(np.percentile(means, hi))})
+    return out
+
+
+def bootstrap_curve(
+    probabilities: Sequence[np.ndarray],
+    moments: Sequence[int | None],
+    thresholds: Sequence[float],
+    debounce_frames: int = 1,
+    horizon: int = HORIZON,
+    startup: int = STARTUP,
+    samples: int = 2000,
+    seed: int = 0,
+    level: float = 0.95,
+) -> list[dict[str, Any]]:
+    """Per threshold, the warned-in-time and false-positive rates with bootstrap intervals over runs.
+
+    Slip runs and held runs are resampled with replacement, each group to its own size (a run is
+    the unit: 51 slip runs make one run 2%), ``samples`` times; the interval is the central
+    ``level`` of the resampled rates. Returns rows ``{"threshold", "warned_rate", "warned_low",
+    "warned_high", "false_positive_rate", "fp_low", "fp_high"}``.
+    """
+    rng = np.random.default_rng(seed)
+    slip = [i for i, m in enumerate(moments) if m is not None]
+    held = [i for i, m in enumerate(moments) if m is None]
+    pick_slip = rng.integers(0, len(slip), (samples, len(slip))) if slip else None
+    pick_held = rng.integers(0, len(held), (samples, len(held))) if held else None
+    lo, hi = 100 * (1 - level) / 2, 100 * (1 + level) / 2
+    rows = []
+    for th in thresholds:
+        outs = [
+            grasp_outcome(debounce(probabilities[i], th, debounce_frames), moments[i], horizon, startup).outcome
+            for i in range(len(moments))
+        ]
+        warned = np.array([outs[i] == "warned" for i in slip], dtype=float)
+        fp = np.array([outs[i] == "false_positive" for i in held], dtype=float)
+        row = {"threshold": float(th)}
+        for name, hits, pick, low, high in (
+            ("warned_rate", warned, pick_slip, "warned_low", "warned_high"),
+            ("false_positive_rate", fp, pick_held, "fp_low", "fp_high"),
+        ):
+            if pick is None:
+                row.update({name: math.nan, low: math.nan, high: math.nan})
+                continue
+            means = hits[pick].mean(axis=1)
+            row.update(
+                {name: float(hits.mean()), low: float(np.percentile(means, lo)), high: float(np.percentile(means, hi))}
+            )
+        rows.append(row)
+    return rows

@@ -155,7 +155,9 @@ def operating_point(
 
 def _chosen_operating_point(probs: Sequence[np.ndarray], runs: Sequence[GraspRun], cfg: GraspTrainConfig) -> dict:
     """The threshold and debounce that best separate ``runs``' slips from their held grasps, and on what."""
-    op = pergrasp.choose_operating_point(probs, [r.moment_of_slip for r in runs], horizon=cfg.horizon)
+    op = pergrasp.choose_operating_point(
+        probs, [r.moment_of_slip for r in runs], horizon=cfg.horizon, max_held_alarm=cfg.max_held_alarm
+    )
     op["chosen_on"] = (
         f"{cfg.inner_folds} inner folds of the training objects" if cfg.inner_folds else "the training runs themselves"
     )

@@ -55,6 +55,9 @@ class GraspTrainConfig:
     seed: int = 0
     inner_folds: int = 2  # for the operating point (0: choose it on the training runs themselves)
     split_seed: int | None = None  # objects -> folds and inner folds (None: seed); set it to vary training alone
+    max_held_alarm: float | None = (
+        None  # operating point: at most this fraction of held grasps alarm (None: best score)
+    )
 
     def __post_init__(self):
         checks = {
@@ -81,6 +84,9 @@ class GraspTrainConfig:
                 raise ConfigError(f"{key} must be a finite number {'> 0' if key == 'lr' else '>= 0'}, got {v!r}")
         if self.inner_folds == 1:
             raise ConfigError("inner_folds must be 0 or at least 2")
+        k = self.max_held_alarm
+        if k is not None and (isinstance(k, bool) or not isinstance(k, (int, float)) or not 0 <= k <= 1):
+            raise ConfigError(f"max_held_alarm must be a fraction in [0, 1] (0.05: at most 5%), got {k!r}")
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
