@@ -302,4 +302,31 @@ def register(app: typer.Typer) -> None:
             f"{100 * ci.get('fp_high', float('nan')):.0f}%) -> {out}/README.md"
         )
 
+    @grasp_app.command("precursors")
+    @friendly
+    def precursors_cmd(
+        out: Path = typer.Option(..., help="report folder: README.md, precursors.csv/.json/.png"),
+        recordings: Optional[Path] = typer.Option(None, help="recordings folder (default: the shared recordings)"),
+        overrides: Optional[Path] = typer.Option(None, help="label overrides CSV"),
+        window: int = typer.Option(10, min=2, max=100, help="frames before the moment of slip that are measured"),
+        progress: bool = typer.Option(True),
+    ):
+        """Which slips show anything before contact is lost, against their own grasp and held grasps."""
+        from slipsense.atomic import check_output_dir
+        from slipsense.cli import _default_recordings
+        from slipsense.config import resolve_path
+        from slipsense.evaluation.precursors import aligned_means, precursor_table, summary, write_report
+        from slipsense.training.grasps import load_grasp_data
+
+        check_output_dir(out, "--out")
+        root = resolve_path(recordings or _default_recordings())
+        runs, _ = load_grasp_data(root, overrides, (30, 40), progress=progress)
+        rows = precursor_table(runs, window)
+        write_report(rows, aligned_means(runs), out, command=_command(), window=window)
+        s = summary(rows)
+        typer.echo(
+            f"{s['any']} of {s['slip_runs']} slips stand out on some signal before contact is lost (motion "
+            f"{s['motion']}, change over 1 s {s['change_1s']}, contact fading {s['contact_fading']}) -> {out}/README.md"
+        )
+
     app.add_typer(grasp_app, name="grasp")
