@@ -149,6 +149,7 @@ def evaluate(
     threshold: float | None = None,
     debounce: int | None = None,
     progress: bool = True,
+    objects: Sequence[str] | None = None,
 ) -> Evaluation:
     """Replay every run of a recordings folder through a detector, both sensors from the first frame.
 
@@ -159,6 +160,7 @@ def evaluate(
             recordings; False = none.
         horizon: frames before the moment of slip in which an alarm counts as a warning in time.
         threshold, debounce: default: the checkpoint's operating point.
+        objects: only the runs of these objects (default: every run).
     """
     from slipsense.evaluation.early_warning import replay_recordings
     from slipsense.streaming.detector import SlipDetector
@@ -179,6 +181,8 @@ def evaluate(
         else SlipDetector.from_checkpoint(checkpoint, sensors=sensors, threshold=threshold, debounce=debounce)
     )
     recs = validate_recordings(find_recordings(root, sensor=detector.sensor), expected_size=None)
+    if objects is not None:
+        recs = [r for r in recs if r.object in set(objects)]
     seen = sorted(trained_on & {r.object for r in recs})
     if seen:
         warnings.warn(

@@ -271,6 +271,7 @@ def evaluate(
     overrides: Optional[Path] = typer.Option(None, help="CSV of hand labels for --recordings"),
     progress: bool = typer.Option(True),
     dtype: str = typer.Option("float32", help="inference numerics: float32, bfloat16 (STNet/TemNet) or int8 weights"),
+    per_grasp: bool = typer.Option(True, help="video clip models: also replay the runs and judge them per grasp"),
 ):
     """Evaluate a checkpoint: a grasp detector per grasp (every run replayed: slips warned in time,
     premature, missed, false-positive grasps), a clip or marker model per clip (accuracy, precision,
@@ -298,8 +299,9 @@ def evaluate(
         overrides=overrides,
         progress=progress,
         dtype=dtype,
+        per_grasp=per_grasp,
     )
-    if "per_grasp" in m:
+    if "clips" in m:  # a grasp detector: per grasp, and per clip on the same traces
         g, c = m["per_grasp"], m["clips"]["operating_point"]
         typer.echo(json.dumps(g, default=float))
         typer.echo(
@@ -312,6 +314,13 @@ def evaluate(
     typer.echo(
         json.dumps({k: m[k] for k in ("accuracy", "precision", "recall", "f1", "n_clips", "n_slip", "n_wiggle")})
     )
+    if "per_grasp" in m:  # a clip model replayed over the same runs
+        g = m["per_grasp"]
+        typer.echo(
+            f"per grasp at threshold {g['threshold']:g} x{g['debounce']}: warned in time {g['warned']}/"
+            f"{g['slip_runs']}, premature {g['premature']}, missed {g['missed']}, false-positive grasps "
+            f"{g['false_positive_grasps']}/{g['held_runs']}"
+        )
 
 
 @app.command()

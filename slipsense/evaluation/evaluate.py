@@ -96,6 +96,7 @@ def evaluate_checkpoint(
     overrides=None,
     progress: bool = True,
     dtype: str = "float32",
+    per_grasp: bool = True,
 ) -> dict[str, Any]:
     """Run the whole pipeline a checkpoint needs on one data source and score it.
 
@@ -104,6 +105,11 @@ def evaluate_checkpoint(
     Clips are made with the clip settings stored in the checkpoint. ``dtype`` ("float32",
     "bfloat16", "int8"; see :func:`slipsense.models.at_dtype`) scores a reduced-precision
     inference copy of the model instead, to compare its F1 with float32's.
+
+    A grasp detector is judged per grasp (and per clip on the same traces); a video clip model per
+    clip and, with ``per_grasp``, also per grasp: the same runs (every run of ``recordings``, or the
+    held-out objects' runs of a split by objects) replayed through it as the live detector runs it,
+    at the checkpoint's operating point (``"per_grasp"`` in the result).
     """
     from slipsense.models import at_dtype
 
@@ -161,6 +167,14 @@ def evaluate_checkpoint(
                 )
             clips = clips.subset(idx)
             extra.update(split=portable_path(split), test_objects=split_info.get("test_objects"))
+            if per_grasp and dtype == "float32" and split_info.get("split") == "objects":
+                extra["per_grasp"] = _replayed(
+                    checkpoint,
+                    resolve_path(split_info["recordings"]),
+                    _split_overrides(split_info.get("overrides")),
+                    progress,
+                    split_info.get("test_objects"),
+                )
         else:
             if "clip_spec" not in data_info:
                 raise InputError(checkpoint, "checkpoint has no clip settings (data.clip_spec)")
@@ -173,6 +187,8 @@ def evaluate_checkpoint(
                 sensor=sensor,
             )
             extra.update(recordings=portable_path(recordings), objects=sorted(set(clips.objects)))
+            if per_grasp and dtype == "float32":
+                extra["per_grasp"] = _replayed(checkpoint, recordings, overrides, progress, None)
         data = ClipDataset(clips, noise_std=noise_std, seed=0)
     else:
         if recordings is not None:
@@ -196,6 +212,25 @@ def evaluate_checkpoint(
 
     with torch.inference_mode():
         return evaluate_model(model, data, json_out, png, extra=extra, progress=progress)
+
+
+def _replayed(checkpoint, recordings, overrides, progress, objects) -> dict[str, Any]:
+    """Per-grasp outcomes of a clip model's replay (:func:`slipsense.api.evaluate`) with its
+    operating point."""
+    import warnings
+
+    from slipsense.api import evaluate as evaluate_grasps
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # trained-on objects / no threshold: stated in the result instead
+        ev = evaluate_grasps(
+            checkpoint,
+            recordings,
+            overrides=True if overrides is None else overrides,
+            progress=progress,
+            objects=objects,
+        )
+    return {**ev.summary(), "threshold": ev.threshold, "debounce": ev.debounce, "horizon": ev.horizon}
 
 
 def _evaluate_grasps(checkpoint, recordings, split, markers, json_out, overrides, progress, dtype) -> dict[str, Any]:

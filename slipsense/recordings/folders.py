@@ -103,6 +103,11 @@ def find_recordings(
     return found
 
 
+def _hint(pattern: str) -> str:
+    """An experiment-folder pattern as people write it: ``^exp_num_(\\d+)$`` -> ``exp_num_<N>``."""
+    return pattern.lstrip("^").rstrip("$").replace(r"(\d+)", "<N>")
+
+
 def _object_recordings(obj_dir: Path, on_error: str, sensor: SensorSpec = GELSIGHT_MINI) -> list[Recording]:
     experiment_re = re.compile(sensor.experiment_pattern)
     camera_glob, slip_marker = sensor.camera_glob, sensor.slip_marker
@@ -113,14 +118,14 @@ def _object_recordings(obj_dir: Path, on_error: str, sensor: SensorSpec = GELSIG
         report(obj_dir, "object folder is not readable (permission denied)", on_error)
         return []
     if not exp_dirs:
-        report(obj_dir, "object folder holds no exp_num_<N> experiment folders", on_error)
+        report(obj_dir, f"object folder holds no {_hint(sensor.experiment_pattern)} experiment folders", on_error)
         return []
     out: list[Recording] = []
     seen: dict[int, Path] = {}
     for exp_dir in exp_dirs:
         m = experiment_re.match(exp_dir.name)
         if m is None:
-            report(exp_dir, f"folder name does not match {sensor.experiment_pattern} (an experiment folder)", on_error)
+            report(exp_dir, f"folder name does not match {_hint(sensor.experiment_pattern)}", on_error)
             continue
         number = int(m.group(1))
         if number in seen:
