@@ -201,3 +201,22 @@ def test_grasp_training_resumed_after_a_kill_equals_an_uninterrupted_one(tmp_pat
     other = GraspTrainConfig(**{**cfg.to_dict(), "lr": 1e-3})
     with pytest.raises(InputError, match="another training"):
         fit_runs(runs, other, progress=False, state_path=state)
+
+
+def test_anchor_lag_zero_streams_like_the_whole_run_and_trains():
+    """Lag 0 compares every frame with the grasp's first: the same numbers pushed or whole, and in
+    chunks of runs (training) as in the whole-run forward."""
+    torch.manual_seed(0)
+    m = build(
+        "motionnet", image_size=(16, 20), width=4, features=8, temporal=8, lags=(0, 1, 5), dilations=(1, 2)
+    ).eval()
+    g = torch.randint(0, 256, (1, 2, 40, 16, 20)).float() / 255
+    with torch.no_grad():
+        full = torch.softmax(m(g), -1)[0, :, 1].numpy()
+        chunks = torch.softmax(m.chunk_logits([(g[0], [39, 25])], 6), -1)[:, :, 1].numpy()
+    st = m.stream()
+    pushed = [st.push_gray((g[0, :, t] * 255).round().byte().numpy()) for t in range(40)]
+    assert np.allclose(pushed, full, atol=1e-5)
+    assert np.allclose(chunks[0], full[34:40], atol=1e-5) and np.allclose(chunks[1], full[20:26], atol=1e-5)
+    with pytest.raises(ConfigError):
+        build("motionnet", lags=(0,))

@@ -258,7 +258,7 @@ def summary_markdown(report: dict[str, Any]) -> str:
         f"Command: `{report.get('command', 'slipsense grasp folds')}`",
         "",
         f"Runs: {d['runs']}: {d['slip_with_moment']} slips with a moment of slip, {d['slip_without_moment']} slips "
-        f"without one (left out), {d['held']} that held. Horizon {cfg['horizon']} frames (2 s at 25 frames/s); operating point "
+        f"without one (left out; for the shared recordings reports/labels says why), {d['held']} that held. Horizon {cfg['horizon']} frames (2 s at 25 frames/s); operating point "
         f"chosen per fold on its training objects only ({cfg['inner_folds']} inner folds; 0 = on the training "
         f"runs themselves; rule: {_rule(report)}).",
         *(

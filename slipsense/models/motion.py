@@ -50,7 +50,8 @@ class MotionNet(GraspModel):
     Args:
         sensors: sensors per frame (2: both fingers).
         image_size: ``(h, w)`` of the grey frames.
-        lags: frame differences taken, in frames back.
+        lags: frame differences taken, in frames back; 0 is the first frame of the grasp (what the
+            gel looked like before it: the difference is the imprint so far).
         width: channels of the first convolution (then 2x, 2x).
         features: per-sensor feature size.
         temporal: channels of the temporal convolutions.
@@ -78,8 +79,10 @@ class MotionNet(GraspModel):
             raise ConfigError(
                 f"motionnet: image_size must be (h, w) with 8 <= h, w and h*w <= {_LIMITS['pixels']}, got {image_size}"
             )
-        if not lags or min(lags) < 1 or max(lags) > _LIMITS["max_lag"]:
-            raise ConfigError(f"motionnet: lags must be 1..{_LIMITS['max_lag']} frames, got {lags}")
+        if not lags or min(lags) < 0 or max(lags) > _LIMITS["max_lag"] or lags.count(0) > 1 or lags == (0,):
+            raise ConfigError(
+                f"motionnet: lags must be 1..{_LIMITS['max_lag']} frames (0: the first frame of the grasp), got {lags}"
+            )
         if not dilations or min(dilations) < 1 or sum(dilations) > 256:
             raise ConfigError(f"motionnet: dilations must be >= 1 with a sum <= 256, got {dilations}")
         for key, v in (("sensors", sensors), ("width", width), ("features", features), ("temporal", temporal)):
@@ -119,7 +122,8 @@ class MotionNet(GraspModel):
 
     @property
     def max_lag(self) -> int:
-        return max(self.lags)
+        """Frames back the differences reach (lag 0, the first frame of the grasp, is kept apart)."""
+        return max(lag for lag in self.lags if lag > 0)
 
     # per-frame part
 
@@ -131,7 +135,8 @@ class MotionNet(GraspModel):
 
     def _pasts(self, at: Tensor) -> list[Tensor]:
         """Per lag, the frame indices ``lag`` before ``at`` (the first frame standing in before 0)."""
-        return [(at - lag).clamp(min=0) for lag in self.lags]
+        # lag 0 is the anchor: the first frame of the grasp, what the gel looked like before it
+        return [torch.zeros_like(at) if lag == 0 else (at - lag).clamp(min=0) for lag in self.lags]
 
     def _lagged(self, gray: Tensor, now: Tensor, pasts: Sequence[Tensor], dim: int) -> Tensor:
         """Scaled differences of the frames ``now`` and, per lag, ``pasts`` along ``dim`` of ``gray``,
@@ -179,6 +184,8 @@ class MotionNet(GraspModel):
         it alone: needs ``T >= n_out + receptive_field - 1 + max_lag``, and then equals
         ``forward(whole run)`` at those frames."""
         self.check_input(gray)
+        if 0 in self.lags:
+            raise ConfigError("motionnet with lag 0 (the grasp's first frame) needs the whole run: use chunk_logits")
         need = n_out + self.receptive_field - 1
         t = gray.shape[2]
         if t < need + self.max_lag:
@@ -381,11 +388,12 @@ class MotionStream:
         fresh = not self._frames
         if fresh:
             self._frames.extend([frame] * (m.max_lag + 1))
+            self._first = frame
         else:
             self._frames.append(frame)
         diffs = np.empty((1, gray.shape[0], len(m.lags), *gray.shape[1:]), np.float32)
         for i, lag in enumerate(m.lags):
-            np.subtract(frame, self._frames[-1 - lag], out=diffs[0, :, i])
+            np.subtract(frame, self._first if lag == 0 else self._frames[-1 - lag], out=diffs[0, :, i])
         diffs *= np.float32(m.diff_scale)
         feat = self._run("frame", diffs)[0]
         logits, *self._states = self._run("step", feat, np.array([float(fresh)], np.float32), *self._states)
