@@ -120,10 +120,17 @@ class WholeWindow:
 
     def __init__(self, det: SlipDetector):
         self.det, self.model, self.frames = det, det.model, det.frames
+        self.geometry = det.geometry
         self.window: list[np.ndarray] = []
 
     def __call__(self, frame):
-        x = self.det._prepare(frame, 0, 0)
+        # the same checks and conversion the detector's window stream applies to a pushed frame
+        from slipsense.models.streams import check_cloud, check_image, video_input
+
+        if self.geometry["kind"] == "video":
+            x = video_input(check_image(frame, "frame", self.geometry["image_size"]))
+        else:
+            x = check_cloud(frame, "frame", self.geometry["markers"])
         self.window = (self.window + [x])[-self.frames :]
         if len(self.window) == self.frames:
             with torch.no_grad():

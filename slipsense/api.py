@@ -150,6 +150,7 @@ def evaluate(
     debounce: int | None = None,
     progress: bool = True,
     objects: Sequence[str] | None = None,
+    on_error: str = "raise",
 ) -> Evaluation:
     """Replay every run of a recordings folder through a detector, both sensors from the first frame.
 
@@ -161,6 +162,11 @@ def evaluate(
         horizon: frames before the moment of slip in which an alarm counts as a warning in time.
         threshold, debounce: default: the checkpoint's operating point.
         objects: only the runs of these objects (default: every run).
+        on_error: ``"raise"`` (default) or ``"skip"`` (leave out bad videos with a warning).
+
+    A model trained on a fixed number of sensors (the grasp detectors) sees that many cameras per run
+    (one: each camera is a grasp of its own); a clip model sees every camera of a run at once and
+    alarms on either.
     """
     from slipsense.evaluation.early_warning import replay_recordings
     from slipsense.streaming.detector import SlipDetector
@@ -171,18 +177,28 @@ def evaluate(
     from slipsense.checkpoint import read_info
     from slipsense.resources import shipped_model
 
+    from slipsense.errors import InputError
+    from slipsense.sensors.spec import sensor_of
+
     root = _recordings_folder(recordings)
-    info = read_info(checkpoint or shipped_model())
+    path = checkpoint or shipped_model()
+    info = read_info(path)
     trained_on = set(((info.get("data") or {}).get("objects")) or ())
-    sensors = info["model_config"].get("sensors") or 2  # a clip model sees both fingers, alarm on either
+    found = find_recordings(root, on_error=on_error, sensor=sensor_of(info, path))
+    recs = validate_recordings(found, on_error=on_error, expected_size=None)
+    if objects is not None:
+        recs = [r for r in recs if r.object in set(objects)]
+    sensors = info["model_config"].get("sensors")
+    if not sensors:  # a clip model: every camera of a run at once
+        counts = sorted({sum(1 for q in recs if q.key[:2] == r.key[:2]) for r in recs})
+        if len(counts) != 1:
+            raise InputError(root, f"runs hold different numbers of camera videos ({counts}); a replay needs the same")
+        sensors = counts[0]
     detector = (
         SlipDetector.pretrained(sensors=sensors, threshold=threshold, debounce=debounce)
         if checkpoint is None
         else SlipDetector.from_checkpoint(checkpoint, sensors=sensors, threshold=threshold, debounce=debounce)
     )
-    recs = validate_recordings(find_recordings(root, sensor=detector.sensor), expected_size=None)
-    if objects is not None:
-        recs = [r for r in recs if r.object in set(objects)]
     seen = sorted(trained_on & {r.object for r in recs})
     if seen:
         warnings.warn(
@@ -192,7 +208,8 @@ def evaluate(
         )
     from slipsense.data import label_runs
 
-    labels = label_runs(recs, _overrides(overrides), progress=progress)
+    labels = label_runs(recs, _overrides(overrides), on_error=on_error, progress=progress)
+    recs = [r for r in recs if r.key in labels]  # left out by on_error="skip"
     runs = replay_recordings(detector, recs, labels, progress=progress)
     return Evaluation(runs, detector.threshold, detector.debounce, horizon, labels)
 

@@ -79,3 +79,30 @@ def test_every_model_trains_resumes_evaluates_exports_and_streams(name, tmp_path
 
     res = _invoke(["watch", stream, "--checkpoint", ckpt, "--max-frames", 30, "--threshold", 0.5])
     assert sum(line.startswith("frame") for line in res.output.splitlines()) == 30
+
+
+def test_a_clip_model_is_replayed_with_the_cameras_the_runs_have(tmp_path, grasp_recordings, cache):
+    """Per grasp, a clip model sees every camera of a run; runs of one camera replay with one sensor,
+    and runs that differ in camera count leave the clip metrics standing (the replay is skipped)."""
+    import shutil
+
+    small = model_class("vivit").small_config()
+    sets = [x for k, v in small.items() for x in ("--set", f"model.{k}={json.dumps(v)}")]
+    out = tmp_path / "vivit"
+    _invoke(["train", "--model", "vivit", *sets, "--recordings", grasp_recordings, "--frames", 3, "--size", "48x64",
+             "--epochs", 1, "--split", "all", "--out", out, "--no-progress"])  # fmt: skip
+    one, mixed = tmp_path / "one", tmp_path / "mixed"
+    for root in (one, mixed):
+        shutil.copytree(grasp_recordings, root)
+    for cam in one.glob("*/*/camera_2.avi"):
+        cam.unlink()
+    (mixed / "obj0" / "exp_num_1" / "camera_2.avi").unlink()
+    for root, name in ((one, "one.json"), (mixed, "mixed.json")):
+        res = CliRunner().invoke(
+            app, ["evaluate", "--checkpoint", str(out / "last.safetensors"), "--recordings", str(root),
+                  "--json", str(tmp_path / name), "--no-progress"],
+        )  # fmt: skip
+        assert res.exit_code == 0, res.output
+    one_doc, mixed_doc = (json.loads((tmp_path / n).read_text()) for n in ("one.json", "mixed.json"))
+    assert one_doc["per_grasp"]["slip_runs"] == 4 and one_doc["n_clips"] > 0
+    assert "different numbers of camera" in mixed_doc["per_grasp"]["skipped"] and mixed_doc["n_clips"] > 0

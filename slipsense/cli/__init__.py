@@ -316,6 +316,9 @@ def evaluate(
     )
     if "per_grasp" in m:  # a clip model replayed over the same runs
         g = m["per_grasp"]
+        if "skipped" in g:
+            typer.echo(f"per grasp: not replayed ({g['skipped']})")
+            return
         typer.echo(
             f"per grasp at threshold {g['threshold']:g} x{g['debounce']}: warned in time {g['warned']}/"
             f"{g['slip_runs']}, premature {g['premature']}, missed {g['missed']}, false-positive grasps "

@@ -149,7 +149,7 @@ def rechoose(src, out, max_held_alarm: float | None, command: str = "", echo=pri
     except (OSError, ValueError) as exc:
         raise InputError(src / "folds.json", f"is not a folds report ({exc})") from None
     cfg = {**report["train_config"], "max_held_alarm": max_held_alarm}
-    folds = []
+    folds, keys = [], set()
     for k in range(int(report["folds"])):
         path = src / f"fold{k}.json"
         try:
@@ -158,6 +158,11 @@ def rechoose(src, out, max_held_alarm: float | None, command: str = "", echo=pri
             raise InputError(path, f"cannot be read ({exc})") from None
         if not fold.get("inner"):
             raise InputError(path, "keeps no inner-fold traces (written before they were kept, or inner_folds=0)")
+        keys.add(fold.get("config_key"))
+        if len(keys) > 1:  # a later run with other settings wrote some of the folds
+            raise InputError(
+                path, f"was written with other settings than the folds before it (config keys {sorted(map(str, keys))})"
+            )
         probs = [np.array([np.nan if v is None else v for v in r["probability"]]) for r in fold["inner"]]
         op = pergrasp.choose_operating_point(
             probs, [r["moment_of_slip"] for r in fold["inner"]], horizon=cfg["horizon"], max_held_alarm=max_held_alarm
@@ -187,14 +192,14 @@ def rechoose(src, out, max_held_alarm: float | None, command: str = "", echo=pri
 
 
 def _traces(runs: Sequence[GraspRun], probs) -> list[dict[str, Any]]:
-    """Runs with their P(slip) traces, compactly (4 decimals as the held-out traces, None for no answer)."""
+    """Runs with their P(slip) traces (6 decimals, as the held-out traces: thresholds go up to 0.9999; None for no answer)."""
     return [
         {
             "object": r.object,
             "experiment": r.experiment,
             "cameras": list(r.cameras),
             "moment_of_slip": r.moment_of_slip,
-            "probability": [None if math.isnan(v) else round(float(v), 4) for v in p],
+            "probability": [None if math.isnan(v) else round(float(v), 6) for v in p],
         }
         for r, p in zip(runs, probs)
     ]

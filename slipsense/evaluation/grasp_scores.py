@@ -95,7 +95,7 @@ def fold_result(
                 "first_alarm": o.first_alarm,
                 "lead": o.lead,
                 "rest": np.flatnonzero(rest).tolist(),
-                "probability": [None if math.isnan(v) else round(float(v), 4) for v in pr],
+                "probability": [None if math.isnan(v) else round(float(v), 6) for v in pr],
             }
             for r, o, pr, rest in zip(test, outs, probs, rests)
         ],
@@ -161,8 +161,8 @@ def _outcomes(runs, probs, op: dict[str, Any], horizon: int, rests) -> list[perg
 
 def fold_at(fold: dict[str, Any], op: dict[str, Any], horizon: int) -> dict[str, Any]:
     """A fold written by :func:`fold_result` scored again at another operating point ``op``, from
-    the held-out traces and clip probabilities it keeps (4 decimals: a threshold within 5e-5 of a
-    kept probability may decide differently than the full-precision trace would)."""
+    the held-out traces and clip probabilities it keeps (6 decimals; fold files written before kept 4,
+    where a threshold near 0.9999 can decide differently than the full-precision trace would)."""
     runs, outs = [], []
     for r in fold["runs"]:
         p = np.array([np.nan if v is None else v for v in r["probability"]], dtype=np.float64)

@@ -73,12 +73,19 @@ class Stream(Protocol):
     changes then) -> ``(S,)`` per-sensor slip probabilities, or None while the model cannot answer
     yet (window not full, camera start-up). ``replay(streams)``: the same for whole recordings at
     once, one ``(N, ...)`` array per sensor -> ``(N, S)`` with NaN where push would give None.
-    ``attention(sensor)``: a heat map of the latest window, or None.
+    ``attention(sensor)``: a heat map of the latest window, or None. ``ready``: True once the model
+    answers. ``describe()``: what one pushed frame must look like (``{"kind", "frames", ...}``).
+    ``close()``: frees what the stream holds (a temporary folder of ONNX files).
     """
 
     sensors: int
 
+    @property
+    def ready(self) -> bool: ...
+
     def reset(self) -> None: ...
+
+    def close(self) -> None: ...
 
     def push(self, frames: Sequence[Any], index: int) -> np.ndarray | None: ...
 
@@ -198,9 +205,9 @@ class GraspModel(SlipModel):
     input_kind = "grasp"
     training_task = "grasps"
 
-    def stream(self):
-        """A fresh incremental state with ``push(gray (S, h, w) uint8) -> probability``."""
-        raise NotImplementedError
+    def stream(self, *, sensors=None, info=None, backend="torch", dtype="float32", onnx_dir=None) -> Stream:
+        """A fresh :class:`Stream` over whole grasps (a grasp model has no clip window to slide)."""
+        raise NotImplementedError(f"{type(self).__name__} must define stream() (see MotionStream)")
 
     def chunk_logits(self, runs, n_out: int):
         """What training on whole grasps calls: ``runs`` is a list of ``(gray (S, N, h, w) float,

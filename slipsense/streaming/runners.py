@@ -32,15 +32,19 @@ class TorchRunner:
 
 
 class OnnxRunner:
-    def __init__(self, paths: Mapping[str, Path]):
+    """``inputs``: per file, the names of the arrays a call passes, in order (the part's
+    :class:`~slipsense.models.base.OnnxPart` inputs)."""
+
+    def __init__(self, paths: Mapping[str, Path], inputs: Mapping[str, list[str]]):
         from slipsense.streaming.export import onnx_session
 
         self.sessions = {name: onnx_session(path) for name, path in paths.items()}
-        self._inputs = {name: [i.name for i in s.get_inputs()] for name, s in self.sessions.items()}
+        self._declared = {name: list(inputs[name]) for name in paths}
+        self._kept = {name: {i.name for i in s.get_inputs()} for name, s in self.sessions.items()}
 
     def __call__(self, name: str, *arrays: np.ndarray) -> list[np.ndarray]:
-        # an exporter may drop an input the graph does not use: feed only the ones the file declares
-        feed = dict(zip(self._inputs[name], arrays))
+        # fed by name: an exporter may drop an input the graph does not use, wherever it stands
+        feed = {n: a for n, a in zip(self._declared[name], arrays) if n in self._kept[name]}
         return self.sessions[name].run(None, feed)
 
 
@@ -80,4 +84,6 @@ def make_runner(
         onnx_dir = tmpdir.name
     from slipsense.streaming.export import cached_streaming_parts
 
-    return OnnxRunner(cached_streaming_parts(model, Path(onnx_dir), geometry, dtype)), tmpdir
+    paths = cached_streaming_parts(model, Path(onnx_dir), geometry, dtype)
+    inputs = {k: part.inputs for k, part in model.exportable().onnx_parts(geometry).items() if k in paths}
+    return OnnxRunner(paths, inputs), tmpdir

@@ -440,15 +440,32 @@ def _store_operating_point(out: Path, split_info: dict[str, Any], req: "TrainReq
     from slipsense.sensors.spec import sensor_of
     from slipsense.training.operating_point import choose_on_training_runs
 
+    import warnings
+
+    from safetensors.torch import load_file
+
+    from slipsense.errors import SlipsenseError
+
     root = resolve_path(split_info["recordings"])
     held = set(split_info.get("test_objects") or ())
     sensor = sensor_of(read_info(out / "last.safetensors"))
     objects = sorted({r.object for r in find_recordings(root, on_error="skip", sensor=sensor)} - held)
-    op = choose_on_training_runs(out / "last.safetensors", root, objects, req.overrides, req.progress)
+    chosen: list[tuple[dict, dict]] = []  # (weights, operating point): best often holds last's weights
     for name in ("last.safetensors", "best.safetensors"):
-        if (out / name).is_file():
-            update_info(out / name, {"operating_point": op})
-    print(f"operating point: threshold {op['threshold']:g}, debounce {op['debounce']} ({op['chosen_on']})")
+        path = out / name
+        if not path.is_file():
+            continue
+        weights = load_file(str(path))
+        op = next((o for w, o in chosen if w.keys() == weights.keys() and all(w[k].equal(weights[k]) for k in w)), None)
+        if op is None:
+            try:
+                op = choose_on_training_runs(path, root, objects, req.overrides, req.progress)
+            except SlipsenseError as exc:  # the training stands; the checkpoint alarms at 0.5 with a warning
+                warnings.warn(f"{path}: no operating point chosen ({exc})", stacklevel=2)
+                continue
+            chosen.append((weights, op))
+        update_info(path, {"operating_point": op})
+        print(f"{name}: operating point threshold {op['threshold']:g}, debounce {op['debounce']} ({op['chosen_on']})")
 
 
 def build_model(name: str, preset: str | None, overrides: dict[str, Any], data_config: dict[str, Any]):

@@ -192,7 +192,10 @@ def fit_runs(
     history = []
     hardness = None
     start = 0
-    identity = {"config": cfg.to_dict(), "runs": [[r.object, r.experiment, list(r.cameras)] for r in runs]}
+    identity = {
+        "config": cfg.to_dict(),
+        "runs": [[r.object, r.experiment, list(r.cameras), r.slipped, r.moment_of_slip, r.n_frames] for r in runs],
+    }
     if state_path is not None and Path(state_path).is_file():
         start, history, hardness = _restore(state_path, identity, model, opt, sched, rng)
     epochs = range(start, cfg.epochs)

@@ -42,6 +42,8 @@ def choose_on_training_runs(
     for r in recs:
         cameras[(r.object, r.experiment)] = cameras.get((r.object, r.experiment), 0) + 1
     counts = sorted(set(cameras.values()))
+    if not counts:
+        raise ConfigError(f"no recordings of the training objects under {recordings}")
     if len(counts) != 1:
         raise ConfigError(f"runs under {recordings} hold different numbers of cameras ({counts})")
     with warnings.catch_warnings():
