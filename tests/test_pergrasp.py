@@ -127,3 +127,12 @@ def test_bootstrap_intervals_hold_the_rates_and_trivial_detectors_have_none():
     assert rows[0]["false_positive_rate"] == 0.5 and rows[0]["fp_low"] < 0.5 < rows[0]["fp_high"]  # peaks 0.5 .. 0.95
     on = pergrasp.bootstrap_curve([np.ones(200) for _ in moments], moments, [0.5], samples=200)[0]
     assert on["fp_low"] == on["fp_high"] == 1.0 and on["warned_low"] == on["warned_high"] == 0.0
+
+
+def test_wilson_interval_is_not_zero_width_at_zero_events():
+    lo, hi = pergrasp.wilson(0, 85)
+    assert lo == 0.0 and 0.03 < hi < 0.05  # none of 85 held grasps alarmed: the rate may still be ~4%
+    lo, hi = pergrasp.wilson(11, 51)
+    assert lo < 11 / 51 < hi
+    rates = pergrasp.bootstrap_rates(["warned"] * 11 + ["missed"] * 40 + ["clean"] * 85, samples=300)
+    assert rates["fp_low"] == rates["fp_high"] == 0.0 and rates["fp_wilson"][1] > 0.03

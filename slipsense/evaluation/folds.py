@@ -245,11 +245,16 @@ def _interval_lines(g: dict[str, Any]) -> list[str]:
     ci = g.get("intervals")
     if not ci:
         return []
+
+    def wilson(name: str) -> str:
+        w = ci.get(f"{name}_wilson")
+        return f" (Wilson {_pct(w[0])}-{_pct(w[1])})" if w else ""
+
     return [
         "",
         f"95% bootstrap intervals over runs ({ci['samples']} resamples): warned in time "
-        f"{_pct(ci['warned_low'])}-{_pct(ci['warned_high'])}, false-positive grasps "
-        f"{_pct(ci['fp_low'])}-{_pct(ci['fp_high'])}.",
+        f"{_pct(ci['warned_low'])}-{_pct(ci['warned_high'])}{wilson('warned')}, false-positive grasps "
+        f"{_pct(ci['fp_low'])}-{_pct(ci['fp_high'])}{wilson('fp')}.",
     ]
 
 

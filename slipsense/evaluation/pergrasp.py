@@ -258,7 +258,19 @@ def bootstrap_rates(outcomes: Sequence[str], samples: int = 2000, seed: int = 0,
             continue
         means = hits[rng.integers(0, hits.size, (samples, hits.size))].mean(axis=1)
         out.update({f"{name}_low": float(np.percentile(means, lo)), f"{name}_high": float(np.percentile(means, hi))})
+        # resampling none (or all) of n events gives a zero-width interval: the Wilson interval does not
+        out[f"{name}_wilson"] = list(wilson(int(hits.sum()), hits.size))
     return out
+
+
+def wilson(k: int, n: int, z: float = 1.959964) -> tuple[float, float]:
+    """The 95% Wilson score interval of a rate of ``k`` events in ``n`` runs (``(0, 0.043)`` for 0 of 85)."""
+    if n == 0:
+        return (math.nan, math.nan)
+    p = k / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return (max(0.0, centre - half), min(1.0, centre + half))
 
 
 def bootstrap_curve(
