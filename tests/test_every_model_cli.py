@@ -1,9 +1,9 @@
 """One product: every registered model goes through the same verbs on the command line.
 
-For each model (at its contract size): ``slipsense train --model NAME`` for one epoch, ``--resume``
-of the finished run (nothing left to do: the same weights), ``slipsense evaluate`` (per grasp for a
+For each model (at its contract size): ``slipsense train --model NAME``, the same training SIGKILLed
+after its first epoch and continued with ``--resume`` (the same weights), ``slipsense evaluate`` (per grasp for a
 grasp model, per clip for clip and marker models), ``slipsense export`` (ONNX files verified against
-PyTorch) and ``slipsense watch`` (a recording, or a marker stream). A new registered model is covered
+PyTorch) and ``slipsense watch`` (a real recording where the shared data is there, or a marker stream). A new registered model is covered
 by this test without a line of its own; what differs per kind is only the data it is given.
 """
 
@@ -32,6 +32,29 @@ def _markers(path, frames: int, markers: int):
     return path
 
 
+def _killed_once(state, args) -> int:
+    """Run ``slipsense ARGS`` in a process and SIGKILL it as soon as ``state`` (its resume state after
+    the first epoch) exists; returns the epochs it had saved."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    code = "import sys; from slipsense.cli import main; sys.argv = ['slipsense'] + sys.argv[1:]; main()"
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    proc = subprocess.Popen([sys.executable, "-c", code, *map(str, args)], env=env)
+    deadline = time.time() + 120
+    while not state.exists() and proc.poll() is None and time.time() < deadline:
+        time.sleep(0.002)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert state.exists(), f"no resume state at {state}"
+    from slipsense.checkpoint import load_resume_state
+
+    return load_resume_state(state)["epoch"]
+
+
 def _invoke(args):
     res = CliRunner().invoke(app, [str(a) for a in args])
     assert res.exit_code == 0, f"{args[0]}: {res.output}"
@@ -44,7 +67,10 @@ def test_every_model_trains_resumes_evaluates_exports_and_streams(name, tmp_path
     small = cls.small_config()
     sets = [x for k, v in small.items() for x in ("--set", f"model.{k}={json.dumps(v)}")]
     out = tmp_path / "run"
-    run_folder = grasp_recordings / "obj0" / "exp_num_1"
+    from conftest import REAL_RUN
+
+    # watched: a real recording where the shared data is there (both cameras), else a made-up one
+    run_folder = REAL_RUN if (REAL_RUN / "camera_0.avi").is_file() else grasp_recordings / "obj0" / "exp_num_1"
     if cls.input_kind == "markers":
         npz = _markers(tmp_path / "m.npz", small["frames"], small["markers"])
         data, stream = ["--markers", npz], npz.with_suffix(".npy")
@@ -54,16 +80,20 @@ def test_every_model_trains_resumes_evaluates_exports_and_streams(name, tmp_path
         stream = run_folder
     else:
         data, stream = ["--recordings", grasp_recordings, "--set", "train.inner_folds=0"], run_folder
-    train = ["train", "--model", name, *sets, *data, "--epochs", 1, "--test-objects", "obj3", "--no-progress"]
+    train = ["train", "--model", name, *sets, *data, "--epochs", 12, "--test-objects", "obj3", "--no-progress"]
     _invoke([*train, "--out", out])
     ckpt = out / ("detector.safetensors" if cls.training_task == "grasps" else "last.safetensors")
     op = read_info(ckpt).get("operating_point")  # every detector on recordings alarms at a chosen point
     assert (op is not None) == (cls.input_kind != "markers")
     assert op is None or ("training" in op["chosen_on"] and 0 <= op["threshold"] <= 1)
-    before = load_file(str(ckpt))
-    _invoke([*train, "--out", out, "--resume"])
-    after = load_file(str(ckpt))
-    assert before.keys() == after.keys() and all(bool((before[k] == after[k]).all()) for k in before)
+
+    # SIGKILLed once its first epoch is saved, then --resume: the weights of the uninterrupted run
+    cut = tmp_path / "cut"
+    state = cut / ("resume/job0.state" if cls.training_task == "grasps" else "resume.pt")
+    assert _killed_once(state, [*train, "--out", cut]) < 12  # killed mid-training
+    _invoke([*train, "--out", cut, "--resume"])
+    whole, resumed = load_file(str(ckpt)), load_file(str(cut / ckpt.name))
+    assert whole.keys() == resumed.keys() and all(bool((whole[k] == resumed[k]).all()) for k in whole)
 
     where = (
         ["--recordings", grasp_recordings] if cls.training_task == "grasps" else ["--split-file", out / "split.json"]
