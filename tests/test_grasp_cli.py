@@ -195,7 +195,7 @@ def _weights(path):
     return load_file(str(path))
 
 
-def test_train_model_motionnet_resumes_after_sigkill(tmp_path, grasps, monkeypatch):
+def test_train_model_motionnet_resumes_after_sigkill(tmp_path, grasps, monkeypatch, one_thread):
     """`slipsense train --model motionnet` trains the default detector through the grasp task;
     SIGKILLed mid-training and started again with --resume it ends with the weights of an
     uninterrupted run."""
