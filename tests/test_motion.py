@@ -220,3 +220,13 @@ def test_anchor_lag_zero_streams_like_the_whole_run_and_trains():
     assert np.allclose(chunks[0], full[34:40], atol=1e-5) and np.allclose(chunks[1], full[20:26], atol=1e-5)
     with pytest.raises(ConfigError):
         build("motionnet", lags=(0,))
+
+
+def test_a_refused_push_leaves_the_stream_as_it_was():
+    """A push refused for sensor 1 must not fix sensor 0's frame size (nor count a frame)."""
+    det = SlipDetector(_model(), sensors=2, threshold=0.5)
+    ok, other = np.zeros((16, 20, 3), np.uint8), np.zeros((32, 40, 3), np.uint8)
+    with pytest.raises(InputError):
+        det.push(other, "not a frame")
+    readings = [det.push(ok, ok) for _ in range(12)]  # another size than the refused push: accepted
+    assert readings[0].index == 0 and readings[-1].probability is not None

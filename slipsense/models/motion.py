@@ -404,15 +404,17 @@ class MotionStream:
         from slipsense.recordings.runs import gray_frames
 
         gray = np.empty((self.sensors, *self.gray_size), dtype=np.uint8)
-        for s, f in enumerate(frames):
-            image = check_image(f, f"frame {index}, sensor {s}", None)
-            if self._shapes.setdefault(s, image.shape) != image.shape:
+        images = [check_image(f, f"frame {index}, sensor {s}", None) for s, f in enumerate(frames)]
+        for s, image in enumerate(images):  # every frame checked before the stream remembers any size
+            known = self._shapes.get(s, image.shape)
+            if known != image.shape:
                 raise InputError(
                     None,
                     f"frame {index}, sensor {s}: image is {image.shape[1]}x{image.shape[0]}, "
-                    f"the earlier frames of this sensor were {self._shapes[s][1]}x"
-                    f"{self._shapes[s][0]} (call reset() to start a new stream)",
+                    f"the earlier frames of this sensor were {known[1]}x{known[0]} (call reset() to start a new stream)",
                 )
+        for s, image in enumerate(images):
+            self._shapes[s] = image.shape
             gray[s] = gray_frames(image, self.gray_size)
         self._pushed += 1
         if self._pushed <= self.startup:  # the camera's start-up transient is not the scene
