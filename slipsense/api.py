@@ -170,7 +170,7 @@ def evaluate(
     """
     from slipsense.evaluation.early_warning import replay_recordings
     from slipsense.streaming.detector import SlipDetector
-    from slipsense.recordings.folders import find_recordings, validate_recordings
+    from slipsense.recordings.folders import camera_counts, find_recordings, validate_recordings
 
     import warnings
 
@@ -190,7 +190,7 @@ def evaluate(
         recs = [r for r in recs if r.object in set(objects)]
     sensors = info["model_config"].get("sensors")
     if not sensors:  # a clip model: every camera of a run at once
-        counts = sorted({sum(1 for q in recs if q.key[:2] == r.key[:2]) for r in recs})
+        counts = camera_counts(recs)
         if len(counts) != 1:
             raise InputError(root, f"runs hold different numbers of camera videos ({counts}); a replay needs the same")
         sensors = counts[0]

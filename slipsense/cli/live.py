@@ -389,7 +389,7 @@ def run_early_warning(
     from slipsense.config import gelsight_recordings
     from slipsense.evaluation.early_warning import early_warning_table, replay_recordings, write_early_warning
     from slipsense.streaming.detector import SlipDetector
-    from slipsense.recordings.folders import find_recordings
+    from slipsense.recordings.folders import camera_counts, find_recordings
     from slipsense.recordings.label_csv import read_labels_csv
 
     ths = parse_thresholds(thresholds) if isinstance(thresholds, str) else [float(t) for t in thresholds]
@@ -409,10 +409,7 @@ def run_early_warning(
     info = read_info(ckpt)
     root = Path(recordings) if recordings else gelsight_recordings()
     recs = find_recordings(root, on_error=on_error, sensor=sensor_of(info, ckpt))
-    per_run: dict[tuple[str, int], int] = {}
-    for r in recs:
-        per_run[(r.object, r.experiment)] = per_run.get((r.object, r.experiment), 0) + 1
-    counts = sorted(set(per_run.values()))
+    counts = camera_counts(recs)
     if len(counts) != 1:
         raise InputError(root, f"runs hold different numbers of camera videos ({counts}); early warning needs the same")
     lab = read_labels_csv(labels) if labels is not None else None

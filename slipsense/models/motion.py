@@ -32,6 +32,7 @@ from torch import Tensor, nn
 
 from slipsense.errors import ConfigError, InputError
 from slipsense.models.base import GraspModel, register
+from slipsense.models.streams import slip_probability
 
 #: Bounds on settings a checkpoint may carry (refused before anything is allocated).
 _LIMITS = {"width": 256, "features": 512, "temporal": 512, "sensors": 8, "max_lag": 250, "pixels": 512 * 512}
@@ -397,7 +398,7 @@ class MotionStream:
         diffs *= np.float32(m.diff_scale)
         feat = self._run("frame", diffs)[0]
         logits, *self._states = self._run("step", feat, np.array([float(fresh)], np.float32), *self._states)
-        return float(slip_probability_of(logits[0]))
+        return float(slip_probability(logits)[0])
 
     def push(self, frames, index: int):
         from slipsense.models.streams import check_image
@@ -467,12 +468,6 @@ class MotionStream:
         if self.tmpdir is not None:
             self.tmpdir.cleanup()
             self.tmpdir = None
-
-
-def slip_probability_of(logits: np.ndarray) -> float:
-    z = np.asarray(logits, dtype=np.float64)
-    e = np.exp(z - z.max())
-    return float(e[1] / e.sum())
 
 
 @register("motion-energy")

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import re
 import warnings
+from collections import Counter
 from pathlib import Path
 from typing import Iterable, Literal
 
@@ -101,6 +102,13 @@ def find_recordings(
         raise InputError(root, "no usable recordings found")
     found.sort(key=lambda r: r.key)
     return found
+
+
+def camera_counts(recordings: Iterable[Recording]) -> list[int]:
+    """The distinct numbers of camera videos per run (object, experiment), sorted: ``[2]`` when every
+    run has both fingers."""
+    per_run = Counter((r.object, r.experiment) for r in recordings)
+    return sorted(set(per_run.values()))
 
 
 def _hint(pattern: str) -> str:

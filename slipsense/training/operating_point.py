@@ -30,7 +30,7 @@ def choose_on_training_runs(
     from slipsense.errors import ConfigError
     from slipsense.evaluation import pergrasp
     from slipsense.evaluation.early_warning import replay_recordings
-    from slipsense.recordings.folders import find_recordings, validate_recordings
+    from slipsense.recordings.folders import camera_counts, find_recordings, validate_recordings
     from slipsense.sensors.spec import sensor_of
     from slipsense.checkpoint import read_info
     from slipsense.streaming.detector import SlipDetector
@@ -38,10 +38,7 @@ def choose_on_training_runs(
     sensor = sensor_of(read_info(checkpoint), checkpoint)
     found = find_recordings(recordings, on_error="skip", sensor=sensor)
     recs = [r for r in validate_recordings(found, on_error="skip", expected_size=None) if r.object in set(objects)]
-    cameras = {}
-    for r in recs:
-        cameras[(r.object, r.experiment)] = cameras.get((r.object, r.experiment), 0) + 1
-    counts = sorted(set(cameras.values()))
+    counts = camera_counts(recs)
     if not counts:
         raise ConfigError(f"no recordings of the training objects under {recordings}")
     if len(counts) != 1:
