@@ -167,7 +167,7 @@ def test_grasp_folds_same_results_on_one_or_two_workers(tmp_path, grasps, monkey
         assert res.exit_code == 0, res.output
         docs.append([json.loads((out / f"fold{k}.json").read_text()) for k in (0, 1)])
     for a, b in zip(*docs):
-        assert a["operating_point"] == b["operating_point"] and a["history"][-1]["loss"] == b["history"][-1]["loss"]
+        assert a["operating_point"] == b["operating_point"] and a["history"][-1]["train_loss"] == b["history"][-1]["train_loss"]
         assert [r["probability"] for r in a["runs"]] == [r["probability"] for r in b["runs"]]
         assert a["inner"] and len(a["inner"]) == 4  # the 4 training runs' out-of-fold traces are kept
 

@@ -77,7 +77,7 @@ def test_fit_learns_a_moving_stripe():
         inner_folds=0,
     )
     model, hist = fit_runs(runs, cfg, progress=False)
-    assert len(hist) == 25 and hist[-1]["loss"] < hist[0]["loss"]
+    assert len(hist) == 25 and hist[-1]["train_loss"] < hist[0]["train_loss"]
     probs = predict_runs(model, runs)
     assert np.isnan(probs[0][:10]).all()
     slip_peak = np.mean([np.nanmax(p[40:51]) for p, r in zip(probs, runs) if r.slipped])
@@ -153,7 +153,7 @@ def test_motion_energy_baseline_streams_and_trains():
         inner_folds=0,
     )
     model, hist = fit_runs(_runs(), cfg, progress=False)
-    assert hist[-1]["loss"] < hist[0]["loss"]
+    assert hist[-1]["train_loss"] < hist[0]["train_loss"]
 
 
 def test_build_refuses_huge_settings_before_allocating():
@@ -196,7 +196,7 @@ def test_grasp_training_resumed_after_a_kill_equals_an_uninterrupted_one(tmp_pat
     assert [r["epoch"] for r in epochs_after] == [3, 4, 5]  # only the epochs not done before
     for key, value in whole.state_dict().items():
         assert torch.equal(value, resumed.state_dict()[key]), key
-    assert [r["loss"] for r in hist2] == [r["loss"] for r in hist]
+    assert [r["train_loss"] for r in hist2] == [r["train_loss"] for r in hist]
 
     other = GraspTrainConfig(**{**cfg.to_dict(), "lr": 1e-3})
     with pytest.raises(InputError, match="another training"):

@@ -16,32 +16,28 @@
 
 from __future__ import annotations
 
-import contextlib
 import copy
-import csv
-import io
 import json
 import math
 import random
-import time
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
-import torch.distributed as dist
 import torch.nn as nn
 import torch.nn.functional as F
 from torch.utils.data import DataLoader, Dataset, default_collate
 
 from slipsense.atomic import write_text
 from slipsense.models import available, model_class, settings_of
-from slipsense.checkpoint import load_resume_state, save_checkpoint, save_resume_state
-from slipsense.errors import ConfigError, InputError
-from slipsense.training.distributed import Dist, RankBatches, StepPlan, all_sum, micro_batch_rng, setup  # noqa: F401
-from slipsense.evaluation.evaluate import predict, progress_bar
-from slipsense.evaluation.metrics import metrics_from  # noqa: F401  (re-exported)
+from slipsense.checkpoint import load_resume_state
+from slipsense.errors import ConfigError
+from slipsense.training.distributed import Dist, RankBatches, StepPlan, setup  # noqa: F401
+from slipsense.training.trainer import LoopSettings, Step, restore, rng_state, set_rng_state, train
+from slipsense.evaluation.evaluate import predict
+from slipsense.evaluation.metrics import metrics_from
 from slipsense.training.splits import SPLIT_IDENTITY, check_same_split, prepare_data  # noqa: F401
 
 
@@ -106,18 +102,6 @@ def seed_everything(seed: int) -> None:
 
 
 # --------------------------------------------------------------------------- training
-def _rng_state() -> dict[str, Any]:
-    return {"python": random.getstate(), "numpy": np.random.get_state(), "torch": torch.get_rng_state()}
-
-
-def _set_rng_state(s: dict[str, Any]) -> None:
-    py = s["python"]
-    # random.setstate wants (version, tuple of 625 ints, gauss); a list would be refused
-    random.setstate((py[0], tuple(py[1]), py[2]))
-    np.random.set_state(tuple(s["numpy"]))
-    torch.set_rng_state(s["torch"])
-
-
 def make_optimizer(model: nn.Module, cfg: TrainConfig):
     """``(optimizer, scheduler)``: Adam with a StepLR schedule, as in both papers."""
     optimizer = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
@@ -125,31 +109,89 @@ def make_optimizer(model: nn.Module, cfg: TrainConfig):
     return optimizer, scheduler
 
 
-def restore_state(path: Path, state: dict[str, Any], model: nn.Module, optimizer=None, scheduler=None) -> None:
-    """Load a resume state into ``model`` (and optimizer, scheduler, RNG); InputError naming
-    ``path`` when it does not fit them (another model, other settings, a damaged file)."""
+class ClipTask:
+    """Labelled clips (videos or marker sequences) for the training loop (:mod:`slipsense.training.trainer`).
 
-    def fail(what: str, exc: BaseException):
-        text = " ".join(str(exc).split())
-        raise InputError(path, f"resume state does not fit {what} ({text[:200]})") from None
+    One plan for every world size (:class:`~slipsense.training.distributed.StepPlan`): each step takes
+    the next ``world x batch x accumulate`` items of a seeded shuffle and cuts them into micro-batches;
+    no item is repeated or dropped (a DistributedSampler pads with repeats), so 2 x 8 sees the batches
+    1 x 16 sees, for any dataset size. A micro-batch's loss is its summed cross-entropy over the step's
+    item count."""
 
-    try:
-        model.load_state_dict(state["model"])
-    except (RuntimeError, KeyError, TypeError, ValueError) as exc:
-        fail("the model", exc)
-    for part, obj in (("optimizer", optimizer), ("scheduler", scheduler)):
-        if obj is None:
-            continue
-        try:
-            obj.load_state_dict(state[part])
-        except (RuntimeError, KeyError, TypeError, ValueError, IndexError) as exc:
-            fail(f"the {part}", exc)
-    try:
-        _set_rng_state(state["rng"])
-    except (RuntimeError, KeyError, TypeError, ValueError, IndexError) as exc:
-        fail("the random number generators", exc)
-    if not all(isinstance(r, dict) for r in state["history"]):
-        raise InputError(path, "resume state history is not a list of metric rows")
+    def __init__(self, train_data: Dataset, val_data: Dataset | None, cfg: TrainConfig, extra_eval=None):
+        if len(train_data) == 0:
+            raise ConfigError("the training set is empty: nothing to train on")
+        self.train_data, self.val_data, self.cfg, self.extra_eval = train_data, val_data, cfg, extra_eval or {}
+        self._loader = None
+        self.device = torch.device("cpu")
+
+    def trainable(self, model):
+        return model
+
+    def optimizer(self, model):
+        return make_optimizer(model, self.cfg)
+
+    def plan(self, model, epoch: int, d: Dist, accumulate: int) -> list[Step]:
+        if self._loader is None:
+            self.device = d.device
+            self._plan = StepPlan(len(self.train_data), self.cfg.batch_size, d.world, accumulate, self.cfg.seed)
+            self._rank_batches = RankBatches(self._plan, d.rank)
+            workers = self.cfg.num_workers
+            self._loader = DataLoader(
+                self.train_data, batch_sampler=self._rank_batches, num_workers=workers, persistent_workers=workers > 0
+            )
+        return [Step(micro, float(sum(len(m) for m in micro))) for micro in self._plan.steps(epoch)]
+
+    def batches(self, steps, epoch: int, d: Dist, accumulate: int):
+        self._rank_batches.set_epoch(epoch)
+        return iter(self._loader)
+
+    def loss(self, net, batch, step_weight: float, world: int):
+        x, y = (t.to(self.device, non_blocking=True) for t in batch)
+        logits = net(x)
+        total = F.cross_entropy(logits, y, reduction="sum")
+        stats = torch.tensor([total.item(), (logits.argmax(-1) == y).sum().item(), len(y)], dtype=torch.float64)
+        return total * (world / step_weight), stats
+
+    def filler_loss(self, net):
+        x, _ = default_collate([self.train_data[0]])
+        return net(x.to(self.device)).sum()
+
+    def epoch_stats(self) -> dict[str, Any]:
+        return {}
+
+    def validate(self, model, d: Dist) -> dict[str, float]:
+        row = {}
+        sets = {"val": self.val_data, **self.extra_eval}
+        for name, data in sets.items():
+            if data is None or not len(data):
+                continue
+            p, y = predict(model, data, batch_size=max(self.cfg.batch_size, 32), device=d.device, d=d)
+            m = metrics_from(p, y)
+            row.update({f"{name}_{k}": m[k] for k in ("loss", "accuracy", "precision", "recall", "f1")})
+        return row
+
+    def identity(self) -> None:
+        return None  # the run's split.json is checked instead (splits.check_same_split)
+
+    def state(self) -> dict[str, Any]:
+        return {}
+
+    def restore(self, state: dict[str, Any]) -> None:
+        pass
+
+
+def loop_settings(cfg: TrainConfig, desc: str = "") -> LoopSettings:
+    return LoopSettings(
+        epochs=cfg.epochs,
+        seed=cfg.seed,
+        accumulate=cfg.accumulate,
+        device=cfg.device,
+        progress=cfg.progress,
+        max_steps_per_epoch=cfg.max_steps_per_epoch,
+        select_by=cfg.select_by,
+        desc=desc,
+    )
 
 
 def fit(
@@ -163,7 +205,8 @@ def fit(
     extra_eval: dict[str, Dataset] | None = None,
     resume_state: dict[str, Any] | None = None,
 ) -> list[dict[str, Any]]:
-    """Train ``model`` on ``train_data``; validate on ``val_data`` after every epoch.
+    """Train ``model`` on ``train_data`` through the one training loop (:func:`~slipsense.training.trainer.train`);
+    validate on ``val_data`` after every epoch.
 
     Args:
         model: a registry model (``forward(x) -> (B, 2)`` logits), already built (seed first!).
@@ -181,155 +224,14 @@ def fit(
     Returns:
         The per-epoch metric rows (also written to ``metrics.csv``).
     """
-    if len(train_data) == 0:
-        raise ConfigError("the training set is empty: nothing to train on")
-    d = setup(cfg.device)
+    task = ClipTask(train_data, val_data, cfg, extra_eval)
+    world = setup(cfg.device).world
+    info = {**(info or {}), "train": asdict(cfg), "global_batch": world * cfg.batch_size * cfg.accumulate}
     out = Path(out_dir)
-    if d.main:
-        out.mkdir(parents=True, exist_ok=True)
-    model.to(d.device)
-    net = nn.parallel.DistributedDataParallel(model) if d.world > 1 else model
-    optimizer, scheduler = make_optimizer(model, cfg)
-    # One plan for every world size: each step takes the next world x batch x accumulate items of a
-    # seeded shuffle and cuts them into micro-batches; rank r runs micro-batches r*A .. r*A+A-1. No
-    # item is repeated or dropped (a DistributedSampler pads with repeats), so 2 x 8 sees the
-    # batches 1 x 16 sees, for any dataset size.
-    plan = StepPlan(len(train_data), cfg.batch_size, d.world, cfg.accumulate, cfg.seed)
-    batches = RankBatches(plan, d.rank)
-    loader = DataLoader(
-        train_data, batch_sampler=batches, num_workers=cfg.num_workers, persistent_workers=cfg.num_workers > 0
-    )
-    info = {
-        **(info or {}),
-        "train": asdict(cfg),
-        "world_size": d.world,
-        "global_batch": d.world * cfg.batch_size * cfg.accumulate,
-    }
-    history: list[dict[str, Any]] = []
-    best = -math.inf
-    start_epoch = 0
-    resume_path = out / "resume.pt"
-    if resume_state is None and resume and resume_path.exists():
-        resume_state = load_resume_state(resume_path)
-    if resume_state is not None:
-        state = resume_state
-        restore_state(resume_path, state, model, optimizer, scheduler)
-        history, best, start_epoch = [dict(r) for r in state["history"]], float(state["best"]), state["epoch"] + 1
-        if d.main:
-            print(f"resuming {out} after epoch {state['epoch'] + 1}/{cfg.epochs}")
-    if d.main:
-        write_text(
-            out / "run.json",
-            json.dumps({**info, "model": model.model_name, "model_config": model.config()}, indent=2, default=str),
-        )
-    t_run = time.perf_counter()
-    dummy: list = []  # one real item, run with weight 0 by a rank whose micro-batch is empty
-    for epoch in range(start_epoch, cfg.epochs):
-        t0 = time.perf_counter()
-        batches.set_epoch(epoch)
-        net.train()
-        sums = torch.zeros(3, dtype=torch.float64)  # loss * n, correct, n
-        items = iter(loader)
-        steps = plan.steps(epoch)
-        if cfg.max_steps_per_epoch is not None:
-            steps = steps[: cfg.max_steps_per_epoch]
-        bar = progress_bar(steps, cfg.progress and d.main, f"epoch {epoch + 1}/{cfg.epochs}")
-        for step, micro in enumerate(bar):
-            n_global = sum(len(m) for m in micro)
-            optimizer.zero_grad(set_to_none=True)
-            mine = range(d.rank * cfg.accumulate, (d.rank + 1) * cfg.accumulate)
-            for k, m in enumerate(mine):
-                last = k == cfg.accumulate - 1
-                sync = contextlib.nullcontext() if (last or d.world == 1) else net.no_sync()
-                with sync, micro_batch_rng(cfg.seed, epoch, step, m, d.device):
-                    if micro[m]:
-                        x, y = next(items)
-                        x, y = x.to(d.device, non_blocking=True), y.to(d.device, non_blocking=True)
-                        logits = net(x)
-                        total = F.cross_entropy(logits, y, reduction="sum")
-                        # DDP averages over ranks: scaled so the step's gradient is the mean over
-                        # the n_global items of the step, wherever they were computed.
-                        (total * (d.world / n_global)).backward()
-                        sums += torch.tensor(
-                            [total.item(), (logits.argmax(-1) == y).sum().item(), len(y)], dtype=torch.float64
-                        )
-                    else:
-                        # Every rank joins every gradient all-reduce; in eval mode (no dropout, no
-                        # batch-norm update) and with weight 0, the item changes nothing.
-                        if not dummy:
-                            dummy.append(default_collate([train_data[0]]))
-                        net.eval()
-                        (net(dummy[0][0].to(d.device)).sum() * 0.0).backward()
-                        net.train()
-            optimizer.step()
-            if bar is not steps and sums[2] > 0:
-                bar.set_postfix(loss=f"{sums[0].item() / sums[2].item():.4f}")
-        sums = all_sum(sums, d)
-        row: dict[str, Any] = {
-            "epoch": epoch + 1,
-            "lr": optimizer.param_groups[0]["lr"],
-            "train_loss": sums[0].item() / max(sums[2].item(), 1),
-            "train_accuracy": sums[1].item() / max(sums[2].item(), 1),
-            "train_items": int(sums[2].item()),
-        }
-        scheduler.step()
-        if val_data is not None and len(val_data):
-            p, y = predict(model, val_data, batch_size=max(cfg.batch_size, 32), device=d.device, d=d)
-            m = metrics_from(p, y)
-            row.update({f"val_{k}": m[k] for k in ("loss", "accuracy", "precision", "recall", "f1")})
-        for name, extra in (extra_eval or {}).items():
-            p, y = predict(model, extra, batch_size=max(cfg.batch_size, 32), device=d.device, d=d)
-            m = metrics_from(p, y)
-            row.update({f"{name}_{k}": m[k] for k in ("loss", "accuracy", "precision", "recall", "f1")})
-        row["seconds"] = time.perf_counter() - t0
-        history.append(row)
-        score = (
-            -row["val_loss"]
-            if cfg.select_by == "loss" and "val_loss" in row
-            else row.get(f"val_{cfg.select_by}", row["train_accuracy"])
-        )
-        improved = score > best
-        best = max(best, score)
-        if d.main:
-            ck_info = {**info, "epoch": epoch + 1, "metrics": row}
-            save_checkpoint(out / "last.safetensors", model, ck_info)
-            if improved:
-                save_checkpoint(out / "best.safetensors", model, ck_info)
-            write_metrics_csv(out / "metrics.csv", history)
-            save_resume_state(
-                resume_path,
-                {
-                    "model": model.state_dict(),
-                    "optimizer": optimizer.state_dict(),
-                    "scheduler": scheduler.state_dict(),
-                    "rng": _rng_state(),
-                    "history": history,
-                    "best": best,
-                    "epoch": epoch,
-                },
-            )
-            shown = {k: (round(v, 4) if isinstance(v, float) else v) for k, v in row.items()}
-            print(json.dumps(shown), flush=True)
-        if d.world > 1:
-            dist.barrier()  # nobody races ahead of rank 0's checkpoint
-    if d.main and history:
-        from slipsense.plots import plot_curves
-
-        plot_curves(history, out / "curves.png", title=f"{model.model_name}")
-        summary = {"train_seconds": time.perf_counter() - t_run, "epochs": len(history), "final": history[-1]}
-        write_text(out / "summary.json", json.dumps(summary, indent=2))
-    return history
-
-
-def write_metrics_csv(path: Path, rows: list[dict[str, Any]]) -> None:
-    keys: list[str] = []
-    for r in rows:
-        keys += [k for k in r if k not in keys]
-    buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=keys)
-    w.writeheader()
-    w.writerows(rows)
-    write_text(path, buf.getvalue())
+    state_path = out / "resume.pt"
+    if not resume and resume_state is None and state_path.exists():
+        state_path.unlink()
+    return train(model, task, loop_settings(cfg), out=out, info=info, state_path=state_path, resume_state=resume_state)
 
 
 # --------------------------------------------------------------------------- from a request to a run
@@ -515,11 +417,11 @@ def run_training(req: TrainRequest, resume: bool = False) -> dict[str, Any]:
         # refused resume leaves the run folder as it was.
         state = load_resume_state(out / "resume.pt")
         probe = copy.deepcopy(model)
-        rng = _rng_state()
+        rng = rng_state()
         try:
-            restore_state(out / "resume.pt", state, probe, *make_optimizer(probe, cfg))
+            restore(out / "resume.pt", state, probe, *make_optimizer(probe, cfg))
         finally:
-            _set_rng_state(rng)
+            set_rng_state(rng)
         del probe
         check_same_split(out / "split.json", split_info)
     if d.main:

@@ -38,6 +38,8 @@ class FitJob:
     predict: tuple[int, ...]  # runs replayed by the trained model
     keep_model: bool = False  # return the weights (the detector itself, not an inner-fold one)
     state_path: str | None = None  # where the training keeps its resume state (None: nowhere)
+    out: str | None = None  # where it writes last/best checkpoints, metrics.csv and curves (None: nowhere)
+    info: dict | None = None  # what those checkpoints carry besides the weights
 
 
 def fit_job(shared: tuple[Sequence[GraspRun], GraspTrainConfig], job: FitJob, tick=lambda units: None):
@@ -51,6 +53,8 @@ def fit_job(shared: tuple[Sequence[GraspRun], GraspTrainConfig], job: FitJob, ti
         progress=False,
         on_epoch=lambda _: tick(len(job.train)),
         state_path=job.state_path,
+        out=job.out,
+        info=job.info,
     )
     probs = predict_runs(model, [runs[i] for i in job.predict])
     state = {k: v.detach().clone() for k, v in model.state_dict().items()} if job.keep_model else None
@@ -111,11 +115,15 @@ def train_with_operating_point(
     workers: int | None = 1,
     progress: bool = False,
     state_dir=None,
+    out=None,
+    info: dict | None = None,
 ):
     """Train a detector on the runs of every object but ``held`` and choose its operating point on
     those runs only (:func:`plan_training` on ``workers`` processes); returns :func:`finish_training`'s
     ``(model, history, operating point, held-out traces)``. ``state_dir``: each training keeps its
-    resume state there (``job<k>.state``) and continues from one it finds (:func:`fit_runs`)."""
+    resume state there (``job<k>.state``) and continues from one it finds (:func:`fit_runs`).
+    ``out``: the detector's own training writes ``last``/``best.safetensors`` (with ``info``),
+    ``metrics.csv`` and ``curves.png`` there after every epoch."""
     import dataclasses
 
     from slipsense.training.parallel import run_jobs
@@ -124,6 +132,8 @@ def train_with_operating_point(
     if state_dir is not None:
         Path(state_dir).mkdir(parents=True, exist_ok=True)
         jobs = [dataclasses.replace(j, state_path=str(Path(state_dir) / f"job{k}.state")) for k, j in enumerate(jobs)]
+    if out is not None:
+        jobs[0] = dataclasses.replace(jobs[0], out=str(out), info=info)
     if not jobs[0].train:
         raise ConfigError("no usable training runs (every run excluded, or slip runs without a moment)")
     results = run_jobs(
@@ -199,14 +209,17 @@ def train_detector(
 ) -> dict[str, Any]:
     """Train a detector on every run whose object is not in ``held``, choose its operating point on
     those runs (inner folds, trained beside it on ``workers`` processes, default one per core), and
-    write ``out/detector.safetensors`` (weights, full config, operating point), ``metrics.csv`` and
-    ``curves.png``; with ``held`` objects, also ``held_out.json`` (their per-grasp outcomes and clip
+    write ``out/detector.safetensors`` (the last epoch's weights, full config, operating point),
+    ``last.safetensors`` and ``best.safetensors`` (by training accuracy: nothing of the training objects
+    is set aside to pick an epoch; the operating point goes into those holding the last epoch's
+    weights), ``metrics.csv`` and ``curves.png``;
+    with ``held`` objects, also ``held_out.json`` (their per-grasp outcomes and clip
     metrics, never used for any choice).
 
     Every training keeps its state in ``out/resume/`` after each epoch; ``resume=True`` continues
     from there (a killed run ends with the weights of an uninterrupted one), else it starts afresh."""
     from slipsense import atomic
-    from slipsense.checkpoint import save_checkpoint
+    from slipsense.checkpoint import save_checkpoint, update_info
 
     out = Path(out)
     state_dir = out / "resume"
@@ -218,10 +231,19 @@ def train_detector(
     unknown = sorted(set(held) - {r.object for r in usable})
     if unknown:
         raise ConfigError(f"held-out objects without usable runs: {', '.join(unknown)}")
-    model, history, op, held_probs = train_with_operating_point(runs, held, cfg, workers, progress, state_dir)
-    info = _checkpoint_info(cfg, op, train, {**(data or {}), "held_out_objects": sorted(held)}, history)
+    data = {**(data or {}), "held_out_objects": sorted(held)}
+    card = _checkpoint_info(cfg, None, train, data, [])
+    card = {k: v for k, v in card.items() if k not in ("operating_point", "history")}
+    model, history, op, held_probs = train_with_operating_point(
+        runs, held, cfg, workers, progress, state_dir, out=out, info=card
+    )
+    info = _checkpoint_info(cfg, op, train, data, history)
     path = save_checkpoint(out / "detector.safetensors", model, info)
-    _write_history(out, history)
+    for name in ("last.safetensors", "best.safetensors"):
+        # the inner folds trained for every epoch: their operating point is the last epoch's, which
+        # best.safetensors holds only where no later epoch scored higher
+        if (out / name).is_file() and _same_weights(out / name, path):
+            update_info(out / name, {"operating_point": op})
     result = {"checkpoint": str(path), "operating_point": op, "history": history}
     if held:
         test = [r for r in usable if r.object in set(held)]
@@ -231,23 +253,8 @@ def train_detector(
     return result
 
 
-def _write_history(out, history: list[dict[str, Any]]) -> None:
-    import csv
-    import io
+def _same_weights(a, b) -> bool:
+    from safetensors.torch import load_file
 
-    from slipsense import atomic
-    from slipsense.plots import _plt, save_figure
-
-    buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=list(history[0]), lineterminator="\n")
-    w.writeheader()
-    w.writerows(history)
-    atomic.write_text(out / "metrics.csv", buf.getvalue())
-    plt = _plt()
-    fig, ax = plt.subplots(figsize=(5.2, 3.4))
-    ax.plot([h["epoch"] for h in history], [h["loss"] for h in history], marker=".", label="loss (weighted)")
-    ax.plot([h["epoch"] for h in history], [h["frame_accuracy"] for h in history], marker=".", label="frame accuracy")
-    ax.set_xlabel("epoch")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    save_figure(fig, out / "curves.png")
+    wa, wb = load_file(str(a)), load_file(str(b))
+    return wa.keys() == wb.keys() and all(wa[k].equal(wb[k]) for k in wa)

@@ -20,18 +20,18 @@ from __future__ import annotations
 
 import json
 import math
-import time
 from dataclasses import asdict, dataclass, field
-from pathlib import Path
 from typing import Any, Callable, Sequence
 
 import numpy as np
 import torch
+import torch.nn as nn
 import torch.nn.functional as F
 
 from slipsense.evaluation import pergrasp
 from slipsense.errors import ConfigError
 from slipsense.recordings.runs import GraspRun
+from slipsense.training.trainer import LoopSettings, Step, train
 
 
 @dataclass
@@ -147,20 +147,135 @@ class _Chunks:
         return [out[i] for i in rng.permutation(len(out))]
 
 
-def _batches(chunks, items, size: int, flips: bool, rng: np.random.Generator):
-    """Batches of whole runs' chunks (about ``size`` chunks each): a run's frames are encoded once
-    for all its chunks (:meth:`~slipsense.models.base.GraspModel.chunk_logits`)."""
+class _ChunkForward(nn.Module):
+    """``forward(runs, n_out)`` = the model's :meth:`~slipsense.models.base.GraspModel.chunk_logits`,
+    so DDP sees the forward it synchronises."""
+
+    def __init__(self, model):
+        super().__init__()
+        self.model = model
+
+    def forward(self, runs, n_out: int):
+        return self.model.chunk_logits(runs, n_out)
+
+
+class GraspTask:
+    """Whole grasps for the training loop (:mod:`slipsense.training.trainer`).
+
+    An epoch draws chunks (:class:`_Chunks`), every ``mine_every`` epochs after the first from where
+    the current model errs most, and groups whole runs' chunks into steps of about ``batch_size``
+    chunks, each with its random flips: a run's frames are encoded once for all its chunks. Under
+    torchrun (or with ``accumulate``) a step's runs are cut into ``world x accumulate`` consecutive
+    groups; the loss weight of a frame is its class weight (onset frames weigh ``positive_weight`` of
+    the other frames in total, per epoch)."""
+
+    def __init__(self, runs: Sequence[GraspRun], cfg: GraspTrainConfig):
+        self.cfg = cfg
+        self.rng = np.random.default_rng(cfg.seed)
+        self.data = _Chunks(runs, cfg)
+        if not self.data.items:
+            raise ConfigError("no usable training runs (every run excluded, or slip runs without a moment)")
+        if not any(m is not None for _, _, m in self.data.items):
+            raise ConfigError("the training runs hold no slip with a known moment: nothing to learn onset from")
+        self.hardness: list[np.ndarray] | None = None
+        self.weight = torch.ones(2)
+        self._stats: dict[str, Any] = {}
+        self._identity = json.dumps(
+            {
+                "config": cfg.to_dict(),
+                "runs": [
+                    [r.object, r.experiment, list(r.cameras), r.slipped, r.moment_of_slip, r.n_frames] for r in runs
+                ],
+            },
+            sort_keys=True,
+        )
+
+    def trainable(self, model):
+        return _ChunkForward(model)
+
+    def optimizer(self, model):
+        opt = torch.optim.AdamW(model.parameters(), lr=self.cfg.lr, weight_decay=self.cfg.weight_decay)
+        return opt, torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=self.cfg.epochs)
+
+    def plan(self, model, epoch: int, d, accumulate: int) -> list[Step]:
+        cfg = self.cfg
+        if epoch > 0 and cfg.hard_negatives and (epoch - 1) % cfg.mine_every == 0:
+            model.eval()
+            self.hardness = _predict_items(model, self.data.items)
+        chunks = self.data.draw(self.rng, self.hardness)
+        ys = np.concatenate([c[2] for c in chunks])
+        n_pos, n_neg = int((ys == 1).sum()), int((ys == 0).sum())
+        self.weight = torch.tensor([1.0, cfg.positive_weight * n_neg / max(n_pos, 1)])
+        self._stats = {"onset_frames": n_pos, "other_frames": n_neg}
+        w = self.weight.double().numpy()
+        steps = []
+        for part, dims in _groups(chunks, cfg.batch_size, cfg.flips, self.rng):
+            micro = []
+            for idx in np.array_split(np.arange(len(part)), d.world * accumulate):
+                runs = [part[i] for i in idx]
+                y = np.concatenate([c[2] for c in runs]) if runs else np.zeros(0, np.int64)
+                kept = y[y >= 0]
+                micro.append((runs, dims, float(w[kept].sum())) if kept.size else None)
+            steps.append(Step(micro, sum(m[2] for m in micro if m is not None)))
+        return steps
+
+    def batches(self, steps, epoch: int, d, accumulate: int):
+        mine = range(d.rank * accumulate, (d.rank + 1) * accumulate)
+        for step in steps:
+            for m in mine:
+                if step.micro[m] is not None:
+                    runs, dims, weight = step.micro[m]
+                    x = []
+                    for i, ends, _ in runs:
+                        g = torch.from_numpy(
+                            self.data.items[i][0]
+                        )  # uint8 (S, N, h, w): flipped before it is 4x larger
+                        x.append(((g.flip(dims) if dims else g).float().div_(255.0), ends))
+                    yield x, torch.from_numpy(np.concatenate([c[2] for c in runs])), weight
+
+    def loss(self, net, batch, step_weight: float, world: int):
+        x, y, weight = batch
+        logits = net(x, self.cfg.chunk)
+        keep = y >= 0
+        mean = F.cross_entropy(logits[keep], y[keep], weight=self.weight)
+        n = int(keep.sum())
+        stats = torch.tensor(
+            [float(mean.detach()) * n, int((logits[keep].argmax(-1) == y[keep]).sum()), n], dtype=torch.float64
+        )
+        return mean * (weight * world / step_weight), stats
+
+    def filler_loss(self, net):
+        gray = torch.from_numpy(self.data.items[0][0]).float().div_(255.0)
+        return net([(gray, [gray.shape[1] - 1])], self.cfg.chunk).sum()
+
+    def epoch_stats(self) -> dict[str, Any]:
+        return dict(self._stats)
+
+    def validate(self, model, d) -> dict[str, float]:
+        return {}
+
+    def identity(self) -> str:
+        return self._identity
+
+    def state(self) -> dict[str, Any]:
+        hard = None if self.hardness is None else [torch.from_numpy(np.asarray(h)) for h in self.hardness]
+        return {"numpy": self.rng.bit_generator.state, "hardness": hard}
+
+    def restore(self, state: dict[str, Any]) -> None:
+        self.rng.bit_generator.state = state["numpy"]
+        hard = state.get("hardness")
+        self.hardness = None if hard is None else [h.numpy() for h in hard]
+
+
+def _groups(chunks, size: int, flips: bool, rng: np.random.Generator):
+    """Whole runs' chunks in groups of about ``size`` chunks, each with its flips (dims)."""
     part: list = []
     for k, item in enumerate(chunks):
         part.append(item)
         if sum(len(c[1]) for c in part) < size and k < len(chunks) - 1:
             continue
         dims = [d for d, flip in ((-1, rng.random() < 0.5), (-2, rng.random() < 0.5)) if flips and flip]
-        runs = []
-        for i, ends, _ in part:
-            x = torch.from_numpy(items[i][0])  # uint8 (S, N, h, w): flipped before it is 4x larger
-            runs.append(((x.flip(dims) if dims else x).float().div_(255.0), ends))
-        yield runs, torch.from_numpy(np.concatenate([c[2] for c in part]))
+        yield part, dims
         part = []
 
 
@@ -170,140 +285,29 @@ def fit_runs(
     progress: bool = True,
     on_epoch: Callable[[dict[str, Any]], None] | None = None,
     state_path=None,
+    out=None,
+    info: dict[str, Any] | None = None,
+    accumulate: int = 1,
 ):
-    """Train ``cfg.model`` on ``runs``; returns ``(model in eval mode, per-epoch metrics)``.
+    """Train ``cfg.model`` on ``runs`` through the one training loop; returns ``(model in eval mode,
+    per-epoch metrics)``.
 
-    ``state_path``: after every epoch the whole training state (weights, optimizer, schedule, both
+    ``state_path``: after every epoch the whole training state (weights, optimizer, schedule, the
     random generators, the mined hard negatives, the metrics) is written there atomically, and a
     training that finds a state there continues from it: killed at any moment and started again, it
-    ends with the weights an uninterrupted training gives, bit for bit."""
+    ends with the weights an uninterrupted training gives, bit for bit. ``out``: where
+    ``last.safetensors``, ``best.safetensors`` (with ``info``), ``metrics.csv`` and ``curves.png``
+    go after every epoch."""
     from slipsense.models import build
 
     torch.manual_seed(cfg.seed)
-    rng = np.random.default_rng(cfg.seed)
     model = build(cfg.model, **cfg.model_config)
-    data = _Chunks(runs, cfg)
-    if not data.items:
-        raise ConfigError("no usable training runs (every run excluded, or slip runs without a moment)")
-    if not any(m is not None for _, _, m in data.items):
-        raise ConfigError("the training runs hold no slip with a known moment: nothing to learn onset from")
-    opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
-    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=cfg.epochs)
-    history = []
-    hardness = None
-    start = 0
-    identity = {
-        "config": cfg.to_dict(),
-        "runs": [[r.object, r.experiment, list(r.cameras), r.slipped, r.moment_of_slip, r.n_frames] for r in runs],
-    }
-    if state_path is not None and Path(state_path).is_file():
-        start, history, hardness = _restore(state_path, identity, model, opt, sched, rng)
-    epochs = range(start, cfg.epochs)
-    if progress:
-        from tqdm import tqdm
-
-        epochs = tqdm(epochs, desc=f"training {cfg.model}", unit="epoch")
-    for epoch in epochs:
-        model.train()
-        t0 = time.perf_counter()
-        if epoch > 0 and cfg.hard_negatives and (epoch - 1) % cfg.mine_every == 0:
-            model.eval()
-            hardness = [p for p in _predict_items(model, data.items)]
-            model.train()
-        chunks = data.draw(rng, hardness)
-        ys = np.concatenate([c[2] for c in chunks])
-        n_pos, n_neg = int((ys == 1).sum()), int((ys == 0).sum())
-        weight = torch.tensor([1.0, cfg.positive_weight * n_neg / max(n_pos, 1)])
-        total, seen, correct = 0.0, 0, 0
-        for x, y in _batches(chunks, data.items, cfg.batch_size, cfg.flips, rng):
-            logits = model.chunk_logits(x, cfg.chunk)
-            keep = y >= 0
-            if not bool(keep.any()):
-                continue
-            loss = F.cross_entropy(logits[keep], y[keep], weight=weight)
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
-            total += float(loss.detach()) * int(keep.sum())
-            seen += int(keep.sum())
-            correct += int((logits[keep].argmax(-1) == y[keep]).sum())
-        sched.step()
-        _trim_heap()
-        row = {
-            "epoch": epoch + 1,
-            "loss": total / max(seen, 1),
-            "frame_accuracy": correct / max(seen, 1),
-            "onset_frames": n_pos,
-            "other_frames": n_neg,
-            "seconds": time.perf_counter() - t0,
-        }
-        history.append(row)
-        if state_path is not None:
-            _save_state(state_path, identity, epoch + 1, model, opt, sched, rng, hardness, history)
-        if on_epoch is not None:
-            on_epoch(row)
-    return model.eval(), history
-
-
-def _save_state(path, identity, epoch, model, opt, sched, rng, hardness, history) -> None:
-    from slipsense.checkpoint import save_resume_state
-
-    save_resume_state(
-        path,
-        {
-            "identity": json.dumps(identity, sort_keys=True),
-            "epoch": epoch,
-            "model": model.state_dict(),
-            "optimizer": opt.state_dict(),
-            "scheduler": sched.state_dict(),
-            "rng": {"numpy": rng.bit_generator.state, "torch": torch.get_rng_state()},
-            "hardness": None if hardness is None else [torch.from_numpy(np.asarray(h)) for h in hardness],
-            "history": history,
-            "best": 0.0,
-        },
+    task = GraspTask(runs, cfg)
+    settings = LoopSettings(
+        epochs=cfg.epochs, seed=cfg.seed, accumulate=accumulate, device="cpu", progress=progress, desc=cfg.model
     )
-
-
-def _restore(path, identity, model, opt, sched, rng):
-    """Load a state :func:`_save_state` wrote into the training's objects; ``(epoch, history, hardness)``."""
-    from slipsense.checkpoint import load_resume_state
-    from slipsense.errors import InputError
-
-    state = load_resume_state(path)
-    if state.get("identity") != json.dumps(identity, sort_keys=True):
-        raise InputError(path, "resume state of another training (settings or runs differ); use a new --out")
-    try:
-        model.load_state_dict(state["model"])
-        opt.load_state_dict(state["optimizer"])
-        sched.load_state_dict(state["scheduler"])
-        rng.bit_generator.state = state["rng"]["numpy"]
-        torch.set_rng_state(state["rng"]["torch"])
-    except (KeyError, TypeError, ValueError, RuntimeError) as exc:
-        raise InputError(path, f"resume state does not fit this training ({type(exc).__name__}: {exc})") from None
-    hardness = state.get("hardness")
-    return state["epoch"], state["history"], None if hardness is None else [h.numpy() for h in hardness]
-
-
-def _trim_heap() -> None:
-    """Hand freed heap memory back to the OS (glibc only; elsewhere nothing). Each step allocates
-    tensors of another size (a batch's distinct frames), which fragments the heap: without this a
-    training process grew by ~200 MB per epoch, to about 3 GB; trimmed after every epoch it peaks near
-    1.3 GB (fold 0's training runs), at no cost in speed."""
-    global _LIBC
-    if _LIBC is None:
-        import ctypes
-        import ctypes.util
-
-        try:
-            _LIBC = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-            _LIBC.malloc_trim  # noqa: B018 - raises AttributeError where the C library has none
-        except (OSError, AttributeError):
-            _LIBC = False
-    if _LIBC:
-        _LIBC.malloc_trim(0)
-
-
-_LIBC = None
+    history = train(model, task, settings, out=out, info=info, state_path=state_path, on_epoch=on_epoch)
+    return model.eval(), history
 
 
 @torch.no_grad()
