@@ -167,7 +167,10 @@ def test_grasp_folds_same_results_on_one_or_two_workers(tmp_path, grasps, monkey
         assert res.exit_code == 0, res.output
         docs.append([json.loads((out / f"fold{k}.json").read_text()) for k in (0, 1)])
     for a, b in zip(*docs):
-        assert a["operating_point"] == b["operating_point"] and a["history"][-1]["train_loss"] == b["history"][-1]["train_loss"]
+        assert (
+            a["operating_point"] == b["operating_point"]
+            and a["history"][-1]["train_loss"] == b["history"][-1]["train_loss"]
+        )
         assert [r["probability"] for r in a["runs"]] == [r["probability"] for r in b["runs"]]
         assert a["inner"] and len(a["inner"]) == 4  # the 4 training runs' out-of-fold traces are kept
 
@@ -250,12 +253,44 @@ def test_train_model_motionnet_refuses_clip_options(tmp_path, grasps):
     assert res.exit_code == 2 and "frames" in res.output and "clip models" in res.output
 
 
-def test_grasp_training_under_torchrun_is_refused(tmp_path, grasps, monkeypatch):
+def test_train_model_motionnet_under_torchrun_equals_one_process(tmp_path, grasps, monkeypatch):
+    """`torchrun -m slipsense.cli train --model motionnet`: 2 ranks share every step's runs; the
+    detector's learned weights equal one process's with --set train.accumulate=2 (batch-norm running
+    statistics are rank 0's; no hard negatives, which are mined from them); one set of files, written
+    by rank 0."""
+    import os
+    import subprocess
+    import sys
+
+    monkeypatch.setenv("SLIPSENSE_CACHE", str(tmp_path / "cache"))
+    args = ["train", "--model", "motionnet", "--recordings", str(grasps), "--test-objects", "obj3"]
+    args += ["--set", "train.inner_folds=0", *[a for a in SMALL if a not in ("--threads", "1")]]
+    args[args.index("hard_negatives=1")] = "hard_negatives=0"
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "SLIPSENSE_CACHE": str(tmp_path / "cache")}
+    one = CliRunner().invoke(app, [*args, "--set", "train.accumulate=2", "--out", str(tmp_path / "one")])
+    assert one.exit_code == 0, one.output
+    torchrun = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node=2"]
+    proc = subprocess.run(
+        [*torchrun, "-m", "slipsense.cli", *args, "--out", str(tmp_path / "ddp")],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert proc.stdout.count("held-out objects (obj3)") == 1  # rank 0 reports
+    a, b = _weights(tmp_path / "one" / "detector.safetensors"), _weights(tmp_path / "ddp" / "detector.safetensors")
+    learned = [k for k in a if "running_" not in k and "num_batches" not in k]
+    for k in learned:
+        assert (a[k] - b[k]).abs().max() < 1e-5, k
+    for name in ("last.safetensors", "best.safetensors", "metrics.csv", "curves.png", "held_out.json"):
+        assert (tmp_path / "ddp" / name).is_file(), name
+
     monkeypatch.setenv("WORLD_SIZE", "2")
     res = CliRunner().invoke(
-        app, ["train", "--model", "motionnet", "--recordings", str(grasps), "--out", str(tmp_path / "r")]
+        app, ["grasp", "train", "--recordings", str(grasps), "--workers", "2", "--out", str(tmp_path / "w")]
     )
-    assert res.exit_code == 2 and "torchrun is for clip models" in res.output
+    assert res.exit_code == 2 and "leave --workers out" in res.output
 
 
 def test_python_m_slipsense_cli_runs():

@@ -229,7 +229,7 @@ def _grasp_split(tree, name: str):
     ]
     clip_only += [
         f"train.{k}"
-        for k in ("accumulate", "num_workers", "device", "max_steps_per_epoch", "step_size", "gamma", "select_by")
+        for k in ("num_workers", "device", "max_steps_per_epoch", "step_size", "gamma", "select_by")
         if tree["train"].get(k) is not None
     ]
     if tree["model"].get("preset") is not None:
@@ -352,7 +352,14 @@ _register_extensions()
 
 
 def main() -> None:  # console-script entry point
-    app()
+    from slipsense.training.distributed import finish
+
+    try:
+        app()
+    except SystemExit as done:
+        finish(wait=done.code in (0, None))  # a rank that failed does not wait for the others
+        raise
+    finish()
 
 
 if __name__ == "__main__":

@@ -130,11 +130,10 @@ def train_from_tree(
 
     import os
 
-    if int(os.environ.get("WORLD_SIZE", "1")) > 1:  # every rank would train the same and write the same files
-        raise ConfigError(
-            f"{tree['model'].get('name', 'motionnet')} trains on whole grasps, one process per training "
-            "(--workers runs the detector and its inner folds side by side); torchrun is for clip models"
-        )
+    ranked = int(os.environ.get("WORLD_SIZE", "1")) > 1
+    if ranked and workers not in (None, 1):
+        raise ConfigError("under torchrun every training is shared out between the ranks: leave --workers out")
+    progress = progress and int(os.environ.get("RANK", "0")) == 0
     cfg, runs, labels, data = prepare_tree(tree, progress, threads, out)
     held = list(held or [])
     if fold is not None:
@@ -144,6 +143,8 @@ def train_from_tree(
         held = split[fold]
     data["command"] = _command()
     res = train_detector(runs, labels, cfg, out, held, data=data, progress=progress, workers=workers, resume=resume)
+    if ranked and int(os.environ.get("RANK", "0")) != 0:
+        return res  # rank 0 writes and reports
     write_text(Path(out) / "config.yaml", dump_tree(data["config"]))
     op = res["operating_point"]
     echo(

@@ -1,11 +1,13 @@
 """Training: every registered model through ``slipsense train`` (and :func:`slipsense.fit`).
 
-A model declares its task (:attr:`slipsense.models.base.SlipModel.training_task`):
+One loop, :mod:`slipsense.training.trainer` (torchrun DDP, seeds, resume after a kill, best/last
+checkpoints, metrics and curves, progress), trains every model; a model declares its task
+(:attr:`slipsense.models.base.SlipModel.training_task`), which supplies the data, batches and loss:
 
-* ``"clips"`` — windows cut from recordings or marker sequences: :mod:`slipsense.training.clips`
-  (seeded, torchrun DDP, resume after a kill, best/last checkpoints, metrics and curves), with its
-  data split in :mod:`slipsense.training.splits` and ranks in :mod:`slipsense.training.distributed`;
-* ``"grasps"`` — whole runs of every sensor, per-frame targets: :mod:`slipsense.training.grasps`
-  (one training, resumable) and :mod:`slipsense.training.grasp_detector` (the detector with its
-  operating point chosen on inner folds, trainings side by side in :mod:`slipsense.training.parallel`).
+* ``"clips"`` — windows cut from recordings or marker sequences: :class:`slipsense.training.clips.ClipTask`,
+  with the request-to-run plumbing of ``slipsense train`` in :mod:`slipsense.training.clips`, its data
+  split in :mod:`slipsense.training.splits` and ranks in :mod:`slipsense.training.distributed`;
+* ``"grasps"`` — whole runs of every sensor, per-frame targets: :class:`slipsense.training.grasps.GraspTask`
+  and :mod:`slipsense.training.grasp_detector` (the detector with its operating point chosen on inner
+  folds, trainings side by side in :mod:`slipsense.training.parallel`).
 """

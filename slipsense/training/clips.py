@@ -1,17 +1,11 @@
-"""Training: one loop for every model, single-process or under ``torchrun`` (DDP).
+"""Clips and marker sequences for the one training loop (:class:`ClipTask`), and ``slipsense train``
+for clip models: from a request (:class:`TrainRequest`) to a run folder (:func:`run_training`).
 
-* seeded, with a progress bar, per-epoch metrics in ``metrics.csv`` and ``curves.png``;
-* ``best.safetensors`` / ``last.safetensors`` checkpoints (weights + full config);
-* ``resume.pt`` after every epoch (data only: safetensors + JSON) so a killed run continues with
-  ``resume=True`` and ends with the same weights as an uninterrupted one (the item order depends
-  only on seed and epoch, dropout masks only on seed, epoch, step and micro-batch);
-* under ``torchrun`` each step's items are split between the ranks by a :class:`StepPlan` (no
-  padding: no item is seen twice, for any dataset size), gradients are averaged by DDP (gloo on
-  CPU, NCCL on GPU) with each rank's loss weighted by its share of the step, metrics are summed
-  across ranks and only rank 0 writes files. ``world_size x batch_size x accumulate`` is the
-  global batch: 2 processes with ``--batch-size 8`` reproduce a 1-process ``--batch-size 16`` run
-  (dropout-free models), and 1 process with ``--batch-size 8 --accumulate 2`` (any model: the
-  dropout masks of a micro-batch do not depend on the process that draws them).
+The loop (:mod:`slipsense.training.trainer`) gives the run its checkpoints, metrics, resume and
+DDP. ``world_size x batch_size x accumulate`` is the global batch: 2 processes with ``--batch-size
+8`` reproduce a 1-process ``--batch-size 16`` run (dropout-free models), and 1 process with
+``--batch-size 8 --accumulate 2`` (any model: the dropout masks of a micro-batch do not depend on the
+process that draws them).
 """
 
 from __future__ import annotations
@@ -150,7 +144,8 @@ class ClipTask:
         x, y = (t.to(self.device, non_blocking=True) for t in batch)
         logits = net(x)
         total = F.cross_entropy(logits, y, reduction="sum")
-        stats = torch.tensor([total.item(), (logits.argmax(-1) == y).sum().item(), len(y)], dtype=torch.float64)
+        correct = (logits.argmax(-1) == y).sum().item()
+        stats = torch.tensor([total.item(), len(y), correct, len(y)], dtype=torch.float64)
         return total * (world / step_weight), stats
 
     def filler_loss(self, net):

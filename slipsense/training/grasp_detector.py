@@ -221,11 +221,20 @@ def train_detector(
     from slipsense import atomic
     from slipsense.checkpoint import save_checkpoint, update_info
 
+    from slipsense.training.distributed import setup
+
     out = Path(out)
+    d = setup("cpu")  # under torchrun: every training runs on all ranks in turn, each step shared out
+    if d.world > 1:
+        workers = 1
     state_dir = out / "resume"
-    if not resume and state_dir.is_dir():
+    if d.main and not resume and state_dir.is_dir():
         for stale in state_dir.glob("job*.state"):
             stale.unlink()
+    if d.world > 1:
+        import torch.distributed as dist
+
+        dist.barrier()  # no rank reads a stale state rank 0 is removing
     usable = [r for r in runs if r.usable]
     train = [r for r in usable if r.object not in set(held)]
     unknown = sorted(set(held) - {r.object for r in usable})
@@ -237,6 +246,12 @@ def train_detector(
     model, history, op, held_probs = train_with_operating_point(
         runs, held, cfg, workers, progress, state_dir, out=out, info=card
     )
+    result = {"checkpoint": str(out / "detector.safetensors"), "operating_point": op, "history": history}
+    if held:
+        test = [r for r in usable if r.object in set(held)]
+        result.update(evaluate_held_out(held_probs, op, test, labels, cfg.horizon))
+    if not d.main:
+        return result
     info = _checkpoint_info(cfg, op, train, data, history)
     path = save_checkpoint(out / "detector.safetensors", model, info)
     for name in ("last.safetensors", "best.safetensors"):
@@ -244,12 +259,9 @@ def train_detector(
         # best.safetensors holds only where no later epoch scored higher
         if (out / name).is_file() and _same_weights(out / name, path):
             update_info(out / name, {"operating_point": op})
-    result = {"checkpoint": str(path), "operating_point": op, "history": history}
     if held:
-        test = [r for r in usable if r.object in set(held)]
-        fold = evaluate_held_out(held_probs, op, test, labels, cfg.horizon)
+        fold = {k: v for k, v in result.items() if k not in ("checkpoint", "operating_point", "history")}
         atomic.write_text(out / "held_out.json", json.dumps({"objects": sorted(held), **fold}, indent=1))
-        result.update(fold)
     return result
 
 

@@ -58,6 +58,7 @@ class GraspTrainConfig:
     max_held_alarm: float | None = (
         None  # operating point: at most this fraction of held grasps alarm (None: best score)
     )
+    accumulate: int = 1  # micro-batches per process per step (a step's runs cut into world x accumulate groups)
 
     def __post_init__(self):
         checks = {
@@ -71,6 +72,7 @@ class GraspTrainConfig:
             "horizon": (1, 5000),
             "seed": (0, 2**32 - 1),
             "inner_folds": (0, 20),
+            "accumulate": (1, 1024),
         }
         if self.split_seed is not None:
             checks["split_seed"] = (0, 2**32 - 1)
@@ -239,10 +241,9 @@ class GraspTask:
         keep = y >= 0
         mean = F.cross_entropy(logits[keep], y[keep], weight=self.weight)
         n = int(keep.sum())
-        stats = torch.tensor(
-            [float(mean.detach()) * n, int((logits[keep].argmax(-1) == y[keep]).sum()), n], dtype=torch.float64
-        )
-        return mean * (weight * world / step_weight), stats
+        correct = int((logits[keep].argmax(-1) == y[keep]).sum())
+        stats = torch.tensor([float(mean.detach()) * weight, weight, correct, n], dtype=torch.float64)
+        return mean * (weight * world / step_weight), stats  # train_loss: the class-weighted mean
 
     def filler_loss(self, net):
         gray = torch.from_numpy(self.data.items[0][0]).float().div_(255.0)
@@ -287,7 +288,6 @@ def fit_runs(
     state_path=None,
     out=None,
     info: dict[str, Any] | None = None,
-    accumulate: int = 1,
 ):
     """Train ``cfg.model`` on ``runs`` through the one training loop; returns ``(model in eval mode,
     per-epoch metrics)``.
@@ -304,7 +304,7 @@ def fit_runs(
     model = build(cfg.model, **cfg.model_config)
     task = GraspTask(runs, cfg)
     settings = LoopSettings(
-        epochs=cfg.epochs, seed=cfg.seed, accumulate=accumulate, device="cpu", progress=progress, desc=cfg.model
+        epochs=cfg.epochs, seed=cfg.seed, accumulate=cfg.accumulate, device="cpu", progress=progress, desc=cfg.model
     )
     history = train(model, task, settings, out=out, info=info, state_path=state_path, on_epoch=on_epoch)
     return model.eval(), history

@@ -68,8 +68,8 @@ class Task(Protocol):
         """This rank's non-empty micro-batches of ``steps``, loaded, in order."""
 
     def loss(self, net: nn.Module, batch: Any, step_weight: float, world: int) -> tuple[torch.Tensor, torch.Tensor]:
-        """``(loss to backpropagate, float64 [summed loss, correct, counted])`` of one micro-batch; the loss
-        already scaled by the micro-batch's share of ``step_weight`` times ``world``."""
+        """``(loss to backpropagate, float64 [weighted loss sum, its weight, correct, counted])`` of one
+        micro-batch; the loss already scaled by the micro-batch's share of ``step_weight`` times ``world``."""
 
     def filler_loss(self, net: nn.Module) -> torch.Tensor:
         """A loss over one real item (run in eval mode, multiplied by 0) for an empty micro-batch."""
@@ -142,11 +142,12 @@ def train(
     split = d.world * s.accumulate > 1
     for epoch in range(start, s.epochs):
         t0 = time.perf_counter()
+        _sync_buffers(model, d)
         steps = task.plan(model, epoch, d, s.accumulate)
         if s.max_steps_per_epoch is not None:
             steps = steps[: s.max_steps_per_epoch]
         net.train()
-        sums = torch.zeros(3, dtype=torch.float64)  # summed loss, correct, counted
+        sums = torch.zeros(4, dtype=torch.float64)  # weighted loss sum, its weight, correct, counted
         batches = task.batches(steps, epoch, d, s.accumulate)
         from slipsense.evaluation.evaluate import progress_bar
 
@@ -169,15 +170,15 @@ def train(
                         (task.filler_loss(net) * 0.0).backward()
                         net.train()
             optimizer.step()
-            if bar is not steps and sums[2] > 0:
-                bar.set_postfix(loss=f"{sums[0].item() / sums[2].item():.4f}")
+            if bar is not steps and sums[1] > 0:
+                bar.set_postfix(loss=f"{sums[0].item() / sums[1].item():.4f}")
         sums = all_sum(sums, d)
         row: dict[str, Any] = {
             "epoch": epoch + 1,
             "lr": optimizer.param_groups[0]["lr"],
-            "train_loss": sums[0].item() / max(sums[2].item(), 1),
-            "train_accuracy": sums[1].item() / max(sums[2].item(), 1),
-            "train_items": int(sums[2].item()),
+            "train_loss": sums[0].item() / sums[1].item() if sums[1] > 0 else math.nan,
+            "train_accuracy": sums[2].item() / max(sums[3].item(), 1),
+            "train_items": int(sums[3].item()),
             **task.epoch_stats(),
         }
         scheduler.step()
@@ -207,6 +208,7 @@ def train(
             on_epoch(row)
         if d.world > 1:
             dist.barrier()  # nobody races ahead of rank 0's files
+    _sync_buffers(model, d)
     if out is not None and d.main and history:
         from slipsense.plots import plot_curves
 
@@ -214,6 +216,15 @@ def train(
         summary = {"train_seconds": time.perf_counter() - t_run, "epochs": len(history), "final": history[-1]}
         write_text(out / "summary.json", json.dumps(summary, indent=2))
     return history
+
+
+def _sync_buffers(model: nn.Module, d: Dist) -> None:
+    """Every rank takes rank 0's buffers (batch-norm running statistics): DDP broadcasts them at each
+    forward, so after a step the other ranks' are stale; a task planning from the model (mining hard
+    negatives) and the trained model itself must be the same on every rank."""
+    if d.world > 1:
+        for b in model.buffers():
+            dist.broadcast(b, 0)
 
 
 def _holds(micro) -> bool:

@@ -70,4 +70,7 @@ def main(argv):
 
 
 if __name__ == "__main__":
+    from slipsense.training.distributed import finish
+
     main(sys.argv[1:])
+    finish()
