@@ -157,3 +157,26 @@ def test_register_refuses_a_class_outside_the_contract():
 
     with pytest.raises(TypeError, match="must subclass"):
         register("test-not-a-model")(torch.nn.Linear)
+
+
+def test_nothing_outside_models_asks_the_kind():
+    """Outside slipsense/models code asks what a model reads and how it trains (``reads``,
+    ``training_task``), never its kind or its name."""
+    import ast
+    from pathlib import Path
+
+    import slipsense
+
+    root = Path(slipsense.__file__).parent
+    found = []
+    for path in sorted(root.rglob("*.py")):
+        if "models" in path.relative_to(root).parts[:1]:
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Attribute) and node.attr == "input_kind":
+                found.append(f"{path.relative_to(root)}:{node.lineno} .input_kind")
+            if isinstance(node, ast.Compare):  # a name may be printed or stored, not tested
+                for part in ast.walk(node):
+                    if isinstance(part, ast.Attribute) and part.attr == "model_name":
+                        found.append(f"{path.relative_to(root)}:{node.lineno} compares .model_name")
+    assert not found, found

@@ -77,12 +77,13 @@ class Source:
             self._close()
 
 
-def open_source(source: str, kind: str, markers: int | None = None, camera_glob: str | None = None) -> Source:
+def open_source(source: str, reads: str, markers: int | None = None, camera_glob: str | None = None) -> Source:
     """A video file, a recordings experiment folder (its ``camera_*.avi`` videos as sensors), a
     marker ``.npy`` (``(T, M, 3)`` or ``(S, T, M, 3)`` mm) or a camera index (``0``, ``1``, ...).
 
-    ``kind`` is the model's input kind: video models need pictures; marker models take a ``.npy``
-    or track the markers of video files (:mod:`slipsense.sensors.markers`) first.
+    ``reads`` is what the model reads (:attr:`~slipsense.models.base.SlipModel.reads`): ``"frames"``
+    need pictures; ``"markers"`` take a ``.npy`` or track the markers of video files
+    (:mod:`slipsense.sensors.markers`) first.
     """
     from slipsense.recordings.folders import CAMERA_GLOB
     from slipsense.recordings.video import read_video
@@ -96,17 +97,17 @@ def open_source(source: str, kind: str, markers: int | None = None, camera_glob:
         videos = [read_video(p, expected_size=None, min_frames=1) for p in cams]
         if len({len(v) for v in videos}) != 1:
             raise InputError(path, f"the camera videos differ in frame count: {[len(v) for v in videos]}")
-        return _array_source(str(path), videos, cams, kind, markers)
+        return _array_source(str(path), videos, cams, reads, markers)
     if path.is_file():
         if path.suffix.lower() == ".npy":
-            if kind != "markers":
+            if reads != "markers":
                 raise InputError(
                     path, "a marker .npy needs a marker model (stnet, temnet); this checkpoint takes video"
                 )
             return _npy_source(path, markers)
-        return _array_source(str(path), [read_video(path, expected_size=None, min_frames=1)], [path], kind, markers)
+        return _array_source(str(path), [read_video(path, expected_size=None, min_frames=1)], [path], reads, markers)
     if source.strip().isdigit():
-        if kind not in ("video", "grasp"):
+        if reads != "frames":
             raise InputError(
                 None,
                 f"camera {source}: live cameras need a video model; marker models take a video file or a marker .npy",
@@ -115,8 +116,8 @@ def open_source(source: str, kind: str, markers: int | None = None, camera_glob:
     raise InputError(path, "no such file or folder (nor a camera index)")
 
 
-def _array_source(name: str, videos: list[np.ndarray], paths: list[Path], kind: str, markers: int | None) -> Source:
-    if kind in ("video", "grasp"):
+def _array_source(name: str, videos: list[np.ndarray], paths: list[Path], reads: str, markers: int | None) -> Source:
+    if reads == "frames":
         steps = ((list(fr), list(fr)) for fr in zip(*videos))
         return Source(name, len(videos), steps)
     from slipsense.sensors.markers import marker_sequences, track_markers
@@ -186,7 +187,7 @@ def watch_source(
         check_output_file(out, "--out")
         AnnotatedWriter(out)  # refuse a wrong suffix before any work
     if checkpoint is None:  # the shipped detectors read videos: one for one finger, one for both
-        src = open_source(source, "video")
+        src = open_source(source, "frames")
         ckpt = _checkpoint(None, src.sensors)
         model, info = load_model(ckpt)
     else:
@@ -195,7 +196,7 @@ def watch_source(
         ckpt = _checkpoint(checkpoint)
         model, info = load_model(ckpt)
         glob = sensor_of(info, ckpt).camera_glob  # a malformed sensor spec is named with its file
-        src = open_source(source, model.input_kind, getattr(model, "markers", None), glob)
+        src = open_source(source, model.reads, getattr(model, "markers", None), glob)
     threshold, debounce = stored_operating_point(ckpt, info, threshold, None)
     try:
         det = SlipDetector(
@@ -230,7 +231,7 @@ def watch_source(
                 echo(_reading_line(r))
             if writer is not None:
                 heat = [det.heatmap(s) for s in range(det.sensors)] if heatmap else []
-                clouds = list(inputs) if det.kind == "markers" else []
+                clouds = list(inputs) if det.reads == "markers" else []
                 writer.add(annot.draw(display, r, heat, clouds))
     except KeyboardInterrupt:  # a live camera is stopped with Ctrl-C: still write what was seen
         pass

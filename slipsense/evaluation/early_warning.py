@@ -92,8 +92,8 @@ def replay_recordings(
     from slipsense.recordings.frame_cache import video_products
     from slipsense.recordings.video import read_video
 
-    if detector.kind not in ("video", "grasp"):
-        raise ConfigError("early warning replays GelSight videos: it needs a video model")
+    if detector.reads != "frames":
+        raise ConfigError("early warning replays GelSight videos: it needs a model that reads camera frames")
     runs: dict[tuple[str, int], list[Any]] = {}
     for r in recordings:
         runs.setdefault((r.object, r.experiment), []).append(r)

@@ -123,8 +123,7 @@ def evaluate_checkpoint(
     if not isinstance(noise_std, (int, float)) or not math.isfinite(noise_std) or noise_std < 0:
         raise ConfigError(f"--noise-std must be a finite number >= 0, got {noise_std!r}")
     model, info = load_model(checkpoint)
-    kind = model.input_kind
-    if kind == "grasp":
+    if model.training_task == "grasps":  # trained and judged on whole runs
         return _evaluate_grasps(checkpoint, recordings, split, markers, json_out, overrides, progress, dtype)
     sources = [s for s in (recordings, split, markers) if s is not None]
     if len(sources) != 1:
@@ -138,7 +137,7 @@ def evaluate_checkpoint(
         "noise_std": noise_std,
         "inference_dtype": dtype,
     }
-    if kind == "video":
+    if model.reads == "frames":
         if markers is not None:
             raise InputError(checkpoint, "this checkpoint holds a video model; use --recordings or --split-file")
         from slipsense.sensors.spec import sensor_of
@@ -292,7 +291,7 @@ SPLIT_KEYS = {"video": ("recordings", "clip_spec", "test_indices"), "markers": (
 def _read_split(path, kind: str | None = None) -> dict[str, Any]:
     """A run's ``split.json``, checked: InputError naming the file for anything a split cannot be.
 
-    ``kind`` ("video" or "markers") is the model's input kind; a split of the other kind, missing
+    ``kind`` ("video" or "markers") is the kind of data the model's clips are; a split of the other kind, missing
     keys, and test indices that are not a non-empty list of distinct integers >= 0 are refused
     (indices beyond the data are checked once the data is loaded).
     """

@@ -118,7 +118,7 @@ def run_all_models(
         rows.append(
             {
                 "model": name,
-                "input": "video clip" if model_class(name).input_kind == "video" else "marker sequence",
+                "input": "video clip" if model_class(name).reads == "frames" else "marker sequence",
                 "preset": pre or "paper",
                 "parameters": rep.models[name]["parameters"],
                 "epochs": len(history),

@@ -173,7 +173,7 @@ class Settings:
         from slipsense.models import model_class, settings_of
 
         parts = []
-        if any(model_class(m).input_kind == "video" for m in models):
+        if any(model_class(m).reads == "frames" for m in models):
             h, w = self.video_size
             parts.append(f"clips {h}x{w}")
             if any("patch_size" in settings_of(model_class(m)) for m in models):

@@ -101,8 +101,12 @@ class SlipModel(nn.Module):
 
     #: set by :func:`register`
     model_name: str = ""
-    #: "video", "markers" or "grasp"
+    #: "video", "markers" or "grasp": the model's own description of its input (code outside
+    #: slipsense/models asks :attr:`reads` and :attr:`training_task` instead)
     input_kind: str = ""
+    #: what it reads from a sensor: ``"frames"`` (camera pictures: recordings' videos, live cameras;
+    #: whole runs can be replayed through it) or ``"markers"`` (3D marker clouds)
+    reads: str = "frames"
     #: True when the frame part's output holds the frame's token at every window slot, ``(N, T, dim)``,
     #: so a window takes row ``k`` of its ``k``-th frame (ViViT's slot position embedding)
     slot_tokens: bool = False
@@ -192,6 +196,7 @@ class VideoModel(SlipModel):
 
 class MarkerModel(SlipModel):
     input_kind = "markers"
+    reads = "markers"
 
     def window_geometry(self, spec: Mapping[str, Any]) -> dict[str, Any]:
         frames = getattr(self, "frames", None) or spec.get("frames") or DEFAULT_FRAMES

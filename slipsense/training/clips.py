@@ -391,7 +391,6 @@ def run_training(req: TrainRequest, resume: bool = False) -> dict[str, Any]:
     from slipsense.evaluation.evaluate import evaluate_model
 
     cls = model_class(req.model)
-    kind = cls.input_kind
     accepted = settings_of(cls)
     unknown = sorted(set(req.model_overrides) - accepted)
     if unknown:  # before any data is decoded
@@ -400,7 +399,7 @@ def run_training(req: TrainRequest, resume: bool = False) -> dict[str, Any]:
         )
     settings = {**paper_settings(req.model), "seed": req.seed, "progress": req.progress, **req.train_overrides}
     cfg = TrainConfig.from_dict(settings)
-    train_data, test_data, split_info, data_config = prepare_data(req, kind)
+    train_data, test_data, split_info, data_config = prepare_data(req, cls.reads)
     sensor = data_config.pop("sensor")
     seed_everything(req.seed)
     model = build_model(req.model, req.preset, req.model_overrides, data_config)
@@ -436,7 +435,9 @@ def run_training(req: TrainRequest, resume: bool = False) -> dict[str, Any]:
         "config": tree,
     }
     fit(model, train_data, test_data, cfg, out, info=info, resume=resume, resume_state=state)
-    if d.main and cfg.operating_point and kind == "video" and split_info.get("split") in ("objects", "all"):
+    # a model reading frames is replayed over its training objects' runs to choose where it alarms
+    replayable = cls.reads == "frames" and split_info.get("split") in ("objects", "all")
+    if d.main and cfg.operating_point and replayable:
         _store_operating_point(out, split_info, req)
     if not d.main or len(test_data) == 0:
         return {}

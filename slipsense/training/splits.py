@@ -18,12 +18,13 @@ import numpy as np
 from slipsense.errors import ConfigError, InputError
 
 
-def prepare_data(req, kind: str):
+def prepare_data(req, reads: str):
     """Datasets and the split description for a :class:`~slipsense.training.clips.TrainRequest` ->
-    ``(train, test, split_info, data_config)``."""
+    ``(train, test, split_info, data_config)``; ``reads``: what the model reads (video clips of
+    ``"frames"``, or ``"markers"`` sequences)."""
     from slipsense.datasets import ClipDataset, MarkerDataset
 
-    if kind == "video":
+    if reads == "frames":
         from slipsense.config import gelsight_recordings
         from slipsense.data import gelsight_clips, spec_dict
         from slipsense.recordings.augment import AugmentConfig
@@ -85,7 +86,7 @@ def prepare_data(req, kind: str):
         train = ClipDataset(clips.subset(tr), AugmentConfig(enabled=req.augment), seed=req.seed)
         test = ClipDataset(clips.subset(te))
         return train, test, split_info, {"frames": req.frames, "image_size": size, "sensor": sensor.to_dict()}
-    if kind == "markers":
+    if reads == "markers":
         from slipsense.data import load_markers, split_groups
 
         if req.markers is None:
@@ -108,7 +109,7 @@ def prepare_data(req, kind: str):
             split_info,
             {"frames": int(x.shape[1]), "markers": int(x.shape[2]), "sensor": _marker_sensor(req.markers, x)},
         )
-    raise ConfigError(f"model input kind {kind!r} is not supported")
+    raise ConfigError(f"model {req.model!r} reads {reads!r}: clips are cut from frames or markers only")
 
 
 def _marker_sensor(path, x: np.ndarray) -> dict[str, Any]:
