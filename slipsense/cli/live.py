@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
+import time
 import warnings
 
 from pathlib import Path
-from typing import Any, Iterator, Optional, Sequence
+from typing import Any, Optional, Sequence
 
-import numpy as np
 import typer
 
 from slipsense.errors import ConfigError, InputError
@@ -54,110 +54,6 @@ def _checkpoint(path: Optional[Path], sensors: int | None = None) -> Path:
 
 
 # ---------------------------------------------------------------------------------------------
-# watch: sources
-# ---------------------------------------------------------------------------------------------
-
-
-class Source:
-    """Frames to stream: per step, the pictures to show and the model inputs, one per sensor.
-
-    ``sensors``: number of streams; ``name``: for messages; ``frames()`` yields
-    ``(display, inputs)`` with ``display`` a list of BGR images (or None per sensor) and ``inputs``
-    what :meth:`SlipDetector.push` takes.
-    """
-
-    def __init__(self, name: str, sensors: int, steps: Iterator[tuple[list, list]], close=None):
-        self.name, self.sensors, self._steps, self._close = name, sensors, steps, close
-
-    def frames(self) -> Iterator[tuple[list, list]]:
-        return self._steps
-
-    def close(self) -> None:
-        if self._close is not None:
-            self._close()
-
-
-def open_source(source: str, reads: str, markers: int | None = None, camera_glob: str | None = None) -> Source:
-    """A video file, a recordings experiment folder (its ``camera_*.avi`` videos as sensors), a
-    marker ``.npy`` (``(T, M, 3)`` or ``(S, T, M, 3)`` mm) or a camera index (``0``, ``1``, ...).
-
-    ``reads`` is what the model reads (:attr:`~slipsense.models.base.SlipModel.reads`): ``"frames"``
-    need pictures; ``"markers"`` take a ``.npy`` or track the markers of video files
-    (:mod:`slipsense.sensors.markers`) first.
-    """
-    from slipsense.recordings.folders import CAMERA_GLOB
-    from slipsense.recordings.video import read_video
-
-    camera_glob = camera_glob or CAMERA_GLOB  # the sensor's camera files (the GelSight study's by default)
-    path = Path(source)
-    if path.is_dir():
-        cams = sorted(p for p in path.glob(camera_glob) if p.is_file())
-        if not cams:
-            raise InputError(path, f"folder holds no {camera_glob} videos (expected a recordings experiment folder)")
-        videos = [read_video(p, expected_size=None, min_frames=1) for p in cams]
-        if len({len(v) for v in videos}) != 1:
-            raise InputError(path, f"the camera videos differ in frame count: {[len(v) for v in videos]}")
-        return _array_source(str(path), videos, cams, reads, markers)
-    if path.is_file():
-        if path.suffix.lower() == ".npy":
-            if reads != "markers":
-                raise InputError(
-                    path, "a marker .npy needs a marker model (stnet, temnet); this checkpoint takes video"
-                )
-            return _npy_source(path, markers)
-        return _array_source(str(path), [read_video(path, expected_size=None, min_frames=1)], [path], reads, markers)
-    if source.strip().isdigit():
-        if reads != "frames":
-            raise InputError(
-                None,
-                f"camera {source}: live cameras need a video model; marker models take a video file or a marker .npy",
-            )
-        return _camera_source(int(source))
-    raise InputError(path, "no such file or folder (nor a camera index)")
-
-
-def _array_source(name: str, videos: list[np.ndarray], paths: list[Path], reads: str, markers: int | None) -> Source:
-    if reads == "frames":
-        steps = ((list(fr), list(fr)) for fr in zip(*videos))
-        return Source(name, len(videos), steps)
-    from slipsense.sensors.markers import marker_sequences, track_markers
-
-    clouds = [marker_sequences(track_markers(v, source=p), markers) for v, p in zip(videos, paths)]
-    steps = ((list(fr), list(cl)) for fr, cl in zip(zip(*videos), zip(*clouds)))
-    return Source(name, len(videos), steps)
-
-
-def _npy_source(path: Path, markers: int | None) -> Source:
-    try:
-        x = np.load(path, allow_pickle=False)
-    except Exception as exc:
-        raise InputError(path, f"not a readable .npy file ({type(exc).__name__}: {exc})") from None
-    if x.ndim == 3:
-        x = x[None]
-    if x.ndim != 4 or x.shape[-1] != 3:
-        raise InputError(path, f"expected a marker stream (T, M, 3) or (sensors, T, M, 3), got shape {x.shape}")
-    steps = (([None] * len(x), [x[s, t] for s in range(len(x))]) for t in range(x.shape[1]))
-    return Source(str(path), len(x), steps)
-
-
-def _camera_source(index: int) -> Source:
-    import cv2
-
-    cap = cv2.VideoCapture(index)
-    if not cap.isOpened():
-        raise InputError(None, f"camera {index}: cannot be opened")
-
-    def steps():
-        while True:
-            ok, frame = cap.read()
-            if not ok or frame is None:
-                return
-            yield [frame], [frame]
-
-    return Source(f"camera {index}", 1, steps(), close=cap.release)
-
-
-# ---------------------------------------------------------------------------------------------
 # commands
 # ---------------------------------------------------------------------------------------------
 
@@ -174,29 +70,40 @@ def watch_source(
     echo=typer.echo,
     quiet: bool = False,
     dtype: str = "float32",
+    topics: Sequence[str] = (),
+    tolerance: Optional[float] = None,
+    jsonl: Optional[str] = None,
+    bag_out: Optional[Path] = None,
+    realtime: bool = False,
 ) -> dict[str, Any]:
     """Stream ``source`` through the detector; print a line per frame; optionally write an annotated
-    GIF/video. Returns ``{"frames", "alarm_onsets", "first_alarm", "out"}``."""
+    GIF/video, the readings as JSON lines (``jsonl``, ``"-"`` for standard output) and into a new bag
+    (``bag_out``). ``topics``: a bag's image topics, one per sensor; ``realtime``: play a file at the
+    sensor's rate through the live capture path. Returns ``{"frames", "alarm_onsets", "first_alarm",
+    "out", "source"}`` (``source``: what the source reports of its delivery)."""
     from slipsense.checkpoint import load_model
+    from slipsense.sensors.spec import GELSIGHT_MINI, sensor_of
     from slipsense.streaming.annotate import AnnotatedWriter, Annotator
     from slipsense.streaming.detector import SlipDetector, onnx_cache_dir, stored_operating_point
+    from slipsense.streaming.readings import reading_record
 
     from slipsense.atomic import check_output_file
 
     if out is not None:
         check_output_file(out, "--out")
         AnnotatedWriter(out)  # refuse a wrong suffix before any work
+    if bag_out is not None and Path(bag_out).exists():
+        raise InputError(bag_out, "exists; --bag-out writes a new bag folder")
     if checkpoint is None:  # the shipped detectors read videos: one for one finger, one for both
-        src = open_source(source, "frames")
+        sensor = GELSIGHT_MINI
+        src = _open(source, "frames", None, sensor, topics, tolerance, realtime)
         ckpt = _checkpoint(None, src.sensors)
         model, info = load_model(ckpt)
     else:
-        from slipsense.sensors.spec import sensor_of
-
         ckpt = _checkpoint(checkpoint)
         model, info = load_model(ckpt)
-        glob = sensor_of(info, ckpt).camera_glob  # a malformed sensor spec is named with its file
-        src = open_source(source, model.reads, getattr(model, "markers", None), glob)
+        sensor = sensor_of(info, ckpt)  # a malformed sensor spec is named with its file
+        src = _open(source, model.reads, getattr(model, "markers", None), sensor, topics, tolerance, realtime)
     threshold, debounce = stored_operating_point(ckpt, info, threshold, None)
     try:
         det = SlipDetector(
@@ -215,19 +122,27 @@ def watch_source(
         raise InputError(ckpt, str(exc)) from None
     annot = Annotator(det.threshold, det.sensors, fps=det.sensor.fps) if out is not None else None
     writer = AnnotatedWriter(out, fps=det.sensor.fps) if out is not None else None
+    sinks = _sinks(jsonl, bag_out, src, det)
     onsets: list[int] = []
     previous = False
     n = 0
     try:
-        for display, inputs in src.frames():
+        for step in src.frames():
+            display, inputs = step.display, step.inputs
             if max_frames is not None and n >= max_frames:
                 break
+            t0 = time.perf_counter()
             r = det.push(*inputs)
+            latency_ms = (time.perf_counter() - t0) * 1e3
             n += 1
+            if sinks:
+                record = reading_record(r, step.stamp, latency_ms)
+                for sink in sinks:
+                    sink.write(record)
             if r.alarm and not previous:
                 onsets.append(r.index)
             previous = r.alarm
-            if not quiet or (r.alarm and onsets and onsets[-1] == r.index):
+            if jsonl != "-" and (not quiet or (r.alarm and onsets and onsets[-1] == r.index)):
                 echo(_reading_line(r))
             if writer is not None:
                 heat = [det.heatmap(s) for s in range(det.sensors)] if heatmap else []
@@ -242,19 +157,80 @@ def watch_source(
     finally:
         src.close()
         det.close()
+        for sink in sinks:
+            sink.close()
     written = writer.close() if writer is not None else None
     summary = {
         "frames": n,
         "alarm_onsets": onsets,
         "first_alarm": onsets[0] if onsets else None,
         "out": None if written is None else str(written),
+        "source": src.stats(),
     }
     echo(
         f"{n} frames, {len(onsets)} alarm onset(s)"
         + (f", first at frame {onsets[0]}" if onsets else "")
-        + (f" -> {written}" if written else "")
+        + (f" -> {written}" if written else ""),
+        err=jsonl == "-",  # standard output carries the readings then
     )
+    for cam in summary["source"].get("cameras", []):
+        echo(
+            f"{cam['camera']}: {cam['fps']:.2f} frames/s captured, {cam['delivered']} of {cam['grabbed']} "
+            f"pushed, {cam['dropped']} dropped, {cam['repeated']} repeated",
+            err=jsonl == "-",
+        )
     return summary
+
+
+def _open(source, reads, markers, sensor, topics, tolerance, realtime):
+    """The source, with the sensor's rate, camera files and capture settings."""
+    from slipsense.streaming.sources import open_source
+
+    size = tuple(sensor.image_size) if sensor.image_size else None
+    src = open_source(
+        source,
+        reads,
+        markers,
+        sensor.camera_glob,
+        topics=topics,
+        fps=sensor.fps,
+        tolerance_s=tolerance,
+        capture_format=sensor.capture_format,
+        frame_size=size,
+    )
+    if not realtime:
+        return src
+    if reads != "frames" or src.stats().get("cameras"):
+        src.close()
+        raise ConfigError(
+            "--realtime plays recorded frames (a video, a recordings folder or a bag) at the sensor's rate"
+        )
+    from slipsense.streaming.capture import CaptureThread, PacedReader, capture_source
+
+    steps = list(src.frames())
+    threads = [
+        CaptureThread(PacedReader([s.inputs[k] for s in steps], sensor.fps).read, f"{src.name}[{k}]")
+        for k in range(src.sensors)
+    ]
+    return capture_source(f"{src.name} in real time", threads, sensor.fps, tolerance)
+
+
+def _sinks(jsonl, bag_out, src, det) -> list:
+    from slipsense.streaming.readings import BagWriter, JsonlWriter
+
+    sinks = []
+    try:
+        if jsonl is not None:
+            sinks.append(JsonlWriter(jsonl))
+        if bag_out is not None:
+            sinks.append(BagWriter(bag_out))
+    except BaseException:
+        for sink in sinks:
+            sink.close()
+        src.close()
+        det.close()
+        raise
+    return sinks
 
 
 def _reading_line(r) -> str:
@@ -273,8 +249,8 @@ def register(app: typer.Typer) -> None:
     def watch(
         source: str = typer.Argument(
             ...,
-            help="video file, recordings experiment folder (camera_*.avi as sensors), "
-            "marker .npy, or camera index (0, 1, ...)",
+            help="video file, recordings experiment folder (camera_*.avi as sensors), ROS 2 bag (with "
+            "--topic), marker .npy, or camera index (0; two fingers: 0,2)",
         ),
         checkpoint: Optional[Path] = typer.Option(
             None, help="checkpoint (default: the shipped detector, models/motionnet-gelsight.safetensors)"
@@ -290,11 +266,41 @@ def register(app: typer.Typer) -> None:
         heatmap: bool = typer.Option(True, help="draw the attention / saliency heat map in --out"),
         quiet: bool = typer.Option(False, help="print only alarm onsets and the summary"),
         threads: Optional[int] = typer.Option(None, help=THREADS_HELP),
+        topic: list[str] = typer.Option(
+            [], help="a bag's image topic (sensor_msgs Image or CompressedImage), once per sensor, in order"
+        ),
+        tolerance: Optional[float] = typer.Option(
+            None, help="seconds: the largest stamp difference of paired frames (default half a frame period)"
+        ),
+        jsonl: Optional[str] = typer.Option(
+            None, help="write every reading as a JSON line to this file (- for standard output)"
+        ),
+        bag_out: Optional[Path] = typer.Option(
+            None,
+            help="write every reading to a new ROS 2 bag (topic /slipsense/reading, slipsense_msgs/msg/SlipReading)",
+        ),
+        realtime: bool = typer.Option(
+            False, help="play a recorded source at the sensor's rate through the live capture path"
+        ),
     ):
-        """Stream a video, an experiment folder or a camera through a slip detector."""
+        """Stream a video, an experiment folder, a ROS 2 bag or cameras through a slip detector."""
         _set_threads(threads)
         watch_source(
-            source, checkpoint, threshold, out, combine, backend, max_frames, heatmap, quiet=quiet, dtype=dtype
+            source,
+            checkpoint,
+            threshold,
+            out,
+            combine,
+            backend,
+            max_frames,
+            heatmap,
+            quiet=quiet,
+            dtype=dtype,
+            topics=topic,
+            tolerance=tolerance,
+            jsonl=jsonl,
+            bag_out=bag_out,
+            realtime=realtime,
         )
 
     @app.command("early-warning")
@@ -457,8 +463,6 @@ def run_early_warning(
 
 __all__ = [
     "DEFAULT_THRESHOLDS",
-    "Source",
-    "open_source",
     "parse_thresholds",
     "register",
     "run_early_warning",

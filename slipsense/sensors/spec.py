@@ -29,6 +29,8 @@ class SensorSpec:
         camera_glob: file names of the sensor videos inside one experiment folder.
         experiment_pattern: regular expression of an experiment folder's name (group 1 = its number).
         slip_marker: file whose presence in an experiment folder says the object slipped.
+        capture_format: the FOURCC a live camera is asked for (``"MJPG"``: compressed frames reach
+            the full rate over USB where raw YUYV at the same size does not); None: the camera's own.
     """
 
     name: str
@@ -39,6 +41,7 @@ class SensorSpec:
     camera_glob: str | None = None
     experiment_pattern: str | None = None
     slip_marker: str | None = None
+    capture_format: str | None = None
 
     def frames_to_ms(self, frames: float) -> float:
         return 1000.0 * float(frames) / self.fps
@@ -92,6 +95,7 @@ GELSIGHT_MINI = SensorSpec(
     camera_glob="camera_*.avi",
     experiment_pattern=r"^exp_num_(\d+)$",
     slip_marker="slip.txt",
+    capture_format="MJPG",
 )
 
 #: The STNet study's binocular visuo-tactile sensor: 24 x 23 markers reconstructed in 3D, 20 Hz

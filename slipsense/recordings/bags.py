@@ -1,0 +1,219 @@
+"""ROS 2 bags in: image topics, one per finger, paired by header time; and a bag as a recording.
+
+A bag is a rosbag2 folder (``metadata.yaml`` beside ``.db3`` or ``.mcap`` files) or one ``.db3`` /
+``.mcap`` file; it is read with the pure-Python ``rosbags`` package, so no ROS installation is
+needed. Each named topic holds ``sensor_msgs/msg/Image`` (``bgr8``, ``rgb8``, ``mono8``, ``bgra8``,
+``rgba8``) or ``sensor_msgs/msg/CompressedImage`` (JPEG, PNG: whatever OpenCV decodes) messages of one
+sensor. Frames of two or more topics are paired by their header stamps: each frame of the first topic
+takes the nearest frame of every other topic within ``tolerance`` (half a frame period of the sensor
+by default), partners in order; frames left without a partner are dropped and counted.
+
+:func:`write_recording` turns a bag into the recordings layout (``camera_*.avi`` in a lossless codec,
+``slip.txt`` when a label says the object slipped), so every command that takes recordings takes
+converted bags, and :func:`bag_folder_recordings` does that for a folder of bags.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterator, Sequence
+
+import numpy as np
+
+from slipsense.errors import InputError
+
+IMAGE = "sensor_msgs/msg/Image"
+COMPRESSED = "sensor_msgs/msg/CompressedImage"
+#: channels of the raw encodings read, and how to turn them into BGR
+ENCODINGS = {"bgr8": 3, "rgb8": 3, "mono8": 1, "8UC1": 1, "8UC3": 3, "bgra8": 4, "rgba8": 4}
+
+
+def is_bag(path: str | Path) -> bool:
+    """A rosbag2 folder (with ``metadata.yaml``) or a ``.db3`` / ``.mcap`` file."""
+    p = Path(path)
+    return (p.is_dir() and (p / "metadata.yaml").is_file()) or (p.is_file() and p.suffix in (".db3", ".mcap"))
+
+
+@dataclass
+class BagFrames:
+    """Paired frames of a bag's image topics.
+
+    ``frames``: per step, one BGR uint8 ``(H, W, 3)`` image per topic; ``stamps``: ``(N, S)`` int64
+    header stamps in ns; ``dropped``: per topic, frames left without a partner."""
+
+    path: Path
+    topics: list[str]
+    frames: list[list[np.ndarray]]
+    stamps: np.ndarray
+    dropped: dict[str, int] = field(default_factory=dict)
+
+    @property
+    def fps(self) -> float:
+        """Frames per second from the first topic's stamps (NaN below two frames)."""
+        t = self.stamps[:, 0]
+        return float((len(t) - 1) / ((t[-1] - t[0]) * 1e-9)) if len(t) > 1 and t[-1] > t[0] else float("nan")
+
+
+def _reader(path: Path):
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    return AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
+
+
+def _bag_error(path: Path, exc: BaseException) -> InputError:
+    text = " ".join(str(exc).split())[:200]
+    return InputError(path, f"not a readable ROS 2 bag ({type(exc).__name__}: {text})")
+
+
+def image_topics(path: str | Path) -> dict[str, str]:
+    """``{topic: message type}`` of every topic of the bag (InputError naming ``path`` if unreadable)."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError(path, "bag not found")
+    try:
+        with _reader(path) as reader:
+            return {c.topic: c.msgtype for c in reader.connections}
+    except InputError:
+        raise
+    except Exception as exc:  # rosbags raises its own errors, sqlite's and yaml's for damaged bags
+        raise _bag_error(path, exc) from None
+
+
+def decode_image(msg, msgtype: str, where: str) -> np.ndarray:
+    """A ``sensor_msgs`` Image or CompressedImage -> BGR uint8 ``(H, W, 3)``; InputError naming ``where``."""
+    import cv2
+
+    if msgtype == COMPRESSED:
+        img = cv2.imdecode(np.frombuffer(bytes(msg.data), np.uint8), cv2.IMREAD_COLOR)
+        if img is None:
+            raise InputError(where, f"a CompressedImage ({msg.format!r}) that OpenCV cannot decode")
+        return img
+    channels = ENCODINGS.get(msg.encoding)
+    if channels is None:
+        raise InputError(where, f"image encoding {msg.encoding!r} is not read (read: {', '.join(ENCODINGS)})")
+    h, w, step = int(msg.height), int(msg.width), int(msg.step)
+    data = np.asarray(msg.data, dtype=np.uint8)
+    if h * w == 0 or step < w * channels or data.size < h * step:
+        raise InputError(where, f"image of {h}x{w} {msg.encoding} holds {data.size} bytes (step {step})")
+    img = data[: h * step].reshape(h, step)[:, : w * channels].reshape(h, w, channels)
+    if channels == 1:
+        return cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
+    if msg.encoding.startswith("rgb"):
+        return cv2.cvtColor(img, cv2.COLOR_RGBA2BGR if channels == 4 else cv2.COLOR_RGB2BGR)
+    return np.ascontiguousarray(img[:, :, :3])
+
+
+def _messages(path: Path, topics: Sequence[str]) -> Iterator[tuple[str, int, np.ndarray]]:
+    """``(topic, header stamp ns, BGR image)`` of every message on ``topics``, in bag order."""
+    try:
+        with _reader(path) as reader:
+            kinds = {c.topic: c.msgtype for c in reader.connections}
+            for t in topics:
+                if t not in kinds:
+                    found = sorted(k for k, v in kinds.items() if v in (IMAGE, COMPRESSED))
+                    raise InputError(path, f"no topic {t}; image topics in the bag: {', '.join(found) or 'none'}")
+                if kinds[t] not in (IMAGE, COMPRESSED):
+                    raise InputError(path, f"topic {t} holds {kinds[t]}, not {IMAGE} or {COMPRESSED}")
+            conns = [c for c in reader.connections if c.topic in topics]
+            for conn, _, raw in reader.messages(connections=conns):
+                msg = reader.deserialize(raw, conn.msgtype)
+                stamp = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+                yield conn.topic, stamp, decode_image(msg, conn.msgtype, f"{path} ({conn.topic})")
+    except InputError:
+        raise
+    except Exception as exc:
+        raise _bag_error(path, exc) from None
+
+
+def pair_by_time(stamps: Sequence[np.ndarray], tolerance_ns: int) -> np.ndarray:
+    """``(K, S)`` indices of frames paired across ``S`` sorted stamp arrays: each frame of the first
+    takes the nearest frame of every other within ``tolerance_ns``, partners strictly in order."""
+    ref = np.asarray(stamps[0], dtype=np.int64)
+    keep = np.ones(len(ref), bool)
+    cols = [np.arange(len(ref))]
+    for other in stamps[1:]:
+        other = np.asarray(other, dtype=np.int64)
+        if len(other) == 0:
+            return np.zeros((0, len(stamps)), np.int64)
+        right = np.clip(np.searchsorted(other, ref), 0, len(other) - 1)
+        left = np.clip(right - 1, 0, len(other) - 1)
+        best = np.where(np.abs(other[left] - ref) <= np.abs(other[right] - ref), left, right)
+        keep &= np.abs(other[best] - ref) <= tolerance_ns
+        cols.append(best)
+    idx = np.stack(cols, 1)[keep]
+    if len(idx) > 1:  # a partner used twice keeps its first frame only
+        fresh = np.ones(len(idx), bool)
+        fresh[1:] = (np.diff(idx[:, 1:], axis=0) > 0).all(axis=1)
+        idx = idx[fresh]
+    return idx
+
+
+def read_bag(path: str | Path, topics: Sequence[str], fps: float = 25.0, tolerance_s: float | None = None) -> BagFrames:
+    """The frames of ``topics`` (one per sensor, in that order), paired by header stamp.
+
+    ``tolerance_s``: the largest stamp difference of a pair (default half a frame period at ``fps``).
+    InputError naming the bag for a missing bag or topic, a topic of another message type, an image
+    that cannot be decoded, frames of different sizes on one topic, a damaged or truncated bag, or
+    topics whose stamps do not pair (fewer than half of the frames of the shorter topic)."""
+    path = Path(path)
+    topics = list(topics)
+    if not topics:
+        raise InputError(path, "name the image topics to read (--topic, one per sensor)")
+    if len(set(topics)) != len(topics):
+        raise InputError(path, f"a topic is named twice: {topics}")
+    if not path.exists():
+        raise InputError(path, "bag not found")
+    per: dict[str, list[tuple[int, np.ndarray]]] = {t: [] for t in topics}
+    for topic, stamp, img in _messages(path, topics):
+        if per[topic] and img.shape != per[topic][0][1].shape:
+            raise InputError(path, f"topic {topic}: frames of {per[topic][0][1].shape} and {img.shape}")
+        per[topic].append((stamp, img))
+    for t in topics:
+        if not per[t]:
+            raise InputError(path, f"topic {t} holds no messages")
+        per[t].sort(key=lambda m: m[0])
+    stamps = [np.array([s for s, _ in per[t]], np.int64) for t in topics]
+    tol = int(round((tolerance_s if tolerance_s is not None else 0.5 / fps) * 1e9))
+    idx = pair_by_time(stamps, tol)
+    shortest = min(len(s) for s in stamps)
+    if len(idx) < max(1, shortest / 2):
+        raise InputError(
+            path,
+            f"the stamps of {' and '.join(topics)} do not pair: {len(idx)} of {shortest} frames within "
+            f"{tol / 1e6:g} ms (--tolerance sets it)",
+        )
+    frames = [[per[t][i][1] for t, i in zip(topics, row)] for row in idx]
+    paired = np.stack([stamps[k][idx[:, k]] for k in range(len(topics))], 1)
+    dropped = {t: len(stamps[k]) - len(idx) for k, t in enumerate(topics)}
+    return BagFrames(path, topics, frames, paired, dropped)
+
+
+def write_recording(bag: BagFrames, folder: str | Path, camera_names: Sequence[str], slipped: bool, fps: float) -> Path:
+    """Write ``bag`` as one experiment of the recordings layout: ``folder/<camera name>.avi`` per
+    topic (FFV1, lossless: decoding gives the bag's frames back exactly) and an empty ``slip.txt``
+    when ``slipped``. Files are written beside and renamed into place."""
+    import cv2
+
+    from slipsense.atomic import atomic_path, write_text
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    if len(camera_names) < len(bag.topics):
+        raise InputError(folder, f"{len(bag.topics)} topics but the sensor names {len(camera_names)} cameras")
+    for k, name in enumerate(camera_names[: len(bag.topics)]):
+        h, w = bag.frames[0][k].shape[:2]
+        with atomic_path(folder / f"{name}.avi") as tmp:  # ends in .avi: OpenCV picks the container by it
+            writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"FFV1"), float(fps), (w, h))
+            if not writer.isOpened():
+                raise InputError(folder, "OpenCV cannot write FFV1 video here")
+            for step in bag.frames:
+                writer.write(step[k])
+            writer.release()
+    marker = folder / "slip.txt"
+    if slipped:
+        write_text(marker, "")
+    elif marker.exists():
+        marker.unlink()
+    return folder

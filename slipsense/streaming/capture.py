@@ -1,0 +1,198 @@
+"""Live capture that keeps the sensor's rate: one thread per camera always holding the newest frame.
+
+A plain ``while True: cap.read(); detect()`` loop reads a frame only when the detector is done with
+the last one, so a camera sold at 25 frames/s delivers 15-18 (users of the GelSight Mini report it) and
+the frames it does deliver are stale: they waited in the driver's buffer. Here a thread per camera
+reads as fast as the camera gives (the pattern gs_sdk uses), stamps each frame with the capture
+clock, and keeps only the newest; the consumer takes the newest frame it has not seen. A consumer
+slower than the camera skips frames, and the skipped ones are counted (``dropped``), as are frames the
+camera sent twice (``repeated``: identical to the one before, what some drivers send when asked for
+more frames than they have).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from slipsense.errors import InputError
+
+#: seconds a consumer waits for a camera's next frame before the stream is taken as ended
+FRAME_TIMEOUT = 2.0
+
+
+class CaptureThread:
+    """Reads ``read() -> (ok, frame)`` on its own thread until it fails or :meth:`close`.
+
+    :meth:`next` hands out the newest frame newer than the one the consumer had, as
+    ``(sequence number, capture time s, frame)``; sequence numbers count every frame read, from 1."""
+
+    def __init__(self, read: Callable[[], tuple[bool, Any]], name: str = "camera", clock=time.monotonic, release=None):
+        self.name, self._read, self._clock, self._release = name, read, clock, release
+        self._cond = threading.Condition()
+        self._latest: tuple[int, float, np.ndarray] | None = None
+        self._ended = False
+        self._stop = False
+        self.grabbed = self.delivered = self.dropped = self.repeated = 0
+        self._handed = 0  # sequence number of the last frame handed out
+        self._first: float | None = None
+        self._last: float | None = None
+        self._thread = threading.Thread(target=self._run, name=f"slipsense-capture-{name}", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        previous = None
+        try:
+            while not self._stop:
+                ok, frame = self._read()
+                stamp = self._clock()
+                if not ok or frame is None:
+                    break
+                with self._cond:
+                    self.grabbed += 1
+                    if previous is not None and previous.shape == frame.shape and np.array_equal(previous, frame):
+                        self.repeated += 1
+                    self._first = stamp if self._first is None else self._first
+                    self._last = stamp
+                    self._latest = (self.grabbed, stamp, frame)
+                    self._cond.notify_all()
+                previous = frame
+        finally:
+            with self._cond:
+                self._ended = True
+                self._cond.notify_all()
+
+    def next(self, after: int = 0, timeout: float = FRAME_TIMEOUT) -> tuple[int, float, np.ndarray] | None:
+        """The newest frame with a sequence number above ``after`` (waiting up to ``timeout`` s for
+        one), or None when the camera has ended or sent nothing in that time."""
+        with self._cond:
+            ok = self._cond.wait_for(
+                lambda: (self._latest is not None and self._latest[0] > after) or self._ended, timeout
+            )
+            if not ok or self._latest is None or self._latest[0] <= after:
+                return None
+            seq = self._latest[0]
+            self.dropped += seq - self._handed - 1  # read, then replaced before anyone took them
+            self.delivered += 1
+            self._handed = seq
+            return self._latest
+
+    def stats(self) -> dict[str, Any]:
+        """``grabbed``, ``delivered``, ``dropped`` (read but never handed out), ``repeated`` and the
+        achieved capture rate ``fps`` (frames read per second between the first and the last)."""
+        with self._cond:
+            span = (self._last - self._first) if self._first is not None and self._last is not None else 0.0
+            fps = (self.grabbed - 1) / span if span > 0 else float("nan")
+            return {
+                "camera": self.name,
+                "grabbed": self.grabbed,
+                "delivered": self.delivered,
+                "dropped": self.dropped,
+                "repeated": self.repeated,
+                "fps": fps,
+            }
+
+    def close(self) -> None:
+        self._stop = True
+        self._thread.join(timeout=1.0)
+        if self._release is not None:
+            self._release()
+
+
+class PacedReader:
+    """``read()`` of recorded frames at a set rate, as a camera delivers them: frame ``k`` is handed
+    out at ``start + k / fps`` (a reader that falls behind catches up, as a camera's clock does not
+    wait). What the capture path is tested with, and ``slipsense watch FILE --realtime`` plays."""
+
+    def __init__(self, frames: Sequence[np.ndarray], fps: float, clock=time.monotonic, sleep=time.sleep):
+        self.frames, self.fps, self._clock, self._sleep = frames, float(fps), clock, sleep
+        self._k = 0
+        self._start: float | None = None
+
+    def read(self) -> tuple[bool, np.ndarray | None]:
+        if self._k >= len(self.frames):
+            return False, None
+        if self._start is None:
+            self._start = self._clock()
+        wait = self._start + self._k / self.fps - self._clock()
+        if wait > 0:
+            self._sleep(wait)
+        frame = self.frames[self._k]
+        self._k += 1
+        return True, frame
+
+
+def paired(threads: Sequence[CaptureThread], tolerance_s: float, timeout: float = FRAME_TIMEOUT):
+    """Steps of the newest frames of every camera, paired by capture time: while the stamps differ by
+    more than ``tolerance_s`` the camera behind gives its next frame (at most 3 times a step).
+    Yields ``(frames, stamps)``; ends when a camera ends."""
+    seen = [0] * len(threads)
+    while True:
+        got = []
+        for k, th in enumerate(threads):
+            item = th.next(seen[k], timeout)
+            if item is None:
+                return
+            got.append(item)
+        for _ in range(3):
+            stamps = [g[1] for g in got]
+            if max(stamps) - min(stamps) <= tolerance_s:
+                break
+            k = int(np.argmin(stamps))
+            item = threads[k].next(got[k][0], timeout)
+            if item is None:
+                return
+            got[k] = item
+        seen = [g[0] for g in got]
+        yield [g[2] for g in got], [g[1] for g in got]
+
+
+def open_camera(index: int, fps: float, capture_format: str | None, frame_size: tuple[int, int] | None):
+    """An OpenCV camera asked for the sensor's format, frame size (height, width) and rate; InputError
+    if it cannot be opened. What the camera grants is its business: :meth:`CaptureThread.stats`
+    reports the rate achieved."""
+    import cv2
+
+    cap = cv2.VideoCapture(index)
+    if not cap.isOpened():
+        raise InputError(None, f"camera {index}: cannot be opened")
+    if capture_format:
+        cap.set(cv2.CAP_PROP_FOURCC, cv2.VideoWriter_fourcc(*capture_format))
+    if frame_size:
+        cap.set(cv2.CAP_PROP_FRAME_HEIGHT, frame_size[0])
+        cap.set(cv2.CAP_PROP_FRAME_WIDTH, frame_size[1])
+    cap.set(cv2.CAP_PROP_FPS, fps)
+    cap.set(cv2.CAP_PROP_BUFFERSIZE, 1)  # the thread keeps the newest anyway; older ones only go stale
+    return cap
+
+
+def capture_source(name: str, threads: Sequence[CaptureThread], fps: float, tolerance_s: float | None = None):
+    """A :class:`~slipsense.streaming.sources.Source` over running capture threads, paired by time
+    (``tolerance_s``: half a frame period by default); its ``stats`` are the threads'."""
+    from slipsense.streaming.sources import Source, Step
+
+    tol = 0.5 / fps if tolerance_s is None else tolerance_s
+    steps = (Step(list(frames), list(frames), stamps[0]) for frames, stamps in paired(threads, tol))
+
+    def close():
+        for th in threads:
+            th.close()
+
+    return Source(name, len(threads), steps, closer=close, stats=lambda: {"cameras": [th.stats() for th in threads]})
+
+
+def camera_source(indices, fps, capture_format=None, frame_size=None, tolerance_s=None):
+    """Live cameras (one per sensor) behind capture threads."""
+    threads = []
+    try:
+        for i in indices:
+            cap = open_camera(i, fps, capture_format, frame_size)
+            threads.append(CaptureThread(cap.read, f"camera {i}", release=cap.release))
+    except BaseException:
+        for th in threads:
+            th.close()
+        raise
+    return capture_source(f"camera {','.join(map(str, indices))}", threads, fps, tolerance_s)

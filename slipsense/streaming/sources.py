@@ -1,0 +1,139 @@
+"""What ``slipsense watch`` streams: video files, recordings experiment folders, ROS 2 bags, marker
+arrays and live cameras, each as a :class:`Source` of timestamped steps.
+
+A step holds, per sensor, the picture to show and the model's input, and the time the frames were
+taken (seconds): the bag's header stamps, the capture clock of a live camera, ``index / fps`` for
+files that carry no time.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterator, Sequence
+
+import numpy as np
+
+from slipsense.errors import InputError
+
+
+@dataclass
+class Step:
+    """One push: ``display`` (a BGR image or None per sensor), ``inputs`` (what
+    :meth:`~slipsense.streaming.detector.SlipDetector.push` takes, one per sensor), ``stamp`` (s)."""
+
+    display: list
+    inputs: list
+    stamp: float
+
+
+@dataclass
+class Source:
+    """Steps to stream. ``sensors``: streams per step; ``name``: for messages; ``stats``: what the
+    source knows of its own delivery (a live camera's achieved rate, dropped and repeated frames)."""
+
+    name: str
+    sensors: int
+    steps: Iterator[Step]
+    closer: Callable[[], None] | None = None
+    stats: Callable[[], dict[str, Any]] = field(default=lambda: {})
+
+    def frames(self) -> Iterator[Step]:
+        return self.steps
+
+    def close(self) -> None:
+        if self.closer is not None:
+            self.closer()
+
+
+def open_source(
+    source: str,
+    reads: str,
+    markers: int | None = None,
+    camera_glob: str | None = None,
+    topics: Sequence[str] = (),
+    fps: float = 25.0,
+    tolerance_s: float | None = None,
+    capture_format: str | None = None,
+    frame_size: tuple[int, int] | None = None,
+) -> Source:
+    """A video file, a recordings experiment folder (its ``camera_*.avi`` videos as sensors), a ROS 2
+    bag (``topics``: one image topic per sensor), a marker ``.npy`` (``(T, M, 3)`` or
+    ``(S, T, M, 3)`` mm) or a camera index (``0``, ``1``, ...; several as ``0,2``).
+
+    ``reads`` is what the model reads (:attr:`~slipsense.models.base.SlipModel.reads`): ``"frames"``
+    need pictures; ``"markers"`` take a ``.npy`` or track the markers of videos
+    (:mod:`slipsense.sensors.markers`) first. ``fps``: the sensor's rate (stamps of files without
+    time, the pairing tolerance of bags); ``capture_format`` / ``frame_size``: what a camera is asked
+    for (:class:`~slipsense.streaming.capture.CaptureThread`).
+    """
+    from slipsense.recordings.bags import is_bag, read_bag
+    from slipsense.recordings.folders import CAMERA_GLOB
+    from slipsense.recordings.video import read_video
+
+    camera_glob = camera_glob or CAMERA_GLOB  # the sensor's camera files (the GelSight study's by default)
+    path = Path(source)
+    if topics and not is_bag(path):
+        raise InputError(path, "--topic names image topics of a ROS 2 bag; this is not a bag")
+    if is_bag(path):
+        bag = read_bag(path, topics, fps=fps, tolerance_s=tolerance_s)
+        videos = [np.stack([step[k] for step in bag.frames]) for k in range(len(topics))]
+        stamps = bag.stamps[:, 0] * 1e-9
+        name = f"{path} ({', '.join(topics)})"
+        src = _array_source(name, videos, [Path(f"{path}:{t}") for t in topics], reads, markers, stamps)
+        src.stats = lambda: {"dropped_unpaired": dict(bag.dropped)}
+        return src
+    if path.is_dir():
+        cams = sorted(p for p in path.glob(camera_glob) if p.is_file())
+        if not cams:
+            raise InputError(path, f"folder holds no {camera_glob} videos (expected a recordings experiment folder)")
+        videos = [read_video(p, expected_size=None, min_frames=1) for p in cams]
+        if len({len(v) for v in videos}) != 1:
+            raise InputError(path, f"the camera videos differ in frame count: {[len(v) for v in videos]}")
+        return _array_source(str(path), videos, cams, reads, markers, np.arange(len(videos[0])) / fps)
+    if path.is_file():
+        if path.suffix.lower() == ".npy":
+            if reads != "markers":
+                raise InputError(
+                    path, "a marker .npy needs a marker model (stnet, temnet); this checkpoint takes video"
+                )
+            return _npy_source(path, markers, fps)
+        video = read_video(path, expected_size=None, min_frames=1)
+        return _array_source(str(path), [video], [path], reads, markers, np.arange(len(video)) / fps)
+    indices = source.replace(" ", "").split(",")
+    if all(i.isdigit() for i in indices):
+        if reads != "frames":
+            raise InputError(
+                None,
+                f"camera {source}: live cameras need a video model; marker models take a video file or a marker .npy",
+            )
+        from slipsense.streaming.capture import camera_source
+
+        return camera_source([int(i) for i in indices], fps, capture_format, frame_size, tolerance_s)
+    raise InputError(path, "no such file or folder (nor a camera index)")
+
+
+def _array_source(
+    name: str, videos: list[np.ndarray], paths: list[Path], reads: str, markers: int | None, stamps: np.ndarray
+) -> Source:
+    if reads == "frames":
+        steps = (Step(list(fr), list(fr), float(t)) for fr, t in zip(zip(*videos), stamps))
+        return Source(name, len(videos), steps)
+    from slipsense.sensors.markers import marker_sequences, track_markers
+
+    clouds = [marker_sequences(track_markers(v, source=p), markers) for v, p in zip(videos, paths)]
+    steps = (Step(list(fr), list(cl), float(t)) for fr, cl, t in zip(zip(*videos), zip(*clouds), stamps))
+    return Source(name, len(videos), steps)
+
+
+def _npy_source(path: Path, markers: int | None, fps: float) -> Source:
+    try:
+        x = np.load(path, allow_pickle=False)
+    except Exception as exc:
+        raise InputError(path, f"not a readable .npy file ({type(exc).__name__}: {exc})") from None
+    if x.ndim == 3:
+        x = x[None]
+    if x.ndim != 4 or x.shape[-1] != 3:
+        raise InputError(path, f"expected a marker stream (T, M, 3) or (sensors, T, M, 3), got shape {x.shape}")
+    steps = (Step([None] * len(x), [x[s, t] for s in range(len(x))], t / fps) for t in range(x.shape[1]))
+    return Source(str(path), len(x), steps)

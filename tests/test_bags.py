@@ -1,0 +1,217 @@
+"""ROS 2 bags in, readings out (JSON lines, a bag topic), and live capture at the source's rate."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from conftest import REAL_RUN, needs_data
+from slipsense.cli import app
+from slipsense.recordings.bags import pair_by_time, read_bag
+from slipsense.streaming.capture import CaptureThread, PacedReader
+
+FRAMES = 60  # of the real run: enough for the shipped detector to answer (start-up 10 frames)
+
+
+def write_bag(path: Path, videos, topics, offsets_ns=(0, 3_000_000), compressed=(False, True), extra_string=False):
+    """A rosbag2 (sqlite3) with one image topic per video: Image bgr8, or CompressedImage PNG
+    (lossless), frames 40 ms apart, each topic's stamps shifted by its offset."""
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    Image, Compressed = ts.types["sensor_msgs/msg/Image"], ts.types["sensor_msgs/msg/CompressedImage"]
+    Header, Time = ts.types["std_msgs/msg/Header"], ts.types["builtin_interfaces/msg/Time"]
+    String = ts.types["std_msgs/msg/String"]
+    with Writer(path, version=9) as w:
+        conns = [
+            w.add_connection(t, (Compressed if c else Image).__msgtype__, typestore=ts)
+            for t, c in zip(topics, compressed)
+        ]
+        text = w.add_connection("/notes", String.__msgtype__, typestore=ts) if extra_string else None
+        for k in range(max(len(v) for v in videos)):
+            for conn, video, off, comp in zip(conns, videos, offsets_ns, compressed):
+                if k >= len(video):
+                    continue
+                ns = 1_700_000_000_000_000_000 + k * 40_000_000 + off
+                header = Header(stamp=Time(sec=ns // 10**9, nanosec=ns % 10**9), frame_id="gel")
+                img = video[k]
+                if comp:
+                    msg = Compressed(
+                        header=header, format="png", data=np.frombuffer(cv2.imencode(".png", img)[1], np.uint8)
+                    )
+                else:
+                    h, wd = img.shape[:2]
+                    msg = Image(
+                        header=header,
+                        height=h,
+                        width=wd,
+                        encoding="bgr8",
+                        is_bigendian=0,
+                        step=wd * 3,
+                        data=img.reshape(-1),
+                    )
+                w.write(conn, ns, ts.serialize_cdr(msg, conn.msgtype))
+            if text is not None:
+                w.write(text, 1_700_000_000_000_000_000 + k, ts.serialize_cdr(String(data="hi"), String.__msgtype__))
+    return path
+
+
+def _videos(n=FRAMES):
+    from slipsense.recordings.video import read_video
+
+    return [read_video(REAL_RUN / f"{c}.avi", expected_size=None)[:n] for c in ("camera_0", "camera_2")]
+
+
+def _run_folder(tmp_path, videos):
+    """The same frames as a recordings experiment folder (lossless FFV1 AVI)."""
+    folder = tmp_path / "run"
+    folder.mkdir()
+    for name, video in zip(("camera_0", "camera_2"), videos):
+        w = cv2.VideoWriter(str(folder / f"{name}.avi"), cv2.VideoWriter_fourcc(*"FFV1"), 25, video.shape[2:0:-1])
+        for f in video:
+            w.write(f)
+        w.release()
+    return folder
+
+
+def _jsonl(path):
+    return [json.loads(line) for line in Path(path).read_text().splitlines()]
+
+
+@needs_data
+def test_a_bag_streams_like_the_same_frames_from_avi(tmp_path, cache, one_thread):
+    videos = _videos()
+    bag = write_bag(tmp_path / "grasp_bag", videos, ["/left/image_raw", "/right/image_raw"])
+    topics = ["--topic", "/left/image_raw", "--topic", "/right/image_raw"]
+    res = CliRunner().invoke(
+        app, ["watch", str(bag), *topics, "--jsonl", str(tmp_path / "bag.jsonl"), "--bag-out", str(tmp_path / "alarms")]
+    )
+    assert res.exit_code == 0, res.output
+    res = CliRunner().invoke(app, ["watch", str(_run_folder(tmp_path, videos)), "--jsonl", str(tmp_path / "avi.jsonl")])
+    assert res.exit_code == 0, res.output
+    from_bag, from_avi = _jsonl(tmp_path / "bag.jsonl"), _jsonl(tmp_path / "avi.jsonl")
+    assert len(from_bag) == len(from_avi) == FRAMES
+    assert [r["probability"] for r in from_bag] == [r["probability"] for r in from_avi]
+    assert from_bag[0]["probability"] is None and from_bag[-1]["probability"] is not None
+    assert from_bag[1]["stamp"] - from_bag[0]["stamp"] == pytest.approx(0.04, abs=1e-6)  # the bag's header time
+    assert from_avi[1]["stamp"] == pytest.approx(0.04)  # index / fps
+    assert all(r["latency_ms"] > 0 and isinstance(r["alarm"], bool) for r in from_bag)
+
+    from slipsense.streaming.readings import read_bag_readings
+
+    topic = read_bag_readings(tmp_path / "alarms")
+    assert [r["frame"] for r in topic] == list(range(FRAMES)) and [r["alarm"] for r in topic] == [
+        r["alarm"] for r in from_bag
+    ]
+    assert topic[-1]["probability"] == pytest.approx(from_bag[-1]["probability"], abs=1e-6)
+
+    stdout = CliRunner().invoke(app, ["watch", str(bag), *topics, "--jsonl", "-", "--max-frames", "12"])
+    assert stdout.exit_code == 0
+    lines = [line for line in stdout.stdout.splitlines() if line.startswith("{")]
+    assert len(lines) == 12 and json.loads(lines[-1])["frame"] == 11
+
+
+def test_bag_bad_input_is_one_line(tmp_path):
+    rng = np.random.default_rng(0)
+    video = [rng.integers(0, 255, (6, 24, 32, 3), dtype=np.uint8)] * 2
+    good = write_bag(tmp_path / "good", video, ["/a", "/b"], extra_string=True)
+    cases = {
+        "no topic /c": ["--topic", "/a", "--topic", "/c"],
+        "/notes holds std_msgs/msg/String": ["--topic", "/a", "--topic", "/notes"],
+    }
+    for expect, topics in cases.items():
+        res = CliRunner().invoke(app, ["watch", str(good), *topics])
+        assert res.exit_code == 2 and expect in res.output and "good" in res.output, res.output
+        assert "Traceback" not in res.output
+    apart = write_bag(tmp_path / "apart", video, ["/a", "/b"], offsets_ns=(0, 100 * 10**9))
+    res = CliRunner().invoke(app, ["watch", str(apart), "--topic", "/a", "--topic", "/b"])
+    assert res.exit_code == 2 and "do not pair" in res.output and "apart" in res.output
+    broken = tmp_path / "broken"
+    broken.mkdir()
+    for f in good.iterdir():
+        (broken / f.name).write_bytes(f.read_bytes())
+    db = next(broken.glob("*.db3"))
+    db.write_bytes(db.read_bytes()[: db.stat().st_size // 3])
+    res = CliRunner().invoke(app, ["watch", str(broken), "--topic", "/a", "--topic", "/b"])
+    assert res.exit_code == 2 and "broken" in res.output and "Traceback" not in res.output, res.output
+    res = CliRunner().invoke(app, ["watch", str(good), "--topic", "/a", "--topic", "/b", "--bag-out", str(good)])
+    assert res.exit_code == 2 and "new bag folder" in res.output
+    res = CliRunner().invoke(app, ["watch", str(REAL_RUN), "--topic", "/a"])
+    assert res.exit_code == 2 and "not a bag" in res.output
+
+
+def test_pairing_by_time():
+    a = np.array([0, 40, 80, 120, 160]) * 10**6
+    b = np.array([3, 43, 121, 163, 200]) * 10**6  # frame at 80 missing on b
+    idx = pair_by_time([a, b], 20 * 10**6)
+    assert idx.tolist() == [[0, 0], [1, 1], [3, 2], [4, 3]]
+
+
+def test_read_bag_pairs_and_counts_dropped(tmp_path):
+    rng = np.random.default_rng(1)
+    v = rng.integers(0, 255, (5, 8, 10, 3), dtype=np.uint8)
+    bag = write_bag(tmp_path / "b", [v, v[:4]], ["/l", "/r"], compressed=(True, False))
+    got = read_bag(bag, ["/l", "/r"])
+    assert len(got.frames) == 4 and got.dropped == {"/l": 1, "/r": 0}
+    assert all(np.array_equal(got.frames[k][0], v[k]) and np.array_equal(got.frames[k][1], v[k]) for k in range(4))
+    assert got.fps == pytest.approx(25.0)
+
+
+def _consume(th: CaptureThread, seconds_per_frame: float):
+    seen, last = [], 0
+    while True:
+        item = th.next(last, timeout=1.0)
+        if item is None:
+            return seen
+        last = item[0]
+        seen.append(int(item[2][0, 0, 0]))  # the frame's own index, written into its first pixel
+        time.sleep(seconds_per_frame)
+
+
+def _numbered(n):
+    frames = np.zeros((n, 4, 4, 3), np.uint8)
+    frames[:, 0, 0, 0] = np.arange(n) % 256
+    return list(frames)
+
+
+def test_capture_keeps_the_source_rate_with_a_30ms_consumer():
+    th = CaptureThread(PacedReader(_numbered(75), fps=25.0).read, "paced")
+    seen = _consume(th, 0.030)
+    stats = th.stats()
+    th.close()
+    assert stats["fps"] == pytest.approx(25.0, rel=0.02)
+    assert seen == list(range(75)) and stats["dropped"] == 0 and stats["delivered"] == 75
+
+
+def test_capture_reports_drops_truthfully_with_a_slow_consumer():
+    th = CaptureThread(PacedReader(_numbered(75), fps=25.0).read, "paced")
+    seen = _consume(th, 0.065)
+    stats = th.stats()
+    th.close()
+    assert stats["fps"] == pytest.approx(25.0, rel=0.02)  # the camera side keeps its rate
+    missing = 75 - len(seen)
+    assert missing > 20 and stats["dropped"] == missing and stats["grabbed"] == 75
+    assert seen == sorted(seen) and stats["repeated"] == 0
+
+
+def test_capture_counts_repeated_frames():
+    frames = _numbered(6)
+    frames = [frames[0], frames[0], frames[1], frames[2], frames[2], frames[2]]
+    th = CaptureThread(PacedReader(frames, fps=200.0).read, "repeats")
+    _consume(th, 0.0)
+    assert th.stats()["repeated"] == 3
+    th.close()
+
+
+@needs_data
+def test_watch_realtime_plays_at_the_sensor_rate(tmp_path, one_thread):
+    res = CliRunner().invoke(app, ["watch", str(REAL_RUN), "--realtime", "--max-frames", "30", "--quiet"])
+    assert res.exit_code == 0, res.output
+    assert "frames/s captured" in res.output and "0 dropped" in res.output
