@@ -215,3 +215,69 @@ def test_watch_realtime_plays_at_the_sensor_rate(tmp_path, one_thread):
     res = CliRunner().invoke(app, ["watch", str(REAL_RUN), "--realtime", "--max-frames", "30", "--quiet"])
     assert res.exit_code == 0, res.output
     assert "frames/s captured" in res.output and "0 dropped" in res.output
+
+
+def _add_bool_topic(bag: Path, topic: str, values):
+    """A bag holding only a std_msgs/msg/Bool topic (a label topic without images)."""
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    Bool = ts.types["std_msgs/msg/Bool"]
+    with Writer(bag, version=9) as w:
+        c = w.add_connection(topic, Bool.__msgtype__, typestore=ts)
+        for k, v in enumerate(values):
+            w.write(c, 1_700_000_000_000_000_000 + k, ts.serialize_cdr(Bool(data=v), Bool.__msgtype__))
+    return bag
+
+
+def test_bag_convert_writes_the_recordings_layout(tmp_path, cache):
+    from slipsense.recordings.folders import find_recordings
+    from slipsense.recordings.video import read_video
+
+    rng = np.random.default_rng(2)
+    v = [rng.integers(0, 255, (8, 24, 32, 3), dtype=np.uint8) for _ in range(2)]
+    bag = write_bag(tmp_path / "b", v, ["/l", "/r"])
+    out = tmp_path / "rec" / "cup" / "exp_num_3"
+    res = CliRunner().invoke(
+        app, ["bag", "convert", str(bag), "--topic", "/l", "--topic", "/r", "--out", str(out), "--slipped"]
+    )
+    assert res.exit_code == 0, res.output
+    assert "8 frames x 2 sensors" in res.output and (out / "slip.txt").is_file()
+    for k in range(2):
+        assert np.array_equal(read_video(out / f"camera_{k}.avi", expected_size=None), v[k])  # lossless
+    recs = find_recordings(tmp_path / "rec")
+    assert [(r.object, r.experiment, r.camera, r.slipped) for r in recs] == [
+        ("cup", 3, "camera_0", True),
+        ("cup", 3, "camera_1", True),
+    ]
+
+    labels = _add_bool_topic(tmp_path / "labels", "/slip", [False, True])
+    res = CliRunner().invoke(app, ["bag", "convert", str(labels), "--topic", "/l", "--out", str(tmp_path / "x")])
+    assert res.exit_code == 2 and "no topic /l" in res.output
+    res = CliRunner().invoke(
+        app, ["bag", "convert", str(bag), "--topic", "/l", "--label-topic", "/r", "--out", str(tmp_path / "y")]
+    )
+    assert res.exit_code == 2 and "not std_msgs/msg/Bool" in res.output
+
+
+def test_a_folder_of_bags_is_a_recordings_folder(tmp_path, cache):
+    """Bags in place of experiment folders: every command that takes recordings reads them."""
+    from slipsense.recordings.folders import find_recordings
+    from slipsense.recordings.video import read_video
+
+    rng = np.random.default_rng(3)
+    v = [rng.integers(0, 255, (6, 24, 32, 3), dtype=np.uint8) for _ in range(2)]
+    write_bag(tmp_path / "bags" / "cup" / "exp_num_1", v, ["/a/image", "/b/image"])
+    slipped = write_bag(tmp_path / "bags" / "cup" / "exp_num_2", v, ["/a/image", "/b/image"])
+    (slipped / "slip.txt").write_text("")
+    recs = find_recordings(tmp_path / "bags")
+    assert [(r.experiment, r.camera, r.slipped) for r in recs] == [
+        (1, "camera_0", False),
+        (1, "camera_1", False),
+        (2, "camera_0", True),
+        (2, "camera_1", True),
+    ]
+    assert np.array_equal(read_video(recs[1].path, expected_size=None), v[1])
+    again = find_recordings(tmp_path / "bags")  # converted once: the cached videos are reused
+    assert [r.path for r in again] == [r.path for r in recs]

@@ -340,7 +340,8 @@ def _register_extensions() -> None:
     """Commands defined beside their subsystems (live detection, export, sensors, experiments)."""
     import importlib
 
-    for mod in ("slipsense.cli.live", "slipsense.cli.sensors", "slipsense.cli.experiments", "slipsense.cli.grasp"):
+    modules = ("live", "sensors", "experiments", "grasp", "bags")
+    for mod in (f"slipsense.cli.{m}" for m in modules):
         try:
             importlib.import_module(mod).register(app)
         except ModuleNotFoundError as exc:

@@ -10,7 +10,9 @@ by default), partners in order; frames left without a partner are dropped and co
 
 :func:`write_recording` turns a bag into the recordings layout (``camera_*.avi`` in a lossless codec,
 ``slip.txt`` when a label says the object slipped), so every command that takes recordings takes
-converted bags, and :func:`bag_folder_recordings` does that for a folder of bags.
+converted bags; and a recordings folder may hold bags in place of experiment folders
+(``<object>/exp_num_<N>/`` a bag folder, with ``slip.txt`` in it when the object slipped): every image
+topic of the bag is a sensor, in topic order, converted once into the cache (:func:`bag_cameras`).
 """
 
 from __future__ import annotations
@@ -55,14 +57,14 @@ class BagFrames:
         return float((len(t) - 1) / ((t[-1] - t[0]) * 1e-9)) if len(t) > 1 and t[-1] > t[0] else float("nan")
 
 
-def _reader(path: Path):
+def open_reader(path: Path):
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
     return AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
 
 
-def _bag_error(path: Path, exc: BaseException) -> InputError:
+def bag_error(path: Path, exc: BaseException) -> InputError:
     text = " ".join(str(exc).split())[:200]
     return InputError(path, f"not a readable ROS 2 bag ({type(exc).__name__}: {text})")
 
@@ -73,12 +75,12 @@ def image_topics(path: str | Path) -> dict[str, str]:
     if not path.exists():
         raise InputError(path, "bag not found")
     try:
-        with _reader(path) as reader:
+        with open_reader(path) as reader:
             return {c.topic: c.msgtype for c in reader.connections}
     except InputError:
         raise
     except Exception as exc:  # rosbags raises its own errors, sqlite's and yaml's for damaged bags
-        raise _bag_error(path, exc) from None
+        raise bag_error(path, exc) from None
 
 
 def decode_image(msg, msgtype: str, where: str) -> np.ndarray:
@@ -108,7 +110,7 @@ def decode_image(msg, msgtype: str, where: str) -> np.ndarray:
 def _messages(path: Path, topics: Sequence[str]) -> Iterator[tuple[str, int, np.ndarray]]:
     """``(topic, header stamp ns, BGR image)`` of every message on ``topics``, in bag order."""
     try:
-        with _reader(path) as reader:
+        with open_reader(path) as reader:
             kinds = {c.topic: c.msgtype for c in reader.connections}
             for t in topics:
                 if t not in kinds:
@@ -124,7 +126,7 @@ def _messages(path: Path, topics: Sequence[str]) -> Iterator[tuple[str, int, np.
     except InputError:
         raise
     except Exception as exc:
-        raise _bag_error(path, exc) from None
+        raise bag_error(path, exc) from None
 
 
 def pair_by_time(stamps: Sequence[np.ndarray], tolerance_ns: int) -> np.ndarray:
@@ -217,3 +219,25 @@ def write_recording(bag: BagFrames, folder: str | Path, camera_names: Sequence[s
     elif marker.exists():
         marker.unlink()
     return folder
+
+
+def bag_cameras(bag: Path, fps: float) -> list[Path]:
+    """The camera videos of a bag used as an experiment folder: every image topic, in topic order,
+    paired by time and written once into the cache (``$SLIPSENSE_CACHE/bags``, keyed by the bag's
+    files, sizes and times) as ``camera_<k>.avi``."""
+    import hashlib
+
+    from slipsense.config import cache_root
+
+    topics = sorted(t for t, kind in image_topics(bag).items() if kind in (IMAGE, COMPRESSED))
+    if not topics:
+        raise InputError(bag, "bag holds no sensor_msgs Image or CompressedImage topic")
+    files = sorted(p for p in Path(bag).iterdir() if p.is_file()) if Path(bag).is_dir() else [Path(bag)]
+    ident = [str(Path(bag).resolve()), fps, topics] + [[p.name, p.stat().st_size, p.stat().st_mtime_ns] for p in files]
+    key = hashlib.sha256(repr(ident).encode()).hexdigest()[:16]
+    folder = cache_root() / "bags" / key
+    names = [f"camera_{k}" for k in range(len(topics))]
+    paths = [folder / f"{n}.avi" for n in names]
+    if not all(p.is_file() for p in paths):
+        write_recording(read_bag(bag, topics, fps=fps), folder, names, slipped=False, fps=fps)
+    return paths

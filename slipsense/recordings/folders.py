@@ -145,6 +145,14 @@ def _object_recordings(obj_dir: Path, on_error: str, sensor: SensorSpec = GELSIG
         except PermissionError:
             report(exp_dir, "experiment folder is not readable (permission denied)", on_error)
             continue
+        if not cameras and (exp_dir / "metadata.yaml").is_file():  # a ROS 2 bag as the experiment
+            from slipsense.recordings.bags import bag_cameras
+
+            try:
+                cameras = bag_cameras(exp_dir, sensor.fps)
+            except InputError as exc:
+                report(exp_dir, exc.problem, on_error)
+                continue
         # camera_2.AVI, Camera_0.avi, camera_0.mp4: look like sensor videos but are not read;
         # say so rather than label the run from the other camera alone without a word.
         for p in sorted(exp_dir.iterdir()):
