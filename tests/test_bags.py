@@ -281,3 +281,36 @@ def test_a_folder_of_bags_is_a_recordings_folder(tmp_path, cache):
     assert np.array_equal(read_video(recs[1].path, expected_size=None), v[1])
     again = find_recordings(tmp_path / "bags")  # converted once: the cached videos are reused
     assert [r.path for r in again] == [r.path for r in recs]
+
+
+def test_decode_image_takes_ros_messages_of_every_read_encoding():
+    """What the ROS 2 node hands in: rclpy messages hold ``data`` as an array of bytes."""
+    import array
+    from types import SimpleNamespace
+
+    from slipsense.recordings.bags import COMPRESSED, IMAGE, decode_image
+    from slipsense.streaming import ros_node  # imports without rclpy; main() needs ROS 2
+
+    assert callable(ros_node.main)
+    rng = np.random.default_rng(4)
+    bgr = rng.integers(0, 255, (5, 7, 3), dtype=np.uint8)
+    padded = np.zeros((5, 24), np.uint8)  # a row step longer than width x channels
+    padded[:, :21] = bgr[:, :, ::-1].reshape(5, 21)
+    msgs = {
+        "bgr8": (bgr.reshape(-1), 21),
+        "rgb8": (padded.reshape(-1), 24),
+        "mono8": (bgr[:, :, 0].reshape(-1), 7),
+    }
+    for encoding, (data, step) in msgs.items():
+        msg = SimpleNamespace(height=5, width=7, step=step, encoding=encoding, data=array.array("B", data.tobytes()))
+        got = decode_image(msg, IMAGE, "t")
+        want = cv2.cvtColor(bgr[:, :, 0], cv2.COLOR_GRAY2BGR) if encoding == "mono8" else bgr
+        assert np.array_equal(got, want), encoding
+    png = SimpleNamespace(format="png", data=array.array("B", cv2.imencode(".png", bgr)[1].tobytes()))
+    assert np.array_equal(decode_image(png, COMPRESSED, "t"), bgr)
+    from slipsense.errors import InputError
+
+    with pytest.raises(InputError, match="16UC1"):
+        decode_image(SimpleNamespace(height=5, width=7, step=14, encoding="16UC1", data=b"\0" * 70), IMAGE, "t")
+    with pytest.raises(InputError, match="holds 3 bytes"):
+        decode_image(SimpleNamespace(height=5, width=7, step=21, encoding="bgr8", data=b"abc"), IMAGE, "t")

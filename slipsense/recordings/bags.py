@@ -96,7 +96,10 @@ def decode_image(msg, msgtype: str, where: str) -> np.ndarray:
     if channels is None:
         raise InputError(where, f"image encoding {msg.encoding!r} is not read (read: {', '.join(ENCODINGS)})")
     h, w, step = int(msg.height), int(msg.width), int(msg.step)
-    data = np.asarray(msg.data, dtype=np.uint8)
+    raw = msg.data
+    data = (
+        np.frombuffer(raw, np.uint8) if isinstance(raw, (bytes, bytearray, memoryview)) else np.asarray(raw, np.uint8)
+    )
     if h * w == 0 or step < w * channels or data.size < h * step:
         raise InputError(where, f"image of {h}x{w} {msg.encoding} holds {data.size} bytes (step {step})")
     img = data[: h * step].reshape(h, step)[:, : w * channels].reshape(h, w, channels)

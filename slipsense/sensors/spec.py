@@ -79,10 +79,16 @@ class SensorSpec:
             isinstance(markers, bool) or not isinstance(markers, int) or not 0 < markers <= 100_000
         ):
             raise ValueError(f"sensor markers must be a positive integer, got {markers!r}")
-        for key in ("camera_glob", "experiment_pattern", "slip_marker"):
+        for key in ("camera_glob", "experiment_pattern", "slip_marker", "capture_format"):
             if d.get(key) is not None and not isinstance(d[key], str):
                 raise ValueError(f"sensor {key} must be text")
-        return cls(**{**d, "fps": float(fps), "image_size": None if size is None else (int(size[0]), int(size[1]))})
+        # a spec written before a field existed takes it from the registered sensor of that name
+        # (checkpoints of the GelSight Mini written before capture_format ask cameras for MJPG too)
+        registered = SENSORS.get(d["name"])
+        added = {k: getattr(registered, k) for k in known - set(d)} if registered is not None else {}
+        return cls(
+            **{**added, **d, "fps": float(fps), "image_size": None if size is None else (int(size[0]), int(size[1]))}
+        )
 
 
 #: Two GelSight Mini sensors on the fingers of a Franka Panda: the ViViT study's recordings
