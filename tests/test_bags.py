@@ -314,3 +314,29 @@ def test_decode_image_takes_ros_messages_of_every_read_encoding():
         decode_image(SimpleNamespace(height=5, width=7, step=14, encoding="16UC1", data=b"\0" * 70), IMAGE, "t")
     with pytest.raises(InputError, match="holds 3 bytes"):
         decode_image(SimpleNamespace(height=5, width=7, step=21, encoding="bgr8", data=b"abc"), IMAGE, "t")
+
+
+def test_bag_convert_a_folder_of_bags_with_a_labels_csv(tmp_path, cache):
+    from slipsense.recordings.folders import find_recordings
+
+    rng = np.random.default_rng(5)
+    v = [rng.integers(0, 255, (4, 16, 20, 3), dtype=np.uint8) for _ in range(2)]
+    for obj, name in (("cup", "grasp_a"), ("cup", "grasp_b"), ("pear", "morning")):
+        write_bag(tmp_path / "bags" / obj / name, v, ["/l", "/r"])
+    csv = tmp_path / "labels.csv"
+    csv.write_text("bag,slipped\ncup/grasp_b,1\npear/morning,0\n")
+    args = ["bag", "convert", str(tmp_path / "bags"), "--topic", "/l", "--topic", "/r", "--out", str(tmp_path / "rec")]
+    res = CliRunner().invoke(app, [*args, "--labels", str(csv)])
+    assert res.exit_code == 0, res.output
+    recs = find_recordings(tmp_path / "rec")
+    assert sorted({(r.object, r.experiment, r.slipped) for r in recs}) == [
+        ("cup", 1, False),
+        ("cup", 2, True),
+        ("pear", 1, False),
+    ]
+    csv.write_text("bag,slipped\ncup/nowhere,1\n")
+    res = CliRunner().invoke(app, [*args, "--labels", str(csv)])
+    assert res.exit_code == 2 and "labels.csv" in res.output and "cup/nowhere" in res.output
+    csv.write_text("bag,slipped\ncup/grasp_a,maybe\n")
+    res = CliRunner().invoke(app, [*args, "--labels", str(csv)])
+    assert res.exit_code == 2 and "line 2" in res.output
