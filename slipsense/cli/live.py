@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import time
 import warnings
 
@@ -89,6 +90,8 @@ def watch_source(
 
     from slipsense.atomic import check_output_file
 
+    if max_frames is not None and max_frames < 0:
+        raise ConfigError(f"--max-frames must be 0 or more, got {max_frames}")
     if out is not None:
         check_output_file(out, "--out")
         AnnotatedWriter(out)  # refuse a wrong suffix before any work
@@ -127,10 +130,8 @@ def watch_source(
     previous = False
     n = 0
     try:
-        for step in src.frames():
+        for step in itertools.islice(src.frames(), max_frames):  # takes no frame beyond the last pushed
             display, inputs = step.display, step.inputs
-            if max_frames is not None and n >= max_frames:
-                break
             t0 = time.perf_counter()
             r = det.push(*inputs)
             latency_ms = (time.perf_counter() - t0) * 1e3
