@@ -185,6 +185,25 @@ def test_grasp_folds_same_results_on_one_or_two_workers(tmp_path, grasps, monkey
     for f in doc["per_fold"]:
         assert "0% of held grasps" in f["operating_point"]["rule"]
     assert "warned_low" in doc["curve"][0] and (rep / "tradeoff.png").is_file()
+    # two reports of the same recipe and folds: their mean (here of equal traces: the same result)
+    both = tmp_path / "both"
+    res = CliRunner().invoke(
+        app,
+        [
+            "grasp",
+            "rechoose",
+            str(tmp_path / "folds-1"),
+            str(tmp_path / "folds-2"),
+            "--out",
+            str(both),
+            "--max-held-alarm",
+            "0",
+        ],
+    )
+    assert res.exit_code == 0, res.output
+    ens = json.loads((both / "folds.json").read_text())
+    assert [f["operating_point"] for f in ens["per_fold"]] == [f["operating_point"] for f in doc["per_fold"]]
+    assert ens["pooled"]["per_grasp"] == doc["pooled"]["per_grasp"] and len(ens["rechosen_from"]) == 2
     old = tmp_path / "folds-1" / "fold0.json"  # a fold file written before inner traces were kept
     fold = json.loads(old.read_text())
     old.write_text(json.dumps({**fold, "inner": []}))

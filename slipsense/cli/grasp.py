@@ -278,8 +278,10 @@ def register(app: typer.Typer) -> None:
     @grasp_app.command("rechoose")
     @friendly
     def rechoose_cmd(
-        src: Path = typer.Argument(
-            ..., help="a `slipsense grasp folds` report folder (its fold files keep inner traces)"
+        src: list[Path] = typer.Argument(
+            ...,
+            help="a `slipsense grasp folds` report folder (its fold files keep inner traces); several reports "
+            "of the same recipe and folds with other seeds: their traces are averaged (a seed ensemble)",
         ),
         out: Path = typer.Option(..., help="report folder to write: README.md, folds.json, tradeoff.png"),
         max_held_alarm: Optional[float] = typer.Option(
@@ -287,7 +289,7 @@ def register(app: typer.Typer) -> None:
         ),
     ):
         """Choose every fold's operating point again by another rule, on its training objects' inner
-        traces, and pool: no training (seconds)."""
+        traces, and pool: no training (seconds). Several reports: the mean of their detectors."""
         from slipsense.atomic import check_output_dir
         from slipsense.evaluation.folds import rechoose
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import warnings
 import math
 import platform
 import time
@@ -135,34 +136,41 @@ def run_folds(
 
 
 def rechoose(src, out, max_held_alarm: float | None, command: str = "", echo=print) -> dict[str, Any]:
-    """The folds of ``src`` (a ``slipsense grasp folds`` report) with every fold's operating point
-    chosen again by another rule, on the inner folds' traces its fold file keeps (training objects
-    only), each fold scored again on its held-out traces, pooled, written into ``out`` (README.md,
-    folds.json, tradeoff.png). No training: a rule is compared with another in seconds."""
+    """The folds of ``src`` (a ``slipsense grasp folds`` report, or several) with every fold's operating
+    point chosen again by another rule, on the inner folds' traces its fold file keeps (training
+    objects only), each fold scored again on its held-out traces, pooled, written into ``out``
+    (README.md, folds.json, tradeoff.png). No training: a rule is compared with another in seconds.
+
+    Several reports of the same folds and runs (the recipe trained with other seeds) are combined
+    first: each run's probability is the mean of theirs, outer and inner traces alike (an ensemble of
+    the reports' detectors, judged as the live detector averaging them would be)."""
     from slipsense.errors import InputError
     from slipsense.evaluation import pergrasp
     from slipsense.evaluation.grasp_scores import fold_at
 
-    src, out = Path(src), Path(out)
-    try:
-        report = json.loads((src / "folds.json").read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:
-        raise InputError(src / "folds.json", f"is not a folds report ({exc})") from None
-    cfg = {**report["train_config"], "max_held_alarm": max_held_alarm}
-    folds, keys = [], set()
-    for k in range(int(report["folds"])):
-        path = src / f"fold{k}.json"
+    srcs = [Path(s) for s in (src if isinstance(src, (list, tuple)) else [src])]
+    out = Path(out)
+    reports = []
+    for one in srcs:
         try:
-            fold = json.loads(path.read_text(encoding="utf-8"))
+            reports.append(json.loads((one / "folds.json").read_text(encoding="utf-8")))
         except (OSError, ValueError) as exc:
-            raise InputError(path, f"cannot be read ({exc})") from None
-        if not fold.get("inner"):
-            raise InputError(path, "keeps no inner-fold traces (written before they were kept, or inner_folds=0)")
-        keys.add(fold.get("config_key"))
-        if len(keys) > 1:  # a later run with other settings wrote some of the folds
-            raise InputError(
-                path, f"was written with other settings than the folds before it (config keys {sorted(map(str, keys))})"
-            )
+            raise InputError(one / "folds.json", f"is not a folds report ({exc})") from None
+    report = reports[0]
+    defaults = GraspTrainConfig().to_dict()  # a report written before a setting existed had its default
+    setting = lambda rep, k: rep["train_config"].get(k, defaults.get(k))  # noqa: E731
+    for one, other in zip(srcs[1:], reports[1:]):
+        differ = sorted(
+            k
+            for k in set(report["train_config"]) | set(other["train_config"])
+            if k not in ("seed", "max_held_alarm") and setting(report, k) != setting(other, k)
+        )
+        if differ or other["folds"] != report["folds"]:
+            raise InputError(one, f"is another recipe than {srcs[0]} ({', '.join(differ) or 'folds'} differ)")
+    cfg = {**report["train_config"], "max_held_alarm": max_held_alarm}
+    folds = []
+    for k in range(int(report["folds"])):
+        fold = _ensemble([_read_fold(one / f"fold{k}.json") for one in srcs], [one / f"fold{k}.json" for one in srcs])
         probs = [np.array([np.nan if v is None else v for v in r["probability"]]) for r in fold["inner"]]
         op = pergrasp.choose_operating_point(
             probs, [r["moment_of_slip"] for r in fold["inner"]], horizon=cfg["horizon"], max_held_alarm=max_held_alarm
@@ -174,7 +182,7 @@ def rechoose(src, out, max_held_alarm: float | None, command: str = "", echo=pri
     new = {
         **{k: v for k, v in report.items() if k not in ("pooled", "curve", "per_fold")},
         "command": command or report.get("command", ""),
-        "rechosen_from": str(src),
+        "rechosen_from": [str(one) for one in srcs] if len(srcs) > 1 else str(srcs[0]),
         "train_config": cfg,
         "pooled": {k: v for k, v in pooled.items() if k != "curve"},
         "curve": pooled["curve"],
@@ -189,6 +197,52 @@ def rechoose(src, out, max_held_alarm: float | None, command: str = "", echo=pri
 
     plot_tradeoff(pooled["curve"], out / "tradeoff.png", title=f"{cfg['model']}: folds pooled, {_rule(new)}")
     return new
+
+
+def _read_fold(path: Path) -> dict[str, Any]:
+    from slipsense.errors import InputError
+
+    try:
+        fold = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise InputError(path, f"cannot be read ({exc})") from None
+    if not fold.get("inner"):
+        raise InputError(path, "keeps no inner-fold traces (written before they were kept, or inner_folds=0)")
+    return fold
+
+
+def _ensemble(folds: Sequence[dict[str, Any]], paths: Sequence[Path]) -> dict[str, Any]:
+    """One fold whose every trace is the mean of ``folds``' (the same objects and runs in each)."""
+    from slipsense.errors import InputError
+
+    if len(folds) == 1:
+        return folds[0]
+    ident = lambda rows: [(r["object"], r["experiment"], len(r["probability"])) for r in rows]  # noqa: E731
+    for f, path in zip(folds[1:], paths[1:]):
+        if f["objects"] != folds[0]["objects"] or ident(f["runs"]) != ident(folds[0]["runs"]):
+            raise InputError(path, f"holds other objects or runs than {paths[0]}")
+        if ident(f["inner"]) != ident(folds[0]["inner"]):
+            raise InputError(path, f"holds other inner-fold runs than {paths[0]}")
+
+    def mean(rows_per_fold):
+        out = []
+        for rows in zip(*rows_per_fold):
+            p = np.array([[np.nan if v is None else v for v in r["probability"]] for r in rows], dtype=float)
+            with np.errstate(invalid="ignore"), warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)  # start-up frames: NaN in every member
+                m = np.nanmean(p, axis=0)
+            out.append({**rows[0], "probability": [None if np.isnan(v) else round(float(v), 6) for v in m]})
+        return out
+
+    clips = [np.asarray(f["clip_probability"], dtype=float) for f in folds]
+    if any(len(c) != len(clips[0]) for c in clips) or any(f["clip_label"] != folds[0]["clip_label"] for f in folds):
+        raise InputError(paths[0], "the reports' folds hold other clips")
+    return {
+        **folds[0],
+        "runs": mean([f["runs"] for f in folds]),
+        "inner": mean([f["inner"] for f in folds]),
+        "clip_probability": np.mean(clips, axis=0).round(6).tolist(),
+    }
 
 
 def _traces(runs: Sequence[GraspRun], probs) -> list[dict[str, Any]]:
