@@ -348,3 +348,17 @@ def test_bag_convert_a_folder_of_bags_with_a_labels_csv(tmp_path, cache):
     csv.write_text("bag,slipped\ncup/grasp_a,maybe\n")
     res = CliRunner().invoke(app, [*args, "--labels", str(csv)])
     assert res.exit_code == 2 and "line 2" in res.output
+
+
+def test_watch_and_convert_refuse_bad_settings_in_one_line(tmp_path):
+    rng = np.random.default_rng(6)
+    v = [rng.integers(0, 255, (4, 16, 20, 3), dtype=np.uint8) for _ in range(2)]
+    bag = write_bag(tmp_path / "b", v, ["/l", "/r"])
+    topics = ["--topic", "/l", "--topic", "/r"]
+    res = CliRunner().invoke(app, ["watch", str(bag), *topics, "--threshold", "1.5"])
+    assert res.exit_code == 2 and "threshold" in res.output and "safetensors" not in res.output
+    for bad in (["--fps", "0"], ["--fps", "nan"], ["--tolerance", "-1"]):
+        res = CliRunner().invoke(app, ["bag", "convert", str(bag), *topics, "--out", str(tmp_path / "x"), *bad])
+        assert res.exit_code == 2 and "Traceback" not in res.output and bad[0] in res.output, res.output
+    res = CliRunner().invoke(app, ["watch", str(bag), *topics, "--tolerance", "nan"])
+    assert res.exit_code == 2 and "--tolerance" in res.output

@@ -230,3 +230,21 @@ def test_a_refused_push_leaves_the_stream_as_it_was():
         det.push(other, "not a frame")
     readings = [det.push(ok, ok) for _ in range(12)]  # another size than the refused push: accepted
     assert readings[0].index == 0 and readings[-1].probability is not None
+
+
+def test_fit_without_random_negatives_trains():
+    """negatives=0: held runs get chunks only once hard negatives are mined."""
+    cfg = GraspTrainConfig(
+        model_config={"image_size": [16, 20], "width": 4, "features": 8, "temporal": 8},
+        epochs=3,
+        batch_size=8,
+        chunk=16,
+        negatives=0,
+        hard_negatives=1,
+        mine_every=1,
+        inner_folds=0,
+    )
+    _, hist = fit_runs(_runs(), cfg, progress=False)
+    assert len(hist) == 3 and hist[0]["other_frames"] < hist[1]["other_frames"]
+    with pytest.raises(ConfigError, match="positive_weight"):
+        GraspTrainConfig(positive_weight=0)

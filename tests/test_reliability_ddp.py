@@ -131,4 +131,7 @@ def test_torchrun_equals_one_process_with_dropout_and_uneven_data(tmp_path):
 
 
 if __name__ == "__main__":
+    from slipsense.training.distributed import finish
+
     main(sys.argv[1])
+    finish()  # a rank that exits with the process group up can abort at exit

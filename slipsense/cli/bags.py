@@ -53,7 +53,9 @@ def register(app: typer.Typer) -> None:
             None, help="a std_msgs/msg/Bool topic: the object slipped when any message is true"
         ),
         labels: Optional[Path] = typer.Option(
-            None, help="CSV with columns bag,slipped (bag: <object>/<bag name>; slipped: 1 or 0) for a folder of bags"
+            None,
+            help="CSV with columns bag,slipped (bag: <object>/<bag name>; slipped: 1 or 0) for a folder of bags; "
+            "a bag it does not name held, unless slip.txt is in it",
         ),
         fps: float = typer.Option(25.0, help="the sensor's frame rate (the videos' rate; pairing tolerance)"),
         tolerance: Optional[float] = typer.Option(None, help="seconds: largest stamp difference of paired frames"),
@@ -61,8 +63,9 @@ def register(app: typer.Typer) -> None:
         """Write bags' image topics as camera_<k>.avi (lossless FFV1) with slip.txt where the object
         slipped: every command that takes recordings then reads them. A folder of bags becomes
         OUT/<object>/exp_num_<N>, N counting each object's bags in name order."""
-        from slipsense.recordings.bags import is_bag
+        from slipsense.recordings.bags import check_timing, is_bag
 
+        check_timing(fps, tolerance)
         if sum(bool(x) for x in (slipped, label_topic, labels)) > 1:
             raise ConfigError("give one of --slipped, --label-topic and --labels")
         if is_bag(bag):

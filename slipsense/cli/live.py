@@ -85,7 +85,7 @@ def watch_source(
     from slipsense.checkpoint import load_model
     from slipsense.sensors.spec import GELSIGHT_MINI, sensor_of
     from slipsense.streaming.annotate import AnnotatedWriter, Annotator
-    from slipsense.streaming.detector import SlipDetector, onnx_cache_dir, stored_operating_point
+    from slipsense.streaming.detector import SlipDetector, check_settings, onnx_cache_dir, stored_operating_point
     from slipsense.streaming.readings import reading_record
 
     from slipsense.atomic import check_output_file
@@ -97,11 +97,17 @@ def watch_source(
         AnnotatedWriter(out)  # refuse a wrong suffix before any work
     if bag_out is not None and Path(bag_out).exists():
         raise InputError(bag_out, "exists; --bag-out writes a new bag folder")
+    # the user's own settings are checked before any source is opened or checkpoint blamed
+    check_settings(0.5 if threshold is None else threshold, 1, combine, backend, dtype)
     if checkpoint is None:  # the shipped detectors read videos: one for one finger, one for both
         sensor = GELSIGHT_MINI
         src = _open(source, "frames", None, sensor, topics, tolerance, realtime)
-        ckpt = _checkpoint(None, src.sensors)
-        model, info = load_model(ckpt)
+        try:
+            ckpt = _checkpoint(None, src.sensors)
+            model, info = load_model(ckpt)
+        except BaseException:
+            src.close()
+            raise
     else:
         ckpt = _checkpoint(checkpoint)
         model, info = load_model(ckpt)
@@ -151,6 +157,11 @@ def watch_source(
                 writer.add(annot.draw(display, r, heat, clouds))
     except KeyboardInterrupt:  # a live camera is stopped with Ctrl-C: still write what was seen
         pass
+    except BrokenPipeError:  # `--jsonl - | head`: the reader has gone; stop as if stopped by hand
+        import os
+        import sys
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no error at exit's flush
     except BaseException:
         if writer is not None:
             writer.abort()
@@ -207,13 +218,27 @@ def _open(source, reads, markers, sensor, topics, tolerance, realtime):
             "--realtime plays recorded frames (a video, a recordings folder or a bag) at the sensor's rate"
         )
     from slipsense.streaming.capture import CaptureThread, PacedReader, capture_source
+    from slipsense.streaming.sources import Source
 
     steps = list(src.frames())
-    threads = [
-        CaptureThread(PacedReader([s.inputs[k] for s in steps], sensor.fps).read, f"{src.name}[{k}]")
-        for k in range(src.sensors)
-    ]
-    return capture_source(f"{src.name} in real time", threads, sensor.fps, tolerance)
+    src.close()
+    live: list = []
+
+    def play():  # the clock starts at the first frame asked for, once the detector is ready
+        threads = [
+            CaptureThread(PacedReader([s.inputs[k] for s in steps], sensor.fps).read, f"{src.name}[{k}]")
+            for k in range(src.sensors)
+        ]
+        live.append(capture_source(f"{src.name} in real time", threads, sensor.fps, tolerance))
+        yield from live[0].frames()
+
+    return Source(
+        f"{src.name} in real time",
+        src.sensors,
+        play(),
+        closer=lambda: [s.close() for s in live],
+        stats=lambda: live[0].stats() if live else {},
+    )
 
 
 def _sinks(jsonl, bag_out, src, det) -> list:

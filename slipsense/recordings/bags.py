@@ -31,6 +31,23 @@ COMPRESSED = "sensor_msgs/msg/CompressedImage"
 ENCODINGS = {"bgr8": 3, "rgb8": 3, "mono8": 1, "8UC1": 1, "8UC3": 3, "bgra8": 4, "rgba8": 4}
 
 
+def check_timing(fps: float, tolerance_s: float | None = None) -> None:
+    """ConfigError unless ``fps`` is a finite number > 0 and ``tolerance_s`` (if given) finite and >= 0."""
+    import math
+
+    from slipsense.errors import ConfigError
+
+    if isinstance(fps, bool) or not isinstance(fps, (int, float)) or not math.isfinite(fps) or fps <= 0:
+        raise ConfigError(f"--fps must be a number > 0 (frames per second), got {fps!r}")
+    if tolerance_s is not None and (
+        isinstance(tolerance_s, bool)
+        or not isinstance(tolerance_s, (int, float))
+        or not math.isfinite(tolerance_s)
+        or tolerance_s < 0
+    ):
+        raise ConfigError(f"--tolerance must be a number of seconds >= 0, got {tolerance_s!r}")
+
+
 def is_bag(path: str | Path) -> bool:
     """A rosbag2 folder (with ``metadata.yaml``) or a ``.db3`` / ``.mcap`` file."""
     p = Path(path)
@@ -162,6 +179,7 @@ def read_bag(path: str | Path, topics: Sequence[str], fps: float = 25.0, toleran
     InputError naming the bag for a missing bag or topic, a topic of another message type, an image
     that cannot be decoded, frames of different sizes on one topic, a damaged or truncated bag, or
     topics whose stamps do not pair (fewer than half of the frames of the shorter topic)."""
+    check_timing(fps, tolerance_s)
     path = Path(path)
     topics = list(topics)
     if not topics:
@@ -203,10 +221,15 @@ def write_recording(bag: BagFrames, folder: str | Path, camera_names: Sequence[s
 
     from slipsense.atomic import atomic_path, write_text
 
+    check_timing(fps)
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     if len(camera_names) < len(bag.topics):
         raise InputError(folder, f"{len(bag.topics)} topics but the sensor names {len(camera_names)} cameras")
+    written = {f"{n}.avi" for n in camera_names[: len(bag.topics)]}
+    for stale in folder.glob("camera_*.avi"):  # another conversion's sensors must not join this one's
+        if stale.name not in written:
+            stale.unlink()
     for k, name in enumerate(camera_names[: len(bag.topics)]):
         h, w = bag.frames[0][k].shape[:2]
         with atomic_path(folder / f"{name}.avi") as tmp:  # ends in .avi: OpenCV picks the container by it

@@ -64,6 +64,8 @@ class CaptureThread:
             with self._cond:
                 self._ended = True
                 self._cond.notify_all()
+            if self._stop:
+                self._release_once()  # closed while this thread was still reading: it lets go here
 
     def next(self, after: int = 0, timeout: float = FRAME_TIMEOUT) -> tuple[int, float, np.ndarray] | None:
         """The newest frame with a sequence number above ``after`` (waiting up to ``timeout`` s for
@@ -95,11 +97,24 @@ class CaptureThread:
                 "fps": fps,
             }
 
+    def give_back(self) -> None:
+        """The frame :meth:`next` handed out last was replaced before use (a camera catching up with
+        another): it counts as dropped, not delivered."""
+        with self._cond:
+            self.delivered -= 1
+            self.dropped += 1
+
     def close(self) -> None:
         self._stop = True
         self._thread.join(timeout=1.0)
-        if self._release is not None:
-            self._release()
+        if not self._thread.is_alive():  # never release a camera another thread is reading
+            self._release_once()
+
+    def _release_once(self) -> None:
+        with self._cond:
+            release, self._release = self._release, None
+        if release is not None:
+            release()
 
 
 class PacedReader:
@@ -145,6 +160,7 @@ def paired(threads: Sequence[CaptureThread], tolerance_s: float, timeout: float 
             item = threads[k].next(got[k][0], timeout)
             if item is None:
                 return
+            threads[k].give_back()  # the frame replaced was never pushed
             got[k] = item
         seen = [g[0] for g in got]
         yield [g[2] for g in got], [g[1] for g in got]
@@ -172,8 +188,10 @@ def open_camera(index: int, fps: float, capture_format: str | None, frame_size: 
 def capture_source(name: str, threads: Sequence[CaptureThread], fps: float, tolerance_s: float | None = None):
     """A :class:`~slipsense.streaming.sources.Source` over running capture threads, paired by time
     (``tolerance_s``: half a frame period by default); its ``stats`` are the threads'."""
+    from slipsense.recordings.bags import check_timing
     from slipsense.streaming.sources import Source, Step
 
+    check_timing(fps, tolerance_s)
     tol = 0.5 / fps if tolerance_s is None else tolerance_s
     steps = (Step(list(frames), list(frames), stamps[0]) for frames, stamps in paired(threads, tol))
 

@@ -139,7 +139,7 @@ class SlipDetector:
             raise ConfigError(f"{type(model).__name__} is not a slipsense model (see slipsense.models.base)")
         if sensors is None:
             sensors = window_geometry(model, info).get("sensors", 1)
-        _check_settings(threshold, sensors, combine, backend, dtype)
+        check_settings(threshold, sensors, combine, backend, dtype)
         if isinstance(debounce, bool) or not isinstance(debounce, (int, np.integer)) or not 1 <= debounce <= 1000:
             raise ConfigError(f"debounce must be a whole number of frames in 1..1000, got {debounce!r}")
         self.model = model.eval()
@@ -180,7 +180,7 @@ class SlipDetector:
         model, info = load_model(path)
         sensor_of(info, path)  # a malformed sensor spec is named with its file
         threshold, debounce = stored_operating_point(path, info, threshold, debounce)
-        _check_settings(threshold, 1 if sensors is None else sensors, combine, backend, dtype)
+        check_settings(threshold, 1 if sensors is None else sensors, combine, backend, dtype)
         if backend == "onnx" and onnx_dir is None:
             onnx_dir = onnx_cache_dir(Path(path))
         try:
@@ -342,7 +342,7 @@ def stored_operating_point(
     return threshold, debounce
 
 
-def _check_settings(threshold: Any, sensors: Any, combine: str, backend: str, dtype: str = "float32") -> None:
+def check_settings(threshold: Any, sensors: Any, combine: str, backend: str, dtype: str = "float32") -> None:
     try:
         ok = 0.0 <= float(threshold) <= 1.0
     except (TypeError, ValueError):

@@ -38,11 +38,15 @@ SLIP_READING = "slipsense_msgs/msg/SlipReading"
 
 def reading_record(reading, stamp: float, latency_ms: float) -> dict[str, Any]:
     """A :class:`~slipsense.streaming.detector.Reading` as the JSON-ready record above."""
+
+    def number(p):  # a NaN probability (it raises the alarm) has no JSON form: null, with the alarm on
+        return None if p is None or math.isnan(p) else round(float(p), 6)
+
     return {
         "frame": int(reading.index),
         "stamp": float(stamp),
-        "probability": None if reading.probability is None else round(float(reading.probability), 6),
-        "per_sensor": None if reading.per_sensor is None else [round(float(p), 6) for p in reading.per_sensor],
+        "probability": number(reading.probability),
+        "per_sensor": None if reading.per_sensor is None else [number(p) for p in reading.per_sensor],
         "alarm": bool(reading.alarm),
         "latency_ms": round(float(latency_ms), 4),
     }
@@ -112,7 +116,7 @@ class BagWriter:
             ),
             frame=record["frame"],
             probability=math.nan if p is None else p,
-            per_sensor=np.asarray(record["per_sensor"] or [], dtype=np.float32),
+            per_sensor=np.asarray([math.nan if v is None else v for v in record["per_sensor"] or []], np.float32),
             alarm=record["alarm"],
             latency_ms=record["latency_ms"],
         )

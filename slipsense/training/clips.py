@@ -27,7 +27,7 @@ from torch.utils.data import DataLoader, Dataset, default_collate
 from slipsense.atomic import write_text
 from slipsense.models import available, model_class, settings_of
 from slipsense.checkpoint import load_resume_state
-from slipsense.errors import ConfigError
+from slipsense.errors import ConfigError, InputError
 from slipsense.training.distributed import Dist, RankBatches, StepPlan, setup  # noqa: F401
 from slipsense.training.trainer import LoopSettings, Step, restore, rng_state, set_rng_state, train
 from slipsense.evaluation.evaluate import predict
@@ -166,14 +166,21 @@ class ClipTask:
             row.update({f"{name}_{k}": m[k] for k in ("loss", "accuracy", "precision", "recall", "f1")})
         return row
 
-    def identity(self) -> None:
-        return None  # the run's split.json is checked instead (splits.check_same_split)
+    def identity(self) -> str:
+        return settings_identity(self.cfg)
 
     def state(self) -> dict[str, Any]:
         return {}
 
     def restore(self, state: dict[str, Any]) -> None:
         pass
+
+
+def settings_identity(cfg: TrainConfig) -> str:
+    """The optimisation settings a resume must share (the data split is checked on its own:
+    splits.check_same_split); epochs may grow, progress and workers may change."""
+    free = ("epochs", "progress", "num_workers", "device", "max_steps_per_epoch", "operating_point")
+    return json.dumps({k: v for k, v in asdict(cfg).items() if k not in free}, sort_keys=True)
 
 
 def loop_settings(cfg: TrainConfig, desc: str = "") -> LoopSettings:
@@ -223,10 +230,16 @@ def fit(
     world = setup(cfg.device).world
     info = {**(info or {}), "train": asdict(cfg), "global_batch": world * cfg.batch_size * cfg.accumulate}
     out = Path(out_dir)
-    state_path = out / "resume.pt"
-    if not resume and resume_state is None and state_path.exists():
-        state_path.unlink()
-    return train(model, task, loop_settings(cfg), out=out, info=info, state_path=state_path, resume_state=resume_state)
+    return train(
+        model,
+        task,
+        loop_settings(cfg),
+        out=out,
+        info=info,
+        state_path=out / "resume.pt",
+        resume_state=resume_state,
+        resume=resume,
+    )
 
 
 # --------------------------------------------------------------------------- from a request to a run
@@ -410,6 +423,8 @@ def run_training(req: TrainRequest, resume: bool = False) -> dict[str, Any]:
         # Everything a resume needs is read and checked before the first file is written, so a
         # refused resume leaves the run folder as it was.
         state = load_resume_state(out / "resume.pt")
+        if state.get("identity", "") != settings_identity(cfg):
+            raise InputError(out / "resume.pt", "resume state of another training (settings differ); use a new --out")
         probe = copy.deepcopy(model)
         rng = rng_state()
         try:

@@ -82,8 +82,9 @@ class GraspTrainConfig:
                 raise ConfigError(f"{key} must be an integer in {lo}..{hi}, got {v!r}")
         for key in ("lr", "weight_decay", "positive_weight"):
             v = getattr(self, key)
-            if not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0 or (key == "lr" and v == 0):
-                raise ConfigError(f"{key} must be a finite number {'> 0' if key == 'lr' else '>= 0'}, got {v!r}")
+            positive = key in ("lr", "positive_weight")
+            if not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0 or (positive and v == 0):
+                raise ConfigError(f"{key} must be a finite number {'> 0' if positive else '>= 0'}, got {v!r}")
         if self.inner_folds == 1:
             raise ConfigError("inner_folds must be 0 or at least 2")
         k = self.max_held_alarm
@@ -143,7 +144,9 @@ class _Chunks:
                     ends += [int(e) for e in rng.choice(n, self.cfg.hard_negatives, p=w / w.sum())]
             if moment is not None:
                 ends.append(min(n - 1, moment + int(rng.integers(0, 6))))
-            frames = np.asarray(ends)[:, None] + np.arange(1 - self.cfg.chunk, 1)[None]  # (C, chunk)
+            if not ends:
+                continue  # a held run when no random chunks are drawn (negatives=0) before any mining
+            frames = np.asarray(ends, dtype=np.int64)[:, None] + np.arange(1 - self.cfg.chunk, 1)[None]
             targets = np.where(frames >= 0, y[frames.clip(min=0)], -1).astype(np.int64)
             out.append((i, ends, targets))
         return [out[i] for i in rng.permutation(len(out))]

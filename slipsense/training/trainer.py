@@ -112,12 +112,14 @@ def train(
     state_path: str | Path | None = None,
     resume_state: dict[str, Any] | None = None,
     on_epoch: Callable[[dict[str, Any]], None] | None = None,
+    resume: bool = True,
 ) -> list[dict[str, Any]]:
     """Train ``model`` (built and seeded by the caller) on ``task``; returns the per-epoch metric rows.
 
     ``out``: where checkpoints, metrics and curves go (rank 0; None: nowhere). ``state_path``: the
-    resume state, written after every epoch and continued from when it exists (or ``resume_state``,
-    already read and checked by the caller)."""
+    resume state, written after every epoch and continued from when it exists and ``resume`` (or
+    ``resume_state``, already read and checked by the caller); with ``resume=False`` a state there is
+    never read, and the first epoch overwrites it."""
     d = setup(s.device)
     out = None if out is None else Path(out)
     if out is not None and d.main:
@@ -129,7 +131,7 @@ def train(
     info = {**(info or {}), "world_size": d.world, "accumulate": s.accumulate}
     history: list[dict[str, Any]] = []
     best, start = -math.inf, 0
-    if resume_state is None and state_path is not None and Path(state_path).is_file():
+    if resume_state is None and resume and state_path is not None and Path(state_path).is_file():
         resume_state = load_resume_state(state_path)
     if resume_state is not None:
         start, history, best = restore(state_path, resume_state, model, optimizer, scheduler, task)
@@ -233,8 +235,11 @@ def _holds(micro) -> bool:
 
 # --------------------------------------------------------------------------- resume state
 def rng_state() -> dict[str, Any]:
-    """Python's, numpy's and torch's global generators."""
-    return {"python": random.getstate(), "numpy": np.random.get_state(), "torch": torch.get_rng_state()}
+    """Python's, numpy's and torch's global generators (and every CUDA device's, where there are any)."""
+    state = {"python": random.getstate(), "numpy": np.random.get_state(), "torch": torch.get_rng_state()}
+    if torch.cuda.is_available() and torch.cuda.is_initialized():
+        state["cuda"] = torch.cuda.get_rng_state_all()
+    return state
 
 
 def set_rng_state(s: dict[str, Any]) -> None:
@@ -243,6 +248,8 @@ def set_rng_state(s: dict[str, Any]) -> None:
     random.setstate((py[0], tuple(py[1]), py[2]))
     np.random.set_state(tuple(s["numpy"]))
     torch.set_rng_state(s["torch"])
+    if s.get("cuda") and torch.cuda.is_available():
+        torch.cuda.set_rng_state_all(list(s["cuda"]))
 
 
 def _save(path, epochs_done, model, optimizer, scheduler, task, history, best) -> None:
