@@ -179,6 +179,11 @@ def test_resume_of_another_model_changes_nothing(tmp_path):
     assert result.exit_code == 2, result.output
     assert "split.json" in _error_line(result) and "test_indices" in _error_line(result)
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    # another learning rate: the optimisation would not be the one that began
+    result = _train(tmp_path, out, "--epochs", "2", "--lr", "0.5", "--resume")
+    assert result.exit_code == 2, result.output
+    assert "resume.pt" in _error_line(result) and "settings differ" in _error_line(result)
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
     # the same command resumes
     result = _train(tmp_path, out, "--epochs", "2", "--resume")
     assert result.exit_code == 0, result.output
