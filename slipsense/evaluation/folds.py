@@ -163,7 +163,8 @@ def rechoose(src, out, max_held_alarm: float | None, command: str = "", echo=pri
         differ = sorted(
             k
             for k in set(report["train_config"]) | set(other["train_config"])
-            if k not in ("seed", "max_held_alarm") and setting(report, k) != setting(other, k)
+            # the seeds may differ: each fold's objects and runs are compared fold by fold (_ensemble)
+            if k not in ("seed", "split_seed", "max_held_alarm") and setting(report, k) != setting(other, k)
         )
         if differ or other["folds"] != report["folds"]:
             raise InputError(one, f"is another recipe than {srcs[0]} ({', '.join(differ) or 'folds'} differ)")
