@@ -274,6 +274,21 @@ def stnet_cmd(
     )["paths"]
 
 
+@_experiment("marker-baseline", train=False)
+def marker_baseline_cmd(
+    settings,
+    kw,
+    sim_sequences: Optional[int] = typer.Option(
+        None, help="simulated sequences per object and pattern (default 4, as experiment stnet; --quick 2)"
+    ),
+):
+    """Is slip learnable in the simulated marker windows? Gradient boosting on displacement-field
+    features, on experiment stnet's windows and split (no network)."""
+    from slipsense.experiments.marker_baseline import run_marker_baseline
+
+    return run_marker_baseline(settings, sim_sequences=sim_sequences)["paths"]
+
+
 @_experiment("horizon")
 def horizon_cmd(
     settings,

@@ -33,6 +33,7 @@ REQUIREMENTS = {
     "frames": "clips at 5, 4, 3, 2 frames (each length is decoded once, then cached); trains 4 ViViTs",
     "noise": "a ViViT checkpoint trained without the held-out objects (drop --checkpoint to train one)",
     "stnet": "simulates the sensor; real part tracks the markers of every video once (cached)",
+    "marker-baseline": "simulates the sensor as stnet does; gradient boosting, no network (about 20 s; scikit-learn)",
     "horizon": "clips at horizons 0, 2, 5, 10 (each decoded once, then cached); trains 4 ViViTs",
     "all-models": "clips and tracked markers (cached after stnet); trains all four models",
 }

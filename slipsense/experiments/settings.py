@@ -22,7 +22,16 @@ from slipsense.errors import ConfigError
 from slipsense.sensors.spec import GELSIGHT_MINI
 
 #: Experiment names, in report order.
-EXPERIMENTS: tuple[str, ...] = ("params", "video-compare", "frames", "noise", "stnet", "horizon", "all-models")
+EXPERIMENTS: tuple[str, ...] = (
+    "params",
+    "video-compare",
+    "frames",
+    "noise",
+    "stnet",
+    "marker-baseline",
+    "horizon",
+    "all-models",
+)
 
 FULL_SIZE = GELSIGHT_MINI.image_size
 FULL_PATCH = (40, 40)
@@ -36,6 +45,7 @@ TITLES = {
     "frames": "ViViT with 5, 4, 3 and 2 frames (ViViT paper, Fig. 7)",
     "noise": "ViViT under Gaussian noise on held-out objects (ViViT paper, Fig. 8)",
     "stnet": "STNet vs TemNet on simulated and real marker sequences (STNet paper, Table II and Fig. 7)",
+    "marker-baseline": "Is slip learnable in the simulated marker windows? Gradient boosting on displacement-field features",
     "horizon": "Predicting slip before it happens: ViViT vs prediction horizon (beyond the papers)",
     "all-models": "All four models on the same held-out windows (beyond the papers)",
 }
