@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 import pytest
 import torch
 from hypothesis import given, settings
@@ -353,3 +355,25 @@ def test_relative_input_ignores_where_the_window_starts():
         absolute = build("stnet", **kw).eval()
         assert not torch.allclose(absolute(x), absolute(shifted))
     assert rel.config()["relative"] is True and "relative" not in absolute.config()
+
+
+def test_centred_stnet_takes_its_reference_from_the_training_windows_and_streams_alike():
+    from slipsense.datasets import MarkerDataset
+    from slipsense.models import build
+    from slipsense.models.stnet_parts import MarkerFramePart, MarkerWindowPart
+
+    torch.manual_seed(0)
+    cfg = {**STNet.small_config(), "centred": True}
+    model = build("stnet", **cfg).eval()
+    rng = np.random.default_rng(0)
+    rest = rng.normal(0, 5, (24, 3)).astype(np.float32)
+    x = rest[None, None] + rng.normal(0, 0.1, (40, 4, 24, 3)).astype(np.float32)
+    model.prepare(MarkerDataset(x, np.zeros(40, np.int64)))
+    assert torch.allclose(model.reference, torch.from_numpy(rest), atol=0.1)
+    window = torch.from_numpy(x[:2])
+    with torch.no_grad():
+        full = model(window)
+        tokens = MarkerFramePart(model)(window.reshape(-1, 24, 3)).reshape(2, 4, -1)
+        assert torch.allclose(MarkerWindowPart(model)(tokens), full, atol=1e-5)
+    with pytest.raises(ConfigError, match="choose one"):
+        build("stnet", **{**cfg, "relative": True})

@@ -131,6 +131,11 @@ class SlipModel(nn.Module):
         """A small configuration for fast tests of the contract (default: the defaults)."""
         return {}
 
+    def prepare(self, train_data) -> None:
+        """Fit what the model takes from its training data before the first step (a reference, a
+        normaliser; kept in its weights, so a resumed or loaded model has it); the clip task calls it
+        on the training set. Default: nothing."""
+
     def streaming_parts(self) -> tuple[nn.Module | None, nn.Module]:
         """``(frame_part, window_part)``: the live detector runs ``frame_part`` once per pushed frame and
         caches its output, then ``window_part`` on the cached window. ``frame_part`` None: nothing can

@@ -75,6 +75,7 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
 import torch
 import torch.nn as nn
 import torch.nn.functional as F
@@ -261,6 +262,7 @@ class STNet(MarkerModel):
         num_classes=2,
         use_codecs=True,
         relative=False,
+        centred=False,
     ):
         super().__init__()
         d_in = markers * 3
@@ -301,6 +303,12 @@ class STNet(MarkerModel):
         )
         if relative:  # only stored when set, so checkpoints of the paper's network keep their config
             self._config["relative"] = True
+        if centred and relative:
+            raise ConfigError("stnet: centred and relative are two references; choose one")
+        if centred:  # beyond the paper: positions against a reference fitted on the training windows
+            self._config["centred"] = True
+            self.register_buffer("reference", torch.zeros(markers, 3))
+        self.centred = bool(centred)
         self.frames, self.markers, self.pool, self.use_codecs = frames, markers, pool, use_codecs
         # Beyond the paper: feed each frame's displacement from the window's first frame instead of
         # absolute positions. Slip shows as 0.1-1 mm motions on a +-11 mm grid; relative input puts
@@ -363,6 +371,8 @@ class STNet(MarkerModel):
         x = x.to(self.pos_embedding.dtype)
         if self.relative:
             x = x - x[:, :1]
+        if self.centred:
+            x = x - self.reference
         x = self.to_frames(x)
         if self.codecs is not None:
             x = torch.cat((self.codecs(x), x), dim=-1)  # eq. 5
@@ -409,6 +419,18 @@ class STNet(MarkerModel):
     def small_config(cls) -> dict:
         return dict(PRESETS["compact"], frames=4, markers=24)
 
+    @torch.no_grad()
+    def prepare(self, train_data) -> None:
+        """With ``centred``: the reference is the per-marker median of the training windows' first
+        frames (up to 2048 of them), an estimate of the gel at rest. The standing shear of a steadily
+        sliding contact then shows as an offset from it (docs/simulator.md: the within-window motion
+        alone stops when sliding is steady)."""
+        if not self.centred or len(train_data) == 0:
+            return
+        take = np.linspace(0, len(train_data) - 1, min(len(train_data), 2048)).round().astype(int)
+        first = torch.stack([torch.as_tensor(train_data[int(i)][0])[0] for i in np.unique(take)])
+        self.reference.copy_(first.float().median(dim=0).values)
+
     def streaming_parts(self) -> tuple[nn.Module | None, nn.Module]:
         if self.relative:  # every frame is seen relative to its window's first one: nothing to cache
             return None, self
@@ -444,31 +466,10 @@ class STNet(MarkerModel):
         available on a model made by :func:`optimize_for_inference`. Reshape to (23, 24) for the
         paper's sensor grid.
         """
+        from slipsense.models.stnet_parts import marker_saliency
+
         self.check_input(x)
-        if getattr(self, "inference_only", False):
-            raise ConfigError(
-                "marker_saliency needs gradients: call it on the trainable model, "
-                "not on the copy optimize_for_inference made"
-            )
-        if isinstance(baseline, torch.Tensor):
-            x0 = baseline.to(x)
-        elif baseline == "first":
-            x0 = x[:, :1].expand_as(x)
-        elif baseline == "zero":
-            x0 = torch.zeros_like(x)
-        else:
-            raise ConfigError(f"marker_saliency: baseline must be 'first', 'zero' or a tensor, got {baseline!r}")
-        was_training = self.training
-        self.eval()
-        try:
-            with torch.enable_grad():
-                xg = x.detach().float().requires_grad_(True)
-                logits = self(xg)
-                (grad,) = torch.autograd.grad(logits[:, target].sum(), xg)
-        finally:
-            self.train(was_training)
-        rel = (grad * (xg.detach() - x0.float())).sum(dim=(1, 3)).abs()  # (b, m)
-        return rel / rel.amax(dim=1, keepdim=True).clamp_min(torch.finfo(rel.dtype).tiny)
+        return marker_saliency(self, x, target, baseline)
 
 
 @register("temnet")

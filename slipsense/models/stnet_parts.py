@@ -11,6 +11,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
+from slipsense.errors import ConfigError
+
 
 class MarkerFramePart(nn.Module):
     """STNet/TemNet per-frame layers (S codecs, fusion): ``(N, M, 3)`` mm -> ``(N, d_model)``."""
@@ -21,7 +23,10 @@ class MarkerFramePart(nn.Module):
 
     def forward(self, clouds: Tensor) -> Tensor:
         m = self.model
-        x = clouds.to(m.pos_embedding.dtype).reshape(-1, 1, 3 * m.markers)  # (N, 1, 3M): each frame alone
+        x = clouds.to(m.pos_embedding.dtype)
+        if m.centred:
+            x = x - m.reference
+        x = x.reshape(-1, 1, 3 * m.markers)  # (N, 1, 3M): each frame alone
         if m.codecs is not None:
             x = torch.cat((m.codecs(x), x), dim=-1)  # eq. 5 of the paper, as STNet._tokens
         return m.fuse(x)[:, 0]
@@ -39,3 +44,31 @@ class MarkerWindowPart(nn.Module):
         for block in self.model.blocks:
             x, _ = block(x)
         return self.model._head(x)
+
+
+def marker_saliency(model: nn.Module, x: Tensor, target: int = 1, baseline="first") -> Tensor:
+    """:meth:`slipsense.models.stnet.STNet.marker_saliency` (see there), for a checked input ``x``."""
+    if getattr(model, "inference_only", False):
+        raise ConfigError(
+            "marker_saliency needs gradients: call it on the trainable model, "
+            "not on the copy optimize_for_inference made"
+        )
+    if isinstance(baseline, torch.Tensor):
+        x0 = baseline.to(x)
+    elif baseline == "first":
+        x0 = x[:, :1].expand_as(x)
+    elif baseline == "zero":
+        x0 = torch.zeros_like(x)
+    else:
+        raise ConfigError(f"marker_saliency: baseline must be 'first', 'zero' or a tensor, got {baseline!r}")
+    was_training = model.training
+    model.eval()
+    try:
+        with torch.enable_grad():
+            xg = x.detach().float().requires_grad_(True)
+            logits = model(xg)
+            (grad,) = torch.autograd.grad(logits[:, target].sum(), xg)
+    finally:
+        model.train(was_training)
+    rel = (grad * (xg.detach() - x0.float())).sum(dim=(1, 3)).abs()  # (b, m)
+    return rel / rel.amax(dim=1, keepdim=True).clamp_min(torch.finfo(rel.dtype).tiny)

@@ -227,6 +227,7 @@ def fit(
         The per-epoch metric rows (also written to ``metrics.csv``).
     """
     task = ClipTask(train_data, val_data, cfg, extra_eval)
+    model.prepare(train_data)  # what it takes from its data (a resumed state overwrites it with the same)
     world = setup(cfg.device).world
     info = {**(info or {}), "train": asdict(cfg), "global_batch": world * cfg.batch_size * cfg.accumulate}
     out = Path(out_dir)
