@@ -248,3 +248,28 @@ def test_fit_without_random_negatives_trains():
     assert len(hist) == 3 and hist[0]["other_frames"] < hist[1]["other_frames"]
     with pytest.raises(ConfigError, match="positive_weight"):
         GraspTrainConfig(positive_weight=0)
+
+
+def test_speed_jitter_plays_runs_faster_and_slower_with_their_moments():
+    from slipsense.training.grasps import _Chunks
+
+    cfg = GraspTrainConfig(model_config={"image_size": [16, 20]}, speed_jitter=0.5, chunk=16, negatives=2)
+    chunks = _Chunks(_runs(), cfg)
+    rng = np.random.default_rng(0)
+    lengths = set()
+    for _ in range(5):
+        items, taken = chunks.played(rng)
+        for (gray, y, moment), idx, (orig_gray, _, orig_moment) in zip(items, taken, chunks.items):
+            assert gray.shape[1] == len(idx) == len(y) and gray.dtype == np.uint8
+            assert np.abs(gray.astype(int) - orig_gray[:, idx]).max() <= 255  # blends of neighbours
+            assert np.array_equal(gray[:, 0], orig_gray[:, 0])
+            lengths.add(len(idx))
+            if orig_moment is not None:
+                # the new moment is the last new frame at or before the recorded one
+                assert idx[moment] <= orig_moment <= (idx[moment + 1] if moment + 1 < len(idx) else 10**9)
+                assert y[moment] == 1
+    assert min(lengths) < chunks.items[0][0].shape[1] < max(lengths)  # faster and slower than recorded
+    _, hist = fit_runs(_runs(), GraspTrainConfig(**{**cfg.to_dict(), "epochs": 2, "inner_folds": 0}), progress=False)
+    assert len(hist) == 2
+    with pytest.raises(ConfigError, match="speed_jitter"):
+        GraspTrainConfig(speed_jitter=2)

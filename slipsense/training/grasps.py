@@ -59,6 +59,7 @@ class GraspTrainConfig:
         None  # operating point: at most this fraction of held grasps alarm (None: best score)
     )
     accumulate: int = 1  # micro-batches per process per step (a step's runs cut into world x accumulate groups)
+    speed_jitter: float = 0.0  # each epoch plays every run at a speed drawn in [1/(1+j), 1+j] (0: as recorded)
 
     def __post_init__(self):
         checks = {
@@ -87,6 +88,9 @@ class GraspTrainConfig:
                 raise ConfigError(f"{key} must be a finite number {'> 0' if positive else '>= 0'}, got {v!r}")
         if self.inner_folds == 1:
             raise ConfigError("inner_folds must be 0 or at least 2")
+        j = self.speed_jitter
+        if isinstance(j, bool) or not isinstance(j, (int, float)) or not 0 <= j <= 1:
+            raise ConfigError(f"speed_jitter must be a number in [0, 1] (0.25: speeds 0.8-1.25x), got {j!r}")
         k = self.max_held_alarm
         if k is not None and (isinstance(k, bool) or not isinstance(k, (int, float)) or not 0 <= k <= 1):
             raise ConfigError(f"max_held_alarm must be a fraction in [0, 1] (0.05: at most 5%), got {k!r}")
@@ -128,14 +132,40 @@ class _Chunks:
             y = frame_targets(gray.shape[1], moment, cfg.onset_frames, cfg.horizon)
             self.items.append((gray, y, moment))
 
+    def played(self, rng: np.random.Generator) -> tuple[list, list[np.ndarray | None]]:
+        """The runs as one epoch plays them: with ``speed_jitter`` each at its own speed (frames taken
+        at the new times, blended linearly between the two recorded frames around each; the moment
+        of slip and the targets moved with them), with the recorded frame at or before each new
+        frame (None: as recorded)."""
+        j = self.cfg.speed_jitter
+        if not j:
+            return self.items, [None] * len(self.items)
+        items, taken = [], []
+        for gray, _, moment in self.items:
+            speed = float(np.exp(rng.uniform(-np.log1p(j), np.log1p(j))))
+            at = np.arange(0, gray.shape[1] - 1 + 1e-9, speed)  # new frames' times, in recorded frames
+            lo = np.floor(at).astype(np.int64)
+            hi = np.minimum(lo + 1, gray.shape[1] - 1)
+            a = (at - lo).astype(np.float32)[None, :, None, None]  # between two recorded frames: blended
+            played = np.rint((1 - a) * gray[:, lo] + a * gray[:, hi]).astype(np.uint8)
+            m = None if moment is None else int(np.searchsorted(at, moment, side="right") - 1)
+            y = frame_targets(len(at), m, self.cfg.onset_frames, self.cfg.horizon)
+            items.append((played, y, m))
+            taken.append(lo)
+        return items, taken
+
     def draw(
-        self, rng: np.random.Generator, hardness: list[np.ndarray] | None = None
+        self,
+        rng: np.random.Generator,
+        hardness: list[np.ndarray] | None = None,
+        items: list | None = None,
     ) -> list[tuple[int, list[int], np.ndarray]]:
         """Chunks of one epoch, grouped by run: ``(run index, chunk ends, targets (C, chunk))`` with
         the runs in random order. ``hardness``: per run, per frame P(slip) of the current model,
-        from which ``hard_negatives`` chunk ends per run are drawn among the negative frames."""
+        from which ``hard_negatives`` chunk ends per run are drawn among the negative frames.
+        ``items``: the runs as this epoch plays them (:meth:`played`; default as recorded)."""
         out = []
-        for i, (gray, y, moment) in enumerate(self.items):
+        for i, (gray, y, moment) in enumerate(self.items if items is None else items):
             n = gray.shape[1]
             ends = [int(rng.integers(0, n)) for _ in range(self.cfg.negatives)]
             if hardness is not None and self.cfg.hard_negatives:
@@ -207,7 +237,11 @@ class GraspTask:
         if epoch > 0 and cfg.hard_negatives and (epoch - 1) % cfg.mine_every == 0:
             model.eval()
             self.hardness = _predict_items(model, self.data.items)
-        chunks = self.data.draw(self.rng, self.hardness)
+        self._items, taken = self.data.played(self.rng)
+        hardness = self.hardness
+        if hardness is not None and any(t is not None for t in taken):
+            hardness = [h if t is None else h[t] for h, t in zip(hardness, taken)]
+        chunks = self.data.draw(self.rng, hardness, self._items)
         ys = np.concatenate([c[2] for c in chunks])
         n_pos, n_neg = int((ys == 1).sum()), int((ys == 0).sum())
         self.weight = torch.tensor([1.0, cfg.positive_weight * n_neg / max(n_pos, 1)])
@@ -232,9 +266,7 @@ class GraspTask:
                     runs, dims, weight = step.micro[m]
                     x = []
                     for i, ends, _ in runs:
-                        g = torch.from_numpy(
-                            self.data.items[i][0]
-                        )  # uint8 (S, N, h, w): flipped before it is 4x larger
+                        g = torch.from_numpy(self._items[i][0])  # uint8 (S, N, h, w): flipped before 4x larger
                         x.append(((g.flip(dims) if dims else g).float().div_(255.0), ends))
                     yield x, torch.from_numpy(np.concatenate([c[2] for c in runs])), weight
 
