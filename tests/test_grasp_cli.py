@@ -204,6 +204,10 @@ def test_grasp_folds_same_results_on_one_or_two_workers(tmp_path, grasps, monkey
     ens = json.loads((both / "folds.json").read_text())
     assert [f["operating_point"] for f in ens["per_fold"]] == [f["operating_point"] for f in doc["per_fold"]]
     assert ens["pooled"]["per_grasp"] == doc["pooled"]["per_grasp"] and len(ens["rechosen_from"]) == 2
+    other = tmp_path / "folds-2" / "fold1.json"  # a fold a later run with other settings wrote
+    other.write_text(json.dumps({**json.loads(other.read_text()), "config_key": "another"}))
+    res = CliRunner().invoke(app, ["grasp", "rechoose", str(tmp_path / "folds-2"), "--out", str(tmp_path / "y")])
+    assert res.exit_code == 2 and "fold1.json" in res.output and "other settings" in res.output
     old = tmp_path / "folds-1" / "fold0.json"  # a fold file written before inner traces were kept
     fold = json.loads(old.read_text())
     old.write_text(json.dumps({**fold, "inner": []}))

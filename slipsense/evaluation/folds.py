@@ -169,9 +169,18 @@ def rechoose(src, out, max_held_alarm: float | None, command: str = "", echo=pri
         if differ or other["folds"] != report["folds"]:
             raise InputError(one, f"is another recipe than {srcs[0]} ({', '.join(differ) or 'folds'} differ)")
     cfg = {**report["train_config"], "max_held_alarm": max_held_alarm}
-    folds = []
+    folds, keys = [], [set() for _ in srcs]
     for k in range(int(report["folds"])):
-        fold = _ensemble([_read_fold(one / f"fold{k}.json") for one in srcs], [one / f"fold{k}.json" for one in srcs])
+        paths = [one / f"fold{k}.json" for one in srcs]
+        members = [_read_fold(path) for path in paths]
+        for seen, member, path in zip(keys, members, paths):
+            seen.add(member.get("config_key"))
+            if len(seen) > 1:  # a later run with other settings wrote some of the report's folds
+                raise InputError(
+                    path,
+                    f"was written with other settings than the folds before it (config keys {sorted(map(str, seen))})",
+                )
+        fold = _ensemble(members, paths)
         probs = [np.array([np.nan if v is None else v for v in r["probability"]]) for r in fold["inner"]]
         op = pergrasp.choose_operating_point(
             probs, [r["moment_of_slip"] for r in fold["inner"]], horizon=cfg["horizon"], max_held_alarm=max_held_alarm
