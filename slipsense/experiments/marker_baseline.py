@@ -194,15 +194,15 @@ def run_marker_baseline(settings, sim_sequences: int | None = None, sim_override
     first frame sees) and with the gel's standing shear against its rest positions added. A row for
     all held-out windows and one per motion pattern, for each."""
     from slipsense.experiments.report import Report
-    from slipsense.experiments.stnet import simulated_markers
+    from slipsense.experiments.stnet import simulated_dataset
     from slipsense.sensors.sim_model import rest_grid
-    from slipsense.sensors.simulator import PATTERNS, SimConfig, make_dataset
+    from slipsense.sensors.simulator import PATTERNS, SimConfig
 
     rep = Report("marker-baseline", settings)
-    x, y, tr, te, sim_info = simulated_markers(settings, sim_sequences, sim_overrides)
+    ds, tr, te, sim_info = simulated_dataset(settings, sim_sequences, sim_overrides)
+    x, y, pattern = ds.x, ds.y, ds.pattern
     cfg = SimConfig(seed=settings.data_seed, n_sequences=sim_info["n_sequences"], **(sim_overrides or {}))
     grid = (cfg.markers_y, cfg.markers_x)
-    pattern = make_dataset(cfg, progress=False).pattern  # the same windows, in the same order
     rep.config.update(simulation=sim_info, n_train=len(tr), n_test=len(te), features=list(FEATURES + REST_FEATURES))
     rows, results = [], {}
     for inputs, rest in (("window motion", None), ("window motion + shear against rest", rest_grid(cfg))):

@@ -24,8 +24,21 @@ def simulated_markers(
     overrides: dict[str, Any] | None = None,
     test_fraction: float = 0.2,
 ):
-    """Simulated marker windows and a split by sequence: ``test_fraction`` of the sequences of each
-    motion pattern are held out (all windows of a sequence on one side; every pattern on both)."""
+    """Simulated marker windows and a split by sequence: ``(x, y, train indices, test indices, info)``
+    (:func:`simulated_dataset`)."""
+    ds, train, test, sim_info = simulated_dataset(settings, sequences, overrides, test_fraction)
+    return ds.x, ds.y, train, test, sim_info
+
+
+def simulated_dataset(
+    settings: Settings,
+    sequences: int | None = None,
+    overrides: dict[str, Any] | None = None,
+    test_fraction: float = 0.2,
+):
+    """The simulated :class:`~slipsense.sensors.marker_npz.MarkerDataset` and a split by sequence:
+    ``test_fraction`` of the sequences of each motion pattern are held out (all windows of a sequence
+    on one side; every pattern on both). Returns ``(dataset, train indices, test indices, info)``."""
     from slipsense.sensors.simulator import SimConfig, make_dataset
 
     n = sequences if sequences is not None else (QUICK_SIM_SEQUENCES if settings.quick else SIM_SEQUENCES)
@@ -47,7 +60,7 @@ def simulated_markers(
         "n_test_sequences": len(test_groups),
         **(overrides or {}),
     }
-    return ds.x, ds.y, np.flatnonzero(~is_test), np.flatnonzero(is_test), sim_info
+    return ds, np.flatnonzero(~is_test), np.flatnonzero(is_test), sim_info
 
 
 def run_stnet(

@@ -157,15 +157,15 @@ class _Chunks:
     def draw(
         self,
         rng: np.random.Generator,
-        hardness: list[np.ndarray] | None = None,
-        items: list | None = None,
+        hardness: list[np.ndarray] | None,
+        items: list,
     ) -> list[tuple[int, list[int], np.ndarray]]:
         """Chunks of one epoch, grouped by run: ``(run index, chunk ends, targets (C, chunk))`` with
         the runs in random order. ``hardness``: per run, per frame P(slip) of the current model,
         from which ``hard_negatives`` chunk ends per run are drawn among the negative frames.
-        ``items``: the runs as this epoch plays them (:meth:`played`; default as recorded)."""
+        ``items``: the runs as this epoch plays them (:meth:`played`)."""
         out = []
-        for i, (gray, y, moment) in enumerate(self.items if items is None else items):
+        for i, (gray, y, moment) in enumerate(items):
             n = gray.shape[1]
             ends = [int(rng.integers(0, n)) for _ in range(self.cfg.negatives)]
             if hardness is not None and self.cfg.hard_negatives:

@@ -163,7 +163,7 @@ def train(
                 sync = net.no_sync() if d.world > 1 and j < s.accumulate - 1 else contextlib.nullcontext()
                 seeded = micro_batch_rng(s.seed, epoch, k, m, d.device) if split else contextlib.nullcontext()
                 with sync, seeded:
-                    if _holds(step.micro[m]):
+                    if step.micro[m]:  # an empty micro-batch: None or empty
                         loss, stats = task.loss(net, next(batches), step.weight, d.world)
                         loss.backward()
                         sums += stats
@@ -227,10 +227,6 @@ def _sync_buffers(model: nn.Module, d: Dist) -> None:
     if d.world > 1:
         for b in model.buffers():
             dist.broadcast(b, 0)
-
-
-def _holds(micro) -> bool:
-    return micro is not None and (not hasattr(micro, "__len__") or len(micro) > 0)
 
 
 # --------------------------------------------------------------------------- resume state
