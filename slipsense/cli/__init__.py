@@ -224,7 +224,16 @@ def _grasp_split(tree, name: str):
     data = tree["data"]
     clip_only = [
         k
-        for k in ("markers", "frames", "horizon", "wiggle_per_video", "split", "test_fraction", "augment")
+        for k in (
+            "markers",
+            "frames",
+            "horizon",
+            "wiggle_per_video",
+            "split",
+            "test_fraction",
+            "augment",
+            "marker_copies",
+        )
         if data.get(k) is not None
     ]
     clip_only += [

@@ -67,6 +67,12 @@ TRAIN_OPTIONS = [
     _opt("folds", int, 5, help="number of object folds"),
     _opt("test_objects", Optional[str], None, help="comma-separated held-out objects (instead of --fold)"),
     _opt("augment", bool, True, "--augment/--no-augment", help="append the paper's transformed training copies"),
+    _opt(
+        "marker_copies",
+        int,
+        4,
+        help="with --augment, marker windows: each one and copies-1 mirrored, shifted copies (markers on a grid)",
+    ),
     _opt("recordings", Optional[Path], None, help="GelSight recordings folder (default $SLIPSENSE_DATA/gelsight-slip)"),
     _opt(
         "overrides",
@@ -140,6 +146,7 @@ def _settings(name: str, kw: dict):
         folds=kw.get("folds", 5),
         test_objects=[o for o in (kw.get("test_objects") or "").split(",") if o],
         augment=kw.get("augment", True),
+        marker_copies=kw.get("marker_copies", 4),
         max_steps_per_epoch=kw.get("max_steps_per_epoch"),
         model_overrides=_parse_model_sets(kw["set_"], "--set"),
         train_overrides=_parse_model_sets(kw.get("train_set"), "--train-set"),

@@ -83,7 +83,10 @@ def run_all_models(
     del clips
     tr, te, present = object_split(clips_m, test_objects)
     vtrain, vtest = clip_datasets(clips_m, tr, te, settings)
-    mtrain, mtest = MarkerDataset(mx[tr], my[tr]), MarkerDataset(mx[te], my[te])
+    mtrain, mtest = (
+        MarkerDataset(mx[tr], my[tr], copies=settings.copies_of_markers, seed=settings.seed),
+        MarkerDataset(mx[te], my[te]),
+    )
     rep.config.update(
         clip_spec=asdict(spec),
         n_markers=n_markers,

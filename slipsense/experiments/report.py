@@ -200,7 +200,7 @@ class Report:
         from slipsense.plots import _plt, save_figure
 
         s = self.settings
-        setting_line = s.describe(models_in_setting)
+        setting_line = s.describe(models_in_setting, self.config.get("preset"))
         rows = [{**r, "setting": s.setting} for r in rows]
         columns = [*columns, "setting"]
         paths = {

@@ -71,6 +71,7 @@ class Settings:
     test_objects: list[str] = field(default_factory=list)
     wiggle_per_video: int = 2
     augment: bool = True
+    marker_copies: int = 4  # with augment: each marker window and its mirrored, shifted copies (datasets.MarkerDataset)
     max_steps_per_epoch: int | None = None
     model_overrides: dict[str, dict[str, Any]] = field(default_factory=dict)
     train_overrides: dict[str, dict[str, Any]] = field(default_factory=dict)
@@ -92,6 +93,8 @@ class Settings:
             raise ConfigError(f"--fold must be in 0..{self.folds - 1}")
         if self.folds < 2:
             raise ConfigError("--folds must be >= 2")
+        if not isinstance(self.marker_copies, int) or self.marker_copies < 1:
+            raise ConfigError(f"--marker-copies must be an integer >= 1, got {self.marker_copies!r}")
         if self.size is not None or self.patch is not None:
             _ = self.vivit_patch  # fail now, not after the data are loaded
         from slipsense.models import available
@@ -104,6 +107,11 @@ class Settings:
             self.train_config(name)  # unknown keys or bad values fail now
 
     # ---- resolved values
+    @property
+    def copies_of_markers(self) -> int:
+        """How many times each training marker window is seen (itself and moved copies)."""
+        return self.marker_copies if self.augment else 1
+
     @property
     def video_size(self) -> tuple[int, int]:
         return self.size or (QUICK_SIZE if self.quick else FULL_SIZE)
@@ -136,6 +144,8 @@ class Settings:
                 out.append(f"{key}={'x'.join(map(str, v)) if isinstance(v, tuple) else v}")
         if not self.augment:
             out.append("augment=false")
+        if self.marker_copies != 4:
+            out.append(f"marker_copies={self.marker_copies}")
         for kind, d in (("model", self.model_overrides), ("train", self.train_overrides)):
             for model, kv in sorted(d.items()):
                 out += [f"{model}.{kind}.{k}={v}" for k, v in sorted(kv.items())]
@@ -156,12 +166,13 @@ class Settings:
         cfg.update(self.model_overrides.get(name, {}))
         return cfg
 
-    def train_config(self, name: str):
-        """Training settings for model ``name``: paper < quick < --epochs/--batch-size/--lr < per-model."""
+    def train_config(self, name: str, preset: str | None = None):
+        """Training settings for model ``name``: paper (and ``preset``'s) < quick < --epochs/--batch-size/--lr
+        < per-model."""
         from slipsense.models import model_class
         from slipsense.training.clips import TrainConfig, paper_settings
 
-        values: dict[str, Any] = paper_settings(name)
+        values: dict[str, Any] = paper_settings(name, preset)
         if self.quick:
             values["epochs"] = model_class(name).quick_epochs
         for key in ("epochs", "batch_size", "lr", "max_steps_per_epoch"):
@@ -171,7 +182,7 @@ class Settings:
         values.update(self.train_overrides.get(name, {}))
         return TrainConfig.from_dict(values)
 
-    def describe(self, models: Iterable[str] = ()) -> str:
+    def describe(self, models: Iterable[str] = (), preset: str | None = None) -> str:
         """One line naming the setting, for tables and figure titles."""
         models = list(models)
         if self.setting.startswith("quick"):
@@ -189,7 +200,7 @@ class Settings:
             if any("patch_size" in settings_of(model_class(m)) for m in models):
                 parts.append("ViViT patch {}x{}".format(*self.vivit_patch))
         if models:
-            parts.append("epochs " + ", ".join(f"{m} {self.train_config(m).epochs}" for m in models))
+            parts.append("epochs " + ", ".join(f"{m} {self.train_config(m, preset).epochs}" for m in models))
         if self.customised:
             parts.append("overrides: " + ", ".join(self.customised))
         return text + (": " + "; ".join(parts) if parts else "")

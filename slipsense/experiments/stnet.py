@@ -113,7 +113,10 @@ def run_stnet(
             rep.config["real"] = {"frames": frames, "n_markers": n_markers, "test_objects": present}
             split_note = f"held-out objects {', '.join(present)}"
         rep.config[f"{kind}_split"] = {"n_train": len(tr), "n_test": len(te), "test": split_note}
-        train, test = MarkerDataset(x[tr], y[tr]), MarkerDataset(x[te], y[te])
+        train, test = (
+            MarkerDataset(x[tr], y[tr], copies=settings.copies_of_markers, seed=settings.seed),
+            MarkerDataset(x[te], y[te]),
+        )
         data_config = {"frames": int(x.shape[1]), "markers": int(x.shape[2])}
         for name in ("stnet", "temnet"):
             model, history = train_model(

@@ -55,7 +55,7 @@ def train_model(
     """Build (seeded) and train one model into ``OUT/runs/<label>``; returns ``(model, history)``."""
     from slipsense.training.clips import build_model, fit, seed_everything
 
-    cfg = settings.train_config(name)
+    cfg = settings.train_config(name, preset)
     seed_everything(settings.seed)
     model = build_model(name, preset, settings.model_config(name), _accepted(name, data_config))
     if before_fit is not None:

@@ -114,6 +114,9 @@ class SlipModel(nn.Module):
     quick_epochs: int = 10
     #: the training settings of the model's paper (slipsense.training.clips.TrainConfig keys)
     paper_training: dict[str, Any] = {}
+    #: training settings a preset comes with, over :attr:`paper_training` (a compact network trains
+    #: best with other settings than the paper's large one)
+    preset_training: dict[str, dict[str, Any]] = {}
     #: named configurations, e.g. the paper's size and a compact one (``slipsense train --preset``)
     presets: dict[str, dict[str, Any]] = {}
     #: what ``slipsense train`` runs for it: ``"clips"`` (windows cut from recordings or marker

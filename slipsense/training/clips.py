@@ -84,9 +84,11 @@ class TrainConfig:
         return cls(**values)
 
 
-def paper_settings(name: str) -> dict[str, Any]:
-    """The training settings of model ``name``'s paper (ViViT paper III; STNet paper III)."""
-    return dict(model_class(name).paper_training)
+def paper_settings(name: str, preset: str | None = None) -> dict[str, Any]:
+    """The training settings of model ``name``'s paper (ViViT paper III; STNet paper III), with those
+    its ``preset`` comes with (``preset_training``) over them."""
+    cls = model_class(name)
+    return {**cls.paper_training, **cls.preset_training.get(preset or "", {})}
 
 
 def seed_everything(seed: int) -> None:
@@ -264,6 +266,7 @@ class TrainRequest:
     folds: int = 5
     test_fraction: float = 0.1
     augment: bool = True
+    marker_copies: int = 4  # with augment, marker windows: itself and copies-1 mirrored, shifted copies
     seed: int = 0
     on_error: str = "raise"
     overrides: Path | None = None  # CSV of hand labels replacing automatic moments of slip
@@ -285,6 +288,7 @@ class TrainRequest:
         "folds",
         "test_fraction",
         "augment",
+        "marker_copies",
         "on_error",
         "overrides",
         "sensor",
@@ -411,7 +415,12 @@ def run_training(req: TrainRequest, resume: bool = False) -> dict[str, Any]:
         raise ConfigError(
             f"model {req.model!r} has no setting {', '.join(unknown)}; settings: {', '.join(sorted(accepted))}"
         )
-    settings = {**paper_settings(req.model), "seed": req.seed, "progress": req.progress, **req.train_overrides}
+    settings = {
+        **paper_settings(req.model, req.preset),
+        "seed": req.seed,
+        "progress": req.progress,
+        **req.train_overrides,
+    }
     cfg = TrainConfig.from_dict(settings)
     train_data, test_data, split_info, data_config = prepare_data(req, cls.reads)
     sensor = data_config.pop("sensor")

@@ -104,7 +104,7 @@ def prepare_data(req, reads: str):
 
         split_info = {"kind": "markers", "markers": portable_path(req.markers), "test_indices": [int(i) for i in te]}
         return (
-            MarkerDataset(x[tr], y[tr]),
+            MarkerDataset(x[tr], y[tr], copies=req.marker_copies if req.augment else 1, seed=req.seed),
             MarkerDataset(x[te], y[te]),
             split_info,
             {"frames": int(x.shape[1]), "markers": int(x.shape[2]), "sensor": _marker_sensor(req.markers, x)},

@@ -1,0 +1,71 @@
+"""Markers on a grid: the layout is found, moves mirror and shift the displacement field exactly, and
+the marker dataset's moved copies are fixed, labelled like their originals and absent off a grid."""
+
+import numpy as np
+import pytest
+import torch
+
+from slipsense.datasets import MarkerDataset
+from slipsense.errors import ConfigError
+from slipsense.sensors.marker_grid import GridMove, grid_layout
+
+
+def lattice(rows=5, cols=6, pitch=1.0):
+    xs, ys = np.meshgrid(np.arange(cols) * pitch, np.arange(rows) * pitch)
+    return np.stack([xs.ravel(), ys.ravel(), np.zeros(xs.size)], axis=1) - [(cols - 1) / 2, (rows - 1) / 2, 0]
+
+
+def test_the_grid_of_the_simulated_sensor_is_found_and_scattered_markers_have_none():
+    from slipsense.sensors.sim_model import rest_grid
+    from slipsense.sensors.simulator import SimConfig
+
+    rest = rest_grid(SimConfig())
+    assert grid_layout(rest) == (23, 24)
+    assert grid_layout(rest + np.random.default_rng(0).normal(0, 0.05, rest.shape)) == (23, 24)  # tracking noise
+    assert grid_layout(rest[np.random.default_rng(1).permutation(len(rest))]) is None
+    assert grid_layout(np.random.default_rng(2).uniform(-10, 10, (32, 3))) is None
+    assert grid_layout(rest[:-1]) is None  # one marker short of a lattice
+
+
+def test_a_mirror_moves_a_marker_to_its_mirror_slot_and_turns_its_displacement():
+    rest = lattice()
+    w = np.repeat(rest[None], 2, axis=0)
+    w[:, 6 + 1] += [0.3, 0.2, -0.1]  # row 1, column 1
+    out = GridMove(flip_x=True).apply(w, rest, (5, 6))
+    d = (out - rest).reshape(2, 5, 6, 3)
+    assert np.allclose(d[:, 1, 4], [-0.3, 0.2, -0.1]) and np.abs(d).sum() == pytest.approx(2 * 0.6)
+    out = GridMove(flip_y=True).apply(w, rest, (5, 6))
+    assert np.allclose((out - rest).reshape(2, 5, 6, 3)[:, 3, 1], [0.3, -0.2, -0.1])
+    both = GridMove(True, True).apply(GridMove(True, True).apply(w, rest, (5, 6)), rest, (5, 6))
+    assert np.allclose(both, w)
+
+
+def test_a_shift_moves_the_field_and_leaves_uncovered_gel_at_rest():
+    rest = lattice()
+    w = rest[None] + np.random.default_rng(0).normal(0, 0.1, (3, 30, 3))
+    out = GridMove(shift_rows=1, shift_cols=-2).apply(w, rest, (5, 6))
+    d, d0 = (out - rest).reshape(3, 5, 6, 3), (w - rest).reshape(3, 5, 6, 3)
+    assert np.allclose(d[:, 1:, :4], d0[:, :4, 2:])
+    assert np.all(d[:, 0] == 0) and np.all(d[:, :, 4:] == 0)
+    assert np.all(GridMove(shift_rows=5).apply(w, rest, (5, 6)) == rest)  # moved off the gel
+    assert out.dtype == w.dtype
+
+
+def test_marker_copies_are_fixed_labelled_like_their_originals_and_only_on_a_grid():
+    rest = lattice().astype(np.float32)
+    rng = np.random.default_rng(0)
+    x = rest[None, None] + rng.normal(0, 0.1, (4, 3, 30, 3)).astype(np.float32)
+    y = np.array([0, 1, 1, 0])
+    data = MarkerDataset(x, y, copies=3, seed=5)
+    assert len(data) == 12 and data.grid == (5, 6)
+    assert torch.equal(data[1][0], torch.from_numpy(x[1])) and int(data[1][1]) == 1
+    for i in range(4, 12):
+        a, b = data[i], data[i]
+        assert torch.equal(a[0], b[0]) and int(a[1]) == y[i % 4] == data.label(i)
+    assert any(not torch.allclose(data[i][0], data[i % 4][0]) for i in range(4, 12))
+    assert not torch.equal(data[6][0], MarkerDataset(x, y, copies=3, seed=6)[6][0])  # the seed draws the moves
+    scattered = x[:, :, rng.permutation(30)]
+    assert len(MarkerDataset(scattered, y, copies=3)) == 4  # no grid: no copies
+    assert len(MarkerDataset(x, y)) == 4
+    with pytest.raises(ConfigError, match="copies"):
+        MarkerDataset(x, y, copies=0)
