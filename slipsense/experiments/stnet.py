@@ -14,7 +14,7 @@ from slipsense.experiments.source import DataSource, held_out_objects
 from slipsense.experiments.training import epoch_axis, score, train_model, train_seconds
 
 #: Simulated sequences per (object, pattern): full and quick.
-SIM_SEQUENCES = 4
+SIM_SEQUENCES = 12
 QUICK_SIM_SEQUENCES = 2
 
 
