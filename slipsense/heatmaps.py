@@ -38,19 +38,24 @@ def video_attention_figure(model, clip: np.ndarray, out: str | Path, title: str 
     return save_figure(fig, out)
 
 
-def marker_saliency_figure(model, window: np.ndarray, rest_xy: np.ndarray, out: str | Path, title: str = "") -> Path:
+def marker_saliency_figure(
+    model, window: np.ndarray, rest_xy: np.ndarray, out: str | Path, title: str = "", baseline: str = "rest"
+) -> Path:
     """STNet/TemNet marker relevance for the slip class over the window's displacement field.
 
     ``window``: float32 ``(T, M, 3)`` marker positions (mm); ``rest_xy``: ``(M, 2)`` where each marker
-    is drawn (its rest position).
+    is drawn (its rest position). ``baseline``: what the relevance and the arrows measure from
+    (:meth:`~slipsense.models.stnet.STNet.marker_saliency`; ``"rest"``: the gel at rest of a centred
+    model, else the window's first frame).
     """
     from slipsense.plots import _plt, save_figure
 
     x = torch.from_numpy(np.ascontiguousarray(window, np.float32))[None]
-    sal = model.marker_saliency(x)[0].detach().numpy()
+    sal = model.marker_saliency(x, baseline=baseline)[0].detach().numpy()
     with torch.no_grad():
         p = torch.softmax(model(x), -1)[0, 1].item()
-    disp = window[-1] - window[0]
+    from_rest = baseline == "rest" and getattr(model, "centred", False)
+    disp = window[-1] - (model.reference.numpy() if from_rest else window[0])
     plt = _plt()
     fig, ax = plt.subplots(figsize=(5, 4.4))
     sc = ax.scatter(rest_xy[:, 0], rest_xy[:, 1], c=sal, cmap="inferno", s=40)
@@ -69,5 +74,37 @@ def marker_saliency_figure(model, window: np.ndarray, rest_xy: np.ndarray, out: 
     ax.set_aspect("equal")
     ax.set_xlabel("x (mm)")
     ax.set_ylabel("y (mm)")
-    ax.set_title(f"{title}  p(slip) = {p:.2f}\narrows: displacement over the window (x4)", fontsize=9)
+    since = "from rest" if from_rest else "over the window"
+    ax.set_title(f"{title}  p(slip) = {p:.2f}\narrows: displacement {since} (x4)", fontsize=9)
     return save_figure(fig, out)
+
+
+def relevance_in_contact(model, x: np.ndarray, rest: np.ndarray, depth_mm: float = 0.05, batch: int = 64) -> dict:
+    """Does the model look where the object touches (STNet paper, Fig. 8)? For marker windows ``x``
+    ``(N, T, M, 3)`` (mm, indentation towards negative z) and the gel at ``rest`` ``(M, 3)``: the
+    markers in contact are those whose last frame lies more than ``depth_mm`` below rest. Returns
+    the mean share of each window's relevance (:meth:`marker_saliency`, baseline ``"rest"``) on its
+    contact markers, the mean share of markers in contact, their ratio (1: no concentration) and
+    how many windows had a contact."""
+    shares, areas = [], []
+    for a in range(0, len(x), batch):
+        xb = np.ascontiguousarray(x[a : a + batch], np.float32)
+        contact = (xb[:, -1, :, 2] - rest[None, :, 2]) < -depth_mm  # (b, M)
+        rel = model.marker_saliency(torch.from_numpy(xb), baseline="rest").detach().numpy()
+        keep = contact.any(axis=1) & (rel.sum(axis=1) > 0)
+        shares += ((rel * contact).sum(axis=1)[keep] / rel.sum(axis=1)[keep]).tolist()
+        areas += contact.mean(axis=1)[keep].tolist()
+    if not shares:
+        return {
+            "relevance_in_contact": float("nan"),
+            "markers_in_contact": float("nan"),
+            "concentration": float("nan"),
+            "windows": 0,
+        }
+    share, area = float(np.mean(shares)), float(np.mean(areas))
+    return {
+        "relevance_in_contact": share,
+        "markers_in_contact": area,
+        "concentration": share / area,
+        "windows": len(shares),
+    }

@@ -260,8 +260,12 @@ def test_stnet_sim_and_real(tmp_path, source):
         "n_test_slip",
         "train_seconds",
     ]
+    cols += ["relevance_in_contact", "markers_in_contact"]
     res = E.run_stnet(tiny(tmp_path), source, sim_sequences=1, sim_overrides=SIM, n_markers=5, frames=4)
     check_outputs(tmp_path, "stnet", cols, 4)
+    for r in res["rows"]:  # where it looks: measured on the simulator, which says where the contact is
+        assert (r["data"] == "simulated") == ("relevance_in_contact" in r)
+    assert (tmp_path / "saliency-sim-stnet.png").is_file() and (tmp_path / "saliency-sim-temnet.png").is_file()
     assert [(r["data"], r["model"]) for r in res["rows"]] == [
         ("simulated", "stnet"),
         ("simulated", "temnet"),

@@ -63,6 +63,22 @@ def simulated_dataset(
     return ds, np.flatnonzero(~is_test), np.flatnonzero(is_test), sim_info
 
 
+def _where_it_looks(model, x, y, tr, te, rep, label: str, n: int = 256) -> dict[str, float]:
+    """The paper's Fig. 8 claim, measured: the share of the slip class's marker relevance on the
+    markers in contact, over up to ``n`` held-out slip windows, against the share of markers in
+    contact; and the heat map of one of them (``saliency-<label>.png``)."""
+    from slipsense.heatmaps import marker_saliency_figure, relevance_in_contact
+
+    slips = te[y[te] == 1]
+    if len(slips) == 0:
+        return {}
+    pick = slips[np.linspace(0, len(slips) - 1, min(n, len(slips))).round().astype(int)]
+    rest = np.median(x[tr[:: max(1, len(tr) // 2048)], 0], axis=0)
+    out = relevance_in_contact(model, x[pick], rest)
+    marker_saliency_figure(model, x[slips[len(slips) // 2]], rest[:, :2], rep.out / f"saliency-{label}.png", label)
+    return {k: out[k] for k in ("relevance_in_contact", "markers_in_contact")}
+
+
 def run_stnet(
     settings: Settings,
     source=None,
@@ -131,6 +147,7 @@ def run_stnet(
                 info={"data": kind},
             )
             m = score(model, test)
+            looks = _where_it_looks(model, x, y, tr, te, rep, f"{kind}-{name}") if kind == "sim" else {}
             rows.append(
                 {
                     "data": "simulated" if kind == "sim" else "real",
@@ -147,6 +164,7 @@ def run_stnet(
                     "n_test": m["n_clips"],
                     "n_test_slip": m["n_slip"],
                     "train_seconds": train_seconds(history),
+                    **looks,
                 }
             )
             for r in history:
@@ -210,6 +228,8 @@ def run_stnet(
         "n_test",
         "n_test_slip",
         "train_seconds",
+        "relevance_in_contact",
+        "markers_in_contact",
     ]
     curve_cols = ["data", "model", "epoch", "train_loss", "train_accuracy", "test_loss", "test_accuracy"]
     paths = rep.write(

@@ -443,8 +443,8 @@ class STNet(MarkerModel):
         return MarkerFramePart(self), MarkerWindowPart(self)
 
     def attention(self, window: torch.Tensor):
-        """Marker saliency of the window, ``(M,)``, max 1 (:meth:`marker_saliency`)."""
-        return self.marker_saliency(window)[0].detach().numpy()
+        """Marker saliency of the window against the gel at rest, ``(M,)``, max 1 (:meth:`marker_saliency`)."""
+        return self.marker_saliency(window, baseline="rest")[0].detach().numpy()
 
     def reduced_precision(self, precision: str) -> nn.Module:
         from slipsense.models.stnet_fast import optimize_for_inference, quantize_dynamic_int8
@@ -463,8 +463,10 @@ class STNet(MarkerModel):
             R[b, m] = | sum_{t, c} dlogit_target / dx[b, t, m, c] * (x[b, t, m, c] - x0[b, t, m, c]) |
 
         with baseline ``x0`` = the first frame held still (``"first"``, default; so R measures how
-        the displacement of marker m since frame 1 moves the slip logit), ``"zero"``, or a tensor
-        broadcastable to ``x``. Absolute positions in mm are not a meaningful "input" to attribute
+        the displacement of marker m since frame 1 moves the slip logit), the gel at rest of a
+        ``centred`` model (``"rest"``: its displacement from rest, which shows a steady slide's
+        standing shear; the first frame for other models), ``"zero"``, or a tensor broadcastable
+        to ``x``. Absolute positions in mm are not a meaningful "input" to attribute
         (a marker 20 mm off the origin is not 20x as relevant), displacements are. Each sample's
         map is scaled to max 1 (all zeros stays zeros). Runs in eval mode with gradients; not
         available on a model made by :func:`optimize_for_inference`. Reshape to (23, 24) for the

@@ -59,8 +59,10 @@ def marker_saliency(model: nn.Module, x: Tensor, target: int = 1, baseline="firs
         x0 = x[:, :1].expand_as(x)
     elif baseline == "zero":
         x0 = torch.zeros_like(x)
+    elif baseline == "rest":  # the gel at rest a centred model reads against, else the first frame
+        x0 = model.reference.expand_as(x) if getattr(model, "centred", False) else x[:, :1].expand_as(x)
     else:
-        raise ConfigError(f"marker_saliency: baseline must be 'first', 'zero' or a tensor, got {baseline!r}")
+        raise ConfigError(f"marker_saliency: baseline must be 'first', 'rest', 'zero' or a tensor, got {baseline!r}")
     was_training = model.training
     model.eval()
     try:
