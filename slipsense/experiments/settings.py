@@ -187,6 +187,8 @@ class Settings:
         models = list(models)
         if self.setting.startswith("quick"):
             text = "QUICK setting (smaller than the papers')"
+        elif preset is not None and not preset.startswith("paper"):
+            text = f"full setting with the {preset} preset (not the papers' network size and training)"
         else:
             text = "full setting (the papers')"
         if self.customised:

@@ -181,9 +181,17 @@ def run_stnet(
                 )
             del model
         del x, y
+    cfg = settings.train_config("stnet", preset)
+    paper = stnet_mod.STNet.paper_training
     rep.notes.append(
         f"Preset: {preset} ({'the paper-size network' if preset.startswith('paper') else 'not the paper size; --preset paper for it'}); "
-        f"training settings: the STNet paper's (Adam, lr 1e-5, batch 64) unless overridden."
+        f"STNet trained with Adam, lr {cfg.lr:g}, batch {cfg.batch_size}, {cfg.epochs} epochs "
+        f"(the paper: lr {paper['lr']:g}, batch {paper['batch_size']}, {paper['epochs']} epochs); "
+        + (
+            f"each training window seen with {settings.copies_of_markers - 1} mirrored and shifted copies where the markers lie on a grid."
+            if settings.copies_of_markers > 1
+            else "no copies of the training windows (as the paper)."
+        )
     )
     if "real" in data:
         rep.notes.append(
