@@ -69,3 +69,38 @@ def test_marker_copies_are_fixed_labelled_like_their_originals_and_only_on_a_gri
     assert len(MarkerDataset(x, y)) == 4
     with pytest.raises(ConfigError, match="copies"):
         MarkerDataset(x, y, copies=0)
+
+
+def _grid_npz(path, n=16, rows=3, cols=4):
+    rest = lattice(rows, cols).astype(np.float32)
+    x = rest[None, None] + np.random.default_rng(0).normal(0, 0.05, (n, 4, rows * cols, 3)).astype(np.float32)
+    np.savez(path, x=x, y=np.arange(n) % 2, groups=np.arange(n) // 2)
+    return path
+
+
+@pytest.mark.parametrize("augment, copies, seen", [([], 3, 3), (["--no-augment"], 3, 1)])
+def test_slipsense_train_sees_every_marker_window_with_its_copies(tmp_path, augment, copies, seen):
+    import csv
+    import json
+
+    from conftest import TINY_TRAIN_ARGS
+    from typer.testing import CliRunner
+
+    from slipsense.cli import app
+
+    path = _grid_npz(tmp_path / "m.npz")
+    args = ["train", *TINY_TRAIN_ARGS, "--markers", str(path), "--out", str(tmp_path / "r"), "--epochs", "1"]
+    result = CliRunner().invoke(app, [*args, "--set", f"data.marker_copies={copies}", *augment])
+    assert result.exit_code == 0, result.output
+    n_train = 16 - len(json.loads((tmp_path / "r" / "split.json").read_text())["test_indices"])
+    rows = list(csv.DictReader((tmp_path / "r" / "metrics.csv").open()))
+    assert int(rows[0]["train_items"]) == seen * n_train
+
+
+def test_the_compact_preset_comes_with_its_training_settings():
+    from slipsense.training.clips import paper_settings
+
+    assert paper_settings("stnet")["lr"] == 1e-5 and paper_settings("stnet", "paper")["epochs"] == 100
+    compact = paper_settings("temnet", "compact")
+    assert (compact["lr"], compact["batch_size"], compact["epochs"]) == (1e-4, 32, 10)
+    assert compact["weight_decay"] == 0.0  # the paper's, where the preset says nothing
