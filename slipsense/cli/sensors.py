@@ -15,7 +15,10 @@ def register(app: typer.Typer) -> None:
     @friendly
     def simulate(
         out: Path = typer.Option(..., help="output .npz (x (N,12,552,3) mm, y, groups = sequence id)"),
-        sequences: int = typer.Option(12, help="sequences per (object, motion pattern); 12 (about 8,500 windows, 680 MB) is what the compact STNet needs (docs/simulator.md)"),
+        sequences: int = typer.Option(
+            12,
+            help="sequences per (object, motion pattern); 12 (about 8,500 windows, 680 MB) is what the compact STNet needs (docs/simulator.md)",
+        ),
         seed: int = typer.Option(0),
         figures: Optional[Path] = typer.Option(None, help="also draw each motion pattern's displacement field here"),
         progress: bool = typer.Option(True),
