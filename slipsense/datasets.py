@@ -61,24 +61,30 @@ class MarkerDataset(Dataset):
     ``copies > 1`` appends ``copies - 1`` moved copies of every window when the markers lie on a grid
     (:mod:`slipsense.sensors.marker_grid`): index ``k N + i`` is window ``i`` mirrored and shifted
     by a move drawn from ``(seed, k N + i)``, so the same every epoch and on every rank (a fixed
-    augmented set, as the video clips' augmentation). The gel at rest is the per-marker median of
-    the windows' first frames. Markers off a grid get no copies (``self.copies`` says how many)."""
+    augmented set, as the video clips' augmentation). The gel at rest is estimated from the windows'
+    first frames (:func:`~slipsense.sensors.marker_grid.rest_estimate`). Markers off a grid get no
+    copies: ``copies`` says how many each window is seen, ``windows`` how many originals there are
+    (indices ``0..windows-1``)."""
 
     def __init__(self, x: np.ndarray, y: np.ndarray, copies: int = 1, seed: int = 0, max_shift: int = 3):
         from slipsense.errors import ConfigError
 
-        if not isinstance(copies, int) or copies < 1:
+        if isinstance(copies, bool) or not isinstance(copies, int) or copies < 1:
             raise ConfigError(f"marker copies must be an integer >= 1, got {copies!r}")
         self.x = torch.from_numpy(np.ascontiguousarray(x, dtype=np.float32))
         self.y = torch.from_numpy(np.asarray(y, dtype=np.int64))
         self.copies, self.seed, self.max_shift = 1, seed, max_shift
         self.grid = None
         if copies > 1 and len(self.y):
-            from slipsense.sensors.marker_grid import grid_layout
+            from slipsense.sensors.marker_grid import grid_layout, rest_estimate
 
-            self.rest = self.x[:, 0].median(dim=0).values.numpy()
+            self.rest = rest_estimate(self.x[:, 0].numpy())
             self.grid = grid_layout(self.rest)
             self.copies = copies if self.grid is not None else 1
+
+    @property
+    def windows(self) -> int:
+        return len(self.y)
 
     def __len__(self) -> int:
         return len(self.y) * self.copies

@@ -50,12 +50,13 @@ def marker_saliency_figure(
     """
     from slipsense.plots import _plt, save_figure
 
-    x = torch.from_numpy(np.ascontiguousarray(window, np.float32))[None]
-    sal = model.marker_saliency(x, baseline=baseline)[0].detach().numpy()
+    device = next(model.parameters()).device
+    x = torch.from_numpy(np.ascontiguousarray(window, np.float32))[None].to(device)
+    sal = model.marker_saliency(x, baseline=baseline)[0].detach().cpu().numpy()
     with torch.no_grad():
         p = torch.softmax(model(x), -1)[0, 1].item()
     from_rest = baseline == "rest" and getattr(model, "centred", False)
-    disp = window[-1] - (model.reference.numpy() if from_rest else window[0])
+    disp = window[-1] - (model.reference.cpu().numpy() if from_rest else window[0])
     plt = _plt()
     fig, ax = plt.subplots(figsize=(5, 4.4))
     sc = ax.scatter(rest_xy[:, 0], rest_xy[:, 1], c=sal, cmap="inferno", s=40)
@@ -86,11 +87,13 @@ def relevance_in_contact(model, x: np.ndarray, rest: np.ndarray, depth_mm: float
     the mean share of each window's relevance (:meth:`marker_saliency`, baseline ``"rest"``) on its
     contact markers, the mean share of markers in contact, their ratio (1: no concentration) and
     how many windows had a contact."""
+    params = getattr(model, "parameters", None)
+    device = next(params()).device if params is not None else torch.device("cpu")
     shares, areas = [], []
     for a in range(0, len(x), batch):
         xb = np.ascontiguousarray(x[a : a + batch], np.float32)
         contact = (xb[:, -1, :, 2] - rest[None, :, 2]) < -depth_mm  # (b, M)
-        rel = model.marker_saliency(torch.from_numpy(xb), baseline="rest").detach().numpy()
+        rel = model.marker_saliency(torch.from_numpy(xb).to(device), baseline="rest").detach().cpu().numpy()
         keep = contact.any(axis=1) & (rel.sum(axis=1) > 0)
         shares += ((rel * contact).sum(axis=1)[keep] / rel.sum(axis=1)[keep]).tolist()
         areas += contact.mean(axis=1)[keep].tolist()

@@ -104,3 +104,45 @@ def test_the_compact_preset_comes_with_its_training_settings():
     compact = paper_settings("temnet", "compact")
     assert (compact["lr"], compact["batch_size"], compact["epochs"]) == (1e-4, 32, 10)
     assert compact["weight_decay"] == 0.0  # the paper's, where the preset says nothing
+
+
+def test_stnet_takes_its_reference_from_the_original_windows_only():
+    from slipsense.models import build
+
+    rest = lattice().astype(np.float32)
+    x = np.repeat(rest[None, None], 6, axis=0).repeat(2, axis=1)
+    x[:, :, 7, 2] -= 0.3  # every window starts pressed in at one marker: not where the gel rests
+    model = build("stnet", frames=2, markers=30, d_model=8, heads=2, blocks=1, ff_dim=8, codec_channels=2, centred=True)
+    model.prepare(MarkerDataset(x, np.zeros(6, int), copies=4))
+    assert torch.allclose(model.reference, torch.from_numpy(x[0, 0]))  # the copies (shifted dents) left out
+
+
+def test_resuming_with_other_marker_copies_is_refused(tmp_path):
+    import json
+
+    from slipsense.errors import InputError
+    from slipsense.training.splits import check_same_split
+
+    info = {"kind": "markers", "markers": "m.npz", "test_indices": [1, 2], "marker_copies": 4}
+    (tmp_path / "split.json").write_text(json.dumps(info))
+    check_same_split(tmp_path / "split.json", info)
+    with pytest.raises(InputError, match="marker_copies"):
+        check_same_split(tmp_path / "split.json", {**info, "marker_copies": 1})
+    old = {k: v for k, v in info.items() if k != "marker_copies"}  # a run from before the copies
+    (tmp_path / "split.json").write_text(json.dumps(old))
+    check_same_split(tmp_path / "split.json", {**info, "marker_copies": 1})
+    with pytest.raises(InputError, match="marker_copies"):
+        check_same_split(tmp_path / "split.json", info)
+
+
+@pytest.mark.parametrize("bad", ["0", "true", "2.5"])
+def test_bad_marker_copies_are_one_line(tmp_path, bad):
+    from conftest import TINY_TRAIN_ARGS
+    from typer.testing import CliRunner
+
+    from slipsense.cli import app
+
+    path = _grid_npz(tmp_path / "m.npz")
+    args = ["train", *TINY_TRAIN_ARGS, "--markers", str(path), "--out", str(tmp_path / "r"), "--no-augment"]
+    result = CliRunner().invoke(app, [*args, "--set", f"data.marker_copies={bad}"])
+    assert result.exit_code == 2 and "marker_copies" in result.output and "Traceback" not in result.output

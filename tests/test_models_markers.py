@@ -367,8 +367,9 @@ def test_centred_stnet_takes_its_reference_from_the_training_windows_and_streams
     model = build("stnet", **cfg).eval()
     rng = np.random.default_rng(0)
     rest = rng.normal(0, 5, (24, 3)).astype(np.float32)
-    x = rest[None, None] + rng.normal(0, 0.1, (40, 4, 24, 3)).astype(np.float32)
+    x = rest[None, None] + rng.normal(0, 0.03, (40, 4, 24, 3)).astype(np.float32)
     model.prepare(MarkerDataset(x, np.zeros(40, np.int64)))
+    # within the noise (z is an upper quantile of the first frames: 1.3 noise deviations above rest)
     assert torch.allclose(model.reference, torch.from_numpy(rest), atol=0.1)
     window = torch.from_numpy(x[:2])
     with torch.no_grad():

@@ -173,8 +173,8 @@ class Settings:
         from slipsense.training.clips import TrainConfig, paper_settings
 
         values: dict[str, Any] = paper_settings(name, preset)
-        if self.quick:
-            values["epochs"] = model_class(name).quick_epochs
+        if self.quick:  # fewer epochs, never more than a preset comes with
+            values["epochs"] = min(model_class(name).quick_epochs, values["epochs"])
         for key in ("epochs", "batch_size", "lr", "max_steps_per_epoch"):
             if getattr(self, key) is not None:
                 values[key] = getattr(self, key)
@@ -183,17 +183,20 @@ class Settings:
         return TrainConfig.from_dict(values)
 
     def describe(self, models: Iterable[str] = (), preset: str | None = None) -> str:
-        """One line naming the setting, for tables and figure titles."""
+        """One line naming the setting, for tables and figure titles (``preset``: the models'
+        preset; one that comes with its own training settings is not the papers' setting)."""
+        from slipsense.models import model_class
+
         models = list(models)
         if self.setting.startswith("quick"):
             text = "QUICK setting (smaller than the papers')"
-        elif preset is not None and not preset.startswith("paper"):
+        elif preset is not None and models and all(preset in model_class(m).preset_training for m in models):
             text = f"full setting with the {preset} preset (not the papers' network size and training)"
         else:
             text = "full setting (the papers')"
         if self.customised:
             text += " with overrides (so not exactly the papers')" if not self.quick else " with overrides"
-        from slipsense.models import model_class, settings_of
+        from slipsense.models import settings_of
 
         parts = []
         if any(model_class(m).reads == "frames" for m in models):

@@ -63,17 +63,17 @@ def simulated_dataset(
     return ds, np.flatnonzero(~is_test), np.flatnonzero(is_test), sim_info
 
 
-def _where_it_looks(model, x, y, tr, te, rep, label: str, n: int = 256) -> dict[str, float]:
-    """The paper's Fig. 8 claim, measured: the share of the slip class's marker relevance on the
-    markers in contact, over up to ``n`` held-out slip windows, against the share of markers in
-    contact; and the heat map of one of them (``saliency-<label>.png``)."""
+def _where_it_looks(model, x, y, te, rest, rep, label: str, n: int = 256) -> dict[str, float]:
+    """The paper's Fig. 8 claim, measured on simulated windows ``x`` (``rest``: where the simulator's
+    markers sit at rest): the share of the slip class's
+    marker relevance on the markers in contact, over up to ``n`` held-out slip windows, against the
+    share of markers in contact; and the heat map of one of them (``saliency-<label>.png``)."""
     from slipsense.heatmaps import marker_saliency_figure, relevance_in_contact
 
     slips = te[y[te] == 1]
     if len(slips) == 0:
         return {}
     pick = slips[np.linspace(0, len(slips) - 1, min(n, len(slips))).round().astype(int)]
-    rest = np.median(x[tr[:: max(1, len(tr) // 2048)], 0], axis=0)
     out = relevance_in_contact(model, x[pick], rest)
     marker_saliency_figure(model, x[slips[len(slips) // 2]], rest[:, :2], rep.out / f"saliency-{label}.png", label)
     return {k: out[k] for k in ("relevance_in_contact", "markers_in_contact")}
@@ -93,6 +93,8 @@ def run_stnet(
     sequences (split by sequence) and on real marker sequences (held-out objects)."""
     from slipsense.datasets import MarkerDataset
     from slipsense.models import stnet as stnet_mod
+    from slipsense.sensors.sim_model import rest_grid
+    from slipsense.sensors.simulator import SimConfig
 
     if preset not in stnet_mod.PRESETS:
         raise ConfigError(f"unknown preset {preset!r}; known: {sorted(stnet_mod.PRESETS)}")
@@ -107,6 +109,7 @@ def run_stnet(
     for kind in data:
         if kind == "sim":
             x, y, tr, te, sim_info = simulated_markers(settings, sim_sequences, sim_overrides)
+            rest = rest_grid(SimConfig(**(sim_overrides or {})))
             rep.config["simulation"] = sim_info
             split_note = (
                 "20 % of the simulated sequences of each motion pattern (all windows of a sequence on one side)"
@@ -147,7 +150,7 @@ def run_stnet(
                 info={"data": kind},
             )
             m = score(model, test)
-            looks = _where_it_looks(model, x, y, tr, te, rep, f"{kind}-{name}") if kind == "sim" else {}
+            looks = _where_it_looks(model, x, y, te, rest, rep, f"{kind}-{name}") if kind == "sim" else {}
             rows.append(
                 {
                     "data": "simulated" if kind == "sim" else "real",

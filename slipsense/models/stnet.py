@@ -308,7 +308,10 @@ class STNet(MarkerModel):
         if relative:  # only stored when set, so checkpoints of the paper's network keep their config
             self._config["relative"] = True
         if centred and relative:
-            raise ConfigError("stnet: centred and relative are two references; choose one")
+            raise ConfigError(
+                "stnet: centred and relative are two references; choose one (the compact preset sets "
+                "centred=true: add --set centred=false for relative input)"
+            )
         if centred:  # beyond the paper: positions against a reference fitted on the training windows
             self._config["centred"] = True
             self.register_buffer("reference", torch.zeros(markers, 3))
@@ -425,15 +428,18 @@ class STNet(MarkerModel):
 
     @torch.no_grad()
     def prepare(self, train_data) -> None:
-        """With ``centred``: the reference is the per-marker median of the training windows' first
-        frames (up to 2048 of them), an estimate of the gel at rest. The standing shear of a steadily
+        """With ``centred``: the reference is the gel at rest estimated from the training windows'
+        first frames (up to 2048 of them; :func:`~slipsense.sensors.marker_grid.rest_estimate`). The standing shear of a steadily
         sliding contact then shows as an offset from it (docs/simulator.md: the within-window motion
         alone stops when sliding is steady)."""
-        if not self.centred or len(train_data) == 0:
+        from slipsense.sensors.marker_grid import rest_estimate
+
+        n = getattr(train_data, "windows", len(train_data))  # the originals, not a dataset's moved copies
+        if not self.centred or n == 0:
             return
-        take = np.linspace(0, len(train_data) - 1, min(len(train_data), 2048)).round().astype(int)
-        first = torch.stack([torch.as_tensor(train_data[int(i)][0])[0] for i in np.unique(take)])
-        self.reference.copy_(first.float().median(dim=0).values)
+        take = np.linspace(0, n - 1, min(n, 2048)).round().astype(int)
+        first = np.stack([np.asarray(train_data[int(i)][0], dtype=np.float32)[0] for i in np.unique(take)])
+        self.reference.copy_(torch.from_numpy(rest_estimate(first)))
 
     def streaming_parts(self) -> tuple[nn.Module | None, nn.Module]:
         if self.relative:  # every frame is seen relative to its window's first one: nothing to cache

@@ -17,6 +17,17 @@ from dataclasses import dataclass
 import numpy as np
 
 
+def rest_estimate(first_frames: np.ndarray, quantile: float = 0.9) -> np.ndarray:
+    """The gel at rest ``(M, 3)`` estimated from windows' first frames ``(N, M, 3)``: x and y are the
+    per-marker median; z is its upper ``quantile`` (indentation is towards negative z and most
+    windows start with something pressed in somewhere, so a median of z sits inside the usual
+    contact: on the simulator it is 0.17 mm deep at the gel's centre, where 0.9 is within noise)."""
+    f = np.asarray(first_frames, dtype=np.float64)
+    rest = np.median(f, axis=0)
+    rest[:, 2] = np.quantile(f[:, :, 2], quantile, axis=0)
+    return rest.astype(np.float32)
+
+
 def grid_layout(rest: np.ndarray, tolerance: float = 0.25) -> tuple[int, int] | None:
     """``(rows, cols)`` when the rest positions ``(M, 3)`` form a row-major lattice (``x`` fastest,
     rows in rising ``y``), each marker within ``tolerance`` pitches of its lattice node; else None
@@ -80,4 +91,4 @@ class GridMove:
         return (rest + out.reshape(t, rows * cols, 3)).astype(window.dtype, copy=False)
 
 
-__all__ = ["GridMove", "grid_layout"]
+__all__ = ["GridMove", "grid_layout", "rest_estimate"]

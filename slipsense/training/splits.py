@@ -102,9 +102,15 @@ def prepare_data(req, reads: str):
         tr, te = split_groups(groups, 0.2 if req.test_fraction == 0.1 else req.test_fraction, req.seed)
         from slipsense.config import portable_path
 
-        split_info = {"kind": "markers", "markers": portable_path(req.markers), "test_indices": [int(i) for i in te]}
+        train = MarkerDataset(x[tr], y[tr], copies=req.marker_copies if req.augment else 1, seed=req.seed)
+        split_info = {
+            "kind": "markers",
+            "markers": portable_path(req.markers),
+            "test_indices": [int(i) for i in te],
+            "marker_copies": train.copies,  # as applied: 1 off a grid or without augment
+        }
         return (
-            MarkerDataset(x[tr], y[tr], copies=req.marker_copies if req.augment else 1, seed=req.seed),
+            train,
             MarkerDataset(x[te], y[te]),
             split_info,
             {"frames": int(x.shape[1]), "markers": int(x.shape[2]), "sensor": _marker_sensor(req.markers, x)},
@@ -127,7 +133,9 @@ def _marker_sensor(path, x: np.ndarray) -> dict[str, Any]:
 
 
 #: split.json entries that must not change when a run is resumed.
-SPLIT_IDENTITY = ("kind", "split", "test_objects", "test_indices", "clip_spec", "overrides")
+SPLIT_IDENTITY = ("kind", "split", "test_objects", "test_indices", "clip_spec", "overrides", "marker_copies")
+#: what a split file written before a key existed meant by its absence
+SPLIT_DEFAULTS = {"marker_copies": 1}
 
 
 def check_same_split(path: Path, split_info: dict[str, Any]) -> None:
@@ -142,7 +150,11 @@ def check_same_split(path: Path, split_info: dict[str, Any]) -> None:
         raise InputError(path, "is not a split description (a JSON object)")
     # compared as JSON reads them back: a clip size (48, 64) is written as the list [48, 64]
     now = json.loads(json.dumps(split_info, default=str))
-    changed = [k for k in SPLIT_IDENTITY if (k in old or k in now) and old.get(k) != now.get(k)]
+    changed = [
+        k
+        for k in SPLIT_IDENTITY
+        if (k in old or k in now) and old.get(k, SPLIT_DEFAULTS.get(k)) != now.get(k, SPLIT_DEFAULTS.get(k))
+    ]
     if changed:
         raise InputError(
             path,
