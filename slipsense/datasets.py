@@ -55,6 +55,16 @@ class ClipDataset(Dataset):
         return clip_to_tensor(clip), torch.tensor(int(self.clips.y[index % n]))
 
 
+def check_marker_copies(value, option: str = "marker copies") -> int:
+    """``value`` as a count of times each marker window is seen (itself and its moved copies);
+    ConfigError naming ``option`` unless an integer >= 1."""
+    from slipsense.errors import ConfigError
+
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ConfigError(f"{option} must be an integer >= 1, got {value!r}")
+    return value
+
+
 class MarkerDataset(Dataset):
     """Marker-cloud sequences: ``x`` float32 ``(N, T, M, 3)``, ``y`` int ``(N,)``.
 
@@ -67,10 +77,7 @@ class MarkerDataset(Dataset):
     (indices ``0..windows-1``)."""
 
     def __init__(self, x: np.ndarray, y: np.ndarray, copies: int = 1, seed: int = 0, max_shift: int = 3):
-        from slipsense.errors import ConfigError
-
-        if isinstance(copies, bool) or not isinstance(copies, int) or copies < 1:
-            raise ConfigError(f"marker copies must be an integer >= 1, got {copies!r}")
+        check_marker_copies(copies)
         self.x = torch.from_numpy(np.ascontiguousarray(x, dtype=np.float32))
         self.y = torch.from_numpy(np.asarray(y, dtype=np.int64))
         self.copies, self.seed, self.max_shift = 1, seed, max_shift

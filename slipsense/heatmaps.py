@@ -87,8 +87,7 @@ def relevance_in_contact(model, x: np.ndarray, rest: np.ndarray, depth_mm: float
     the mean share of each window's relevance (:meth:`marker_saliency`, baseline ``"rest"``) on its
     contact markers, the mean share of markers in contact, their ratio (1: no concentration) and
     how many windows had a contact."""
-    params = getattr(model, "parameters", None)
-    device = next(params()).device if params is not None else torch.device("cpu")
+    device = next(model.parameters()).device
     shares, areas = [], []
     for a in range(0, len(x), batch):
         xb = np.ascontiguousarray(x[a : a + batch], np.float32)

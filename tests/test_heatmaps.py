@@ -48,7 +48,11 @@ def test_a_centred_model_attributes_a_standing_displacement_from_rest_not_from_t
 def test_relevance_in_contact_measures_where_the_model_looks():
     from slipsense.heatmaps import relevance_in_contact
 
-    class Looks:  # relevance 3 on marker 0, 1 on marker 1, 0 elsewhere
+    class Looks(torch.nn.Module):  # relevance 3 on marker 0, 1 on marker 1, 0 elsewhere
+        def __init__(self):
+            super().__init__()
+            self.weight = torch.nn.Parameter(torch.zeros(1))
+
         def marker_saliency(self, x, baseline="rest"):
             rel = torch.zeros(x.shape[0], x.shape[2])
             rel[:, 0], rel[:, 1] = 3.0, 1.0

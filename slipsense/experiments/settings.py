@@ -93,8 +93,9 @@ class Settings:
             raise ConfigError(f"--fold must be in 0..{self.folds - 1}")
         if self.folds < 2:
             raise ConfigError("--folds must be >= 2")
-        if not isinstance(self.marker_copies, int) or self.marker_copies < 1:
-            raise ConfigError(f"--marker-copies must be an integer >= 1, got {self.marker_copies!r}")
+        from slipsense.datasets import check_marker_copies
+
+        check_marker_copies(self.marker_copies, "--marker-copies")
         if self.size is not None or self.patch is not None:
             _ = self.vivit_patch  # fail now, not after the data are loaded
         from slipsense.models import available

@@ -75,7 +75,7 @@ class GridMove:
         the ``grid``, added back to ``rest``."""
         rows, cols = grid
         t = window.shape[0]
-        d = (window - rest).reshape(t, rows, cols, 3).copy()
+        d = (window - rest).reshape(t, rows, cols, 3)
         if self.flip_x:
             d = d[:, :, ::-1].copy()
             d[..., 0] *= -1

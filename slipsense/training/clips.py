@@ -319,9 +319,9 @@ class TrainRequest:
             data["size"] = (int(size[0]), int(size[1]))
         if isinstance(data.get("test_objects"), str):
             data["test_objects"] = [o for o in data["test_objects"].split(",") if o]
-        copies = data.get("marker_copies", 1)
-        if isinstance(copies, bool) or not isinstance(copies, int) or copies < 1:
-            raise ConfigError(f"data.marker_copies must be an integer >= 1, got {copies!r}")
+        from slipsense.datasets import check_marker_copies
+
+        check_marker_copies(data.get("marker_copies", 1), "data.marker_copies")
         optional = {f.name for f in fields(cls) if f.default is None}  # None is their default anyway
         data = {k: v for k, v in data.items() if v is not None or k in optional}
         seed = train.pop("seed", 0)
