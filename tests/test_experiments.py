@@ -68,7 +68,7 @@ class MemorySource:
         ]
         return ClipSet(x, y, meta, spec)
 
-    def markers(self, frames, n_markers, horizon=0, wiggle_per_video=2, seed=0):
+    def markers(self, frames, n_markers, horizon=0, wiggle_per_video=2, seed=0, grid=None):
         self.calls.append(("markers", frames, n_markers))
         wins = self._windows(frames, horizon, wiggle_per_video)
         wins.append(("apple", 3, "camera_0", 5, 0))  # a window without a clip: must not be matched
@@ -76,6 +76,7 @@ class MemorySource:
         y = np.array([w[4] for w in wins], np.int64)
         x = rng.normal(size=(len(wins), frames, n_markers, 3)).astype(np.float32)
         x[y == 1] += 1.0
+        self.marker_count = n_markers
         return {
             "x": x,
             "y": y,
@@ -84,6 +85,23 @@ class MemorySource:
             "camera": np.array([w[2] for w in wins]),
             "start": np.array([w[3] for w in wins]),
         }
+
+    def replay(self, detector, objects):
+        """Per object a run that slips (its markers jump at frame 25, moment 30) and one that holds,
+        both cameras, through the detector as the real source replays them."""
+        from slipsense.evaluation.early_warning import RunTrace
+
+        self.calls.append(("replay", tuple(objects)))
+        rng = np.random.default_rng(3)
+        runs = []
+        for obj in objects:
+            for exp, moment in ((1, 30), (2, None)):
+                clouds = rng.normal(size=(2, 40, self.marker_count, 3)).astype(np.float32)
+                if moment:
+                    clouds[:, 25:] += 1.0
+                p = detector.replay(*clouds).probability
+                runs.append(RunTrace(obj, exp, moment is not None, moment, 40, p))
+        return runs
 
 
 TINY_MODELS = {
@@ -261,10 +279,17 @@ def test_stnet_sim_and_real(tmp_path, source):
         "train_seconds",
     ]
     cols += ["relevance_in_contact", "markers_in_contact"]
-    res = E.run_stnet(tiny(tmp_path), source, sim_sequences=1, sim_overrides=SIM, n_markers=5, frames=4)
+    cols += ["grasp_threshold", "warned_in_time", "premature", "false_positive_grasps", "runs_alarming_at_rest"]
+    res = E.run_stnet(tiny(tmp_path), source, sim_sequences=1, sim_overrides=SIM, markers=5, frames=4)
     check_outputs(tmp_path, "stnet", cols, 4)
     for r in res["rows"]:  # where it looks: measured on the simulator, which says where the contact is
         assert (r["data"] == "simulated") == ("relevance_in_contact" in r)
+        if r["data"] == "real":  # per grasp: the held-out object's runs, threshold from the others'
+            assert r["warned_in_time"].endswith("/1") and r["false_positive_grasps"].endswith("/1")
+    replays = [c[1] for c in source.calls if c[0] == "replay"]
+    held = json.loads((tmp_path / "config.json").read_text())["config"]["real"]["test_objects"]
+    assert len(replays) == 4 and all(set(r) == set(held) for r in replays[1::2])
+    assert all(not set(r) & set(held) for r in replays[::2]) and all(len(r) == len(OBJECTS) - 1 for r in replays[::2])
     assert (tmp_path / "saliency-sim-stnet.png").is_file() and (tmp_path / "saliency-sim-temnet.png").is_file()
     assert [(r["data"], r["model"]) for r in res["rows"]] == [
         ("simulated", "stnet"),
@@ -280,6 +305,16 @@ def test_stnet_sim_and_real(tmp_path, source):
     assert cfg["models"]["real-temnet"]["model_config"]["markers"] == 5
     with pytest.raises(ConfigError):
         E.run_stnet(tiny(tmp_path / "x"), source, data=("sim",), preset="huge")
+
+
+def test_marker_layout_of_the_real_row():
+    from slipsense.experiments.stnet import marker_layout
+
+    assert marker_layout("7x9") == (63, (7, 9)) and marker_layout(" 2X3 ") == (6, (2, 3))
+    assert marker_layout(32) == (32, None) and marker_layout("5") == (5, None)
+    for bad in ("0", "7x0", "x9", "seven", "7x9x2", -3):
+        with pytest.raises(ConfigError, match="ROWSxCOLS"):
+            marker_layout(bad)
 
 
 def test_horizon(tmp_path, source):

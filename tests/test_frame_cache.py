@@ -8,7 +8,9 @@ import warnings
 import numpy as np
 import pytest
 
-from slipsense.errors import CacheWarning, InputError
+from conftest import REAL_RUN, needs_data
+
+from slipsense.errors import CacheWarning, ConfigError, InputError
 from slipsense.recordings import video as video_mod
 from slipsense.recordings.contact import contact_signal, signal_of_blocks, video_blocks
 from slipsense.recordings.folders import find_recordings
@@ -96,3 +98,42 @@ def test_replay_from_cached_grey_equals_replay_of_videos(grasp_recordings, cache
     np.testing.assert_array_equal(det.replay_gray(gray).probability, det.replay(*videos).probability)
     with pytest.raises(InputError, match="replay_gray takes uint8"):
         det.replay_gray(gray[:, :, :8])
+
+
+@needs_data
+def test_marker_model_replays_a_real_run_from_its_tracked_markers(cache, one_thread):
+    """A marker model is judged per grasp like the video models: each camera's markers are tracked
+    (once, cached) and the clouds its real training windows are cut from are replayed."""
+    import torch
+
+    from slipsense.evaluation.early_warning import replay_recordings
+    from slipsense.models import build
+    from slipsense.sensors.markers import marker_sequences, track_recording
+    from slipsense.streaming.detector import SlipDetector
+
+    torch.manual_seed(0)
+    model = build("temnet", frames=6, markers=40, d_model=8, heads=2, blocks=1, ff_dim=8, head_hidden=0)
+    det = SlipDetector(model.eval(), sensors=2)
+    assert det.cache_product == "markers:40"
+    held = REAL_RUN.parent / "exp_num_4"  # a grasp that held (REAL_RUN's slip has no moment)
+    recs = [r for r in find_recordings(REAL_RUN.parent.parent) if r.path.parent == held]
+    (trace,) = replay_recordings(det, recs, progress=False)
+    assert not trace.slipped and trace.cameras == ("camera_0", "camera_2")
+    clouds = [marker_sequences(track_recording(held / f"{c}.avi"), 40, normalise=False) for c in trace.cameras]
+    assert clouds[0].shape == (trace.n_frames, 40, 3)
+    expected = det.replay(*clouds).probability
+    assert np.isfinite(expected[5:]).all() and np.isnan(expected[:5]).all()
+    np.testing.assert_allclose(trace.probability, expected, rtol=0, atol=1e-6)
+    # every marker on a 7 x 9 grid, as the experiment's real row trains on it
+    from slipsense.sensors.markers import grid_sequences
+
+    on_grid = build("temnet", frames=6, markers=63, d_model=8, heads=2, blocks=1, ff_dim=8, head_hidden=0)
+    det = SlipDetector(on_grid.eval(), sensors=2, info={"data": {"clip_spec": {"marker_grid": [7, 9]}}})
+    assert det.cache_product == "markers:7x9"
+    (trace,) = replay_recordings(det, recs, progress=False)
+    clouds = [grid_sequences(track_recording(held / f"{c}.avi"), (7, 9)) for c in trace.cameras]
+    np.testing.assert_allclose(trace.probability, det.replay(*clouds).probability, rtol=0, atol=1e-6)
+    with pytest.raises(ConfigError, match="7 x 8 marker grid holds 56"):
+        SlipDetector(on_grid.eval(), info={"data": {"clip_spec": {"marker_grid": [7, 8]}}})
+    with pytest.raises(ValueError, match="markers:M"):
+        video_products(REAL_RUN / "camera_0.avi", ["markers:0"])

@@ -338,3 +338,39 @@ def test_real_recording():
     assert track.lost_fraction(10, 60) < 0.02
     assert np.median(np.abs(track.displacement()[10:60])) < 1.0
     assert np.isfinite(track.depth).all() and (track.depth >= 0).all()
+
+
+def _uniform_track(rows: int, cols: int, spacing: float, shift=(3.0, -2.0), n_frames: int = 4) -> MarkerTrack:
+    """A track of a ``rows x cols`` pad whose every marker moves by ``shift`` px from frame 1 on."""
+    ref = grid(rows, cols, x0=spacing / 2, y0=spacing / 2)
+    ref[:, 0] *= spacing / SPACING
+    ref[:, 1] *= spacing / SPACING
+    pos = np.repeat(ref[None], n_frames, 0).astype(np.float32)
+    pos[1:] += np.asarray(shift, np.float32)
+    depth = np.zeros((n_frames, len(ref)), np.float32)
+    depth[1:] = 0.25
+    return MarkerTrack(pos, np.ones(pos.shape[:2], bool), depth, ref.astype(np.float32), 0, (H, W), spacing, 8.0)
+
+
+def test_grid_sequences_give_one_layout_for_pads_of_any_marker_count():
+    from slipsense.sensors.markers import grid_sequences
+
+    fine, coarse = _uniform_track(7, 10, 32.0), _uniform_track(5, 7, 44.0)
+    a, b = grid_sequences(fine, (3, 4)), grid_sequences(coarse, (3, 4))
+    assert a.shape == b.shape == (4, 12, 3) and a.dtype == np.float32
+    centres = np.stack(np.meshgrid((np.arange(4) + 0.5) * W / 4, (np.arange(3) + 0.5) * H / 3), -1).reshape(-1, 2)
+    expect_rest = (centres - [(W - 1) / 2, (H - 1) / 2]) * M.DEFAULT_MM_PER_PX
+    for seq in (a, b):  # at rest the virtual markers sit at the tile centres, whatever the pad
+        np.testing.assert_allclose(seq[0, :, :2], expect_rest, atol=1e-4)
+        np.testing.assert_allclose(
+            seq[1:, :, :2] - seq[0, :, :2],
+            np.broadcast_to(np.array([3.0, -2.0]) * M.DEFAULT_MM_PER_PX, (3, 12, 2)),
+            atol=1e-5,
+        )
+        np.testing.assert_allclose(seq[:, :, 2], np.repeat([[0.0], [0.25], [0.25], [0.25]], 12, 1), atol=1e-6)
+    local = _uniform_track(7, 10, 32.0, shift=(0.0, 0.0))
+    local.positions[1:, 0] += 5.0  # only the top-left marker moves: only virtual markers near it follow
+    moved = np.abs(grid_sequences(local, (3, 4))[1, :, :2] - grid_sequences(local, (3, 4))[0, :, :2]).sum(1)
+    assert moved[0] > 0 and (moved[[3, 8, 11]] == 0).all()
+    with pytest.raises(ValueError, match="grid"):
+        grid_sequences(fine, (0, 4))

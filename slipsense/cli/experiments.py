@@ -263,7 +263,10 @@ def stnet_cmd(
     sim_sequences: Optional[int] = typer.Option(
         None, help="simulated sequences per object and pattern (default 12; --quick 2)"
     ),
-    markers: int = typer.Option(32, help="tracked markers per frame for real data"),
+    markers: str = typer.Option(
+        "7x9",
+        help="real data: ROWSxCOLS, every tracked marker resampled onto that grid; or N, the N markers nearest the centre",
+    ),
     frames: int = typer.Option(12, help="frames per real marker window"),
 ):
     """STNet vs TemNet (STNet paper Table II, Fig. 7) on simulated and real marker sequences."""
@@ -276,7 +279,7 @@ def stnet_cmd(
         data=kinds,
         preset=preset,
         sim_sequences=sim_sequences,
-        n_markers=markers,
+        markers=markers,
         frames=frames,
     )["paths"]
 

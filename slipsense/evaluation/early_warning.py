@@ -80,7 +80,8 @@ def replay_recordings(
     """Replay every run (all cameras of an experiment as the detector's sensors) through ``detector``.
 
     Args:
-        detector: a :class:`~slipsense.streaming.detector.SlipDetector` on video frames; ``sensors`` = cameras per run.
+        detector: a :class:`~slipsense.streaming.detector.SlipDetector` on video frames or on the
+            cameras' tracked markers (a marker model); ``sensors`` = cameras per run.
         recordings: :class:`~slipsense.recordings.types.Recording` s (``find_recordings``).
         labels: ``{(object, experiment, camera): VideoLabel}``; default: the automatic labels with
             ``overrides`` (:func:`slipsense.data.label_runs`).
@@ -92,8 +93,8 @@ def replay_recordings(
     from slipsense.recordings.frame_cache import video_products
     from slipsense.recordings.video import read_video
 
-    if detector.reads != "frames":
-        raise ConfigError("early warning replays GelSight videos: it needs a model that reads camera frames")
+    if detector.reads != "frames" and detector.cache_product is None:
+        raise ConfigError("early warning replays GelSight videos: this model reads neither frames nor tracked markers")
     runs: dict[tuple[str, int], list[Any]] = {}
     for r in recordings:
         runs.setdefault((r.object, r.experiment), []).append(r)
@@ -135,16 +136,16 @@ def _replay_run(detector, key, cams, run_cams, labels, read_video, video_product
     slipped = any(l.slipped for l in labs)
     if slipped and moment is None:
         return None
-    # grey frames and contact blocks come from the frame cache (no decode after labelling);
-    # a model on colour frames replays the decoded video
-    gray = detector.cache_product
-    cached = [video_products(r.path, ["contact", *([gray] if gray else [])], min_frames=1) for r in cams]
+    # what the model reads (grey frames, tracked markers) and the contact signal come from the
+    # frame cache (no decode after labelling); a model on colour frames replays the decoded video
+    product = detector.cache_product
+    cached = [video_products(r.path, ["contact", *([product] if product else [])], min_frames=1) for r in cams]
     n = len(cached[0]["contact"])
     if any(len(c["contact"]) != n for c in cached):
         counts = [len(c["contact"]) for c in cached]
         raise InputError(cams[0].path.parent, f"the cameras of this run differ in frame count: {counts}")
-    if gray:
-        trace = detector.replay_cached(np.stack([c[gray] for c in cached]))
+    if product:
+        trace = detector.replay_cached(np.stack([c[product] for c in cached]))
     else:
         trace = detector.replay(*[read_video(r.path, expected_size=None, min_frames=1) for r in cams])
     rest = pergrasp.rest_mask(np.stack([c["contact"] for c in cached])) if n > 1 else None

@@ -11,7 +11,7 @@ initialisation, batch order and augmentation. Models are scored at their last ep
 selected on held-out data).
 
 Data come from a :class:`DataSource`; tests hand in an in-memory one (any object with ``objects``,
-``clips``, ``markers`` and optionally ``describe``).
+``clips``, ``markers`` and optionally ``describe`` and ``replay``).
 """
 
 from __future__ import annotations
@@ -124,9 +124,16 @@ class DataSource:
         return sorted({lab.object for lab in self.labels().values() if plan_windows(lab, spec)})
 
     def markers(
-        self, frames: int, n_markers: int, horizon: int = 0, wiggle_per_video: int = 2, seed: int = 0
+        self,
+        frames: int,
+        n_markers: int,
+        horizon: int = 0,
+        wiggle_per_video: int = 2,
+        seed: int = 0,
+        grid: tuple[int, int] | None = None,
     ) -> dict[str, np.ndarray]:
-        """Real marker windows (:func:`slipsense.sensors.real.real_marker_dataset`), labelled as
+        """Real marker windows (:func:`slipsense.sensors.real.real_marker_dataset`: the ``n_markers``
+        nearest the image centre, or with ``grid`` every marker resampled onto it), labelled as
         :meth:`labels` labels them (the same hand labels)."""
         from slipsense.sensors.real import real_marker_dataset
 
@@ -140,8 +147,19 @@ class DataSource:
             on_error=self.on_error,
             progress=self.progress,
             overrides=self.label_overrides(),
+            grid=grid,
         )
         return arrays
+
+    def replay(self, detector, objects: Sequence[str]):
+        """Every labelled run of ``objects`` replayed through ``detector`` as it runs live, all
+        cameras from the first frame (:func:`slipsense.evaluation.early_warning.replay_recordings`):
+        one :class:`~slipsense.evaluation.early_warning.RunTrace` per run (slips without a moment left out)."""
+        from slipsense.evaluation.early_warning import replay_recordings
+
+        labels, keep = self.labels(), set(objects)
+        recs = [r for r in self.recordings() if r.object in keep and r.key in labels]
+        return replay_recordings(detector, recs, labels, progress=self.progress)
 
 
 def clip_spec(settings: Settings, frames: int = 5, horizon: int = 0, size: tuple[int, int] | None = None):

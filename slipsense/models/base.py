@@ -208,7 +208,15 @@ class MarkerModel(SlipModel):
 
     def window_geometry(self, spec: Mapping[str, Any]) -> dict[str, Any]:
         frames = getattr(self, "frames", None) or spec.get("frames") or DEFAULT_FRAMES
-        return {"kind": "markers", "frames": int(frames), "markers": int(self.markers)}
+        out = {"kind": "markers", "frames": int(frames), "markers": int(self.markers)}
+        if spec.get("marker_grid"):  # trained on every marker resampled onto this grid (real recordings)
+            rows, cols = (int(v) for v in spec["marker_grid"])
+            if rows * cols != int(self.markers):
+                raise ConfigError(
+                    f"a {rows} x {cols} marker grid holds {rows * cols} markers, the model takes {self.markers}"
+                )
+            out["marker_grid"] = (rows, cols)
+        return out
 
 
 class GraspModel(SlipModel):

@@ -129,6 +129,22 @@ class WindowStream:
         per_sensor[t - 1 :] = np.concatenate(probs, axis=1).T
         return per_sensor
 
+    @property
+    def cache_product(self) -> str | None:
+        """What of a recording a marker model is replayed from, as the frame cache names it: the
+        tracked marker clouds of each camera (``"markers:M"``, :func:`slipsense.sensors.markers.marker_sequences`,
+        the same values its real training windows hold; ``"markers:RxC"`` for every marker resampled
+        onto a grid, :func:`slipsense.sensors.markers.grid_sequences`); None for a video model (the
+        decoded video)."""
+        if self.kind == "video":
+            return None
+        grid = self.geometry.get("marker_grid")
+        return f"markers:{grid[0]}x{grid[1]}" if grid else f"markers:{self.markers}"
+
+    def replay_cached(self, clouds: np.ndarray) -> np.ndarray:
+        """:meth:`replay` from :attr:`cache_product` of every sensor, stacked: float ``(S, N, M, 3)``."""
+        return self.replay(list(clouds))
+
     def _check_stream(self, stream: Any, sensor: int) -> np.ndarray:
         where = f"sensor {sensor}"
         if not isinstance(stream, np.ndarray):

@@ -10,7 +10,13 @@ A 450-frame recording takes tens of milliseconds to decode and its 240 x 320 col
   (:func:`slipsense.recordings.contact.contact_signal`), which training and replays read to score
   alarms while no gel is touched;
 * ``"gray:HxW"``: uint8 ``(T, h, w)`` grey frames at the size a grasp detector reads
-  (:func:`slipsense.recordings.runs.gray_frames`), 0.5 MB at 30 x 40.
+  (:func:`slipsense.recordings.runs.gray_frames`), 0.5 MB at 30 x 40;
+* ``"markers:M"`` / ``"markers:RxC"``: float32 ``(T, M, 3)`` the video's tracked markers as a
+  marker model reads them, x, y in mm and the depth proxy: the ``M`` nearest the image centre
+  (:func:`slipsense.sensors.markers.marker_sequences`) or every marker resampled onto an ``R x C``
+  grid (:func:`slipsense.sensors.markers.grid_sequences`); served from
+  the marker track cache (:func:`slipsense.sensors.markers.track_recordings`), which real marker
+  training windows are cut from too: a replay and those windows see the same numbers.
 
 :func:`video_products` returns the ones asked for; whatever is missing is computed from a single
 decode of the video and written under ``<cache root>/frames/`` as ``.npy`` (read back
@@ -38,6 +44,7 @@ from ..errors import CacheWarning, InputError
 FRAMES_VERSION = "frames-1"
 
 _GRAY = re.compile(r"^gray:(\d+)x(\d+)$")
+_MARKERS = re.compile(r"^markers:([1-9]\d*)(?:x([1-9]\d*))?$")
 
 
 def _identity(path: Path) -> dict:
@@ -51,8 +58,18 @@ def _entry(path: Path, product: str) -> Path:
 
 
 def _check_product(product: str) -> None:
-    if product not in ("blocks", "contact") and not _GRAY.match(product):
-        raise ValueError(f"unknown frame product {product!r} (blocks, contact or gray:HxW)")
+    if product not in ("blocks", "contact") and not _GRAY.match(product) and not _MARKERS.match(product):
+        raise ValueError(f"unknown frame product {product!r} (blocks, contact, gray:HxW, markers:M or markers:RxC)")
+
+
+def _marker_clouds(path: Path, product: str) -> np.ndarray:
+    from slipsense.sensors.markers import grid_sequences, marker_sequences, track_recordings
+
+    count, cols = _MARKERS.match(product).groups()
+    track = track_recordings([path], progress=False)[0]
+    if cols is not None:
+        return grid_sequences(track, (int(count), int(cols)))
+    return marker_sequences(track, int(count), normalise=False)
 
 
 def _compute(video: np.ndarray, product: str) -> np.ndarray:
@@ -117,6 +134,9 @@ def video_products(path: str | Path, products: Sequence[str], min_frames: int = 
         raise InputError(path, f"cannot read ({exc.strerror or exc})") from None
     out: dict[str, np.ndarray] = {}
     for p in products:
+        if _MARKERS.match(p):
+            out[p] = _marker_clouds(path, p)
+            continue
         arr = _load(_entry(path, p), identity)
         if arr is not None:
             out[p] = arr

@@ -22,7 +22,8 @@ Pipeline
    marker.
 3. :class:`MarkerTrack` holds positions, the valid mask and an intensity-based depth proxy, and
    converts them to ``(x, y, depth)`` clouds; :func:`marker_sequences` gives a fixed marker count
-   per sensor for models.
+   per sensor for models (the markers nearest the centre), :func:`grid_sequences` every marker
+   resampled onto a fixed grid (the same layout for gel pads of any marker count).
 
 Reference frame
 ---------------
@@ -73,6 +74,7 @@ __all__ = [
     "check_track",
     "default_reference_index",
     "detect_markers",
+    "grid_sequences",
     "marker_sequences",
     "order_markers",
     "plot_displacement",
@@ -133,6 +135,46 @@ def marker_sequences(
     out[:, : len(idx)] = cloud[:, idx]
     mask[:, : len(idx)] = track.valid[:, idx]
     return (out, mask) if return_mask else out
+
+
+def grid_sequences(
+    track: MarkerTrack,
+    grid: tuple[int, int],
+    *,
+    mm_per_px: float = DEFAULT_MM_PER_PX,
+    neighbours: int = 4,
+) -> np.ndarray:
+    """Every tracked marker, resampled onto a fixed grid of virtual markers, for models.
+
+    Gel pads differ in how many markers they show (the shared recordings: about 35 or 62-80), while
+    a model takes a fixed layout. ``grid = (rows, cols)`` virtual markers sit at the centres of a
+    ``rows x cols`` tiling of the image; each moves by the inverse-square-distance weighted mean
+    displacement of its ``neighbours`` nearest tracked markers (nearest in the reference frame, so
+    the weights are fixed for the video) and takes their depth proxy the same way. Lost markers
+    contribute their estimates (:class:`MarkerTrack`). Row-major, rows from the image top.
+
+    Returns:
+        float32 ``(T, rows * cols, 3)``: x, y in mm from the image centre (as
+        :meth:`MarkerTrack.to_cloud` with ``normalise=False``) and the unitless depth proxy.
+    """
+    rows, cols = (int(v) for v in grid)
+    if rows < 1 or cols < 1:
+        raise ValueError(f"grid must be (rows, cols) >= 1, got {grid!r}")
+    h, w = track.frame_size
+    ys = (np.arange(rows) + 0.5) * h / rows
+    xs = (np.arange(cols) + 0.5) * w / cols
+    base = np.stack([np.tile(xs, rows), np.repeat(ys, cols)], axis=1)  # (G, 2) px
+    ref = track.reference_positions.astype(np.float64)
+    dist = np.linalg.norm(base[:, None] - ref[None], axis=-1)  # (G, N)
+    k = min(int(neighbours), len(ref))
+    near = np.argsort(dist, axis=1, kind="stable")[:, :k]
+    wts = 1.0 / (np.take_along_axis(dist, near, axis=1) + 1.0) ** 2  # +1 px: a marker on the spot does not take all
+    weights = np.zeros_like(dist)
+    np.put_along_axis(weights, near, wts / wts.sum(axis=1, keepdims=True), axis=1)
+    disp = track.positions.astype(np.float64) - ref[None]  # (T, N, 2)
+    xy = base[None] + np.einsum("gn,tnc->tgc", weights, disp) - np.array([(w - 1) / 2.0, (h - 1) / 2.0])
+    depth = track.depth.astype(np.float64) @ weights.T  # (T, G)
+    return np.concatenate([xy * mm_per_px, depth[..., None]], axis=-1).astype(np.float32)
 
 
 # --------------------------------------------------------------------------------------------

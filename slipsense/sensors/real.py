@@ -27,6 +27,7 @@ def real_marker_dataset(
     on_error: str = "raise",
     progress: bool = True,
     overrides: str | Path | None = None,
+    grid: tuple[int, int] | None = None,
 ) -> dict[str, np.ndarray]:
     """Marker windows of every video under ``recordings_dir``.
 
@@ -35,11 +36,14 @@ def real_marker_dataset(
     slip), ``groups`` str ``(N,)`` object names, ``experiment`` int, ``camera`` str, ``start`` int
     (first frame of the window). ``overrides``: a label overrides CSV (hand labels win), as for
     training; with ``on_error="skip"`` runs that cannot be labelled are left out with a warning.
+    ``grid = (rows, cols)``: every tracked marker resampled onto that grid of virtual markers
+    (:func:`slipsense.sensors.markers.grid_sequences`; ``n_markers`` is then ``rows * cols``)
+    instead of the ``n_markers`` markers nearest the image centre.
     """
     from slipsense.recordings.clips import ClipSpec, plan_windows
     from slipsense.recordings.folders import find_recordings, validate_recordings
     from slipsense.data import label_runs
-    from slipsense.sensors.markers import marker_sequences, track_recordings
+    from slipsense.sensors.markers import grid_sequences, marker_sequences, track_recordings
 
     spec = ClipSpec(frames=frames, horizon=horizon, wiggle_per_video=wiggle_per_video, seed=seed)
     recs = validate_recordings(find_recordings(recordings_dir, on_error=on_error), on_error=on_error)
@@ -51,7 +55,10 @@ def real_marker_dataset(
         windows = plan_windows(labels[rec.key], spec)
         if not windows:
             continue
-        cloud = marker_sequences(track, n_markers, normalise=False)  # (T, n_markers, 3)
+        if grid is not None:
+            cloud = grid_sequences(track, grid)  # (T, rows * cols, 3)
+        else:
+            cloud = marker_sequences(track, n_markers, normalise=False)  # (T, n_markers, 3)
         for w in windows:
             xs.append(cloud[w.start : w.end + 1])
             ys.append(w.y)
