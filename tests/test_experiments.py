@@ -308,7 +308,7 @@ def test_stnet_sim_and_real(tmp_path, source):
 
 
 def test_marker_layout_of_the_real_row():
-    from slipsense.experiments.stnet import marker_layout
+    from slipsense.sensors.real import marker_layout
 
     assert marker_layout("7x9") == (63, (7, 9)) and marker_layout(" 2X3 ") == (6, (2, 3))
     assert marker_layout(32) == (32, None) and marker_layout("5") == (5, None)

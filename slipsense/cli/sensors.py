@@ -48,7 +48,11 @@ def register(app: typer.Typer) -> None:
         out: Path = typer.Option(..., help="output .npz (x (N,T,M,3), y, groups = object)"),
         recordings: Optional[Path] = typer.Option(None, help="recordings folder (default: the shared recordings)"),
         frames: int = typer.Option(12),
-        n_markers: int = typer.Option(32, help="markers kept per sensor (closest to the centre)"),
+        n_markers: str = typer.Option(
+            "7x9",
+            help="ROWSxCOLS: every tracked marker resampled onto that grid (gel pads differ in marker count); "
+            "or N: the N markers nearest the centre",
+        ),
         horizon: int = typer.Option(0),
         wiggle_per_video: int = typer.Option(2),
         seed: int = typer.Option(0),
@@ -62,15 +66,17 @@ def register(app: typer.Typer) -> None:
         from slipsense.atomic import check_output_file
         from slipsense.cli import check_seed
         from slipsense.config import gelsight_recordings
-        from slipsense.sensors.real import real_marker_dataset, save_marker_npz
+        from slipsense.sensors.real import marker_layout, real_marker_dataset, save_marker_npz
 
         check_seed(seed)
+        count, grid = marker_layout(n_markers)
         check_output_file(out, "--out")
 
         arrays = real_marker_dataset(
             recordings or gelsight_recordings(),
             frames=frames,
-            n_markers=n_markers,
+            n_markers=count,
+            grid=grid,
             horizon=horizon,
             wiggle_per_video=wiggle_per_video,
             seed=seed,

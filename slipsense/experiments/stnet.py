@@ -13,9 +13,6 @@ from slipsense.experiments.settings import Settings
 from slipsense.experiments.source import DataSource, held_out_objects
 from slipsense.experiments.training import epoch_axis, score, train_model, train_seconds
 
-#: Real recordings: every tracked marker resampled onto this grid of virtual markers (rows, cols).
-REAL_MARKER_GRID = (7, 9)
-
 #: Simulated sequences per (object, pattern): full and quick.
 SIM_SEQUENCES = 12
 QUICK_SIM_SEQUENCES = 2
@@ -82,22 +79,6 @@ def _where_it_looks(model, x, y, te, rest, rep, label: str, n: int = 256) -> dic
     return {k: out[k] for k in ("relevance_in_contact", "markers_in_contact")}
 
 
-def marker_layout(markers: str | int) -> tuple[int, tuple[int, int] | None]:
-    """``"ROWSxCOLS"`` (every tracked marker resampled onto that grid) or a count ``N`` (the N markers
-    nearest the image centre) -> ``(markers per frame, grid or None)``."""
-    text = str(markers).strip().lower()
-    try:
-        if "x" in text:
-            rows, cols = (int(v) for v in text.split("x"))
-            if rows >= 1 and cols >= 1:
-                return rows * cols, (rows, cols)
-        elif int(text) >= 1:
-            return int(text), None
-    except ValueError:
-        pass
-    raise ConfigError(f"--markers takes ROWSxCOLS (a grid of every marker, e.g. 7x9) or a count >= 1, got {markers!r}")
-
-
 def _per_grasp(model, source, train_objects: Sequence[str], test_objects: Sequence[str], grid) -> dict[str, Any]:
     """A real-marker model judged as the default detector is: every run of the held-out objects
     replayed from its first frame, both fingers (alarm when either camera's window says slip), at
@@ -134,6 +115,7 @@ def run_stnet(
     sequences (split by sequence) and on real marker sequences (held-out objects)."""
     from slipsense.datasets import MarkerDataset
     from slipsense.models import stnet as stnet_mod
+    from slipsense.sensors.real import marker_layout
     from slipsense.sensors.sim_model import rest_grid
     from slipsense.sensors.simulator import SimConfig
 

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from slipsense.atomic import write_with
-from slipsense.errors import InputError
+from slipsense.errors import ConfigError, InputError
 
 
 def real_marker_dataset(
@@ -76,6 +76,22 @@ def real_marker_dataset(
         "camera": np.asarray(cams),
         "start": np.asarray(starts, np.int64),
     }
+
+
+def marker_layout(markers: str | int) -> tuple[int, tuple[int, int] | None]:
+    """``"ROWSxCOLS"`` (every tracked marker resampled onto that grid) or a count ``N`` (the N markers
+    nearest the image centre) -> ``(markers per frame, grid or None)``."""
+    text = str(markers).strip().lower()
+    try:
+        if "x" in text:
+            rows, cols = (int(v) for v in text.split("x"))
+            if rows >= 1 and cols >= 1:
+                return rows * cols, (rows, cols)
+        elif int(text) >= 1:
+            return int(text), None
+    except ValueError:
+        pass
+    raise ConfigError(f"markers take ROWSxCOLS (a grid of every marker, e.g. 7x9) or a count >= 1, got {markers!r}")
 
 
 def save_marker_npz(arrays: dict[str, np.ndarray], path: str | Path) -> Path:
