@@ -303,6 +303,10 @@ def test_stnet_sim_and_real(tmp_path, source):
     assert cfg["config"]["preset"] == "compact" and len(cfg["config"]["real"]["test_objects"]) == 1
     assert cfg["models"]["sim-stnet"]["model_config"]["markers"] == 16
     assert cfg["models"]["real-temnet"]["model_config"]["markers"] == 5
+    from slipsense.streaming.detector import SlipDetector
+
+    ckpt = tmp_path / "runs" / "real-temnet" / "last.safetensors"  # its checkpoint runs live as it was judged
+    assert SlipDetector.from_checkpoint(ckpt, threshold=0.5, sensors=2).cache_product == "markers:5"
     with pytest.raises(ConfigError):
         E.run_stnet(tiny(tmp_path / "x"), source, data=("sim",), preset="huge")
 

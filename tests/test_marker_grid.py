@@ -102,7 +102,7 @@ def test_the_compact_preset_comes_with_its_training_settings():
 
     assert paper_settings("stnet")["lr"] == 1e-5 and paper_settings("stnet", "paper")["epochs"] == 100
     compact = paper_settings("temnet", "compact")
-    assert (compact["lr"], compact["batch_size"], compact["epochs"]) == (1e-4, 32, 10)
+    assert (compact["lr"], compact["batch_size"], compact["epochs"]) == (1e-4, 32, 5)
     assert compact["weight_decay"] == 0.0  # the paper's, where the preset says nothing
 
 

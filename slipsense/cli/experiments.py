@@ -261,7 +261,7 @@ def stnet_cmd(
     data: str = typer.Option("sim,real", help="sim (simulated sensor), real (tracked GelSight markers) or both"),
     preset: str = typer.Option("compact", help="STNet/TemNet size: compact (CPU), paper, paper-ff4096"),
     sim_sequences: Optional[int] = typer.Option(
-        None, help="simulated sequences per object and pattern (default 12; --quick 2)"
+        None, help="simulated sequences per object and pattern (default 24; --quick 2)"
     ),
     markers: str = typer.Option(
         "7x9",
@@ -289,7 +289,7 @@ def marker_baseline_cmd(
     settings,
     kw,
     sim_sequences: Optional[int] = typer.Option(
-        None, help="simulated sequences per object and pattern (default 12, as experiment stnet; --quick 2)"
+        None, help="simulated sequences per object and pattern (default 24, as experiment stnet; --quick 2)"
     ),
 ):
     """Is slip learnable in the simulated marker windows? Gradient boosting on displacement-field

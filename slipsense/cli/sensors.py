@@ -16,8 +16,8 @@ def register(app: typer.Typer) -> None:
     def simulate(
         out: Path = typer.Option(..., help="output .npz (x (N,12,552,3) mm, y, groups = sequence id)"),
         sequences: int = typer.Option(
-            12,
-            help="sequences per (object, motion pattern); 12 (about 8,500 windows, 680 MB) is what the compact STNet needs (docs/simulator.md)",
+            24,
+            help="sequences per (object, motion pattern); 24 (about 16,800 windows, 1.3 GB) is what the compact STNet needs (docs/simulator.md)",
         ),
         seed: int = typer.Option(0),
         figures: Optional[Path] = typer.Option(None, help="also draw each motion pattern's displacement field here"),

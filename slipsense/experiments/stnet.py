@@ -14,7 +14,7 @@ from slipsense.experiments.source import DataSource, held_out_objects
 from slipsense.experiments.training import epoch_axis, score, train_model, train_seconds
 
 #: Simulated sequences per (object, pattern): full and quick.
-SIM_SEQUENCES = 12
+SIM_SEQUENCES = 24
 QUICK_SIM_SEQUENCES = 2
 
 
@@ -177,7 +177,13 @@ def run_stnet(
                 data_config,
                 val_data=test,
                 preset=preset,
-                info={"data": kind},
+                # the checkpoint says what it read, so a detector built from it resamples markers alike
+                info={
+                    "data": {
+                        "source": kind,
+                        **({"clip_spec": {"marker_grid": list(grid)}} if kind == "real" and grid else {}),
+                    }
+                },
             )
             m = score(model, test)
             looks = _where_it_looks(model, x, y, te, rest, rep, f"{kind}-{name}") if kind == "sim" else {}

@@ -254,7 +254,8 @@ def window_geometry(model: nn.Module, info: Mapping[str, Any] | None = None) -> 
     """
     if not isinstance(model, SlipModel):
         raise ConfigError(f"{type(model).__name__} is not a slipsense model (subclass slipsense.models.base)")
-    spec = ((info or {}).get("data") or {}).get("clip_spec") or {}
+    data = (info or {}).get("data")
+    spec = (data.get("clip_spec") if isinstance(data, Mapping) else None) or {}
     return model.window_geometry(spec)
 
 

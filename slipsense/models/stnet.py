@@ -245,7 +245,7 @@ class STNet(MarkerModel):
     paper_training = dict(epochs=100, batch_size=64, lr=1e-5, weight_decay=0.0, step_size=1000, gamma=1.0)
     #: the compact network learns at ten times the paper's rate, and in few epochs over the moved
     #: copies of its windows (docs/simulator.md)
-    preset_training = {"compact": dict(epochs=10, batch_size=32, lr=1e-4)}
+    preset_training = {"compact": dict(epochs=5, batch_size=32, lr=1e-4)}
     presets = PRESETS
 
     def __init__(

@@ -34,7 +34,7 @@ def real_marker_dataset(
     Returns arrays ``x`` float32 ``(N, frames, n_markers, 3)`` — per marker x, y in mm from the
     image centre and the unitless intensity depth proxy —, ``y`` int64 ``(N,)`` (1 = onset of
     slip), ``groups`` str ``(N,)`` object names, ``experiment`` int, ``camera`` str, ``start`` int
-    (first frame of the window). ``overrides``: a label overrides CSV (hand labels win), as for
+    (first frame of the window), and with ``grid`` ``marker_grid`` int ``(2,)``. ``overrides``: a label overrides CSV (hand labels win), as for
     training; with ``on_error="skip"`` runs that cannot be labelled are left out with a warning.
     ``grid = (rows, cols)``: every tracked marker resampled onto that grid of virtual markers
     (:func:`slipsense.sensors.markers.grid_sequences`; ``n_markers`` is then ``rows * cols``)
@@ -68,7 +68,9 @@ def real_marker_dataset(
             starts.append(w.start)
     if not xs:
         raise InputError(recordings_dir, "no marker windows could be made")
+    layout = {"marker_grid": np.asarray(grid, np.int64)} if grid is not None else {}
     return {
+        **layout,
         "x": np.stack(xs).astype(np.float32),
         "y": np.asarray(ys, np.int64),
         "groups": np.asarray(groups),

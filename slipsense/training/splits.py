@@ -109,6 +109,9 @@ def prepare_data(req, reads: str):
             "test_indices": [int(i) for i in te],
             "marker_copies": train.copies,  # as applied: 1 off a grid or without augment
         }
+        grid = _marker_grid(req.markers, x)
+        if grid is not None:  # the live detector must resample a camera's markers the same way
+            split_info["clip_spec"] = {"marker_grid": grid}
         return (
             train,
             MarkerDataset(x[te], y[te]),
@@ -116,6 +119,22 @@ def prepare_data(req, reads: str):
             {"frames": int(x.shape[1]), "markers": int(x.shape[2]), "sensor": _marker_sensor(req.markers, x)},
         )
     raise ConfigError(f"model {req.model!r} reads {reads!r}: clips are cut from frames or markers only")
+
+
+def _marker_grid(path, x: np.ndarray) -> list[int] | None:
+    """The file's ``marker_grid`` (rows, cols: its markers are every tracked marker resampled onto
+    that grid, :func:`slipsense.sensors.markers.grid_sequences`), or None when it has none."""
+    with np.load(path, allow_pickle=False) as z:
+        if "marker_grid" not in z.files:
+            return None
+        grid = z["marker_grid"]
+    if grid.shape != (2,) or not np.issubdtype(grid.dtype, np.integer) or (grid < 1).any():
+        raise InputError(path, f"marker_grid must be two whole numbers >= 1 (rows, cols), got {grid.tolist()}")
+    if int(grid[0]) * int(grid[1]) != x.shape[2]:
+        raise InputError(
+            path, f"marker_grid {grid.tolist()} holds {int(grid[0]) * int(grid[1])} markers, x has {x.shape[2]}"
+        )
+    return [int(grid[0]), int(grid[1])]
 
 
 def _marker_sensor(path, x: np.ndarray) -> dict[str, Any]:
