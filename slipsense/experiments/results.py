@@ -91,7 +91,9 @@ def _default_recordings() -> Path:
     return gelsight_recordings()
 
 
-def _report_section(name: str, folder: Path, cfg: dict[str, Any], out: Path, heading: bool) -> list[str]:
+def _report_section(
+    name: str, folder: Path, cfg: dict[str, Any], out: Path, heading: bool, label: str | None = None
+) -> list[str]:
     """The Markdown of one report folder for the results page (links relative to ``out``)."""
     md_path = folder / cfg.get("files", {}).get("md", f"{name}.md")
     body = md_path.read_text().splitlines()
@@ -105,7 +107,7 @@ def _report_section(name: str, folder: Path, cfg: dict[str, Any], out: Path, hea
     # the body's own image link is relative to the report folder: point it at the report
     body = [f"![{name}]({rel_png})" if ln.strip() == f"![{name}]({png.name})" else ln for ln in body]
     m = cfg.get("machine", {})
-    lines = [f"### `{folder.name}`", ""] if heading else []
+    lines = [f"### `{label or folder.name}`", ""] if heading else []
     lines += [
         f"Report: [`{rel_dir}`]({rel_dir}) — finished {cfg.get('finished')}, took {cfg.get('seconds')} s  ",
         f"Command: `{cfg.get('command') or '(called from Python)'}`  ",
@@ -161,12 +163,13 @@ def collect_results(reports: str | Path = "reports", out: str | Path = "docs/res
         if len(found[name]) > 1:
             lines += [
                 f"{len(found[name])} reports (conditions), newest first: "
-                + ", ".join(f"`{folder.name}`" for folder, _ in found[name])
+                + ", ".join(f"`{folder.relative_to(reports).as_posix()}`" for folder, _ in found[name])
                 + ".",
                 "",
             ]
         for folder, cfg in found[name]:
-            lines += _report_section(name, folder, cfg, out, heading=len(found[name]) > 1)
+            label = folder.relative_to(reports).as_posix()  # nested conditions (fold0, ...) keep their parent
+            lines += _report_section(name, folder, cfg, out, heading=len(found[name]) > 1, label=label)
     lines += _live_and_speed_section(Path(reports), out)
     lines += _written_reports_section(Path(reports), out)
     text = "\n".join(lines).rstrip() + "\n"
