@@ -311,8 +311,19 @@ def test_stnet_sim_and_real(tmp_path, source):
         E.run_stnet(tiny(tmp_path / "x"), source, data=("sim",), preset="huge")
 
 
+def test_stnet_real_row_on_a_grid_makes_checkpoints_that_replay_on_it(tmp_path, source):
+    from slipsense.streaming.detector import SlipDetector
+
+    res = E.run_stnet(tiny(tmp_path), source, data=("real",), markers="2x3", frames=4)
+    assert [r["model"] for r in res["rows"]] == ["stnet", "temnet"]
+    assert json.loads((tmp_path / "config.json").read_text())["config"]["real"]["marker_layout"] == "2x3"
+    for name in ("stnet", "temnet"):
+        det = SlipDetector.from_checkpoint(tmp_path / "runs" / f"real-{name}" / "last.safetensors", threshold=0.5)
+        assert det.cache_product == "markers:2x3" and det.sensor.name == "gelsight-mini"
+
+
 def test_marker_layout_of_the_real_row():
-    from slipsense.sensors.real import marker_layout
+    from slipsense.sensors.markers import marker_layout
 
     assert marker_layout("7x9") == (63, (7, 9)) and marker_layout(" 2X3 ") == (6, (2, 3))
     assert marker_layout(32) == (32, None) and marker_layout("5") == (5, None)

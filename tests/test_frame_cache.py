@@ -113,7 +113,7 @@ def test_marker_model_replays_a_real_run_from_its_tracked_markers(cache, one_thr
 
     torch.manual_seed(0)
     model = build("temnet", frames=6, markers=40, d_model=8, heads=2, blocks=1, ff_dim=8, head_hidden=0)
-    det = SlipDetector(model.eval(), sensors=2)
+    det = SlipDetector(model.eval(), sensors=2, info={"data": {"clip_spec": {"marker_layout": "40"}}})
     assert det.cache_product == "markers:40"
     held = REAL_RUN.parent / "exp_num_4"  # a grasp that held (REAL_RUN's slip has no moment)
     recs = [r for r in find_recordings(REAL_RUN.parent.parent) if r.path.parent == held]
@@ -128,12 +128,12 @@ def test_marker_model_replays_a_real_run_from_its_tracked_markers(cache, one_thr
     from slipsense.sensors.markers import grid_sequences
 
     on_grid = build("temnet", frames=6, markers=63, d_model=8, heads=2, blocks=1, ff_dim=8, head_hidden=0)
-    det = SlipDetector(on_grid.eval(), sensors=2, info={"data": {"clip_spec": {"marker_grid": [7, 9]}}})
+    det = SlipDetector(on_grid.eval(), sensors=2, info={"data": {"clip_spec": {"marker_layout": "7x9"}}})
     assert det.cache_product == "markers:7x9"
     (trace,) = replay_recordings(det, recs, progress=False)
     clouds = [grid_sequences(track_recording(held / f"{c}.avi"), (7, 9)) for c in trace.cameras]
     np.testing.assert_allclose(trace.probability, det.replay(*clouds).probability, rtol=0, atol=1e-6)
-    with pytest.raises(ConfigError, match="7 x 8 marker grid holds 56"):
-        SlipDetector(on_grid.eval(), info={"data": {"clip_spec": {"marker_grid": [7, 8]}}})
+    with pytest.raises(ConfigError, match="marker layout '7x8' holds 56 markers"):
+        SlipDetector(on_grid.eval(), info={"data": {"clip_spec": {"marker_layout": "7x8"}}})
     with pytest.raises(ValueError, match="markers:M"):
         video_products(REAL_RUN / "camera_0.avi", ["markers:0"])

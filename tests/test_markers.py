@@ -358,7 +358,8 @@ def test_grid_sequences_give_one_layout_for_pads_of_any_marker_count():
     fine, coarse = _uniform_track(7, 10, 32.0), _uniform_track(5, 7, 44.0)
     a, b = grid_sequences(fine, (3, 4)), grid_sequences(coarse, (3, 4))
     assert a.shape == b.shape == (4, 12, 3) and a.dtype == np.float32
-    centres = np.stack(np.meshgrid((np.arange(4) + 0.5) * W / 4, (np.arange(3) + 0.5) * H / 3), -1).reshape(-1, 2)
+    tiles = np.meshgrid((np.arange(4) + 0.5) * W / 4 - 0.5, (np.arange(3) + 0.5) * H / 3 - 0.5)
+    centres = np.stack(tiles, -1).reshape(-1, 2)  # tile centres in pixel-centre coordinates
     expect_rest = (centres - [(W - 1) / 2, (H - 1) / 2]) * M.DEFAULT_MM_PER_PX
     for seq in (a, b):  # at rest the virtual markers sit at the tile centres, whatever the pad
         np.testing.assert_allclose(seq[0, :, :2], expect_rest, atol=1e-4)
@@ -374,3 +375,5 @@ def test_grid_sequences_give_one_layout_for_pads_of_any_marker_count():
     assert moved[0] > 0 and (moved[[3, 8, 11]] == 0).all()
     with pytest.raises(ValueError, match="grid"):
         grid_sequences(fine, (0, 4))
+    with pytest.raises(ValueError, match="neighbours"):
+        grid_sequences(fine, (3, 4), neighbours=0)

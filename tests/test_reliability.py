@@ -315,20 +315,34 @@ def test_resume_files_are_told_apart_by_content_not_by_their_first_byte(tmp_path
 
 
 def test_a_marker_file_on_a_grid_makes_a_checkpoint_that_replays_on_that_grid(tmp_path):
-    """`slipsense markers` writes `marker_grid` when every marker is resampled onto a grid; a model
-    trained on that file keeps it, so its live detector resamples a camera's markers the same way."""
+    """`slipsense markers` writes how it took the markers from the videos (`marker_layout`); a model
+    trained on that file keeps it, so its replay takes a camera's markers the same way. A file without
+    one (simulated, a user's) makes a model that is not replayed over videos."""
+    from slipsense.errors import ConfigError
+    from slipsense.evaluation.early_warning import replay_recordings
     from slipsense.streaming.detector import SlipDetector
 
     path = _markers(tmp_path / "m.npz", markers=6)
     with np.load(path) as z:
         arrays = dict(z)
-    np.savez(path, **arrays, marker_grid=np.array([2, 3]))
+    np.savez(path, **arrays, marker_layout=np.array("2x3"))
     assert _train(tmp_path, tmp_path / "r", "--epochs", "1").exit_code == 0
     det = SlipDetector.from_checkpoint(tmp_path / "r" / "last.safetensors", threshold=0.5)
     assert det.cache_product == "markers:2x3"
-    assert json.loads((tmp_path / "r" / "split.json").read_text())["clip_spec"] == {"marker_grid": [2, 3]}
-    np.savez(path, **arrays, marker_grid=np.array([2, 2]))
-    assert "marker_grid [2, 2] holds 4 markers, x has 6" in _error_line(_train(tmp_path, tmp_path / "s"))
+    assert det.sensor.name == "gelsight-mini"  # tracked in GelSight videos: replayed over their folders
+    assert json.loads((tmp_path / "r" / "split.json").read_text())["clip_spec"] == {"marker_layout": "2x3"}
+    np.savez(path, **arrays, marker_layout=np.array("2x2"))
+    assert "marker_layout '2x2' holds 4 markers, x has 6" in _error_line(_train(tmp_path, tmp_path / "s"))
+    np.savez(path, **arrays, marker_layout=np.array("two"))
+    assert "marker_layout is unreadable" in _error_line(_train(tmp_path, tmp_path / "u"))
     np.savez(path, **arrays)  # no grid: the markers as they are
     assert _train(tmp_path, tmp_path / "t", "--epochs", "1").exit_code == 0
-    assert SlipDetector.from_checkpoint(tmp_path / "t" / "last.safetensors", threshold=0.5).cache_product == "markers:6"
+    evaluated = runner.invoke(
+        app, ["evaluate", "--checkpoint", str(tmp_path / "r" / "last.safetensors"), "--markers", str(path)]
+    )
+    assert evaluated.exit_code == 2  # the file's markers were not taken as the checkpoint's were
+    assert "holds markers not tracked in videos" in _error_line(evaluated) and "'2x3'" in _error_line(evaluated)
+    untracked = SlipDetector.from_checkpoint(tmp_path / "t" / "last.safetensors", threshold=0.5)
+    assert untracked.cache_product is None
+    with pytest.raises(ConfigError, match="not tracked in videos"):
+        replay_recordings(untracked, [], progress=False)

@@ -66,7 +66,8 @@ def register(app: typer.Typer) -> None:
         from slipsense.atomic import check_output_file
         from slipsense.cli import check_seed
         from slipsense.config import gelsight_recordings
-        from slipsense.sensors.real import marker_layout, real_marker_dataset, save_marker_npz
+        from slipsense.sensors.markers import marker_layout
+        from slipsense.sensors.real import real_marker_dataset, save_marker_npz
 
         check_seed(seed)
         count, grid = marker_layout(n_markers)

@@ -94,7 +94,11 @@ def replay_recordings(
     from slipsense.recordings.video import read_video
 
     if detector.reads != "frames" and detector.cache_product is None:
-        raise ConfigError("early warning replays GelSight videos: this model reads neither frames nor tracked markers")
+        raise ConfigError(
+            "early warning replays videos: this marker model was trained on markers that were not tracked "
+            "in videos (simulated, or a marker file without marker_layout), so nothing says how to take "
+            "its markers from one"
+        )
     runs: dict[tuple[str, int], list[Any]] = {}
     for r in recordings:
         runs.setdefault((r.object, r.experiment), []).append(r)
@@ -141,8 +145,8 @@ def _replay_run(detector, key, cams, run_cams, labels, read_video, video_product
     product = detector.cache_product
     cached = [video_products(r.path, ["contact", *([product] if product else [])], min_frames=1) for r in cams]
     n = len(cached[0]["contact"])
-    if any(len(c["contact"]) != n for c in cached):
-        counts = [len(c["contact"]) for c in cached]
+    if any(len(c[k]) != n for c in cached for k in c):
+        counts = [{k: len(v) for k, v in c.items()} for c in cached]
         raise InputError(cams[0].path.parent, f"the cameras of this run differ in frame count: {counts}")
     if product:
         trace = detector.replay_cached(np.stack([c[product] for c in cached]))

@@ -196,6 +196,7 @@ def evaluate_checkpoint(
         if split is not None:
             split_info = _read_split(split, "markers")
             x, y, _ = load_markers(resolve_path(split_info["markers"]))
+            _check_marker_layout(resolve_path(split_info["markers"]), x, info, checkpoint)
             idx = split_info["test_indices"]
             if max(idx) >= len(y):
                 raise InputError(
@@ -204,6 +205,7 @@ def evaluate_checkpoint(
             x, y = x[idx], y[idx]
         else:
             x, y, _ = load_markers(markers)
+            _check_marker_layout(markers, x, info, checkpoint)
             extra["markers"] = portable_path(markers)
         data = MarkerDataset(x, y)
     if len(data) == 0:
@@ -212,6 +214,24 @@ def evaluate_checkpoint(
 
     with torch.inference_mode():
         return evaluate_model(model, data, json_out, png, extra=extra, progress=progress)
+
+
+def _check_marker_layout(path, x, info, checkpoint) -> None:
+    """Refuse markers taken from videos otherwise than the checkpoint's (``marker_layout``: a 7 x 9
+    grid of every marker is not the 63 markers nearest the centre, though both hold 63)."""
+    from collections.abc import Mapping
+
+    from slipsense.training.splits import marker_file_layout
+
+    data = info.get("data")
+    trained = ((data.get("clip_spec") or {}).get("marker_layout")) if isinstance(data, Mapping) else None
+    given = marker_file_layout(path, x)
+    if given != trained:
+
+        def said(layout):
+            return f"markers taken from videos as {layout!r}" if layout else "markers not tracked in videos"
+
+        raise InputError(path, f"holds {said(given)}; {checkpoint} was trained on {said(trained)}")
 
 
 def _replayed(checkpoint, recordings, overrides, progress, objects, on_error="raise") -> dict[str, Any]:

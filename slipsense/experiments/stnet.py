@@ -79,7 +79,7 @@ def _where_it_looks(model, x, y, te, rest, rep, label: str, n: int = 256) -> dic
     return {k: out[k] for k in ("relevance_in_contact", "markers_in_contact")}
 
 
-def _per_grasp(model, source, train_objects: Sequence[str], test_objects: Sequence[str], grid) -> dict[str, Any]:
+def _per_grasp(model, info, source, train_objects: Sequence[str], test_objects: Sequence[str]) -> dict[str, Any]:
     """A real-marker model judged as the default detector is: every run of the held-out objects
     replayed from its first frame, both fingers (alarm when either camera's window says slip), at
     the operating point chosen on the training objects' runs replayed the same way (best warned
@@ -87,7 +87,7 @@ def _per_grasp(model, source, train_objects: Sequence[str], test_objects: Sequen
     from slipsense.evaluation import pergrasp
     from slipsense.streaming.detector import SlipDetector
 
-    det = SlipDetector(model.eval(), sensors=2, info={"data": {"clip_spec": {"marker_grid": grid}}})
+    det = SlipDetector(model.eval(), sensors=2, info=info)
     fit_runs = source.replay(det, train_objects)
     op = pergrasp.choose_operating_point([r.probability for r in fit_runs], [r.moment_of_slip for r in fit_runs])
     runs = source.replay(det, test_objects)
@@ -115,7 +115,7 @@ def run_stnet(
     sequences (split by sequence) and on real marker sequences (held-out objects)."""
     from slipsense.datasets import MarkerDataset
     from slipsense.models import stnet as stnet_mod
-    from slipsense.sensors.real import marker_layout
+    from slipsense.sensors.markers import layout_name, marker_layout
     from slipsense.sensors.sim_model import rest_grid
     from slipsense.sensors.simulator import SimConfig
 
@@ -157,7 +157,7 @@ def run_stnet(
             rep.config["real"] = {
                 "frames": frames,
                 "n_markers": n_markers,
-                "marker_grid": list(grid) if grid else None,
+                "marker_layout": layout_name(markers),
                 "test_objects": present,
             }
             split_note = f"held-out objects {', '.join(present)}"
@@ -167,6 +167,10 @@ def run_stnet(
             MarkerDataset(x[te], y[te]),
         )
         data_config = {"frames": int(x.shape[1]), "markers": int(x.shape[2])}
+        # the checkpoint says what it read: real markers are taken from a video alike when it is replayed
+        info = {"data": {"source": kind, "kind": "markers"}}  # simulated: the binocular sensor
+        if kind == "real":
+            info = {"data": {"source": kind, "clip_spec": {"marker_layout": layout_name(markers)}}}
         for name in ("stnet", "temnet"):
             model, history = train_model(
                 name,
@@ -177,19 +181,13 @@ def run_stnet(
                 data_config,
                 val_data=test,
                 preset=preset,
-                # the checkpoint says what it read, so a detector built from it resamples markers alike
-                info={
-                    "data": {
-                        "source": kind,
-                        **({"clip_spec": {"marker_grid": list(grid)}} if kind == "real" and grid else {}),
-                    }
-                },
+                info=info,
             )
             m = score(model, test)
             looks = _where_it_looks(model, x, y, te, rest, rep, f"{kind}-{name}") if kind == "sim" else {}
             if kind == "real" and hasattr(source, "replay"):
                 train_objects = sorted(set(groups[tr].tolist()))
-                looks = _per_grasp(model, source, train_objects, test_objects, list(grid) if grid else None)
+                looks = _per_grasp(model, info, source, train_objects, test_objects)
             rows.append(
                 {
                     "data": "simulated" if kind == "sim" else "real",

@@ -209,13 +209,15 @@ class MarkerModel(SlipModel):
     def window_geometry(self, spec: Mapping[str, Any]) -> dict[str, Any]:
         frames = getattr(self, "frames", None) or spec.get("frames") or DEFAULT_FRAMES
         out = {"kind": "markers", "frames": int(frames), "markers": int(self.markers)}
-        if spec.get("marker_grid"):  # trained on every marker resampled onto this grid (real recordings)
-            rows, cols = (int(v) for v in spec["marker_grid"])
-            if rows * cols != int(self.markers):
+        if spec.get("marker_layout") is not None:  # trained on markers tracked in videos, taken so
+            from slipsense.sensors.markers import layout_name, marker_layout
+
+            count, _ = marker_layout(spec["marker_layout"])
+            if count != int(self.markers):
                 raise ConfigError(
-                    f"a {rows} x {cols} marker grid holds {rows * cols} markers, the model takes {self.markers}"
+                    f"marker layout {spec['marker_layout']!r} holds {count} markers, the model takes {self.markers}"
                 )
-            out["marker_grid"] = (rows, cols)
+            out["marker_layout"] = layout_name(spec["marker_layout"])
         return out
 
 

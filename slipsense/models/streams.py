@@ -131,15 +131,13 @@ class WindowStream:
 
     @property
     def cache_product(self) -> str | None:
-        """What of a recording a marker model is replayed from, as the frame cache names it: the
-        tracked marker clouds of each camera (``"markers:M"``, :func:`slipsense.sensors.markers.marker_sequences`,
-        the same values its real training windows hold; ``"markers:RxC"`` for every marker resampled
-        onto a grid, :func:`slipsense.sensors.markers.grid_sequences`); None for a video model (the
-        decoded video)."""
-        if self.kind == "video":
-            return None
-        grid = self.geometry.get("marker_grid")
-        return f"markers:{grid[0]}x{grid[1]}" if grid else f"markers:{self.markers}"
+        """What of a recording a marker model is replayed from, as the frame cache names it: each
+        camera's tracked markers in the layout its checkpoint records (``"markers:7x9"``, ``"markers:32"``:
+        :func:`slipsense.sensors.markers.marker_clouds`, the values its real training windows hold).
+        None for a video model (the decoded video) and for a marker model that records no layout
+        (simulated, or a user's marker file: nothing says how to take its markers from a video)."""
+        layout = self.geometry.get("marker_layout")
+        return f"markers:{layout}" if layout else None
 
     def replay_cached(self, clouds: np.ndarray) -> np.ndarray:
         """:meth:`replay` from :attr:`cache_product` of every sensor, stacked: float ``(S, N, M, 3)``."""

@@ -63,13 +63,10 @@ def _check_product(product: str) -> None:
 
 
 def _marker_clouds(path: Path, product: str) -> np.ndarray:
-    from slipsense.sensors.markers import grid_sequences, marker_sequences, track_recordings
+    from slipsense.sensors.markers import marker_clouds, track_recordings
 
-    count, cols = _MARKERS.match(product).groups()
-    track = track_recordings([path], progress=False)[0]
-    if cols is not None:
-        return grid_sequences(track, (int(count), int(cols)))
-    return marker_sequences(track, int(count), normalise=False)
+    track = track_recordings([path], progress=False)[0]  # decodes the video itself when not cached
+    return marker_clouds(track, product.split(":", 1)[1])
 
 
 def _compute(video: np.ndarray, product: str) -> np.ndarray:
@@ -115,7 +112,8 @@ def _store(entry: Path, identity: dict, arr: np.ndarray) -> None:
 
 
 def video_products(path: str | Path, products: Sequence[str], min_frames: int = 2) -> dict[str, np.ndarray]:
-    """``{product: array}`` of one video (see the module notes), decoding it at most once.
+    """``{product: array}`` of one video (see the module notes), decoding it at most once for the
+    frame products (tracked markers come from the marker track cache, which decodes on its own).
 
     Raises :class:`~slipsense.errors.InputError` naming ``path`` when it must be decoded and cannot
     be (:func:`slipsense.recordings.video.read_video`), or has fewer than ``min_frames`` frames.

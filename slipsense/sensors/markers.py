@@ -75,6 +75,9 @@ __all__ = [
     "default_reference_index",
     "detect_markers",
     "grid_sequences",
+    "layout_name",
+    "marker_clouds",
+    "marker_layout",
     "marker_sequences",
     "order_markers",
     "plot_displacement",
@@ -137,6 +140,40 @@ def marker_sequences(
     return (out, mask) if return_mask else out
 
 
+def marker_layout(layout: str | int) -> tuple[int, tuple[int, int] | None]:
+    """A layout of markers for models: ``"ROWSxCOLS"`` (every tracked marker resampled onto that grid,
+    :func:`grid_sequences`) or a count ``N`` (the N markers nearest the image centre,
+    :func:`marker_sequences`) -> ``(markers per frame, grid or None)``. ConfigError otherwise."""
+    from ..errors import ConfigError
+
+    text = str(layout).strip().lower()
+    try:
+        if "x" in text:
+            rows, cols = (int(v) for v in text.split("x"))
+            if rows >= 1 and cols >= 1:
+                return rows * cols, (rows, cols)
+        elif int(text) >= 1:
+            return int(text), None
+    except ValueError:
+        pass
+    raise ConfigError(
+        f"a marker layout is ROWSxCOLS (every marker on a grid, e.g. 7x9) or a count >= 1, got {layout!r}"
+    )
+
+
+def layout_name(layout: str | int) -> str:
+    """The canonical name of a :func:`marker_layout` (``"7x9"``, ``"32"``), as checkpoints record it."""
+    count, grid = marker_layout(layout)
+    return f"{grid[0]}x{grid[1]}" if grid else str(count)
+
+
+def marker_clouds(track: MarkerTrack, layout: str | int) -> np.ndarray:
+    """A video's markers as a marker model reads them: float32 ``(T, M, 3)``, x, y in mm from the image
+    centre and the depth proxy, in ``layout`` (:func:`marker_layout`)."""
+    count, grid = marker_layout(layout)
+    return grid_sequences(track, grid) if grid else marker_sequences(track, count, normalise=False)
+
+
 def grid_sequences(
     track: MarkerTrack,
     grid: tuple[int, int],
@@ -160,9 +197,12 @@ def grid_sequences(
     rows, cols = (int(v) for v in grid)
     if rows < 1 or cols < 1:
         raise ValueError(f"grid must be (rows, cols) >= 1, got {grid!r}")
+    if int(neighbours) < 1:
+        raise ValueError(f"neighbours must be >= 1, got {neighbours!r}")
     h, w = track.frame_size
-    ys = (np.arange(rows) + 0.5) * h / rows
-    xs = (np.arange(cols) + 0.5) * w / cols
+    # tile centres in pixel-centre coordinates (pixel i covers i-0.5..i+0.5), as the positions are
+    ys = (np.arange(rows) + 0.5) * h / rows - 0.5
+    xs = (np.arange(cols) + 0.5) * w / cols - 0.5
     base = np.stack([np.tile(xs, rows), np.repeat(ys, cols)], axis=1)  # (G, 2) px
     ref = track.reference_positions.astype(np.float64)
     dist = np.linalg.norm(base[:, None] - ref[None], axis=-1)  # (G, N)

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from slipsense.atomic import write_with
-from slipsense.errors import ConfigError, InputError
+from slipsense.errors import InputError
 
 
 def real_marker_dataset(
@@ -34,7 +34,7 @@ def real_marker_dataset(
     Returns arrays ``x`` float32 ``(N, frames, n_markers, 3)`` — per marker x, y in mm from the
     image centre and the unitless intensity depth proxy —, ``y`` int64 ``(N,)`` (1 = onset of
     slip), ``groups`` str ``(N,)`` object names, ``experiment`` int, ``camera`` str, ``start`` int
-    (first frame of the window), and with ``grid`` ``marker_grid`` int ``(2,)``. ``overrides``: a label overrides CSV (hand labels win), as for
+    (first frame of the window) and ``marker_layout`` (0-d str, ``"7x9"`` or ``"32"``: :func:`~slipsense.sensors.markers.layout_name`). ``overrides``: a label overrides CSV (hand labels win), as for
     training; with ``on_error="skip"`` runs that cannot be labelled are left out with a warning.
     ``grid = (rows, cols)``: every tracked marker resampled onto that grid of virtual markers
     (:func:`slipsense.sensors.markers.grid_sequences`; ``n_markers`` is then ``rows * cols``)
@@ -43,8 +43,9 @@ def real_marker_dataset(
     from slipsense.recordings.clips import ClipSpec, plan_windows
     from slipsense.recordings.folders import find_recordings, validate_recordings
     from slipsense.data import label_runs
-    from slipsense.sensors.markers import grid_sequences, marker_sequences, track_recordings
+    from slipsense.sensors.markers import layout_name, marker_clouds, track_recordings
 
+    layout = layout_name(f"{grid[0]}x{grid[1]}" if grid is not None else n_markers)
     spec = ClipSpec(frames=frames, horizon=horizon, wiggle_per_video=wiggle_per_video, seed=seed)
     recs = validate_recordings(find_recordings(recordings_dir, on_error=on_error), on_error=on_error)
     labels = label_runs(recs, overrides, on_error=on_error, progress=progress)
@@ -55,10 +56,7 @@ def real_marker_dataset(
         windows = plan_windows(labels[rec.key], spec)
         if not windows:
             continue
-        if grid is not None:
-            cloud = grid_sequences(track, grid)  # (T, rows * cols, 3)
-        else:
-            cloud = marker_sequences(track, n_markers, normalise=False)  # (T, n_markers, 3)
+        cloud = marker_clouds(track, layout)  # (T, M, 3)
         for w in windows:
             xs.append(cloud[w.start : w.end + 1])
             ys.append(w.y)
@@ -68,9 +66,8 @@ def real_marker_dataset(
             starts.append(w.start)
     if not xs:
         raise InputError(recordings_dir, "no marker windows could be made")
-    layout = {"marker_grid": np.asarray(grid, np.int64)} if grid is not None else {}
     return {
-        **layout,
+        "marker_layout": np.asarray(layout),  # how the markers were taken: a replay takes them alike
         "x": np.stack(xs).astype(np.float32),
         "y": np.asarray(ys, np.int64),
         "groups": np.asarray(groups),
@@ -78,22 +75,6 @@ def real_marker_dataset(
         "camera": np.asarray(cams),
         "start": np.asarray(starts, np.int64),
     }
-
-
-def marker_layout(markers: str | int) -> tuple[int, tuple[int, int] | None]:
-    """``"ROWSxCOLS"`` (every tracked marker resampled onto that grid) or a count ``N`` (the N markers
-    nearest the image centre) -> ``(markers per frame, grid or None)``."""
-    text = str(markers).strip().lower()
-    try:
-        if "x" in text:
-            rows, cols = (int(v) for v in text.split("x"))
-            if rows >= 1 and cols >= 1:
-                return rows * cols, (rows, cols)
-        elif int(text) >= 1:
-            return int(text), None
-    except ValueError:
-        pass
-    raise ConfigError(f"markers take ROWSxCOLS (a grid of every marker, e.g. 7x9) or a count >= 1, got {markers!r}")
 
 
 def save_marker_npz(arrays: dict[str, np.ndarray], path: str | Path) -> Path:

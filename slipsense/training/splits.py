@@ -109,9 +109,9 @@ def prepare_data(req, reads: str):
             "test_indices": [int(i) for i in te],
             "marker_copies": train.copies,  # as applied: 1 off a grid or without augment
         }
-        grid = _marker_grid(req.markers, x)
-        if grid is not None:  # the live detector must resample a camera's markers the same way
-            split_info["clip_spec"] = {"marker_grid": grid}
+        layout = marker_file_layout(req.markers, x)
+        if layout is not None:  # tracked in videos: a replay must take a camera's markers the same way
+            split_info["clip_spec"] = {"marker_layout": layout}
         return (
             train,
             MarkerDataset(x[te], y[te]),
@@ -121,20 +121,24 @@ def prepare_data(req, reads: str):
     raise ConfigError(f"model {req.model!r} reads {reads!r}: clips are cut from frames or markers only")
 
 
-def _marker_grid(path, x: np.ndarray) -> list[int] | None:
-    """The file's ``marker_grid`` (rows, cols: its markers are every tracked marker resampled onto
-    that grid, :func:`slipsense.sensors.markers.grid_sequences`), or None when it has none."""
-    with np.load(path, allow_pickle=False) as z:
-        if "marker_grid" not in z.files:
-            return None
-        grid = z["marker_grid"]
-    if grid.shape != (2,) or not np.issubdtype(grid.dtype, np.integer) or (grid < 1).any():
-        raise InputError(path, f"marker_grid must be two whole numbers >= 1 (rows, cols), got {grid.tolist()}")
-    if int(grid[0]) * int(grid[1]) != x.shape[2]:
-        raise InputError(
-            path, f"marker_grid {grid.tolist()} holds {int(grid[0]) * int(grid[1])} markers, x has {x.shape[2]}"
-        )
-    return [int(grid[0]), int(grid[1])]
+def marker_file_layout(path, x: np.ndarray) -> str | None:
+    """How a marker file's markers were taken from videos (its ``marker_layout``, written by
+    ``slipsense markers``: ``"7x9"``, ``"32"``; :func:`slipsense.sensors.markers.marker_layout`), or
+    None for markers that were not tracked in videos (simulated, a user's own)."""
+    from slipsense.errors import ConfigError
+    from slipsense.sensors.markers import layout_name, marker_layout
+
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            if "marker_layout" not in z.files:
+                return None
+            value = z["marker_layout"]
+        count, _ = marker_layout(value.item() if value.ndim == 0 else value.tolist())
+    except (ValueError, ConfigError) as exc:
+        raise InputError(path, f"marker_layout is unreadable ({exc})") from None
+    if count != x.shape[2]:
+        raise InputError(path, f"marker_layout {value.item()!r} holds {count} markers, x has {x.shape[2]}")
+    return layout_name(value.item())
 
 
 def _marker_sensor(path, x: np.ndarray) -> dict[str, Any]:
@@ -144,6 +148,10 @@ def _marker_sensor(path, x: np.ndarray) -> dict[str, Any]:
 
     from slipsense.sensors.spec import BINOCULAR_MARKERS
 
+    if marker_file_layout(path, x) is not None:  # tracked in GelSight videos: their frame rate and layout
+        from slipsense.sensors.spec import GELSIGHT_MINI
+
+        return replace(GELSIGHT_MINI, output="markers", markers=int(x.shape[2])).to_dict()
     fps = BINOCULAR_MARKERS.fps
     with np.load(path, allow_pickle=False) as z:
         if "fps" in z.files and np.ndim(z["fps"]) == 0 and 0 < float(z["fps"]) <= 10_000:
