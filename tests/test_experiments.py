@@ -68,8 +68,11 @@ class MemorySource:
         ]
         return ClipSet(x, y, meta, spec)
 
-    def markers(self, frames, n_markers, horizon=0, wiggle_per_video=2, seed=0, grid=None):
+    def markers(self, frames, n_markers, horizon=0, wiggle_per_video=2, seed=0):
+        from slipsense.sensors.markers import marker_layout
+
         self.calls.append(("markers", frames, n_markers))
+        n_markers, _ = marker_layout(n_markers)  # a layout: a count or ROWSxCOLS
         wins = self._windows(frames, horizon, wiggle_per_video)
         wins.append(("apple", 3, "camera_0", 5, 0))  # a window without a clip: must not be matched
         rng = np.random.default_rng(7)

@@ -70,14 +70,13 @@ def register(app: typer.Typer) -> None:
         from slipsense.sensors.real import real_marker_dataset, save_marker_npz
 
         check_seed(seed)
-        count, grid = marker_layout(n_markers)
+        marker_layout(n_markers)  # a bad layout is refused before anything is tracked
         check_output_file(out, "--out")
 
         arrays = real_marker_dataset(
             recordings or gelsight_recordings(),
             frames=frames,
-            n_markers=count,
-            grid=grid,
+            n_markers=n_markers,
             horizon=horizon,
             wiggle_per_video=wiggle_per_video,
             seed=seed,

@@ -196,7 +196,7 @@ def evaluate_checkpoint(
         if split is not None:
             split_info = _read_split(split, "markers")
             x, y, _ = load_markers(resolve_path(split_info["markers"]))
-            _check_marker_layout(resolve_path(split_info["markers"]), x, info, checkpoint)
+            _check_marker_layout(resolve_path(split_info["markers"]), x, model, info, checkpoint)
             idx = split_info["test_indices"]
             if max(idx) >= len(y):
                 raise InputError(
@@ -205,7 +205,7 @@ def evaluate_checkpoint(
             x, y = x[idx], y[idx]
         else:
             x, y, _ = load_markers(markers)
-            _check_marker_layout(markers, x, info, checkpoint)
+            _check_marker_layout(markers, x, model, info, checkpoint)
             extra["markers"] = portable_path(markers)
         data = MarkerDataset(x, y)
     if len(data) == 0:
@@ -216,15 +216,13 @@ def evaluate_checkpoint(
         return evaluate_model(model, data, json_out, png, extra=extra, progress=progress)
 
 
-def _check_marker_layout(path, x, info, checkpoint) -> None:
+def _check_marker_layout(path, x, model, info, checkpoint) -> None:
     """Refuse markers taken from videos otherwise than the checkpoint's (``marker_layout``: a 7 x 9
     grid of every marker is not the 63 markers nearest the centre, though both hold 63)."""
-    from collections.abc import Mapping
-
+    from slipsense.models.base import window_geometry
     from slipsense.training.splits import marker_file_layout
 
-    data = info.get("data")
-    trained = ((data.get("clip_spec") or {}).get("marker_layout")) if isinstance(data, Mapping) else None
+    trained = window_geometry(model, info).get("marker_layout")
     given = marker_file_layout(path, x)
     if given != trained:
 

@@ -126,15 +126,14 @@ class DataSource:
     def markers(
         self,
         frames: int,
-        n_markers: int,
+        n_markers: str | int,
         horizon: int = 0,
         wiggle_per_video: int = 2,
         seed: int = 0,
-        grid: tuple[int, int] | None = None,
     ) -> dict[str, np.ndarray]:
-        """Real marker windows (:func:`slipsense.sensors.real.real_marker_dataset`: the ``n_markers``
-        nearest the image centre, or with ``grid`` every marker resampled onto it), labelled as
-        :meth:`labels` labels them (the same hand labels)."""
+        """Real marker windows (:func:`slipsense.sensors.real.real_marker_dataset`; ``n_markers`` a
+        layout: N markers nearest the image centre, or ``"ROWSxCOLS"``, every marker on that grid),
+        labelled as :meth:`labels` labels them (the same hand labels)."""
         from slipsense.sensors.real import real_marker_dataset
 
         arrays = real_marker_dataset(
@@ -147,7 +146,6 @@ class DataSource:
             on_error=self.on_error,
             progress=self.progress,
             overrides=self.label_overrides(),
-            grid=grid,
         )
         return arrays
 

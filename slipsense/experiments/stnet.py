@@ -125,6 +125,7 @@ def run_stnet(
     if not data or any(d not in ("sim", "real") for d in data):
         raise ConfigError("--data must name sim, real or both")
     n_markers, grid = marker_layout(markers)
+    layout_id = layout_name(markers)
     if "real" in data:
         source = source or DataSource(progress=settings.progress)
     rep = Report("stnet", settings, source if "real" in data else None)
@@ -142,11 +143,10 @@ def run_stnet(
             test_objects = held_out_objects(source, settings)
             arrays = source.markers(
                 frames=frames,
-                n_markers=n_markers,
+                n_markers=layout_id,
                 horizon=0,
                 wiggle_per_video=settings.wiggle_per_video,
                 seed=settings.data_seed,
-                grid=grid,
             )
             x, y, groups = arrays["x"], arrays["y"], np.asarray(arrays["groups"]).astype(str)
             is_test = np.isin(groups, test_objects)
@@ -157,7 +157,7 @@ def run_stnet(
             rep.config["real"] = {
                 "frames": frames,
                 "n_markers": n_markers,
-                "marker_layout": layout_name(markers),
+                "marker_layout": layout_id,
                 "test_objects": present,
             }
             split_note = f"held-out objects {', '.join(present)}"
@@ -170,7 +170,7 @@ def run_stnet(
         # the checkpoint says what it read: real markers are taken from a video alike when it is replayed
         info = {"data": {"source": kind, "kind": "markers"}}  # simulated: the binocular sensor
         if kind == "real":
-            info = {"data": {"source": kind, "clip_spec": {"marker_layout": layout_name(markers)}}}
+            info = {"data": {"source": kind, "clip_spec": {"marker_layout": layout_id}}}
         for name in ("stnet", "temnet"):
             model, history = train_model(
                 name,

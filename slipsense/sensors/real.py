@@ -20,14 +20,13 @@ from slipsense.errors import InputError
 def real_marker_dataset(
     recordings_dir: str | Path,
     frames: int = 12,
-    n_markers: int = 32,
+    n_markers: str | int = 32,
     horizon: int = 0,
     wiggle_per_video: int = 2,
     seed: int = 0,
     on_error: str = "raise",
     progress: bool = True,
     overrides: str | Path | None = None,
-    grid: tuple[int, int] | None = None,
 ) -> dict[str, np.ndarray]:
     """Marker windows of every video under ``recordings_dir``.
 
@@ -36,16 +35,16 @@ def real_marker_dataset(
     slip), ``groups`` str ``(N,)`` object names, ``experiment`` int, ``camera`` str, ``start`` int
     (first frame of the window) and ``marker_layout`` (0-d str, ``"7x9"`` or ``"32"``: :func:`~slipsense.sensors.markers.layout_name`). ``overrides``: a label overrides CSV (hand labels win), as for
     training; with ``on_error="skip"`` runs that cannot be labelled are left out with a warning.
-    ``grid = (rows, cols)``: every tracked marker resampled onto that grid of virtual markers
-    (:func:`slipsense.sensors.markers.grid_sequences`; ``n_markers`` is then ``rows * cols``)
-    instead of the ``n_markers`` markers nearest the image centre.
+    ``n_markers`` is a layout (:func:`slipsense.sensors.markers.marker_layout`): a count N, the N
+    markers nearest the image centre, or ``"ROWSxCOLS"``, every tracked marker resampled onto that
+    grid of virtual markers (:func:`slipsense.sensors.markers.grid_sequences`).
     """
     from slipsense.recordings.clips import ClipSpec, plan_windows
     from slipsense.recordings.folders import find_recordings, validate_recordings
     from slipsense.data import label_runs
     from slipsense.sensors.markers import layout_name, marker_clouds, track_recordings
 
-    layout = layout_name(f"{grid[0]}x{grid[1]}" if grid is not None else n_markers)
+    layout = layout_name(n_markers)
     spec = ClipSpec(frames=frames, horizon=horizon, wiggle_per_video=wiggle_per_video, seed=seed)
     recs = validate_recordings(find_recordings(recordings_dir, on_error=on_error), on_error=on_error)
     labels = label_runs(recs, overrides, on_error=on_error, progress=progress)

@@ -116,7 +116,7 @@ def prepare_data(req, reads: str):
             train,
             MarkerDataset(x[te], y[te]),
             split_info,
-            {"frames": int(x.shape[1]), "markers": int(x.shape[2]), "sensor": _marker_sensor(req.markers, x)},
+            {"frames": int(x.shape[1]), "markers": int(x.shape[2]), "sensor": _marker_sensor(req.markers, x, layout)},
         )
     raise ConfigError(f"model {req.model!r} reads {reads!r}: clips are cut from frames or markers only")
 
@@ -141,14 +141,15 @@ def marker_file_layout(path, x: np.ndarray) -> str | None:
     return layout_name(value.item())
 
 
-def _marker_sensor(path, x: np.ndarray) -> dict[str, Any]:
-    """The sensor of a marker file: its frame rate (the file's ``fps``, else the binocular sensor's)
-    and marker count."""
+def _marker_sensor(path, x: np.ndarray, layout: str | None) -> dict[str, Any]:
+    """The sensor of a marker file: the GelSight Mini for markers tracked in its videos (``layout``,
+    :func:`marker_file_layout`), else its frame rate (the file's ``fps``, else the binocular
+    sensor's) and marker count."""
     from dataclasses import replace
 
     from slipsense.sensors.spec import BINOCULAR_MARKERS
 
-    if marker_file_layout(path, x) is not None:  # tracked in GelSight videos: their frame rate and layout
+    if layout is not None:  # tracked in GelSight videos: their frame rate
         from slipsense.sensors.spec import GELSIGHT_MINI
 
         return replace(GELSIGHT_MINI, output="markers", markers=int(x.shape[2])).to_dict()
