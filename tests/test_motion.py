@@ -222,6 +222,45 @@ def test_anchor_lag_zero_streams_like_the_whole_run_and_trains():
         build("motionnet", lags=(0,))
 
 
+def test_before_start_none_streams_like_the_whole_run_and_differs_only_early():
+    """before_start='none': a lag whose past does not exist yet gives no difference, the same pushed,
+    whole or in chunks; once every lag's past exists the logits equal the default's."""
+    torch.manual_seed(0)
+    kw = dict(image_size=(16, 20), width=4, features=8, temporal=8, lags=(1, 5, 10), dilations=(1, 2))
+    m = build("motionnet", before_start="none", **kw).eval()
+    first = build("motionnet", **kw).eval()
+    first.load_state_dict(m.state_dict())
+    g = torch.randint(0, 256, (1, 2, 40, 16, 20)).float() / 255
+    with torch.no_grad():
+        full = torch.softmax(m(g), -1)[0, :, 1].numpy()
+        chunks = torch.softmax(m.chunk_logits([(g[0], [39, 12])], 6), -1)[:, :, 1].numpy()
+        diffs = m.differences(g)
+        other = torch.softmax(first(g), -1)[0, :, 1].numpy()
+    assert float(diffs[0, :, 3, 2].abs().max()) == 0.0 and float(diffs[0, :, 10, 2].abs().max()) > 0  # lag 10
+    assert float(diffs[0, :, 3, 1].abs().max()) == 0.0 and float(diffs[0, :, 3, 0].abs().max()) > 0  # lags 5, 1
+    st = m.stream()
+    pushed = [st.push_gray((g[0, :, t] * 255).round().byte().numpy()) for t in range(40)]
+    assert np.allclose(pushed, full, atol=1e-5)
+    assert np.allclose(chunks[0], full[34:40], atol=1e-5) and np.allclose(chunks[1], full[7:13], atol=1e-5)
+    reach = 10 + m.receptive_field - 1  # from here on nothing looks before the start
+    assert np.allclose(full[reach:], other[reach:], atol=1e-5) and not np.allclose(full[:10], other[:10], atol=1e-3)
+    with pytest.raises(ConfigError, match="before_start"):
+        build("motionnet", before_start="zero")
+    assert build("motionnet", **m.config()).config() == m.config()
+
+
+def test_before_start_none_exports_to_onnx(tmp_path):
+    from slipsense.streaming.export import export_onnx, onnx_session, run_onnx
+
+    m = _model(before_start="none")
+    result = export_onnx(m, tmp_path / "m.onnx")
+    assert max(result.max_abs_diff.values()) <= 1e-4
+    x = torch.rand(1, 2, 23, 16, 20)  # the lags' pasts appear inside the clip
+    with torch.no_grad():
+        ref = m(x).numpy()
+    assert np.abs(run_onnx(onnx_session(result.paths["model"]), x) - ref).max() <= 1e-4
+
+
 def test_a_refused_push_leaves_the_stream_as_it_was():
     """A push refused for sensor 1 must not fix sensor 0's frame size (nor count a frame)."""
     det = SlipDetector(_model(), sensors=2, threshold=0.5)
