@@ -312,3 +312,29 @@ def test_speed_jitter_plays_runs_faster_and_slower_with_their_moments():
     assert len(hist) == 2
     with pytest.raises(ConfigError, match="speed_jitter"):
         GraspTrainConfig(speed_jitter=2)
+
+
+def test_reversed_chunks_are_runs_played_backwards_every_frame_a_negative():
+    from slipsense.training.grasps import _Chunks
+
+    cfg = GraspTrainConfig(model_config={"image_size": [16, 20]}, chunk=16, negatives=2, reversed_chunks=1)
+    chunks = _Chunks(_runs(), cfg)
+    back = chunks.backwards(chunks.items)
+    assert len(back) == len(chunks.items)
+    for (gray, y, moment), (orig, _, _) in zip(back, chunks.items):
+        assert np.array_equal(gray, orig[:, ::-1]) and gray.flags.c_contiguous and moment is None and not y.any()
+    drawn = chunks.draw(np.random.default_rng(0), None, chunks.items + back)
+    per_run = {i: len(ends) for i, ends, _ in drawn}
+    n = len(chunks.items)
+    assert all(per_run[n + i] == 1 for i in range(n)) and all(per_run[i] >= 2 for i in range(n))
+    assert all((t[...] <= 0).all() for i, _, t in drawn if i >= n)
+    off = GraspTrainConfig(**{**cfg.to_dict(), "reversed_chunks": 0})
+    assert _Chunks(_runs(), off).backwards(chunks.items) == []
+    fits = [
+        fit_runs(_runs(), GraspTrainConfig(**{**c.to_dict(), "epochs": 1, "inner_folds": 0}), progress=False)[1]
+        for c in (cfg, off)
+    ]
+    assert fits[0][0]["onset_frames"] == fits[1][0]["onset_frames"]
+    assert fits[0][0]["other_frames"] > fits[1][0]["other_frames"]  # the reversed chunks' frames, all negatives
+    with pytest.raises(ConfigError, match="reversed_chunks"):
+        GraspTrainConfig(reversed_chunks=-1)

@@ -10,8 +10,10 @@ of slip, ``h`` the onset frames and ``H`` the warning horizon:
 * 0 everywhere else: the calm parts of slip runs, every frame of runs that held, frames without
   contact.
 
-Each epoch draws chunks: one ending at (or a few frames after) the moment of every slip run, and
-``negatives`` random ones from every run. A chunk carries the frames the model needs before its
+Each epoch draws chunks: one ending at (or a few frames after) the moment of every slip run,
+``negatives`` random ones from every run, and ``reversed_chunks`` random ones from every run played
+backwards (contact appearing instead of lost, wiggles and settling run backwards: motion that is
+not a slip, every frame a negative). A chunk carries the frames the model needs before its
 scored frames (lags and temporal context) so its logits equal a replay of the whole run. Positive
 and negative frames get equal total weight in the loss.
 """
@@ -60,6 +62,7 @@ class GraspTrainConfig:
     )
     accumulate: int = 1  # micro-batches per process per step (a step's runs cut into world x accumulate groups)
     speed_jitter: float = 0.0  # each epoch plays every run at a speed drawn in [1/(1+j), 1+j] (0: as recorded)
+    reversed_chunks: int = 0  # random chunks per run per epoch from the run played backwards, every frame a negative
 
     def __post_init__(self):
         checks = {
@@ -74,6 +77,7 @@ class GraspTrainConfig:
             "seed": (0, 2**32 - 1),
             "inner_folds": (0, 20),
             "accumulate": (1, 1024),
+            "reversed_chunks": (0, 100),
         }
         if self.split_seed is not None:
             checks["split_seed"] = (0, 2**32 - 1)
@@ -154,6 +158,13 @@ class _Chunks:
             taken.append(lo)
         return items, taken
 
+    def backwards(self, items: list) -> list:
+        """The runs of ``items`` played backwards, every frame a negative (none when
+        ``reversed_chunks`` is 0)."""
+        if not self.cfg.reversed_chunks:
+            return []
+        return [(np.ascontiguousarray(g[:, ::-1]), np.zeros(g.shape[1], np.int8), None) for g, _, _ in items]
+
     def draw(
         self,
         rng: np.random.Generator,
@@ -163,12 +174,15 @@ class _Chunks:
         """Chunks of one epoch, grouped by run: ``(run index, chunk ends, targets (C, chunk))`` with
         the runs in random order. ``hardness``: per run, per frame P(slip) of the current model,
         from which ``hard_negatives`` chunk ends per run are drawn among the negative frames.
-        ``items``: the runs as this epoch plays them (:meth:`played`)."""
+        ``items``: the runs as this epoch plays them (:meth:`played`), then any played backwards
+        (:meth:`backwards`), from which ``reversed_chunks`` random chunks are drawn."""
         out = []
+        forward = len(self.items)
         for i, (gray, y, moment) in enumerate(items):
             n = gray.shape[1]
-            ends = [int(rng.integers(0, n)) for _ in range(self.cfg.negatives)]
-            if hardness is not None and self.cfg.hard_negatives:
+            k = self.cfg.negatives if i < forward else self.cfg.reversed_chunks
+            ends = [int(rng.integers(0, n)) for _ in range(k)]
+            if hardness is not None and self.cfg.hard_negatives and i < forward:
                 w = np.where(y == 0, np.nan_to_num(hardness[i], nan=0.0) + 1e-3, 0.0)
                 if w.sum() > 0:
                     ends += [int(e) for e in rng.choice(n, self.cfg.hard_negatives, p=w / w.sum())]
@@ -238,6 +252,7 @@ class GraspTask:
             model.eval()
             self.hardness = _predict_items(model, self.data.items)
         self._items, taken = self.data.played(self.rng)
+        self._items = self._items + self.data.backwards(self._items)
         hardness = self.hardness
         if hardness is not None and any(t is not None for t in taken):
             hardness = [h if t is None else h[t] for h, t in zip(hardness, taken)]
