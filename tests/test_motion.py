@@ -338,3 +338,16 @@ def test_reversed_chunks_are_runs_played_backwards_every_frame_a_negative():
     assert fits[0][0]["other_frames"] > fits[1][0]["other_frames"]  # the reversed chunks' frames, all negatives
     with pytest.raises(ConfigError, match="reversed_chunks"):
         GraspTrainConfig(reversed_chunks=-1)
+
+
+def test_settle_frames_leaves_slips_lost_while_the_grasp_settles_out_of_training():
+    from slipsense.training.grasps import _Chunks
+
+    runs = _runs()  # slips lost at frame 50, 40 frames after the start-up
+    base = dict(model_config={"image_size": [16, 20]}, chunk=16)
+    kept = _Chunks(runs, GraspTrainConfig(**base, settle_frames=40)).items
+    dropped = _Chunks(runs, GraspTrainConfig(**base, settle_frames=41)).items
+    assert len(kept) == len(runs) and sum(m is not None for _, _, m in kept) == len(runs) // 2
+    assert len(dropped) == len(runs) // 2 and all(m is None for _, _, m in dropped)
+    with pytest.raises(ConfigError, match="no slip with a known moment"):
+        fit_runs(runs, GraspTrainConfig(**base, settle_frames=41, epochs=1, inner_folds=0), progress=False)

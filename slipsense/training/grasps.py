@@ -13,7 +13,9 @@ of slip, ``h`` the onset frames and ``H`` the warning horizon:
 Each epoch draws chunks: one ending at (or a few frames after) the moment of every slip run,
 ``negatives`` random ones from every run, and ``reversed_chunks`` random ones from every run played
 backwards (contact appearing instead of lost, wiggles and settling run backwards: motion that is
-not a slip, every frame a negative). A chunk carries the frames the model needs before its
+not a slip, every frame a negative). With ``settle_frames`` a slip run lost that early after the
+start-up is not trained on (a grasp that never settled: its only onset is the settling motion
+that every held grasp shows too); it is still judged. A chunk carries the frames the model needs before its
 scored frames (lags and temporal context) so its logits equal a replay of the whole run. Positive
 and negative frames get equal total weight in the loss.
 """
@@ -63,6 +65,7 @@ class GraspTrainConfig:
     accumulate: int = 1  # micro-batches per process per step (a step's runs cut into world x accumulate groups)
     speed_jitter: float = 0.0  # each epoch plays every run at a speed drawn in [1/(1+j), 1+j] (0: as recorded)
     reversed_chunks: int = 0  # random chunks per run per epoch from the run played backwards, every frame a negative
+    settle_frames: int = 0  # slip runs lost within this many frames after the start-up are not trained on
 
     def __post_init__(self):
         checks = {
@@ -78,6 +81,7 @@ class GraspTrainConfig:
             "inner_folds": (0, 20),
             "accumulate": (1, 1024),
             "reversed_chunks": (0, 100),
+            "settle_frames": (0, 5000),
         }
         if self.split_seed is not None:
             checks["split_seed"] = (0, 2**32 - 1)
@@ -131,8 +135,8 @@ class _Chunks:
             s = pergrasp.STARTUP if r.n_frames > pergrasp.STARTUP + 1 else 0
             gray = r.gray[:, s:]
             moment = None if r.moment_of_slip is None else r.moment_of_slip - s
-            if moment is not None and moment < 0:
-                continue
+            if moment is not None and moment < cfg.settle_frames:
+                continue  # lost while the grasp settles: its onset is the settling, which held grasps show too
             y = frame_targets(gray.shape[1], moment, cfg.onset_frames, cfg.horizon)
             self.items.append((gray, y, moment))
 
