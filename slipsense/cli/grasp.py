@@ -287,6 +287,9 @@ def register(app: typer.Typer) -> None:
         max_held_alarm: Optional[float] = typer.Option(
             0.05, help="at most this fraction of held grasps may alarm (0.05: 5%); a negative value: best score"
         ),
+        any_recipe: bool = typer.Option(
+            False, help="the reports may be different recipes on the same folds (an ensemble of different detectors)"
+        ),
     ):
         """Choose every fold's operating point again by another rule, on its training objects' inner
         traces, and pool: no training (seconds). Several reports: the mean of their detectors."""
@@ -295,7 +298,7 @@ def register(app: typer.Typer) -> None:
 
         check_output_dir(out, "--out")
         k = None if max_held_alarm is not None and max_held_alarm < 0 else max_held_alarm
-        rep = rechoose(src, out, k, command=_command(), echo=typer.echo)
+        rep = rechoose(src, out, k, command=_command(), echo=typer.echo, any_recipe=any_recipe)
         g = rep["pooled"]["per_grasp"]
         ci = g.get("intervals", {})
         typer.echo(

@@ -135,7 +135,9 @@ def run_folds(
     return report
 
 
-def rechoose(src, out, max_held_alarm: float | None, command: str = "", echo=print) -> dict[str, Any]:
+def rechoose(
+    src, out, max_held_alarm: float | None, command: str = "", echo=print, any_recipe: bool = False
+) -> dict[str, Any]:
     """The folds of ``src`` (a ``slipsense grasp folds`` report, or several) with every fold's operating
     point chosen again by another rule, on the inner folds' traces its fold file keeps (training
     objects only), each fold scored again on its held-out traces, pooled, written into ``out``
@@ -143,7 +145,9 @@ def rechoose(src, out, max_held_alarm: float | None, command: str = "", echo=pri
 
     Several reports of the same folds and runs (the recipe trained with other seeds) are combined
     first: each run's probability is the mean of theirs, outer and inner traces alike (an ensemble of
-    the reports' detectors, judged as the live detector averaging them would be)."""
+    the reports' detectors, judged as the live detector averaging them would be). ``any_recipe``:
+    the reports may be different recipes (models, inputs, training settings) as long as their folds
+    hold the same objects and runs and they share the horizon and number of inner folds."""
     from slipsense.errors import InputError
     from slipsense.evaluation import pergrasp
     from slipsense.evaluation.grasp_scores import fold_at
@@ -165,6 +169,7 @@ def rechoose(src, out, max_held_alarm: float | None, command: str = "", echo=pri
             for k in set(report["train_config"]) | set(other["train_config"])
             # the seeds may differ: each fold's objects and runs are compared fold by fold (_ensemble)
             if k not in ("seed", "split_seed", "max_held_alarm") and setting(report, k) != setting(other, k)
+            and (not any_recipe or k in ("horizon", "inner_folds"))
         )
         if differ or other["folds"] != report["folds"]:
             raise InputError(one, f"is another recipe than {srcs[0]} ({', '.join(differ) or 'folds'} differ)")
@@ -194,6 +199,7 @@ def rechoose(src, out, max_held_alarm: float | None, command: str = "", echo=pri
         "command": command or report.get("command", ""),
         "rechosen_from": [str(one) for one in srcs] if len(srcs) > 1 else str(srcs[0]),
         "train_config": cfg,
+        **({"member_train_configs": [r["train_config"] for r in reports]} if any_recipe and len(reports) > 1 else {}),
         "pooled": {k: v for k, v in pooled.items() if k != "curve"},
         "curve": pooled["curve"],
         "per_fold": [
