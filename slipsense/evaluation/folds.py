@@ -168,7 +168,8 @@ def rechoose(
             k
             for k in set(report["train_config"]) | set(other["train_config"])
             # the seeds may differ: each fold's objects and runs are compared fold by fold (_ensemble)
-            if k not in ("seed", "split_seed", "max_held_alarm") and setting(report, k) != setting(other, k)
+            if k not in ("seed", "split_seed", "max_held_alarm")
+            and setting(report, k) != setting(other, k)
             and (not any_recipe or k in ("horizon", "inner_folds"))
         )
         if differ or other["folds"] != report["folds"]:
