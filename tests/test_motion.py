@@ -351,3 +351,31 @@ def test_settle_frames_leaves_slips_lost_while_the_grasp_settles_out_of_training
     assert len(dropped) == len(runs) // 2 and all(m is None for _, _, m in dropped)
     with pytest.raises(ConfigError, match="no slip with a known moment"):
         fit_runs(runs, GraspTrainConfig(**base, settle_frames=41, epochs=1, inner_folds=0), progress=False)
+
+
+def test_forecast_pretraining_learns_how_much_the_gels_will_move():
+    from slipsense.training.grasps import ForecastTask, future_motion
+    from slipsense.training.trainer import LoopSettings, train
+
+    runs = _runs()
+    f = future_motion(runs[0].gray)
+    assert f.shape == (runs[0].n_frames, 2) and np.isnan(f[-1]).all() and np.isnan(f[-5:, 1]).all()
+    assert np.isfinite(f[:-5]).all() and f[45, 0] > f[10, 0]  # the stripe moves before the moment (50)
+    cfg = GraspTrainConfig(
+        model_config={"image_size": [16, 20], "width": 4, "features": 8, "temporal": 8},
+        lr=1e-2,
+        batch_size=8,
+        chunk=16,
+        negatives=2,
+        hard_negatives=1,
+        inner_folds=0,
+        pretrain_epochs=8,
+    )
+    torch.manual_seed(0)
+    model = build("motionnet", **cfg.model_config)
+    hist = train(model, ForecastTask(runs, cfg), LoopSettings(epochs=8, progress=False))
+    assert hist[-1]["train_loss"] < 0.5 * hist[0]["train_loss"]
+    _, slip = fit_runs(runs, GraspTrainConfig(**{**cfg.to_dict(), "pretrain_epochs": 2, "epochs": 2}), progress=False)
+    assert len(slip) == 2  # the slip training's epochs only
+    with pytest.raises(ConfigError, match="pretrain_epochs"):
+        GraspTrainConfig(pretrain_epochs=-1)

@@ -15,7 +15,9 @@ Each epoch draws chunks: one ending at (or a few frames after) the moment of eve
 backwards (contact appearing instead of lost, wiggles and settling run backwards: motion that is
 not a slip, every frame a negative). With ``settle_frames`` a slip run lost that early after the
 start-up is not trained on (a grasp that never settled: its only onset is the settling motion
-that every held grasp shows too); it is still judged. A chunk carries the frames the model needs before its
+that every held grasp shows too); it is still judged. With ``pretrain_epochs`` the model first
+learns without labels, on the same runs, to forecast how much the gels will move
+(:class:`ForecastTask`). A chunk carries the frames the model needs before its
 scored frames (lags and temporal context) so its logits equal a replay of the whole run. Positive
 and negative frames get equal total weight in the loss.
 """
@@ -24,6 +26,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 from dataclasses import asdict, dataclass, field
 from typing import Any, Callable, Sequence
 
@@ -66,6 +69,7 @@ class GraspTrainConfig:
     speed_jitter: float = 0.0  # each epoch plays every run at a speed drawn in [1/(1+j), 1+j] (0: as recorded)
     reversed_chunks: int = 0  # random chunks per run per epoch from the run played backwards, every frame a negative
     settle_frames: int = 0  # slip runs lost within this many frames after the start-up are not trained on
+    pretrain_epochs: int = 0  # self-supervised epochs first: every frame regresses how much the gels move next
 
     def __post_init__(self):
         checks = {
@@ -82,6 +86,7 @@ class GraspTrainConfig:
             "accumulate": (1, 1024),
             "reversed_chunks": (0, 100),
             "settle_frames": (0, 5000),
+            "pretrain_epochs": (0, 10_000),
         }
         if self.split_seed is not None:
             checks["split_seed"] = (0, 2**32 - 1)
@@ -322,6 +327,66 @@ class GraspTask:
         self.hardness = None if hard is None else [h.numpy() for h in hard]
 
 
+def future_motion(gray: np.ndarray, ahead: tuple[int, int] = (1, 5)) -> np.ndarray:
+    """``(S, N, h, w)`` uint8 frames -> ``(N, 2)`` float32: per frame, ``log1p(100 x`` the mean
+    absolute grey change (in [0, 1]) to the frames ``ahead`` later``)``, the larger over sensors;
+    NaN where that frame is beyond the run."""
+    g = gray.astype(np.float32) / 255.0
+    out = np.full((gray.shape[1], len(ahead)), np.nan, np.float32)
+    for j, k in enumerate(ahead):
+        if gray.shape[1] > k:
+            change = np.abs(g[:, k:] - g[:, :-k]).mean(axis=(2, 3)).max(axis=0)
+            out[:-k, j] = np.log1p(100.0 * change)
+    return out
+
+
+class ForecastTask(GraspTask):
+    """Self-supervised pretraining on whole runs, no labels: at every frame the model's two outputs
+    regress how much the gels will move 1 and 5 frames later (:func:`future_motion`; mean squared
+    error). A slip is the grasp changing more than it has so far, so a network that can tell how
+    much is about to change has learned part of the task from every frame of every run. Chunks are
+    drawn at random, ``negatives + hard_negatives + 1`` per run and epoch (as many as the slip
+    training draws), with the same flips."""
+
+    def __init__(self, runs: Sequence[GraspRun], cfg: GraspTrainConfig):
+        super().__init__(runs, cfg)
+        self.future = [future_motion(g) for g, _, _ in self.data.items]
+        self._identity = json.dumps({"forecast": json.loads(self._identity)}, sort_keys=True)
+
+    def optimizer(self, model):
+        opt = torch.optim.AdamW(model.parameters(), lr=self.cfg.lr, weight_decay=self.cfg.weight_decay)
+        return opt, torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=self.cfg.pretrain_epochs)
+
+    def plan(self, model, epoch: int, d, accumulate: int) -> list[Step]:
+        cfg, self._items = self.cfg, self.data.items
+        per_run = cfg.negatives + cfg.hard_negatives + 1
+        chunks = []
+        for i, (gray, _, _) in enumerate(self._items):
+            ends = [int(e) for e in self.rng.integers(0, gray.shape[1], per_run)]
+            frames = np.asarray(ends)[:, None] + np.arange(1 - cfg.chunk, 1)[None]
+            y = np.where((frames >= 0)[..., None], self.future[i][frames.clip(min=0)], np.nan)
+            chunks.append((i, ends, y.astype(np.float32)))
+        chunks = [chunks[i] for i in self.rng.permutation(len(chunks))]
+        steps = []
+        for part, dims in _groups(chunks, cfg.batch_size, cfg.flips, self.rng):
+            micro = []
+            for idx in np.array_split(np.arange(len(part)), d.world * accumulate):
+                runs = [part[i] for i in idx]
+                n = sum(int(np.isfinite(c[2]).all(-1).sum()) for c in runs)
+                micro.append((runs, dims, float(n)) if n else None)
+            steps.append(Step(micro, sum(m[2] for m in micro if m is not None)))
+        self._stats = {"forecast_frames": int(sum(s.weight for s in steps))}
+        return steps
+
+    def loss(self, net, batch, step_weight: float, world: int):
+        x, y, weight = batch
+        pred = net(x, self.cfg.chunk)
+        keep = torch.isfinite(y).all(-1)
+        mean = F.mse_loss(pred[keep], y[keep])
+        stats = torch.tensor([float(mean.detach()) * weight, weight, 0, int(keep.sum())], dtype=torch.float64)
+        return mean * (weight * world / step_weight), stats
+
+
 def _groups(chunks, size: int, flips: bool, rng: np.random.Generator):
     """Whole runs' chunks in groups of about ``size`` chunks, each with its flips (dims)."""
     part: list = []
@@ -356,6 +421,18 @@ def fit_runs(
 
     torch.manual_seed(cfg.seed)
     model = build(cfg.model, **cfg.model_config)
+    if cfg.pretrain_epochs and not (state_path is not None and Path(state_path).is_file()):
+        # a slip training's state holds the pretrained weights: after a kill it resumes from there
+        pre = LoopSettings(
+            epochs=cfg.pretrain_epochs,
+            seed=cfg.seed,
+            accumulate=cfg.accumulate,
+            device="cpu",
+            progress=progress,
+            desc=f"{cfg.model} forecast pretraining",
+        )
+        pre_state = None if state_path is None else f"{state_path}.pretrain"
+        train(model, ForecastTask(runs, cfg), pre, state_path=pre_state)
     task = GraspTask(runs, cfg)
     settings = LoopSettings(
         epochs=cfg.epochs, seed=cfg.seed, accumulate=cfg.accumulate, device="cpu", progress=progress, desc=cfg.model
