@@ -58,6 +58,18 @@ def _runs(n_runs=8, n=70, size=(16, 20), seed=0):
     return runs
 
 
+#: a small model and training for made-up runs
+TINY = dict(
+    model_config={"image_size": [16, 20], "width": 4, "features": 8, "temporal": 8},
+    lr=1e-2,
+    batch_size=8,
+    chunk=16,
+    negatives=2,
+    hard_negatives=1,
+    inner_folds=0,
+)
+
+
 def test_frame_targets():
     y = frame_targets(100, 60, onset=5, horizon=20)
     assert (y[55:61] == 1).all() and (y[40:55] == -1).all() and (y[:40] == 0).all() and (y[61:] == -1).all()
@@ -66,16 +78,7 @@ def test_frame_targets():
 
 def test_fit_learns_a_moving_stripe():
     runs = _runs()
-    cfg = GraspTrainConfig(
-        model_config={"image_size": [16, 20], "width": 4, "features": 8, "temporal": 8},
-        epochs=25,
-        lr=1e-2,
-        batch_size=8,
-        chunk=16,
-        negatives=2,
-        hard_negatives=1,
-        inner_folds=0,
-    )
+    cfg = GraspTrainConfig(**TINY, epochs=25)
     model, hist = fit_runs(runs, cfg, progress=False)
     assert len(hist) == 25 and hist[-1]["train_loss"] < hist[0]["train_loss"]
     probs = predict_runs(model, runs)
@@ -361,16 +364,7 @@ def test_forecast_pretraining_learns_how_much_the_gels_will_move():
     f = future_motion(runs[0].gray)
     assert f.shape == (runs[0].n_frames, 2) and np.isnan(f[-1]).all() and np.isnan(f[-5:, 1]).all()
     assert np.isfinite(f[:-5]).all() and f[45, 0] > f[10, 0]  # the stripe moves before the moment (50)
-    cfg = GraspTrainConfig(
-        model_config={"image_size": [16, 20], "width": 4, "features": 8, "temporal": 8},
-        lr=1e-2,
-        batch_size=8,
-        chunk=16,
-        negatives=2,
-        hard_negatives=1,
-        inner_folds=0,
-        pretrain_epochs=8,
-    )
+    cfg = GraspTrainConfig(**TINY, pretrain_epochs=8)
     torch.manual_seed(0)
     model = build("motionnet", **cfg.model_config)
     hist = train(model, ForecastTask(runs, cfg), LoopSettings(epochs=8, progress=False))
