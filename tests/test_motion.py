@@ -1,5 +1,7 @@
 """MotionNet: causal, streams equal to the whole-run forward, trains on runs, detector integration."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
@@ -373,3 +375,21 @@ def test_forecast_pretraining_learns_how_much_the_gels_will_move():
     assert len(slip) == 2  # the slip training's epochs only
     with pytest.raises(ConfigError, match="pretrain_epochs"):
         GraspTrainConfig(pretrain_epochs=-1)
+
+
+def test_pretraining_then_a_kill_resumes_to_the_same_weights(tmp_path, monkeypatch):
+    """Killed after the pretraining, before the slip training wrote a state: the rerun takes the
+    finished pretraining from its own state and ends with the uninterrupted training's weights."""
+    cfg = GraspTrainConfig(**TINY, epochs=2, pretrain_epochs=2)
+    state = tmp_path / "job.state"
+    whole, _ = fit_runs(_runs(), cfg, progress=False, state_path=state)
+    assert Path(f"{state}.pretrain").is_file()
+    state.unlink()
+
+    def no_more(*_):
+        raise AssertionError("the finished pretraining ran again")
+
+    monkeypatch.setattr("slipsense.training.grasps.ForecastTask.plan", no_more)
+    again, _ = fit_runs(_runs(), cfg, progress=False, state_path=state)
+    for key, value in whole.state_dict().items():
+        assert torch.equal(value, again.state_dict()[key]), key
