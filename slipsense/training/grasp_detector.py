@@ -229,7 +229,7 @@ def train_detector(
         workers = 1
     state_dir = out / "resume"
     if d.main and not resume and state_dir.is_dir():
-        for stale in state_dir.glob("job*.state"):
+        for stale in state_dir.glob("job*.state*"):  # a pretraining's state too
             stale.unlink()
     if d.world > 1:
         import torch.distributed as dist
