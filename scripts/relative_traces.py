@@ -38,7 +38,7 @@ def _recent_max(z, far=60, near=15):
     for t in range(len(z)):
         w = z[max(STARTUP, t - far) : max(STARTUP, t - near)]
         w = w[np.isfinite(w)]
-        out[t] = z[t] - (w.max() if len(w) else 0.0)
+        out[t] = z[t] - w.max() if len(w) else np.nan  # no past yet: no alarm
     return out
 
 
@@ -58,7 +58,8 @@ def _trace(run, transform):
     return 1 / (1 + np.exp(-np.clip(z, -50, 50)))
 
 
-def pooled(report: Path, transform, max_held_alarm: float) -> dict:
+def pooled(report: Path, transform, max_held_alarm: float | None) -> dict:
+    horizon = json.loads((report / "folds.json").read_text())["train_config"]["horizon"]
     outcomes = []
     for path in sorted(report.glob("fold[0-9]*.json")):
         fold = json.loads(path.read_text())
@@ -69,6 +70,7 @@ def pooled(report: Path, transform, max_held_alarm: float) -> dict:
             inner,
             [r["moment_of_slip"] for r in fold["inner"]],
             thresholds=sorted(grid | set(pergrasp.THRESHOLDS) | set(pergrasp.FINE_TAIL)),
+            horizon=horizon,
             max_held_alarm=max_held_alarm,
         )
         for r in fold["runs"]:
@@ -76,18 +78,19 @@ def pooled(report: Path, transform, max_held_alarm: float) -> dict:
             rest = np.zeros(len(x), dtype=bool)
             rest[r["rest"]] = True
             alarms = pergrasp.debounce(x, op["threshold"], op["debounce"])
-            outcomes.append(pergrasp.grasp_outcome(alarms, r["moment_of_slip"], pergrasp.HORIZON, rest=rest))
+            outcomes.append(pergrasp.grasp_outcome(alarms, r["moment_of_slip"], horizon, rest=rest))
     return pergrasp.summarise(outcomes)
 
 
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("reports", nargs="+", type=Path)
-    parser.add_argument("--max-held-alarm", type=float, default=0.05)
+    parser.add_argument("--max-held-alarm", type=float, default=0.05, help="a negative value: best score")
     args = parser.parse_args()
+    k = None if args.max_held_alarm < 0 else args.max_held_alarm
     for report in args.reports:
         for name, transform in REFERENCES.items():
-            s = pooled(report, transform, args.max_held_alarm)
+            s = pooled(report, transform, k)
             print(
                 f"{report}  {name:10s}  warned {s['warned']}/{s['slip_runs']}  premature {s['premature']}  "
                 f"false-positive grasps {s['false_positive_grasps']}/{s['held_runs']}  median lead {s['median_lead_frames']}"

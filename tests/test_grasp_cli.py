@@ -339,3 +339,16 @@ def test_python_m_slipsense_cli_runs():
 
     out = subprocess.run([sys.executable, "-m", "slipsense.cli", "models"], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0 and "motionnet" in out.stdout, out.stderr
+
+
+def test_a_fold_written_before_later_settings_existed_is_still_recognised():
+    """A fold file records the key of its settings; settings added later, at their defaults, are
+    left out of the key such a file was written with, so resuming it does not train it again."""
+    from slipsense.evaluation.folds import _ADDED_LATER, _config_key
+    from slipsense.training.grasps import GraspTrainConfig
+
+    cfg, runs = GraspTrainConfig(), []
+    now, before = _config_key(cfg, 5, runs), _config_key(cfg, 5, runs, as_before=True)
+    assert now != before and set(_ADDED_LATER) <= set(cfg.to_dict())
+    other = GraspTrainConfig(settle_frames=5)
+    assert _config_key(other, 5, runs, as_before=True) not in (now, before)

@@ -37,10 +37,19 @@ from slipsense.training.grasps import GraspTrainConfig
 from slipsense.recordings.runs import GraspRun, runs_summary
 
 
-def _config_key(cfg: GraspTrainConfig, folds: int, runs: Sequence[GraspRun]) -> str:
-    """What a finished fold depends on: the settings, the folds and every run's label."""
+#: training settings added after fold files were first written, with their defaults
+_ADDED_LATER = {"reversed_chunks": 0, "settle_frames": 0, "pretrain_epochs": 0}
+
+
+def _config_key(cfg: GraspTrainConfig, folds: int, runs: Sequence[GraspRun], as_before: bool = False) -> str:
+    """What a finished fold depends on: the settings, the folds and every run's label.
+    ``as_before``: the key a fold written before the settings in ``_ADDED_LATER`` existed has
+    (those at their defaults left out), so a report started then is resumed, not trained again."""
     labels = sorted((r.object, r.experiment, r.slipped, r.moment_of_slip) for r in runs)
-    text = json.dumps({"cfg": cfg.to_dict(), "folds": folds, "labels": labels}, sort_keys=True)
+    settings = cfg.to_dict()
+    if as_before:
+        settings = {k: v for k, v in settings.items() if k not in _ADDED_LATER or v != _ADDED_LATER[k]}
+    text = json.dumps({"cfg": settings, "folds": folds, "labels": labels}, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
@@ -66,9 +75,10 @@ def run_folds(
     usable = [r for r in runs if r.usable]
     split = object_split(usable, folds, cfg.folds_seed)
     key = _config_key(cfg, folds, usable)
+    keys = {key, _config_key(cfg, folds, usable, as_before=True)}
     done: dict[int, dict[str, Any]] = {}
     for k in range(len(split)):
-        prior = _load_fold(out / f"fold{k}.json", key)
+        prior = _load_fold(out / f"fold{k}.json", keys)
         if prior is not None:
             done[k] = prior
             _echo_fold(echo, k, split[k], prior, resumed=True)
@@ -285,12 +295,12 @@ def _echo_fold(echo, k: int, held: Sequence[str], done: dict[str, Any], resumed:
     )
 
 
-def _load_fold(path: Path, key: str) -> dict[str, Any] | None:
+def _load_fold(path: Path, keys: set[str]) -> dict[str, Any] | None:
     try:
         doc = json.loads(path.read_text())
     except (OSError, ValueError):
         return None
-    return doc if isinstance(doc, dict) and doc.get("config_key") == key else None
+    return doc if isinstance(doc, dict) and doc.get("config_key") in keys else None
 
 
 def _json_safe(x):
