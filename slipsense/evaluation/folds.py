@@ -244,7 +244,7 @@ def _ensemble(folds: Sequence[dict[str, Any]], paths: Sequence[Path]) -> dict[st
 
     if len(folds) == 1:
         return folds[0]
-    ident = lambda rows: [(r["object"], r["experiment"], len(r["probability"])) for r in rows]  # noqa: E731
+    ident = lambda rows: [(r["object"], r["experiment"], r["moment_of_slip"], len(r["probability"])) for r in rows]  # noqa: E731
     for f, path in zip(folds[1:], paths[1:]):
         if f["objects"] != folds[0]["objects"] or ident(f["runs"]) != ident(folds[0]["runs"]):
             raise InputError(path, f"holds other objects or runs than {paths[0]}")
