@@ -27,7 +27,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -230,6 +230,7 @@ class GraspTask:
     def __init__(self, runs: Sequence[GraspRun], cfg: GraspTrainConfig):
         self.cfg = cfg
         self.rng = np.random.default_rng(cfg.seed)
+        self.epochs = cfg.epochs  # the schedule's length
         self.data = _Chunks(runs, cfg)
         if not self.data.items:
             raise ConfigError("no usable training runs (every run excluded, or slip runs without a moment)")
@@ -253,7 +254,7 @@ class GraspTask:
 
     def optimizer(self, model):
         opt = torch.optim.AdamW(model.parameters(), lr=self.cfg.lr, weight_decay=self.cfg.weight_decay)
-        return opt, torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=self.cfg.epochs)
+        return opt, torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=self.epochs)
 
     def plan(self, model, epoch: int, d, accumulate: int) -> list[Step]:
         cfg = self.cfg
@@ -271,16 +272,12 @@ class GraspTask:
         self.weight = torch.tensor([1.0, cfg.positive_weight * n_neg / max(n_pos, 1)])
         self._stats = {"onset_frames": n_pos, "other_frames": n_neg}
         w = self.weight.double().numpy()
-        steps = []
-        for part, dims in _groups(chunks, cfg.batch_size, cfg.flips, self.rng):
-            micro = []
-            for idx in np.array_split(np.arange(len(part)), d.world * accumulate):
-                runs = [part[i] for i in idx]
-                y = np.concatenate([c[2] for c in runs]) if runs else np.zeros(0, np.int64)
-                kept = y[y >= 0]
-                micro.append((runs, dims, float(w[kept].sum())) if kept.size else None)
-            steps.append(Step(micro, sum(m[2] for m in micro if m is not None)))
-        return steps
+
+        def weigh(runs) -> float:
+            y = np.concatenate([c[2] for c in runs]) if runs else np.zeros(0, np.int64)
+            return float(w[y[y >= 0]].sum())
+
+        return _steps(chunks, cfg, self.rng, d.world * accumulate, weigh)
 
     def batches(self, steps, epoch: int, d, accumulate: int):
         mine = range(d.rank * accumulate, (d.rank + 1) * accumulate)
@@ -352,10 +349,7 @@ class ForecastTask(GraspTask):
         super().__init__(runs, cfg)
         self.future = [future_motion(g) for g, _, _ in self.data.items]
         self._identity = json.dumps({"forecast": json.loads(self._identity)}, sort_keys=True)
-
-    def optimizer(self, model):
-        opt = torch.optim.AdamW(model.parameters(), lr=self.cfg.lr, weight_decay=self.cfg.weight_decay)
-        return opt, torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=self.cfg.pretrain_epochs)
+        self.epochs = cfg.pretrain_epochs
 
     def plan(self, model, epoch: int, d, accumulate: int) -> list[Step]:
         cfg, self._items = self.cfg, self.data.items
@@ -367,14 +361,8 @@ class ForecastTask(GraspTask):
             y = np.where((frames >= 0)[..., None], self.future[i][frames.clip(min=0)], np.nan)
             chunks.append((i, ends, y.astype(np.float32)))
         chunks = [chunks[i] for i in self.rng.permutation(len(chunks))]
-        steps = []
-        for part, dims in _groups(chunks, cfg.batch_size, cfg.flips, self.rng):
-            micro = []
-            for idx in np.array_split(np.arange(len(part)), d.world * accumulate):
-                runs = [part[i] for i in idx]
-                n = sum(int(np.isfinite(c[2]).all(-1).sum()) for c in runs)
-                micro.append((runs, dims, float(n)) if n else None)
-            steps.append(Step(micro, sum(m[2] for m in micro if m is not None)))
+        weigh = lambda runs: float(sum(int(np.isfinite(c[2]).all(-1).sum()) for c in runs))  # noqa: E731
+        steps = _steps(chunks, cfg, self.rng, d.world * accumulate, weigh)
         self._stats = {"forecast_frames": int(sum(s.weight for s in steps))}
         return steps
 
@@ -385,6 +373,20 @@ class ForecastTask(GraspTask):
         mean = F.mse_loss(pred[keep], y[keep])
         stats = torch.tensor([float(mean.detach()) * weight, weight, 0, int(keep.sum())], dtype=torch.float64)
         return mean * (weight * world / step_weight), stats
+
+
+def _steps(chunks, cfg: GraspTrainConfig, rng: np.random.Generator, parts: int, weigh) -> list[Step]:
+    """Steps of whole runs' chunks (:func:`_groups`), each cut into ``parts`` micro-batches
+    ``(runs, flips, weight)`` (None where ``weigh(runs)``, the loss weight, is 0)."""
+    steps = []
+    for part, dims in _groups(chunks, cfg.batch_size, cfg.flips, rng):
+        micro = []
+        for idx in np.array_split(np.arange(len(part)), parts):
+            runs = [part[i] for i in idx]
+            weight = weigh(runs)
+            micro.append((runs, dims, weight) if weight > 0 else None)
+        steps.append(Step(micro, sum(m[2] for m in micro if m is not None)))
+    return steps
 
 
 def _groups(chunks, size: int, flips: bool, rng: np.random.Generator):
@@ -421,22 +423,15 @@ def fit_runs(
 
     torch.manual_seed(cfg.seed)
     model = build(cfg.model, **cfg.model_config)
-    if cfg.pretrain_epochs and not (state_path is not None and Path(state_path).is_file()):
-        # a slip training's state holds the pretrained weights: after a kill it resumes from there
-        pre = LoopSettings(
-            epochs=cfg.pretrain_epochs,
-            seed=cfg.seed,
-            accumulate=cfg.accumulate,
-            device="cpu",
-            progress=progress,
-            desc=f"{cfg.model} forecast pretraining",
-        )
-        pre_state = None if state_path is None else f"{state_path}.pretrain"
-        train(model, ForecastTask(runs, cfg), pre, state_path=pre_state)
-    task = GraspTask(runs, cfg)
     settings = LoopSettings(
         epochs=cfg.epochs, seed=cfg.seed, accumulate=cfg.accumulate, device="cpu", progress=progress, desc=cfg.model
     )
+    if cfg.pretrain_epochs and not (state_path is not None and Path(state_path).is_file()):
+        # a slip training's state holds the pretrained weights: after a kill it resumes from there
+        pre = replace(settings, epochs=cfg.pretrain_epochs, desc=f"{cfg.model} forecast pretraining")
+        pre_state = None if state_path is None else f"{state_path}.pretrain"
+        train(model, ForecastTask(runs, cfg), pre, state_path=pre_state)
+    task = GraspTask(runs, cfg)
     history = train(model, task, settings, out=out, info=info, state_path=state_path, on_epoch=on_epoch)
     return model.eval(), history
 
