@@ -343,12 +343,20 @@ def test_python_m_slipsense_cli_runs():
 
 def test_a_fold_written_before_later_settings_existed_is_still_recognised():
     """A fold file records the key of its settings; settings added later, at their defaults, are
-    left out of the key such a file was written with, so resuming it does not train it again."""
-    from slipsense.evaluation.folds import _ADDED_LATER, _config_key
+    left out of the key such a file was written with, whichever of them existed then, so resuming
+    it does not train it again."""
+    import hashlib
+    import json
+
+    from slipsense.evaluation.folds import _ADDED_LATER, _config_keys
     from slipsense.training.grasps import GraspTrainConfig
 
     cfg, runs = GraspTrainConfig(), []
-    now, before = _config_key(cfg, 5, runs), _config_key(cfg, 5, runs, as_before=True)
-    assert now != before and set(_ADDED_LATER) <= set(cfg.to_dict())
-    other = GraspTrainConfig(settle_frames=5)
-    assert _config_key(other, 5, runs, as_before=True) not in (now, before)
+    keys = _config_keys(cfg, 5, runs)
+    assert len(keys) == 2 ** len(_ADDED_LATER) and set(_ADDED_LATER) <= set(cfg.to_dict())
+    for i in range(len(_ADDED_LATER)):  # written when only one of them existed
+        one = {k: v for k, v in cfg.to_dict().items() if k not in _ADDED_LATER or k == list(_ADDED_LATER)[i]}
+        text = json.dumps({"cfg": one, "folds": 5, "labels": []}, sort_keys=True)
+        assert hashlib.sha256(text.encode()).hexdigest()[:16] in keys
+    other = _config_keys(GraspTrainConfig(settle_frames=5), 5, runs)
+    assert not set(other) & set(keys)

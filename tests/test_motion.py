@@ -345,6 +345,24 @@ def test_reversed_chunks_are_runs_played_backwards_every_frame_a_negative():
         GraspTrainConfig(reversed_chunks=-1)
 
 
+def test_reversed_before_slip_plays_slip_runs_backwards_only_before_their_warning_horizon():
+    from slipsense.training.grasps import _Chunks
+
+    cfg = GraspTrainConfig(model_config={"image_size": [16, 20]}, chunk=16, reversed_chunks=1, horizon=20)
+    cfg = GraspTrainConfig(**{**cfg.to_dict(), "reversed_before_slip": True})
+    chunks = _Chunks(_runs(), cfg)
+    back = chunks.backwards(chunks.items)
+    assert len(back) == len(chunks.items)
+    for (gray, y, moment), (orig, _, m) in zip(back, chunks.items):
+        kept = orig if m is None else orig[:, : m - 20]  # the onset, its horizon and the loss left out
+        assert np.array_equal(gray, kept[:, ::-1]) and moment is None and not y.any()
+    assert any(m is not None for _, _, m in chunks.items)
+    short = _Chunks(_runs(), GraspTrainConfig(**{**cfg.to_dict(), "horizon": 50}))
+    assert len(short.backwards(short.items)) == sum(m is None for _, _, m in short.items)  # nothing before it
+    with pytest.raises(ConfigError, match="reversed_before_slip"):
+        GraspTrainConfig(reversed_before_slip="yes")
+
+
 def test_settle_frames_leaves_slips_lost_while_the_grasp_settles_out_of_training():
     from slipsense.training.grasps import _Chunks
 

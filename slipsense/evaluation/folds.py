@@ -13,6 +13,7 @@ config skips the folds already done, so a killed run continues where it stopped.
 from __future__ import annotations
 
 import hashlib
+import itertools
 import json
 import warnings
 import math
@@ -38,19 +39,32 @@ from slipsense.recordings.runs import GraspRun, runs_summary
 
 
 #: training settings added after fold files were first written, with their defaults
-_ADDED_LATER = {"reversed_chunks": 0, "settle_frames": 0, "pretrain_epochs": 0}
+#: training settings added after the first reports were written, with their defaults
+_ADDED_LATER = {
+    "accumulate": 1,
+    "speed_jitter": 0.0,
+    "reversed_chunks": 0,
+    "settle_frames": 0,
+    "pretrain_epochs": 0,
+    "reversed_before_slip": False,
+}
 
 
-def _config_key(cfg: GraspTrainConfig, folds: int, runs: Sequence[GraspRun], as_before: bool = False) -> str:
-    """What a finished fold depends on: the settings, the folds and every run's label.
-    ``as_before``: the key a fold written before the settings in ``_ADDED_LATER`` existed has
-    (those at their defaults left out), so a report started then is resumed, not trained again."""
+def _config_keys(cfg: GraspTrainConfig, folds: int, runs: Sequence[GraspRun]) -> list[str]:
+    """What a finished fold depends on: the settings, the folds and every run's label. The first key
+    is today's; the others are those a fold written before some of the settings in ``_ADDED_LATER``
+    existed has (any of them at their defaults left out), so a report started then is resumed, not
+    trained again."""
     labels = sorted((r.object, r.experiment, r.slipped, r.moment_of_slip) for r in runs)
     settings = cfg.to_dict()
-    if as_before:
-        settings = {k: v for k, v in settings.items() if k not in _ADDED_LATER or v != _ADDED_LATER[k]}
-    text = json.dumps({"cfg": settings, "folds": folds, "labels": labels}, sort_keys=True)
-    return hashlib.sha256(text.encode()).hexdigest()[:16]
+    at_default = [k for k, v in _ADDED_LATER.items() if settings[k] == v]
+    keys = []
+    for n in range(len(at_default) + 1):
+        for absent in itertools.combinations(at_default, n):
+            kept = {k: v for k, v in settings.items() if k not in absent}
+            text = json.dumps({"cfg": kept, "folds": folds, "labels": labels}, sort_keys=True)
+            keys.append(hashlib.sha256(text.encode()).hexdigest()[:16])
+    return keys
 
 
 def run_folds(
@@ -74,8 +88,8 @@ def run_folds(
     out = Path(out)
     usable = [r for r in runs if r.usable]
     split = object_split(usable, folds, cfg.folds_seed)
-    key = _config_key(cfg, folds, usable)
-    keys = {key, _config_key(cfg, folds, usable, as_before=True)}
+    keys = _config_keys(cfg, folds, usable)
+    key = keys[0]
     done: dict[int, dict[str, Any]] = {}
     for k in range(len(split)):
         prior = _load_fold(out / f"fold{k}.json", keys)
@@ -295,7 +309,7 @@ def _echo_fold(echo, k: int, held: Sequence[str], done: dict[str, Any], resumed:
     )
 
 
-def _load_fold(path: Path, keys: set[str]) -> dict[str, Any] | None:
+def _load_fold(path: Path, keys: Sequence[str]) -> dict[str, Any] | None:
     try:
         doc = json.loads(path.read_text())
     except (OSError, ValueError):

@@ -68,6 +68,7 @@ class GraspTrainConfig:
     accumulate: int = 1  # micro-batches per process per step (a step's runs cut into world x accumulate groups)
     speed_jitter: float = 0.0  # each epoch plays every run at a speed drawn in [1/(1+j), 1+j] (0: as recorded)
     reversed_chunks: int = 0  # random chunks per run per epoch from the run played backwards, every frame a negative
+    reversed_before_slip: bool = False  # reversed chunks of slip runs only from before the warning horizon
     settle_frames: int = 0  # slip runs lost within this many frames after the start-up are not trained on
     pretrain_epochs: int = 0  # self-supervised epochs first: every frame regresses how much the gels move next
 
@@ -99,6 +100,8 @@ class GraspTrainConfig:
             positive = key in ("lr", "positive_weight")
             if not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0 or (positive and v == 0):
                 raise ConfigError(f"{key} must be a finite number {'> 0' if positive else '>= 0'}, got {v!r}")
+        if not isinstance(self.reversed_before_slip, bool):
+            raise ConfigError(f"reversed_before_slip must be true or false, got {self.reversed_before_slip!r}")
         if self.inner_folds == 1:
             raise ConfigError("inner_folds must be 0 or at least 2")
         j = self.speed_jitter
@@ -169,10 +172,19 @@ class _Chunks:
 
     def backwards(self, items: list) -> list:
         """The runs of ``items`` played backwards, every frame a negative (none when
-        ``reversed_chunks`` is 0)."""
+        ``reversed_chunks`` is 0). With ``reversed_before_slip`` a slip run is played backwards only
+        up to ``horizon`` frames before its moment: a loss of contact played backwards is contact
+        appearing, as large a change as the loss, and would teach that the size of a change says
+        nothing."""
         if not self.cfg.reversed_chunks:
             return []
-        return [(np.ascontiguousarray(g[:, ::-1]), np.zeros(g.shape[1], np.int8), None) for g, _, _ in items]
+        out = []
+        for g, _, moment in items:
+            if moment is not None and self.cfg.reversed_before_slip:
+                g = g[:, : max(0, moment - self.cfg.horizon)]
+            if g.shape[1] >= 2:
+                out.append((np.ascontiguousarray(g[:, ::-1]), np.zeros(g.shape[1], np.int8), None))
+        return out
 
     def draw(
         self,
