@@ -6,7 +6,9 @@ of frames (a better detector), not a better threshold.
 
     .venv/bin/python scripts/ceiling.py reports/grasp-motionnet-k5 reports/grasp-motion-energy [--fp 4 8 13]
 
-Reports whose fold files were not committed (only folds.json) are skipped.
+Reports whose fold files were not committed (only folds.json) are skipped. `--phases` also prints
+where the ten highest peaks of the held grasps lie (the alarms any threshold must stay above) and when
+the slips are lost (frames from the start of the recording).
 """
 
 import argparse
@@ -48,6 +50,7 @@ def ceiling(probabilities, moments, horizon, max_false_positives):
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("reports", nargs="+", type=Path)
+    parser.add_argument("--phases", action="store_true", help="where held grasps peak and slips are lost")
     parser.add_argument("--fp", nargs="+", type=int, default=[4, 8, 13], help="false-positive grasps allowed")
     args = parser.parse_args()
     for report in args.reports:
@@ -63,3 +66,12 @@ if __name__ == "__main__":
                 f"{r['false_positive_grasps']}/{r['held_runs']} FP, lead {r['median_lead_frames']}"
             )
         print(f"{report}: " + " | ".join(cells), flush=True)
+        if args.phases:
+            probabilities, moments, _ = traces
+            held = sorted(((np.nanmax(p), int(np.nanargmax(p))) for p, m in zip(probabilities, moments) if m is None))
+            lost = np.array([m for m in moments if m is not None])
+            print(
+                f"  held grasps' 10 highest peaks at frames {sorted(t for _, t in held[-10:])}; "
+                f"slips lost at frames < 60: {(lost < 60).sum()}, 60-150: {((lost >= 60) & (lost <= 150)).sum()}, "
+                f"> 150: {(lost > 150).sum()}"
+            )
