@@ -127,6 +127,6 @@ if __name__ == "__main__":
                 print(
                     f"{report}  {signal:9s} {mode:5s}  warned {s['warned']}/{s['slip_runs']}  premature {s['premature']}  "
                     f"false-positive grasps {s['false_positive_grasps']}/{s['held_runs']}  median lead {s['median_lead_frames']}  "
-                    f"points {[(None if g is None else round(g, 3), t, d) for g, t, d in chosen]}",
+                    f"points {[(None if g is None else round(float(g), 3), t, d) for g, t, d in chosen]}",
                     flush=True,
                 )
