@@ -354,6 +354,8 @@ def test_a_fold_written_before_later_settings_existed_is_still_recognised():
     cfg, runs = GraspTrainConfig(), []
     keys = _config_keys(cfg, 5, runs)
     assert len(keys) == 2 ** len(_ADDED_LATER) and set(_ADDED_LATER) <= set(cfg.to_dict())
+    today = json.dumps({"cfg": cfg.to_dict(), "folds": 5, "labels": []}, sort_keys=True)
+    assert keys[0] == hashlib.sha256(today.encode()).hexdigest()[:16]  # the one new fold files are written with
     for i in range(len(_ADDED_LATER)):  # written when only one of them existed
         one = {k: v for k, v in cfg.to_dict().items() if k not in _ADDED_LATER or k == list(_ADDED_LATER)[i]}
         text = json.dumps({"cfg": one, "folds": 5, "labels": []}, sort_keys=True)
