@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from slipsense.evaluation import pergrasp
+from slipsense.evaluation.grasp_scores import stored_trace
 from slipsense.evaluation.pergrasp import STARTUP
 
 DEBOUNCES = (1, 2, 3, 5)
@@ -41,7 +42,7 @@ def held_out_traces(report: Path):
     probabilities, moments, folds = [], [], []
     for k, path in enumerate(files):
         for run in json.loads(path.read_text())["runs"]:
-            probabilities.append(np.array([np.nan if v is None else v for v in run["probability"]], dtype=float))
+            probabilities.append(stored_trace(run))
             moments.append(run["moment_of_slip"])
             folds.append(k)
     return probabilities, moments, horizon, np.array(folds)

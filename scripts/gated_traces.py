@@ -18,6 +18,7 @@ import numpy as np
 
 from slipsense import config
 from slipsense.evaluation import pergrasp
+from slipsense.evaluation.grasp_scores import stored_trace
 from slipsense.evaluation.pergrasp import STARTUP
 from slipsense.recordings.folders import find_recordings
 from slipsense.recordings.labels import label_recordings
@@ -49,7 +50,7 @@ SIGNALS = {
 
 
 def _probability(run):
-    p = np.array([np.nan if v is None else v for v in run["probability"]], dtype=float)
+    p = stored_trace(run)
     p[:STARTUP] = np.nan
     return p
 

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from slipsense.evaluation.grasp_scores import stored_trace
 from slipsense.evaluation.pergrasp import STARTUP
 
 parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -26,7 +27,7 @@ for report in args.reports:
             if run["moment_of_slip"] is not None:
                 continue
             held += 1
-            p = np.array([np.nan if v is None else v for v in run["probability"]], dtype=float)
+            p = stored_trace(run)
             p[:STARTUP] = np.nan
             if np.nanmax(p) >= args.above:
                 peaks.append(int(np.nanargmax(p)))

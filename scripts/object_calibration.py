@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from slipsense.evaluation import pergrasp
+from slipsense.evaluation.grasp_scores import stored_trace
 from slipsense.evaluation.pergrasp import STARTUP
 
 
@@ -32,8 +33,7 @@ def held_out_runs(report: Path):
     for path in sorted(report.glob("fold[0-9]*.json")):
         fold = json.loads(path.read_text())
         for r in fold["runs"]:
-            p = np.array([np.nan if v is None else v for v in r["probability"]], dtype=float)
-            runs.append((r["object"], r["moment_of_slip"], p, fold["operating_point"]))
+            runs.append((r["object"], r["moment_of_slip"], stored_trace(r), fold["operating_point"]))
     return runs
 
 

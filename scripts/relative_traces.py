@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from slipsense.evaluation import pergrasp
+from slipsense.evaluation.grasp_scores import stored_trace
 from slipsense.evaluation.pergrasp import STARTUP
 
 
@@ -52,7 +53,7 @@ REFERENCES = {"none": lambda z: z, "grasp-mean": _grasp_mean, "recent-max": _rec
 
 
 def _trace(run, transform):
-    p = np.array([np.nan if v is None else v for v in run["probability"]], dtype=float)
+    p = stored_trace(run)
     z = transform(_logit(p))
     z[:STARTUP] = np.nan
     return 1 / (1 + np.exp(-np.clip(z, -50, 50)))

@@ -25,7 +25,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from slipsense import atomic
-from slipsense.evaluation.grasp_scores import fold_result, pool_folds
+from slipsense.evaluation.grasp_scores import fold_result, pool_folds, stored_trace
 from slipsense.training.grasp_detector import (
     finish_training,
     fit_job,
@@ -38,7 +38,6 @@ from slipsense.training.grasps import GraspTrainConfig
 from slipsense.recordings.runs import GraspRun, runs_summary
 
 
-#: training settings added after fold files were first written, with their defaults
 #: training settings added after the first reports were written, with their defaults
 _ADDED_LATER = {
     "accumulate": 1,
@@ -211,7 +210,7 @@ def rechoose(
                     f"was written with other settings than the folds before it (config keys {sorted(map(str, seen))})",
                 )
         fold = _ensemble(members, paths)
-        probs = [np.array([np.nan if v is None else v for v in r["probability"]]) for r in fold["inner"]]
+        probs = [stored_trace(r) for r in fold["inner"]]
         op = pergrasp.choose_operating_point(
             probs, [r["moment_of_slip"] for r in fold["inner"]], horizon=cfg["horizon"], max_held_alarm=max_held_alarm
         )
@@ -268,7 +267,7 @@ def _ensemble(folds: Sequence[dict[str, Any]], paths: Sequence[Path]) -> dict[st
     def mean(rows_per_fold):
         out = []
         for rows in zip(*rows_per_fold):
-            p = np.array([[np.nan if v is None else v for v in r["probability"]] for r in rows], dtype=float)
+            p = np.array([stored_trace(r) for r in rows])
             with np.errstate(invalid="ignore"), warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)  # start-up frames: NaN in every member
                 m = np.nanmean(p, axis=0)

@@ -16,6 +16,12 @@ from slipsense.evaluation import pergrasp
 from slipsense.recordings.runs import GraspRun
 
 
+def stored_trace(run: dict[str, Any]) -> np.ndarray:
+    """``(N,)`` float64 P(slip) of a run as a fold file keeps it (``null`` where the detector gave
+    no answer, NaN here)."""
+    return np.array([np.nan if v is None else v for v in run["probability"]], dtype=np.float64)
+
+
 def clip_scores(
     runs: Sequence[GraspRun], probs: Sequence[np.ndarray], labels: dict, frames: int = 5
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -118,7 +124,7 @@ def pool_folds(folds: Sequence[dict[str, Any]], thresholds: Sequence[float] | No
     traces, moments, rests = [], [], []
     for f in folds:
         for r in f["runs"]:
-            p = np.array([np.nan if v is None else v for v in r["probability"]], dtype=np.float64)
+            p = stored_trace(r)
             rest = np.zeros(len(p), dtype=bool)
             rest[r["rest"]] = True
             traces.append(p)
@@ -165,7 +171,7 @@ def fold_at(fold: dict[str, Any], op: dict[str, Any], horizon: int) -> dict[str,
     where a threshold near 0.9999 can decide differently than the full-precision trace would)."""
     runs, outs = [], []
     for r in fold["runs"]:
-        p = np.array([np.nan if v is None else v for v in r["probability"]], dtype=np.float64)
+        p = stored_trace(r)
         rest = np.zeros(len(p), dtype=bool)
         rest[r["rest"]] = True
         o = pergrasp.grasp_outcome(
