@@ -147,15 +147,14 @@ def test_motion_energy_baseline_streams_and_trains():
     st = m.stream()
     assert np.allclose([st.push_gray((g[0, :, t] * 255).round().byte().numpy()) for t in range(30)], full, atol=1e-5)
     cfg = GraspTrainConfig(
-        model="motion-energy",
-        model_config={"image_size": [16, 20], "lags": [1, 5, 10]},
-        epochs=30,
-        lr=5e-2,
-        batch_size=8,
-        chunk=16,
-        negatives=2,
-        hard_negatives=0,
-        inner_folds=0,
+        **{
+            **TINY,
+            "model": "motion-energy",
+            "model_config": {"image_size": [16, 20], "lags": [1, 5, 10]},
+            "epochs": 30,
+            "lr": 5e-2,
+            "hard_negatives": 0,
+        }
     )
     model, hist = fit_runs(_runs(), cfg, progress=False)
     assert hist[-1]["train_loss"] < hist[0]["train_loss"]
