@@ -8,13 +8,35 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import tempfile
 from pathlib import Path
 from typing import Callable, Iterator
 
 
-def _why(exc: OSError) -> str:
-    return exc.strerror or str(exc)
+def _why(exc: BaseException) -> str:
+    """What went wrong, in the system's words: ``No space left on device``."""
+    if isinstance(exc, OSError):
+        return exc.strerror or str(exc)
+    text = str(exc)
+    # safetensors reports an I/O error inside its own message: 'Error while serializing: I/O error:
+    # No space left on device (os error 28) at path ...' (0.5 and later) or '... IoError(Os { code:
+    # 28, kind: StorageFull, message: "No space left on device" })' (before)
+    for pattern in (r"I/O error: (.+?) \(os error \d+\)", r'IoError\(Os \{.*?message: "(.+?)"'):
+        found = re.search(pattern, text)
+        if found:
+            return found.group(1)
+    return text
+
+
+def _serialiser_errors() -> tuple[type[BaseException], ...]:
+    """Errors that writers raise for a failed write which are not OSErrors: safetensors raises its
+    own SafetensorError when the disk is full."""
+    try:
+        from safetensors import SafetensorError
+    except ImportError:  # pragma: no cover - a dependency; without it nothing writes safetensors
+        return ()
+    return (SafetensorError,)
 
 
 @contextlib.contextmanager
@@ -24,7 +46,8 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     The temporary file keeps the final suffix so libraries that look at the extension
     (numpy, matplotlib, safetensors) behave. On error the temporary file is removed. A place that
     cannot be written (a folder in the way, a read-only folder, a full disk) raises
-    :class:`~slipsense.errors.OutputError` naming ``path`` (an OSError too).
+    :class:`~slipsense.errors.OutputError` naming ``path`` (an OSError too), whether the write
+    failed with an OSError or with a writer's own error (safetensors' SafetensorError).
     """
     from slipsense.errors import OutputError
 
@@ -45,6 +68,8 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
             if exc.filename is None or str(exc.filename) == str(tmp_path):
                 raise OutputError(path, f"cannot be written ({_why(exc)})") from None
             raise
+        except _serialiser_errors() as exc:  # a full disk while safetensors writes the temporary file
+            raise OutputError(path, f"cannot be written ({_why(exc)})") from None
         try:
             with open(tmp_path, "rb+") as fh:
                 os.fsync(fh.fileno())

@@ -13,15 +13,19 @@ from typer.testing import CliRunner
 
 from conftest import REAL_RUN, needs_data
 from slipsense.cli import app
-from slipsense.recordings.bags import pair_by_time, read_bag
+from slipsense.errors import InputError
+from slipsense.recordings.bags import UnpairedFramesWarning, pair_by_time, read_bag
 from slipsense.streaming.capture import CaptureThread, PacedReader
 
 FRAMES = 60  # of the real run: enough for the shipped detector to answer (start-up 10 frames)
 
 
-def write_bag(path: Path, videos, topics, offsets_ns=(0, 3_000_000), compressed=(False, True), extra_string=False):
+def write_bag(
+    path: Path, videos, topics, offsets_ns=(0, 3_000_000), compressed=(False, True), extra_string=False, slots=None
+):
     """A rosbag2 (sqlite3) with one image topic per video: Image bgr8, or CompressedImage PNG
-    (lossless), frames 40 ms apart, each topic's stamps shifted by its offset."""
+    (lossless), frames 40 ms apart, each topic's stamps shifted by its offset. ``slots``: per topic,
+    the 40 ms slot of each of its frames (default 0, 1, 2, ...: a slot left out is a frame missing)."""
     from rosbags.rosbag2 import Writer
     from rosbags.typesys import Stores, get_typestore
 
@@ -35,11 +39,12 @@ def write_bag(path: Path, videos, topics, offsets_ns=(0, 3_000_000), compressed=
             for t, c in zip(topics, compressed)
         ]
         text = w.add_connection("/notes", String.__msgtype__, typestore=ts) if extra_string else None
+        slots = slots or [range(len(v)) for v in videos]
         for k in range(max(len(v) for v in videos)):
-            for conn, video, off, comp in zip(conns, videos, offsets_ns, compressed):
+            for conn, video, off, comp, at in zip(conns, videos, offsets_ns, compressed, slots):
                 if k >= len(video):
                     continue
-                ns = 1_700_000_000_000_000_000 + k * 40_000_000 + off
+                ns = 1_700_000_000_000_000_000 + at[k] * 40_000_000 + off
                 header = Header(stamp=Time(sec=ns // 10**9, nanosec=ns % 10**9), frame_id="gel")
                 img = video[k]
                 if comp:
@@ -162,6 +167,78 @@ def test_read_bag_pairs_and_counts_dropped(tmp_path):
     assert len(got.frames) == 4 and got.dropped == {"/l": 1, "/r": 0}
     assert all(np.array_equal(got.frames[k][0], v[k]) and np.array_equal(got.frames[k][1], v[k]) for k in range(4))
     assert got.fps == pytest.approx(25.0)
+
+
+def _drifting_bag(path: Path, right_slots):
+    """40 frames on /left/image_raw (slots 0..39), and on /right/image_raw a frame in each of
+    ``right_slots`` (3 ms later): a /left frame whose slot /right lacks finds no partner."""
+    rng = np.random.default_rng(2)
+    left = rng.integers(0, 255, (40, 24, 32, 3), dtype=np.uint8)
+    right = left[list(right_slots)]
+    return write_bag(path, [left, right], ["/left/image_raw", "/right/image_raw"], slots=[range(40), list(right_slots)])
+
+
+DRIFT_TOPICS = ["--topic", "/left/image_raw", "--topic", "/right/image_raw"]
+
+
+def test_a_bag_whose_topics_drift_apart_inside_is_refused_in_one_line(tmp_path):
+    """12 of 40 /left frames have no /right partner in the middle of the bag: the 28 pairs left would
+    skip half a second, so a model's lags would span other times. Refused, naming the bag."""
+    bag = _drifting_bag(tmp_path / "drifting", [k for k in range(40) if not 14 <= k < 26])
+    res = CliRunner().invoke(app, ["watch", str(bag), *DRIFT_TOPICS])
+    assert res.exit_code == 2, res.output
+    assert "Traceback" not in res.output and "frames," not in res.output  # nothing streamed
+    errors = [line for line in res.output.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and str(bag) in errors[0], res.output
+    assert "12 of 40 frames of /left/image_raw found no partner within 20 ms" in errors[0]
+    assert "520 ms between paired frames 13 and 14" in errors[0]
+    with pytest.raises(InputError, match="missing inside the stream"):
+        read_bag(bag, ["/left/image_raw", "/right/image_raw"])
+    # bag convert reads it the same way: no recording with a hole in it
+    res = CliRunner().invoke(app, ["bag", "convert", str(bag), "--out", str(tmp_path / "rec"), *DRIFT_TOPICS])
+    assert res.exit_code == 2 and "missing inside the stream" in res.output and not (tmp_path / "rec").exists()
+
+
+def test_a_frame_missing_from_every_topic_is_refused_too(tmp_path):
+    """One topic (nothing to pair) whose sensor lost frame 20: the stream skips 80 ms there."""
+    rng = np.random.default_rng(3)
+    video = rng.integers(0, 255, (39, 24, 32, 3), dtype=np.uint8)
+    bag = write_bag(tmp_path / "b", [video], ["/a"], slots=[[k for k in range(40) if k != 20]])
+    with pytest.raises(InputError, match=r"a frame was not recorded.*80 ms between paired frames 19 and 20"):
+        read_bag(bag, ["/a"])
+
+
+def test_frames_left_unpaired_at_the_ends_only_are_warned_about(tmp_path, cache, one_thread, recwarn):
+    """/right starts 6 frames late and stops 6 early: the 28 pairs are evenly spaced, so the bag
+    streams, with a warning naming the bag, the topic and the count."""
+    bag = _drifting_bag(tmp_path / "late_start", range(6, 34))
+    res = CliRunner().invoke(app, ["watch", str(bag), *DRIFT_TOPICS, "--quiet"])
+    assert res.exit_code == 0, res.output
+    assert "28 frames" in res.output
+    warned = [str(w.message) for w in recwarn.list if issubclass(w.category, UnpairedFramesWarning)]
+    assert warned == [f"{bag}: 12 of 40 frames of /left/image_raw found no partner within 20 ms; left out"]
+    got = read_bag(bag, ["/left/image_raw", "/right/image_raw"])
+    assert len(got.frames) == 28 and got.dropped == {"/left/image_raw": 12, "/right/image_raw": 0}
+    assert (np.diff(got.stamps, axis=0) == 40_000_000).all()
+
+
+def test_the_unpaired_warning_is_one_line_on_stderr(tmp_path, cache):
+    """Outside pytest's recorder the command line prints the warning as one "warning: ..." line on
+    stderr (`bag convert` reads bags as `watch` does)."""
+    import os
+    import subprocess
+    import sys
+
+    bag = _drifting_bag(tmp_path / "late_start", range(6, 34))
+    code = "import sys; from slipsense.cli import main; sys.argv = ['slipsense'] + sys.argv[1:]; main()"
+    args = ["bag", "convert", str(bag), "--out", str(tmp_path / "rec"), *DRIFT_TOPICS]
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    proc = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, timeout=120, env=env)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stderr.splitlines() == [
+        f"warning: {bag}: 12 of 40 frames of /left/image_raw found no partner within 20 ms; left out"
+    ]
+    assert "28 frames x 2 sensors" in proc.stdout
 
 
 def _consume(th: CaptureThread, seconds_per_frame: float):

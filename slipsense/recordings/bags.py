@@ -6,7 +6,10 @@ needed. Each named topic holds ``sensor_msgs/msg/Image`` (``bgr8``, ``rgb8``, ``
 ``rgba8``) or ``sensor_msgs/msg/CompressedImage`` (JPEG, PNG: whatever OpenCV decodes) messages of one
 sensor. Frames of two or more topics are paired by their header stamps: each frame of the first topic
 takes the nearest frame of every other topic within ``tolerance`` (half a frame period of the sensor
-by default), partners in order; frames left without a partner are dropped and counted.
+by default), partners in order; frames left without a partner are dropped, counted and warned about
+(:class:`UnpairedFramesWarning`). Dropped frames before the first pair or after the last change
+nothing else; a gap inside the stream (paired frames more than 1.5 frame periods apart) is refused,
+as a model's lags would span other times than it was trained on.
 
 :func:`write_recording` turns a bag into the recordings layout (``camera_*.avi`` in a lossless codec,
 ``slip.txt`` when a label says the object slipped), so every command that takes recordings takes
@@ -17,6 +20,7 @@ topic of the bag is a sensor, in topic order, converted once into the cache (:fu
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator, Sequence
@@ -29,6 +33,15 @@ IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED = "sensor_msgs/msg/CompressedImage"
 #: channels of the raw encodings read, and how to turn them into BGR
 ENCODINGS = {"bgr8": 3, "rgb8": 3, "mono8": 1, "8UC1": 1, "8UC3": 3, "bgra8": 4, "rgba8": 4}
+
+
+#: paired frames further apart than this many frame periods: a frame is missing inside the stream
+MAX_GAP_PERIODS = 1.5
+
+
+class UnpairedFramesWarning(UserWarning):
+    """Frames of a bag's topic found no partner on the other topics and were left out (at the start
+    or end of the bag: inside it they are refused)."""
 
 
 def check_timing(fps: float, tolerance_s: float | None = None) -> None:
@@ -177,8 +190,11 @@ def read_bag(path: str | Path, topics: Sequence[str], fps: float = 25.0, toleran
 
     ``tolerance_s``: the largest stamp difference of a pair (default half a frame period at ``fps``).
     InputError naming the bag for a missing bag or topic, a topic of another message type, an image
-    that cannot be decoded, frames of different sizes on one topic, a damaged or truncated bag, or
-    topics whose stamps do not pair (fewer than half of the frames of the shorter topic)."""
+    that cannot be decoded, frames of different sizes on one topic, a damaged or truncated bag,
+    topics whose stamps do not pair (fewer than half of the frames of the shorter topic), or paired
+    frames more than 1.5 frame periods apart (a frame missing inside the stream). Frames left without
+    a partner at the start or end are counted in ``dropped`` and warned about
+    (:class:`UnpairedFramesWarning`, one per topic)."""
     check_timing(fps, tolerance_s)
     path = Path(path)
     topics = list(topics)
@@ -207,10 +223,40 @@ def read_bag(path: str | Path, topics: Sequence[str], fps: float = 25.0, toleran
             f"the stamps of {' and '.join(topics)} do not pair: {len(idx)} of {shortest} frames within "
             f"{tol / 1e6:g} ms (--tolerance sets it)",
         )
-    frames = [[per[t][i][1] for t, i in zip(topics, row)] for row in idx]
     paired = np.stack([stamps[k][idx[:, k]] for k in range(len(topics))], 1)
     dropped = {t: len(stamps[k]) - len(idx) for k, t in enumerate(topics)}
+    unpaired = [
+        f"{n} of {len(stamps[k])} frames of {t} found no partner within {tol / 1e6:g} ms"
+        for k, (t, n) in enumerate(dropped.items())
+        if n
+    ]
+    _check_spacing(path, paired, fps, unpaired)
+    for line in unpaired:
+        warnings.warn(f"{path}: {line}; left out", UnpairedFramesWarning, stacklevel=2)
+    frames = [[per[t][i][1] for t, i in zip(topics, row)] for row in idx]
     return BagFrames(path, topics, frames, paired, dropped)
+
+
+def _check_spacing(path: Path, paired: np.ndarray, fps: float, unpaired: Sequence[str]) -> None:
+    """InputError naming the bag when paired frames (``(N, S)`` stamps in ns) lie more than
+    :data:`MAX_GAP_PERIODS` frame periods apart on any topic: a frame is missing inside the stream
+    (no partner there, or never recorded), so the steps a model sees would span other times."""
+    if len(paired) < 2:
+        return
+    period_ns = 1e9 / fps
+    gaps = np.diff(paired, axis=0).max(axis=1)
+    wide = np.flatnonzero(gaps > MAX_GAP_PERIODS * period_ns)
+    if len(wide) == 0:
+        return
+    i = int(wide[0])
+    why = "; ".join(unpaired) if unpaired else "a frame was not recorded"
+    raise InputError(
+        path,
+        f"frames missing inside the stream ({why}): {len(wide)} gap(s) over {MAX_GAP_PERIODS:g} frame periods "
+        f"at {fps:g} frames/s, the first {gaps[i] / 1e6:.0f} ms between paired frames {i} and {i + 1} "
+        f"({(paired[i, 0] - paired[0, 0]) / 1e9:.2f} s in), so a model's lags would span other times "
+        "(--tolerance sets the pairing)",
+    )
 
 
 def write_recording(bag: BagFrames, folder: str | Path, camera_names: Sequence[str], slipped: bool, fps: float) -> Path:
