@@ -341,24 +341,23 @@ def test_python_m_slipsense_cli_runs():
     assert out.returncode == 0 and "motionnet" in out.stdout, out.stderr
 
 
-def test_a_fold_written_before_later_settings_existed_is_still_recognised():
-    """A fold file records the key of its settings; settings added later, at their defaults, are
-    left out of the key such a file was written with, whichever of them existed then, so resuming
-    it does not train it again."""
+def test_a_fold_file_is_reused_only_under_the_key_of_todays_whole_settings(tmp_path):
+    """A fold file written with other settings, or before one of today's settings existed, is
+    trained again."""
     import hashlib
-    import json
 
-    from slipsense.evaluation.folds import _ADDED_LATER, _config_keys
+    from slipsense.evaluation.folds import _config_key, _load_fold
     from slipsense.training.grasps import GraspTrainConfig
 
-    cfg, runs = GraspTrainConfig(), []
-    keys = _config_keys(cfg, 5, runs)
-    assert len(keys) == 2 ** len(_ADDED_LATER) and set(_ADDED_LATER) <= set(cfg.to_dict())
+    cfg = GraspTrainConfig()
+    key = _config_key(cfg, 5, [])
     today = json.dumps({"cfg": cfg.to_dict(), "folds": 5, "labels": []}, sort_keys=True)
-    assert keys[0] == hashlib.sha256(today.encode()).hexdigest()[:16]  # the one new fold files are written with
-    for i in range(len(_ADDED_LATER)):  # written when only one of them existed
-        one = {k: v for k, v in cfg.to_dict().items() if k not in _ADDED_LATER or k == list(_ADDED_LATER)[i]}
-        text = json.dumps({"cfg": one, "folds": 5, "labels": []}, sort_keys=True)
-        assert hashlib.sha256(text.encode()).hexdigest()[:16] in keys
-    other = _config_keys(GraspTrainConfig(settle_frames=5), 5, runs)
-    assert not set(other) & set(keys)
+    assert key == hashlib.sha256(today.encode()).hexdigest()[:16]
+    assert _config_key(GraspTrainConfig(lr=0.01), 5, []) != key
+    before = {k: v for k, v in cfg.to_dict().items() if k != "accumulate"}
+    old = hashlib.sha256(json.dumps({"cfg": before, "folds": 5, "labels": []}, sort_keys=True).encode())
+    fold = tmp_path / "fold0.json"
+    fold.write_text(json.dumps({"config_key": key, "fold": 0}))
+    assert _load_fold(fold, key) == {"config_key": key, "fold": 0}
+    fold.write_text(json.dumps({"config_key": old.hexdigest()[:16], "fold": 0}))
+    assert _load_fold(fold, key) is None

@@ -34,7 +34,7 @@ def _prepare(
 
 def _grasp_tree(config, model, sets, size, epochs, seed, inner_folds, recordings, overrides, on_error):
     """The configuration tree: defaults < --config < options < --set."""
-    from slipsense.cli import parse_hw
+    from slipsense.cli.common import parse_hw
     from slipsense.training.grasps import GraspTrainConfig
     from slipsense.run_config import empty_tree, given, load_tree, merge, parse_sets
 
@@ -53,7 +53,7 @@ def _grasp_tree(config, model, sets, size, epochs, seed, inner_folds, recordings
 def prepare_tree(tree, progress: bool = True, threads: int | None = None, out=None):
     """From a grasp configuration tree (model / data / train sections): the training config, the
     runs, their labels and the metadata checkpoints keep."""
-    from slipsense.cli import _default_recordings, check_seed
+    from slipsense.cli.common import default_recordings, check_seed
     from slipsense.training.grasps import GraspTrainConfig, load_grasp_data, make_config
     from slipsense.run_config import check_keys, to_plain
 
@@ -77,7 +77,7 @@ def prepare_tree(tree, progress: bool = True, threads: int | None = None, out=No
     image_size = tuple(cfg.model_config.get("image_size") or _model_size(name))
     from slipsense.config import resolve_path
 
-    root = resolve_path(tree["data"].get("recordings") or _default_recordings())
+    root = resolve_path(tree["data"].get("recordings") or default_recordings())
     overrides = tree["data"].get("overrides")
     overrides = resolve_path(overrides) if overrides is not None else None
     from slipsense.sensors.spec import GELSIGHT_MINI, sensor_named
@@ -174,7 +174,7 @@ def _command() -> str:
 
 
 def register(app: typer.Typer) -> None:
-    from slipsense.cli import friendly
+    from slipsense.cli.common import friendly
 
     @grasp_app.command("train")
     @friendly
@@ -319,13 +319,13 @@ def register(app: typer.Typer) -> None:
     ):
         """Which slips show anything before contact is lost, against their own grasp and held grasps."""
         from slipsense.atomic import check_output_dir
-        from slipsense.cli import _default_recordings
+        from slipsense.cli.common import default_recordings
         from slipsense.config import resolve_path
         from slipsense.evaluation.precursors import aligned_means, precursor_table, summary, write_report
         from slipsense.training.grasps import load_grasp_data
 
         check_output_dir(out, "--out")
-        root = resolve_path(recordings or _default_recordings())
+        root = resolve_path(recordings or default_recordings())
         runs, _ = load_grasp_data(root, overrides, (30, 40), progress=progress)
         rows = precursor_table(runs, window)
         write_report(rows, aligned_means(runs), out, command=_command(), window=window)
@@ -334,5 +334,34 @@ def register(app: typer.Typer) -> None:
             f"{s['any']} of {s['slip_runs']} slips stand out on some signal before contact is lost (motion "
             f"{s['motion']}, change over 1 s {s['change_1s']}, contact fading {s['contact_fading']}) -> {out}/README.md"
         )
+
+    @grasp_app.command("ceiling")
+    @friendly
+    def ceiling_cmd(
+        reports: List[Path] = typer.Argument(..., help="folds reports (grasp folds --out) with their fold files"),
+        fp: List[int] = typer.Option([0, 4, 8, 13], "--fp", help="false-positive grasps allowed (repeat)"),
+        show_phases: bool = typer.Option(False, "--phases", help="where held grasps peak and slips are lost"),
+    ):
+        """Bounds, not results: the most slips any operating point tuned on the held-out runs could warn of."""
+        from slipsense.errors import ConfigError
+        from slipsense.evaluation.ceiling import held_out_traces, one_threshold, per_fold, phases
+
+        if any(k < 0 for k in fp):
+            raise ConfigError(f"--fp must be 0 or more, got {fp}")
+        for report in reports:
+            traces = held_out_traces(report)
+            cells = []
+            for k in fp:
+                one = one_threshold(traces, k)
+                warned, premature = per_fold(traces, k)
+                cells.append(f"<= {k} FP: one threshold {one[1]} ({one[2]} premature), per fold {warned} ({premature})")
+            slips = sum(m is not None for m in traces[1])
+            typer.echo(f"{report} (slips {slips}): " + " | ".join(cells))
+            if show_phases:
+                ph = phases(traces)
+                typer.echo(
+                    f"  held grasps' 10 highest peaks at frames {ph['held_peaks']}; slips lost at frames < 60: "
+                    f"{ph['lost_before_60']}, 60-150: {ph['lost_60_150']}, > 150: {ph['lost_after_150']}"
+                )
 
     app.add_typer(grasp_app, name="grasp")

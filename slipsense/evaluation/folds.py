@@ -13,7 +13,6 @@ config skips the folds already done, so a killed run continues where it stopped.
 from __future__ import annotations
 
 import hashlib
-import itertools
 import json
 import warnings
 import math
@@ -38,32 +37,11 @@ from slipsense.training.grasps import GraspTrainConfig
 from slipsense.recordings.runs import GraspRun, runs_summary
 
 
-#: training settings added after the first reports were written, with their defaults
-_ADDED_LATER = {
-    "accumulate": 1,
-    "speed_jitter": 0.0,
-    "reversed_chunks": 0,
-    "settle_frames": 0,
-    "pretrain_epochs": 0,
-    "reversed_before_slip": False,
-}
-
-
-def _config_keys(cfg: GraspTrainConfig, folds: int, runs: Sequence[GraspRun]) -> list[str]:
-    """What a finished fold depends on: the settings, the folds and every run's label. The first key
-    is today's; the others are those a fold written before some of the settings in ``_ADDED_LATER``
-    existed has (any of them at their defaults left out), so a report started then is resumed, not
-    trained again."""
+def _config_key(cfg: GraspTrainConfig, folds: int, runs: Sequence[GraspRun]) -> str:
+    """What a finished fold depends on: the settings, the folds and every run's label."""
     labels = sorted((r.object, r.experiment, r.slipped, r.moment_of_slip) for r in runs)
-    settings = cfg.to_dict()
-    at_default = [k for k, v in _ADDED_LATER.items() if settings[k] == v]
-    keys = []
-    for n in range(len(at_default) + 1):
-        for absent in itertools.combinations(at_default, n):
-            kept = {k: v for k, v in settings.items() if k not in absent}
-            text = json.dumps({"cfg": kept, "folds": folds, "labels": labels}, sort_keys=True)
-            keys.append(hashlib.sha256(text.encode()).hexdigest()[:16])
-    return keys
+    text = json.dumps({"cfg": cfg.to_dict(), "folds": folds, "labels": labels}, sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
 def run_folds(
@@ -80,18 +58,17 @@ def run_folds(
     """Run (or resume) the leave-objects-out evaluation into ``out``; returns the pooled report.
 
     Every training of the folds not yet done (each fold's detector and its inner folds') goes to
-    one pool of ``workers`` processes (default one per core, :mod:`slipsense.training.parallel`); a fold is
+    one pool of ``workers`` processes (default one per core, :mod:`slipsense.parallel`); a fold is
     written as soon as its trainings are finished."""
-    from slipsense.training.parallel import run_jobs
+    from slipsense.parallel import run_jobs
 
     out = Path(out)
     usable = [r for r in runs if r.usable]
     split = object_split(usable, folds, cfg.folds_seed)
-    keys = _config_keys(cfg, folds, usable)
-    key = keys[0]
+    key = _config_key(cfg, folds, usable)
     done: dict[int, dict[str, Any]] = {}
     for k in range(len(split)):
-        prior = _load_fold(out / f"fold{k}.json", keys)
+        prior = _load_fold(out / f"fold{k}.json", key)
         if prior is not None:
             done[k] = prior
             _echo_fold(echo, k, split[k], prior, resumed=True)
@@ -308,12 +285,12 @@ def _echo_fold(echo, k: int, held: Sequence[str], done: dict[str, Any], resumed:
     )
 
 
-def _load_fold(path: Path, keys: Sequence[str]) -> dict[str, Any] | None:
+def _load_fold(path: Path, key: str) -> dict[str, Any] | None:
     try:
         doc = json.loads(path.read_text())
     except (OSError, ValueError):
         return None
-    return doc if isinstance(doc, dict) and doc.get("config_key") in keys else None
+    return doc if isinstance(doc, dict) and doc.get("config_key") == key else None
 
 
 def _json_safe(x):

@@ -11,13 +11,7 @@ of slip, ``h`` the onset frames and ``H`` the warning horizon:
   contact.
 
 Each epoch draws chunks: one ending at (or a few frames after) the moment of every slip run,
-``negatives`` random ones from every run, and ``reversed_chunks`` random ones from every run played
-backwards (contact appearing instead of lost, wiggles and settling run backwards: motion that is
-not a slip, every frame a negative). With ``settle_frames`` a slip run lost that early after the
-start-up is not trained on (a grasp that never settled: its only onset is the settling motion
-that every held grasp shows too); it is still judged. With ``pretrain_epochs`` the model first
-learns without labels, on the same runs, to forecast how much the gels will move
-(:class:`ForecastTask`). A chunk carries the frames the model needs before its
+and ``negatives`` random ones from every run. A chunk carries the frames the model needs before its
 scored frames (lags and temporal context) so its logits equal a replay of the whole run. Positive
 and negative frames get equal total weight in the loss.
 """
@@ -26,8 +20,7 @@ from __future__ import annotations
 
 import json
 import math
-from pathlib import Path
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -66,11 +59,6 @@ class GraspTrainConfig:
         None  # operating point: at most this fraction of held grasps alarm (None: best score)
     )
     accumulate: int = 1  # micro-batches per process per step (a step's runs cut into world x accumulate groups)
-    speed_jitter: float = 0.0  # each epoch plays every run at a speed drawn in [1/(1+j), 1+j] (0: as recorded)
-    reversed_chunks: int = 0  # random chunks per run per epoch from the run played backwards, every frame a negative
-    reversed_before_slip: bool = False  # reversed chunks of slip runs only from before the warning horizon
-    settle_frames: int = 0  # slip runs lost within this many frames after the start-up are not trained on
-    pretrain_epochs: int = 0  # self-supervised epochs first: every frame regresses how much the gels move next
 
     def __post_init__(self):
         checks = {
@@ -85,9 +73,6 @@ class GraspTrainConfig:
             "seed": (0, 2**32 - 1),
             "inner_folds": (0, 20),
             "accumulate": (1, 1024),
-            "reversed_chunks": (0, 100),
-            "settle_frames": (0, 5000),
-            "pretrain_epochs": (0, 10_000),
         }
         if self.split_seed is not None:
             checks["split_seed"] = (0, 2**32 - 1)
@@ -100,13 +85,8 @@ class GraspTrainConfig:
             positive = key in ("lr", "positive_weight")
             if not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0 or (positive and v == 0):
                 raise ConfigError(f"{key} must be a finite number {'> 0' if positive else '>= 0'}, got {v!r}")
-        if not isinstance(self.reversed_before_slip, bool):
-            raise ConfigError(f"reversed_before_slip must be true or false, got {self.reversed_before_slip!r}")
         if self.inner_folds == 1:
             raise ConfigError("inner_folds must be 0 or at least 2")
-        j = self.speed_jitter
-        if isinstance(j, bool) or not isinstance(j, (int, float)) or not 0 <= j <= 1:
-            raise ConfigError(f"speed_jitter must be a number in [0, 1] (0.25: speeds 0.8-1.25x), got {j!r}")
         k = self.max_held_alarm
         if k is not None and (isinstance(k, bool) or not isinstance(k, (int, float)) or not 0 <= k <= 1):
             raise ConfigError(f"max_held_alarm must be a fraction in [0, 1] (0.05: at most 5%), got {k!r}")
@@ -143,67 +123,22 @@ class _Chunks:
             s = pergrasp.STARTUP if r.n_frames > pergrasp.STARTUP + 1 else 0
             gray = r.gray[:, s:]
             moment = None if r.moment_of_slip is None else r.moment_of_slip - s
-            if moment is not None and moment < cfg.settle_frames:
-                continue  # lost while the grasp settles: its onset is the settling, which held grasps show too
+            if moment is not None and moment < 0:
+                continue  # lost during the camera start-up: none of its frames is scored
             y = frame_targets(gray.shape[1], moment, cfg.onset_frames, cfg.horizon)
             self.items.append((gray, y, moment))
 
-    def played(self, rng: np.random.Generator) -> tuple[list, list[np.ndarray | None]]:
-        """The runs as one epoch plays them: with ``speed_jitter`` each at its own speed (frames taken
-        at the new times, blended linearly between the two recorded frames around each; the moment
-        of slip and the targets moved with them), with the recorded frame at or before each new
-        frame (None: as recorded)."""
-        j = self.cfg.speed_jitter
-        if not j:
-            return self.items, [None] * len(self.items)
-        items, taken = [], []
-        for gray, _, moment in self.items:
-            speed = float(np.exp(rng.uniform(-np.log1p(j), np.log1p(j))))
-            at = np.arange(0, gray.shape[1] - 1 + 1e-9, speed)  # new frames' times, in recorded frames
-            lo = np.floor(at).astype(np.int64)
-            hi = np.minimum(lo + 1, gray.shape[1] - 1)
-            a = (at - lo).astype(np.float32)[None, :, None, None]  # between two recorded frames: blended
-            played = np.rint((1 - a) * gray[:, lo] + a * gray[:, hi]).astype(np.uint8)
-            m = None if moment is None else int(np.searchsorted(at, moment, side="right") - 1)
-            y = frame_targets(len(at), m, self.cfg.onset_frames, self.cfg.horizon)
-            items.append((played, y, m))
-            taken.append(lo)
-        return items, taken
-
-    def backwards(self, items: list) -> list:
-        """The runs of ``items`` played backwards, every frame a negative (none when
-        ``reversed_chunks`` is 0). With ``reversed_before_slip`` a slip run is played backwards only
-        up to ``horizon`` frames before its moment: a loss of contact played backwards is contact
-        appearing, as large a change as the loss, and would teach that the size of a change says
-        nothing."""
-        if not self.cfg.reversed_chunks:
-            return []
-        out = []
-        for g, _, moment in items:
-            if moment is not None and self.cfg.reversed_before_slip:
-                g = g[:, : max(0, moment - self.cfg.horizon)]
-            if g.shape[1] >= 2:
-                out.append((np.ascontiguousarray(g[:, ::-1]), np.zeros(g.shape[1], np.int8), None))
-        return out
-
     def draw(
-        self,
-        rng: np.random.Generator,
-        hardness: list[np.ndarray] | None,
-        items: list,
+        self, rng: np.random.Generator, hardness: list[np.ndarray] | None = None
     ) -> list[tuple[int, list[int], np.ndarray]]:
         """Chunks of one epoch, grouped by run: ``(run index, chunk ends, targets (C, chunk))`` with
         the runs in random order. ``hardness``: per run, per frame P(slip) of the current model,
-        from which ``hard_negatives`` chunk ends per run are drawn among the negative frames.
-        ``items``: the runs as this epoch plays them (:meth:`played`), then any played backwards
-        (:meth:`backwards`), from which ``reversed_chunks`` random chunks are drawn."""
+        from which ``hard_negatives`` chunk ends per run are drawn among the negative frames."""
         out = []
-        forward = len(self.items)
-        for i, (gray, y, moment) in enumerate(items):
+        for i, (gray, y, moment) in enumerate(self.items):
             n = gray.shape[1]
-            k = self.cfg.negatives if i < forward else self.cfg.reversed_chunks
-            ends = [int(rng.integers(0, n)) for _ in range(k)]
-            if hardness is not None and self.cfg.hard_negatives and i < forward:
+            ends = [int(rng.integers(0, n)) for _ in range(self.cfg.negatives)]
+            if hardness is not None and self.cfg.hard_negatives:
                 w = np.where(y == 0, np.nan_to_num(hardness[i], nan=0.0) + 1e-3, 0.0)
                 if w.sum() > 0:
                     ends += [int(e) for e in rng.choice(n, self.cfg.hard_negatives, p=w / w.sum())]
@@ -273,12 +208,7 @@ class GraspTask:
         if epoch > 0 and cfg.hard_negatives and (epoch - 1) % cfg.mine_every == 0:
             model.eval()
             self.hardness = _predict_items(model, self.data.items)
-        self._items, taken = self.data.played(self.rng)
-        self._items = self._items + self.data.backwards(self._items)
-        hardness = self.hardness
-        if hardness is not None and any(t is not None for t in taken):
-            hardness = [h if t is None else h[t] for h, t in zip(hardness, taken)]
-        chunks = self.data.draw(self.rng, hardness, self._items)
+        chunks = self.data.draw(self.rng, self.hardness)
         ys = np.concatenate([c[2] for c in chunks])
         n_pos, n_neg = int((ys == 1).sum()), int((ys == 0).sum())
         self.weight = torch.tensor([1.0, cfg.positive_weight * n_neg / max(n_pos, 1)])
@@ -299,7 +229,7 @@ class GraspTask:
                     runs, dims, weight = step.micro[m]
                     x = []
                     for i, ends, _ in runs:
-                        g = torch.from_numpy(self._items[i][0])  # uint8 (S, N, h, w): flipped before 4x larger
+                        g = torch.from_numpy(self.data.items[i][0])  # uint8 (S, N, h, w): flipped before 4x larger
                         x.append(((g.flip(dims) if dims else g).float().div_(255.0), ends))
                     yield x, torch.from_numpy(np.concatenate([c[2] for c in runs])), weight
 
@@ -334,57 +264,6 @@ class GraspTask:
         self.rng.bit_generator.state = state["numpy"]
         hard = state.get("hardness")
         self.hardness = None if hard is None else [h.numpy() for h in hard]
-
-
-def future_motion(gray: np.ndarray, ahead: tuple[int, int] = (1, 5)) -> np.ndarray:
-    """``(S, N, h, w)`` uint8 frames -> ``(N, 2)`` float32: per frame, ``log1p(100 x`` the mean
-    absolute grey change (in [0, 1]) to the frames ``ahead`` later``)``, the larger over sensors;
-    NaN where that frame is beyond the run."""
-    g = gray.astype(np.float32) / 255.0
-    out = np.full((gray.shape[1], len(ahead)), np.nan, np.float32)
-    for j, k in enumerate(ahead):
-        if gray.shape[1] > k:
-            change = np.abs(g[:, k:] - g[:, :-k]).mean(axis=(2, 3)).max(axis=0)
-            out[:-k, j] = np.log1p(100.0 * change)
-    return out
-
-
-class ForecastTask(GraspTask):
-    """Self-supervised pretraining on whole runs, no labels: at every frame the model's two outputs
-    regress how much the gels will move 1 and 5 frames later (:func:`future_motion`; mean squared
-    error). A slip is the grasp changing more than it has so far, so a network that can tell how
-    much is about to change has learned part of the task from every frame of every run. Chunks are
-    drawn at random, ``negatives + hard_negatives + 1`` per run and epoch (as many as the slip
-    training draws), with the same flips."""
-
-    def __init__(self, runs: Sequence[GraspRun], cfg: GraspTrainConfig):
-        super().__init__(runs, cfg)
-        self.future = [future_motion(g) for g, _, _ in self.data.items]
-        self._identity = json.dumps({"forecast": json.loads(self._identity)}, sort_keys=True)
-        self.epochs = cfg.pretrain_epochs
-
-    def plan(self, model, epoch: int, d, accumulate: int) -> list[Step]:
-        cfg, self._items = self.cfg, self.data.items
-        per_run = cfg.negatives + cfg.hard_negatives + 1
-        chunks = []
-        for i, (gray, _, _) in enumerate(self._items):
-            ends = [int(e) for e in self.rng.integers(0, gray.shape[1], per_run)]
-            frames = np.asarray(ends)[:, None] + np.arange(1 - cfg.chunk, 1)[None]
-            y = np.where((frames >= 0)[..., None], self.future[i][frames.clip(min=0)], np.nan)
-            chunks.append((i, ends, y.astype(np.float32)))
-        chunks = [chunks[i] for i in self.rng.permutation(len(chunks))]
-        weigh = lambda runs: float(sum(int(np.isfinite(c[2]).all(-1).sum()) for c in runs))  # noqa: E731
-        steps = _steps(chunks, cfg, self.rng, d.world * accumulate, weigh)
-        self._stats = {"forecast_frames": int(sum(s.weight for s in steps))}
-        return steps
-
-    def loss(self, net, batch, step_weight: float, world: int):
-        x, y, weight = batch
-        pred = net(x, self.cfg.chunk)
-        keep = torch.isfinite(y).all(-1)
-        mean = F.mse_loss(pred[keep], y[keep])
-        stats = torch.tensor([float(mean.detach()) * weight, weight, 0, int(keep.sum())], dtype=torch.float64)
-        return mean * (weight * world / step_weight), stats
 
 
 def _steps(chunks, cfg: GraspTrainConfig, rng: np.random.Generator, parts: int, weigh) -> list[Step]:
@@ -438,11 +317,6 @@ def fit_runs(
     settings = LoopSettings(
         epochs=cfg.epochs, seed=cfg.seed, accumulate=cfg.accumulate, device="cpu", progress=progress, desc=cfg.model
     )
-    if cfg.pretrain_epochs and not (state_path is not None and Path(state_path).is_file()):
-        # a slip training's state holds the pretrained weights: after a kill it resumes from there
-        pre = replace(settings, epochs=cfg.pretrain_epochs, desc=f"{cfg.model} forecast pretraining")
-        pre_state = None if state_path is None else f"{state_path}.pretrain"
-        train(model, ForecastTask(runs, cfg), pre, state_path=pre_state)
     task = GraspTask(runs, cfg)
     history = train(model, task, settings, out=out, info=info, state_path=state_path, on_epoch=on_epoch)
     return model.eval(), history
