@@ -52,18 +52,20 @@ def main(argv=None) -> int:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         stem = args.checkpoint.stem
-        detectors = {f"shipped ({stem}), PyTorch": SlipDetector.from_checkpoint(args.checkpoint, sensors=2)}
+        detectors = {
+            f"shipped ({stem}), PyTorch": SlipDetector.from_checkpoint(args.checkpoint, sensors=2, backend="torch")
+        }
         if not args.no_onnx:
             detectors[f"shipped ({stem}), ONNX Runtime"] = SlipDetector.from_checkpoint(
                 args.checkpoint, sensors=2, backend="onnx"
             )
         if ONE_FINGER.is_file():
             detectors["one finger (motionnet-gelsight-1), PyTorch"] = SlipDetector.from_checkpoint(
-                ONE_FINGER, sensors=1
+                ONE_FINGER, sensors=1, backend="torch"
             )
         if VIVIT_CHECKPOINT.is_file() and VIVIT_CHECKPOINT != args.checkpoint:
             detectors["paper ViViT (vivit-gelsight), PyTorch"] = SlipDetector.from_checkpoint(
-                VIVIT_CHECKPOINT, sensors=2
+                VIVIT_CHECKPOINT, sensors=2, backend="torch"
             )
     times: dict[str, list[float]] = {k: [] for k in detectors}
     for name, det in detectors.items():  # warm up: fill windows, first-call allocations

@@ -209,7 +209,7 @@ def replay_speed(run_dir: Path) -> dict:
 
     videos = [read_video(run_dir / f"camera_{c}.avi") for c in (0, 2)]
     n = len(videos[0])
-    det = SlipDetector.pretrained(sensors=2)
+    det = SlipDetector.pretrained(sensors=2, backend="torch")
     det.replay(*videos)
     t0 = time.perf_counter()
     for _ in range(3):

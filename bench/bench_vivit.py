@@ -101,7 +101,8 @@ def onnx_runner(model: ViViT, threads: int):
         return None
     import tempfile
 
-    from slipsense.streaming.export import export_onnx, onnx_session
+    from slipsense.streaming.export import export_onnx
+    from slipsense.models.onnx import onnx_session
 
     folder = Path(tempfile.mkdtemp(prefix="bench-vivit-"))
     path = export_onnx(model, folder / "vivit.onnx", streaming=False, verify=False).paths["model"]

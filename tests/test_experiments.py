@@ -168,7 +168,8 @@ def _one_thread(one_thread):
 
 def test_params_counts_table(tmp_path):
     from slipsense.models import resnet3d
-    from slipsense.models.stnet import PRESETS, count_parameters_for
+    from slipsense.models.stnet import PRESETS
+    from slipsense.models.stnet_size import count_parameters_for
 
     res = E.run_params(E.Settings(out=tmp_path, command="x"))
     cols, rows = read_csv(tmp_path / "params.csv")

@@ -16,7 +16,8 @@ from slipsense.recordings.contact import contact_signal, signal_of_blocks, video
 from slipsense.recordings.folders import find_recordings
 from slipsense.recordings.frame_cache import video_products
 from slipsense.recordings.labels import label_recordings
-from slipsense.recordings.runs import gray_frames, load_runs
+from slipsense.recordings.runs import load_runs
+from slipsense.recordings.video import gray_frames
 
 
 @pytest.fixture

@@ -432,7 +432,8 @@ def _as_input(clip: np.ndarray) -> torch.Tensor:
 @needs_ort
 @needs_data
 def test_onnx_vivit_matches_torch_on_real_clips(tmp_path, real_clips):
-    from slipsense.streaming.export import export_onnx, onnx_session, run_onnx
+    from slipsense.streaming.export import export_onnx
+    from slipsense.models.onnx import onnx_session, run_onnx
 
     model = _model("vivit")  # the paper's configuration: 240 x 320, 40 x 40 patches, 5 frames
     res = export_onnx(model, tmp_path / "vivit.onnx", verify=False)  # verified here, on real frames
@@ -463,7 +464,8 @@ def test_onnx_vivit_matches_torch_on_real_clips(tmp_path, real_clips):
 @needs_ort
 @needs_data
 def test_onnx_stnet_matches_torch_on_real_markers(tmp_path, real_clips):
-    from slipsense.streaming.export import export_onnx, onnx_session, run_onnx
+    from slipsense.streaming.export import export_onnx
+    from slipsense.models.onnx import onnx_session, run_onnx
     from slipsense.sensors.markers import marker_sequences, track_markers
 
     clouds = np.stack([marker_sequences(track_markers(c, source="clip"), 20) for c in real_clips])[:, :4]
@@ -480,7 +482,8 @@ def test_onnx_stnet_matches_torch_on_real_markers(tmp_path, real_clips):
 @needs_ort
 @needs_data
 def test_onnx_resnet3d_matches_torch_on_real_clips(tmp_path, real_clips):
-    from slipsense.streaming.export import export_onnx, onnx_session, run_onnx
+    from slipsense.streaming.export import export_onnx
+    from slipsense.models.onnx import onnx_session, run_onnx
 
     model = _model("resnet3d50", **RESNET_TINY)
     small = [np.stack([cv2.resize(f, (160, 120), interpolation=cv2.INTER_AREA) for f in c[:4]]) for c in real_clips]
@@ -520,7 +523,7 @@ def test_export_command(tmp_path, vivit_ckpt):
     assert res.exit_code == 0, res.output
     assert out.is_file() and (tmp_path / "m.frame.onnx").is_file() and (tmp_path / "m.window.onnx").is_file()
     assert "max |onnx - torch|" in res.output
-    from slipsense.streaming.export import onnx_session
+    from slipsense.models.onnx import onnx_session
 
     assert onnx_session(out).get_inputs()[0].shape == [1, 5, 3, 48, 64]
 

@@ -107,7 +107,7 @@ def test_contract_chunk_logits_equal_whole_run_forward(name):
 def test_contract_onnx_parity(name, tmp_path):
     from slipsense.streaming.export import export_onnx
 
-    from slipsense.streaming.export import onnx_session, run_onnx
+    from slipsense.models.onnx import onnx_session, run_onnx
 
     model = _model(name)
     result = export_onnx(model, tmp_path / "m.onnx")

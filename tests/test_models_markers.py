@@ -13,7 +13,8 @@ from hypothesis import strategies as st
 
 from slipsense.errors import ConfigError, InputError
 from slipsense.models import available, build, count_parameters
-from slipsense.models.stnet import PRESETS, STNet, TemNet, build_preset, count_parameters_for, flops_per_sample
+from slipsense.models.stnet import PRESETS, STNet, TemNet, build_preset
+from slipsense.models.stnet_size import count_parameters_for, flops_per_sample
 from slipsense.models.stnet_fast import optimize_for_inference, quantize_dynamic_int8
 
 # small but complete: codecs, fusion, frame embedding, 2 blocks, flatten head

@@ -200,7 +200,7 @@ def test_marker_cache_checks_checksum_inputs_and_arrays(tmp_path, monkeypatch):
 # ------------------------------------------------------------------------------------ ONNX parts
 def test_onnx_parts_cache_is_verified(tmp_path, monkeypatch):
     pytest.importorskip("onnxruntime")
-    from slipsense.streaming import export
+    from slipsense.models import onnx as export
     from slipsense.streaming.detector import window_geometry
     from slipsense.models import build
 

@@ -2,15 +2,14 @@
 
 from __future__ import annotations
 
-import functools
 import json
-import warnings
 from pathlib import Path
 from typing import List, Optional
 
 import typer
 
-from slipsense.errors import ConfigError, SlipsenseError
+from slipsense.cli.common import default_recordings, check_nonnegative, check_seed, friendly, parse_hw
+from slipsense.errors import ConfigError
 
 app = typer.Typer(
     add_completion=False,
@@ -18,67 +17,6 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
     help="Slip detection and prediction from vision-based tactile sensors.",
 )
-
-
-def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> str:
-    return f"warning: {message}\n"
-
-
-# Skipped videos and cache rebuilds are reported to users as one line each, not with source lines.
-warnings.formatwarning = _one_line_warning
-
-
-def friendly(fn):
-    """Print SlipsenseErrors as ``error: <file>: <problem>`` and exit 2 instead of a traceback."""
-
-    @functools.wraps(fn)
-    def wrapper(*args, **kwargs):
-        try:
-            return fn(*args, **kwargs)
-        except SlipsenseError as exc:
-            typer.echo(f"error: {exc}", err=True)
-            raise typer.Exit(2)
-
-    return wrapper
-
-
-def parse_hw(text: Optional[str], option: str = "--size") -> Optional[tuple[int, int]]:
-    """``"240x320"`` -> ``(240, 320)`` (height, width); None stays None."""
-    if text is None:
-        return None
-    try:
-        h, w = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise ConfigError(f"{option} must look like 240x320 (height x width), got {text!r}") from None
-    if h < 1 or w < 1:
-        raise ConfigError(f"{option} must be positive, got {text!r}")
-    return (h, w)
-
-
-#: Seeds are unsigned 32-bit integers (what NumPy's legacy generator takes, and every seed here fits).
-MAX_SEED = 2**32 - 1
-
-
-def check_seed(seed: int, option: str = "--seed") -> int:
-    """``seed`` if it is in 0..2**32-1, else ConfigError (a negative seed breaks NumPy's generators)."""
-    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= MAX_SEED:
-        raise ConfigError(f"{option} must be an integer in 0..{MAX_SEED}, got {seed!r}")
-    return seed
-
-
-def check_nonnegative(value: float, option: str) -> float:
-    """``value`` if it is a finite number >= 0, else ConfigError."""
-    import math
-
-    if not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
-        raise ConfigError(f"{option} must be a finite number >= 0, got {value!r}")
-    return value
-
-
-def _default_recordings() -> Path:
-    from slipsense.config import gelsight_recordings
-
-    return gelsight_recordings()
 
 
 @app.command()
@@ -98,7 +36,7 @@ def label(
     from slipsense.atomic import check_output_file
 
     check_output_file(csv, "--csv")
-    root = recordings or _default_recordings()
+    root = recordings or default_recordings()
     recs = validate_recordings(find_recordings(root, on_error=on_error), on_error=on_error)
     if overrides:
         read_overrides_csv(overrides)  # a malformed file is refused before any video is decoded

@@ -32,7 +32,7 @@ def slipped_from_topic(bag: Path, topic: str) -> bool:
 
 
 def register(app: typer.Typer) -> None:
-    from slipsense.cli import friendly
+    from slipsense.cli.common import friendly
 
     bag_app = typer.Typer(help="ROS 2 bags: convert them to the recordings layout")
     app.add_typer(bag_app, name="bag")

@@ -90,7 +90,7 @@ TRAIN_OPTIONS = [
 
 
 def _parse_pair(text: Optional[str], option: str) -> Optional[tuple]:
-    from slipsense.cli import parse_hw
+    from slipsense.cli.common import parse_hw
 
     return parse_hw(text, option)
 
@@ -174,7 +174,7 @@ def _experiment(name: str, train: bool = True):
 
 
 def _command(name: str, train: bool, fn):
-    from slipsense.cli import friendly
+    from slipsense.cli.common import friendly
 
     common = BASE_OPTIONS + (TRAIN_OPTIONS if train else [])
     common_names = [p.name for p in common]
@@ -183,7 +183,7 @@ def _command(name: str, train: bool, fn):
     @functools.wraps(fn)
     def wrapper(**kwargs):
         from slipsense.atomic import check_output_dir
-        from slipsense.cli import check_seed
+        from slipsense.cli.common import check_seed
 
         kw = {k: kwargs.pop(k) for k in common_names}
         check_seed(kw["seed"])
@@ -342,7 +342,7 @@ def _results_cmd(
 
 def register(app: typer.Typer) -> None:
     """Add ``slipsense experiment <name>`` for every experiment and ``results``."""
-    from slipsense.cli import friendly
+    from slipsense.cli.common import friendly
 
     group = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False, help=HELP)
     for name, train, fn in _DEFINITIONS:

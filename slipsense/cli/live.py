@@ -65,7 +65,7 @@ def watch_source(
     threshold: Optional[float] = None,
     out: Optional[Path] = None,
     combine: str = "max",
-    backend: str = "torch",
+    backend: str = "auto",
     max_frames: Optional[int] = None,
     heatmap: bool = True,
     echo=typer.echo,
@@ -85,6 +85,7 @@ def watch_source(
     from slipsense.checkpoint import load_model
     from slipsense.sensors.spec import GELSIGHT_MINI, sensor_of
     from slipsense.streaming.annotate import AnnotatedWriter, Annotator
+    from slipsense.models.runners import resolve_backend
     from slipsense.streaming.detector import SlipDetector, check_settings, onnx_cache_dir, stored_operating_point
     from slipsense.streaming.readings import reading_record
 
@@ -114,6 +115,7 @@ def watch_source(
         sensor = sensor_of(info, ckpt)  # a malformed sensor spec is named with its file
         src = _open(source, model.reads, getattr(model, "markers", None), sensor, topics, tolerance, realtime)
     threshold, debounce = stored_operating_point(ckpt, info, threshold, None)
+    backend = resolve_backend(backend)
     try:
         det = SlipDetector(
             model,
@@ -129,6 +131,9 @@ def watch_source(
     except ConfigError as exc:  # e.g. one camera given to a two-finger model: name the checkpoint
         src.close()
         raise InputError(ckpt, str(exc)) from None
+    if not quiet:
+        runs_on = "ONNX Runtime" if det.backend == "onnx" else "PyTorch"
+        echo(f"{Path(ckpt).stem} on {runs_on}, {det.sensors} sensor(s), alarm at {det.threshold:g}", err=jsonl == "-")
     annot = Annotator(det.threshold, det.sensors, fps=det.sensor.fps) if out is not None else None
     writer = AnnotatedWriter(out, fps=det.sensor.fps) if out is not None else None
     sinks = _sinks(jsonl, bag_out, src, det)
@@ -176,6 +181,7 @@ def watch_source(
         "frames": n,
         "alarm_onsets": onsets,
         "first_alarm": onsets[0] if onsets else None,
+        "backend": det.backend,
         "out": None if written is None else str(written),
         "source": src.stats(),
     }
@@ -217,7 +223,8 @@ def _open(source, reads, markers, sensor, topics, tolerance, realtime):
         raise ConfigError(
             "--realtime plays recorded frames (a video, a recordings folder or a bag) at the sensor's rate"
         )
-    from slipsense.streaming.capture import CaptureThread, PacedReader, capture_source
+    from slipsense.streaming.capture import CaptureThread, PacedReader
+    from slipsense.streaming.sources import capture_source
     from slipsense.streaming.sources import Source
 
     steps = list(src.frames())
@@ -268,7 +275,7 @@ def _reading_line(r) -> str:
 
 def register(app: typer.Typer) -> None:
     """Add ``watch``, ``early-warning`` and ``export`` to the slipsense app."""
-    from slipsense.cli import friendly
+    from slipsense.cli.common import friendly
 
     @app.command()
     @friendly
@@ -286,7 +293,7 @@ def register(app: typer.Typer) -> None:
         ),
         out: Optional[Path] = typer.Option(None, help="annotated output: .gif, .mp4 or .avi"),
         combine: str = typer.Option("max", help="two sensors: max or mean of their probabilities"),
-        backend: str = typer.Option("torch", help="torch or onnx (ONNX Runtime)"),
+        backend: str = typer.Option("auto", help="auto (ONNX Runtime where installed, else PyTorch), torch or onnx"),
         dtype: str = typer.Option("float32", help="float32, or int8 with --backend onnx (quantized products)"),
         max_frames: Optional[int] = typer.Option(None, help="stop after this many frames"),
         heatmap: bool = typer.Option(True, help="draw the attention / saliency heat map in --out"),

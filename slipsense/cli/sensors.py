@@ -9,7 +9,7 @@ import typer
 
 
 def register(app: typer.Typer) -> None:
-    from slipsense.cli import friendly
+    from slipsense.cli.common import friendly
 
     @app.command()
     @friendly
@@ -25,7 +25,7 @@ def register(app: typer.Typer) -> None:
     ):
         """Simulate the binocular marker sensor: 6 objects x 4 motion patterns, 12-frame windows."""
         from slipsense.atomic import check_output_dir, check_output_file
-        from slipsense.cli import check_seed
+        from slipsense.cli.common import check_seed
         from slipsense.errors import InputError
         from slipsense.sensors.simulator import SimConfig, make_dataset, plot_patterns, save_dataset
 
@@ -64,7 +64,7 @@ def register(app: typer.Typer) -> None:
     ):
         """Track the gel markers of real GelSight recordings (KLT) into labelled marker sequences."""
         from slipsense.atomic import check_output_file
-        from slipsense.cli import check_seed
+        from slipsense.cli.common import check_seed
         from slipsense.config import gelsight_recordings
         from slipsense.sensors.markers import marker_layout
         from slipsense.sensors.real import real_marker_dataset, save_marker_npz

@@ -13,17 +13,9 @@ from torch import nn
 from torch.utils.data import DataLoader, Dataset, Subset
 
 from slipsense.atomic import write_text
+from slipsense.progress import progress_bar
 from slipsense.training.distributed import Dist
 from slipsense.errors import ConfigError, InputError
-
-
-def progress_bar(it, enabled: bool, desc: str):
-    """``it`` wrapped in a tqdm bar when ``enabled``."""
-    if not enabled:
-        return it
-    from tqdm.auto import tqdm
-
-    return tqdm(it, desc=desc, leave=False, dynamic_ncols=True)
 
 
 @torch.inference_mode()
@@ -233,12 +225,12 @@ def _check_marker_layout(path, x, model, info, checkpoint) -> None:
 
 
 def _replayed(checkpoint, recordings, overrides, progress, objects, on_error="raise") -> dict[str, Any]:
-    """Per-grasp outcomes of a clip model's replay (:func:`slipsense.api.evaluate`) with its
+    """Per-grasp outcomes of a clip model's replay (:func:`slipsense.evaluation.replay.evaluate`) with its
     operating point. Data the replay cannot take (runs of different camera counts) leaves the clip
     metrics standing: ``{"skipped": why}`` and a warning instead."""
     import warnings
 
-    from slipsense.api import evaluate as evaluate_grasps
+    from slipsense.evaluation.replay import evaluate as evaluate_grasps
     from slipsense.errors import SlipsenseError
 
     try:
@@ -259,12 +251,12 @@ def _replayed(checkpoint, recordings, overrides, progress, objects, on_error="ra
 
 
 def _evaluate_grasps(checkpoint, recordings, split, markers, json_out, overrides, progress, dtype) -> dict[str, Any]:
-    """A grasp detector is judged per grasp (:func:`slipsense.api.evaluate`: every run of the
+    """A grasp detector is judged per grasp (:func:`slipsense.evaluation.replay.evaluate`: every run of the
     recordings folder replayed from its first frame, both sensors, at the checkpoint's operating
     point); the JSON holds the summary and each run's outcome."""
     from dataclasses import asdict
 
-    from slipsense.api import evaluate as evaluate_grasps
+    from slipsense.evaluation.replay import evaluate as evaluate_grasps
     from slipsense.config import portable_path
 
     if split is not None or markers is not None:

@@ -26,6 +26,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from slipsense.alarm import debounce  # noqa: F401  (the alarm rule every outcome is judged by)
 from slipsense.recordings.contact import MIN_CONTACT as REST_MARGIN  # touching: this far above the rest floor
 from slipsense.recordings.contact import STARTUP_FRAMES as STARTUP  # camera start-up transient, never scored
 from slipsense.sensors.spec import GELSIGHT_MINI
@@ -38,20 +39,6 @@ HORIZON = 50
 THRESHOLDS = tuple(float(t) for t in np.round(np.linspace(0.05, 0.95, 19), 3)) + (0.97, 0.98, 0.99, 0.995, 0.998, 0.999)
 
 OUTCOMES = ("warned", "premature", "missed", "false_positive", "clean")
-
-
-def debounce(probability: np.ndarray, threshold: float, frames: int = 1) -> np.ndarray:
-    """``(N,)`` bool: alarm at ``t`` when the probability is ``>= threshold`` at ``t`` and the
-    ``frames - 1`` frames before it. NaN (no answer yet) counts as below the threshold."""
-    above = np.nan_to_num(np.asarray(probability, dtype=np.float64), nan=-np.inf) >= threshold
-    if frames <= 1:
-        return above
-    run = np.zeros(len(above), dtype=np.int64)
-    count = 0
-    for i, a in enumerate(above):  # consecutive count; N is a few hundred
-        count = count + 1 if a else 0
-        run[i] = count
-    return run >= frames
 
 
 def rest_mask(contact: np.ndarray, margin: float = REST_MARGIN) -> np.ndarray:

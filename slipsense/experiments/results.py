@@ -73,7 +73,7 @@ def _mtime_ns(path: Path) -> int:
 def _data_line(data: dict[str, Any]) -> str:
     rec = data.get("recordings")
     text = f"recordings `{Path(rec).name}`" if rec else "in-memory data"
-    if rec and _resolved(rec) != _default_recordings().resolve():
+    if rec and _resolved(rec) != default_recordings().resolve():
         text += " (not the default recordings folder)"
     ov = data.get("overrides")
     return text + (f", hand labels `{Path(ov).name}`" if ov else ", automatic labels only")
@@ -85,7 +85,7 @@ def _resolved(stored: str) -> Path:
     return Path(resolve_path(stored)).resolve()
 
 
-def _default_recordings() -> Path:
+def default_recordings() -> Path:
     from slipsense.config import gelsight_recordings
 
     return gelsight_recordings()

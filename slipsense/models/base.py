@@ -22,7 +22,7 @@ Every model streams: :meth:`SlipModel.stream` gives the live detector an object 
 per sensor and answers per-sensor slip probabilities (:class:`Stream`); clip models get a window
 stream (:mod:`slipsense.models.streams`), a grasp model brings its own. What runs inside a stream is
 a few named modules (:meth:`SlipModel.streaming_modules`), run on PyTorch or, exported through
-:meth:`SlipModel.onnx_parts`, on ONNX Runtime (:mod:`slipsense.streaming.runners`).
+:meth:`SlipModel.onnx_parts`, on ONNX Runtime (:mod:`slipsense.models.runners`).
 
 Optional hooks, with defaults that suit a plain network: :meth:`SlipModel.streaming_parts`
 (what the live detector caches per frame), :meth:`SlipModel.exportable` (an ONNX-friendly copy),
@@ -163,7 +163,8 @@ class SlipModel(nn.Module):
         checkpoint's config; ``backend``/``dtype``/``onnx_dir`` as :class:`slipsense.streaming.detector.SlipDetector`."""
         from slipsense.models.streams import WindowStream
 
-        return WindowStream(self, sensors=sensors, info=info, backend=backend, dtype=dtype, onnx_dir=onnx_dir)
+        geometry = window_geometry(self, info)
+        return WindowStream(self, geometry, sensors=sensors, backend=backend, dtype=dtype, onnx_dir=onnx_dir)
 
     def streaming_modules(self, geometry: Mapping[str, Any]) -> dict[str, nn.Module]:
         """The named modules a stream runs (``{"frame", "window"}`` by default, from

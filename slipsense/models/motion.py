@@ -59,10 +59,6 @@ class MotionNet(GraspModel):
         dilations: of the causal temporal convolutions (kernel 3 each).
         dropout: before the classifier.
         diff_scale: differences are multiplied by this (grey levels in [0, 1]; motion is a few %).
-        before_start: what a lag reaching before the grasp's first frame is taken against: ``"first"``
-            that frame (over the first ``lag`` frames the difference is the imprint so far, the
-            grasp settling included), ``"none"`` the frame itself (no difference until the lag's
-            past exists).
     """
 
     def __init__(
@@ -76,12 +72,8 @@ class MotionNet(GraspModel):
         dilations: Sequence[int] = (1, 2, 4, 8),
         dropout: float = 0.1,
         diff_scale: float = 10.0,
-        before_start: str = "first",
     ):
         super().__init__()
-        if before_start not in ("first", "none"):
-            raise ConfigError(f"motionnet: before_start must be 'first' or 'none', got {before_start!r}")
-        self.before_start = before_start
         image_size = tuple(int(v) for v in image_size)
         lags, dilations = tuple(int(v) for v in lags), tuple(int(v) for v in dilations)
         if len(image_size) != 2 or min(image_size) < 8 or image_size[0] * image_size[1] > _LIMITS["pixels"]:
@@ -122,7 +114,6 @@ class MotionNet(GraspModel):
             "dilations": list(self.dilations),
             "dropout": self.dropout_p,
             "diff_scale": self.diff_scale,
-            "before_start": self.before_start,
         }
 
     @property
@@ -146,8 +137,6 @@ class MotionNet(GraspModel):
     def _pasts(self, at: Tensor) -> list[Tensor]:
         """Per lag, the frame indices ``lag`` before ``at`` (the first frame standing in before 0)."""
         # lag 0 is the anchor: the first frame of the grasp, what the gel looked like before it
-        if self.before_start == "none":  # a frame taken against itself differs by nothing
-            return [torch.zeros_like(at) if lag == 0 else torch.where(at >= lag, at - lag, at) for lag in self.lags]
         return [torch.zeros_like(at) if lag == 0 else (at - lag).clamp(min=0) for lag in self.lags]
 
     def _lagged(self, gray: Tensor, now: Tensor, pasts: Sequence[Tensor], dim: int) -> Tensor:
@@ -354,8 +343,8 @@ class MotionStream:
     """
 
     def __init__(self, model: MotionNet, *, sensors=None, info=None, backend="torch", dtype="float32", onnx_dir=None):
-        from slipsense.evaluation.pergrasp import STARTUP
-        from slipsense.streaming.runners import make_runner
+        from slipsense.recordings.contact import STARTUP_FRAMES as STARTUP
+        from slipsense.models.runners import make_runner
 
         self.model = model.eval()
         self.sensors = model.sensors if sensors is None else int(sensors)
@@ -403,12 +392,8 @@ class MotionStream:
             self._first = frame
         else:
             self._frames.append(frame)
-        self._count = 1 if fresh else self._count + 1  # frames of this grasp so far, this one included
         diffs = np.empty((1, gray.shape[0], len(m.lags), *gray.shape[1:]), np.float32)
         for i, lag in enumerate(m.lags):
-            if lag > 0 and lag >= self._count and m.before_start == "none":
-                diffs[0, :, i] = 0.0
-                continue
             np.subtract(frame, self._first if lag == 0 else self._frames[-1 - lag], out=diffs[0, :, i])
         diffs *= np.float32(m.diff_scale)
         feat = self._run("frame", diffs)[0]
@@ -417,7 +402,7 @@ class MotionStream:
 
     def push(self, frames, index: int):
         from slipsense.models.streams import check_image
-        from slipsense.recordings.runs import gray_frames
+        from slipsense.recordings.video import gray_frames
 
         gray = np.empty((self.sensors, *self.gray_size), dtype=np.uint8)
         images = [check_image(f, f"frame {index}, sensor {s}", None) for s, f in enumerate(frames)]
@@ -439,7 +424,7 @@ class MotionStream:
 
     def replay(self, streams) -> np.ndarray:
         from slipsense.models.streams import check_video_stream
-        from slipsense.recordings.runs import gray_frames
+        from slipsense.recordings.video import gray_frames
 
         streams = [check_video_stream(s, f"sensor {i}") for i, s in enumerate(streams)]
         return self.replay_gray(np.stack([gray_frames(s, self.gray_size) for s in streams]))

@@ -14,8 +14,19 @@ from torch import nn
 
 from slipsense.errors import ConfigError
 
-BACKENDS = ("torch", "onnx")
+#: "auto": ONNX Runtime where it is installed (several times faster for the small streaming models),
+#: else PyTorch (:func:`resolve_backend`).
+BACKENDS = ("auto", "torch", "onnx")
 DTYPES = ("float32", "int8")
+
+
+def resolve_backend(backend: str) -> str:
+    """``"torch"`` or ``"onnx"``: ``"auto"`` is ONNX Runtime where it and the ONNX exporter are installed."""
+    if backend != "auto":
+        return backend
+    import importlib.util
+
+    return "onnx" if all(importlib.util.find_spec(m) is not None for m in ("onnxruntime", "onnx")) else "torch"
 
 
 class TorchRunner:
@@ -36,7 +47,7 @@ class OnnxRunner:
     :class:`~slipsense.models.base.OnnxPart` inputs)."""
 
     def __init__(self, paths: Mapping[str, Path], inputs: Mapping[str, list[str]]):
-        from slipsense.streaming.export import onnx_session
+        from slipsense.models.onnx import onnx_session
 
         self.sessions = {name: onnx_session(path) for name, path in paths.items()}
         self._declared = {name: list(inputs[name]) for name in paths}
@@ -72,6 +83,7 @@ def make_runner(
         raise ConfigError(f"backend must be one of {BACKENDS}, got {backend!r}")
     if dtype not in DTYPES:
         raise ConfigError(f"dtype must be one of {DTYPES}, got {dtype!r}")
+    backend = resolve_backend(backend)
     if backend == "torch":
         if dtype != "float32":
             raise ConfigError("dtype 'int8' needs backend 'onnx' (ONNX Runtime dynamic quantization)")
@@ -82,7 +94,7 @@ def make_runner(
 
         tmpdir = tempfile.TemporaryDirectory(prefix="slipsense-onnx-")
         onnx_dir = tmpdir.name
-    from slipsense.streaming.export import cached_streaming_parts
+    from slipsense.models.onnx import cached_streaming_parts
 
     paths = cached_streaming_parts(model, Path(onnx_dir), geometry, dtype)
     inputs = {k: part.inputs for k, part in model.exportable().onnx_parts(geometry).items() if k in paths}

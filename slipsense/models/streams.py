@@ -51,18 +51,17 @@ class WindowStream:
     def __init__(
         self,
         model,
+        geometry: Mapping[str, Any],
         *,
         sensors: int = 1,
-        info: Mapping[str, Any] | None = None,
         backend: str = "torch",
         dtype: str = "float32",
         onnx_dir: Any = None,
     ):
-        from slipsense.models.base import window_geometry
-        from slipsense.streaming.runners import make_runner
+        from slipsense.models.runners import make_runner
 
         self.model, self.sensors = model.eval(), int(sensors)
-        self.geometry = window_geometry(model, info)
+        self.geometry = dict(geometry)
         self.kind: str = self.geometry["kind"]
         self.frames: int = self.geometry["frames"]
         self.image_size: tuple[int, int] | None = self.geometry.get("image_size")

@@ -78,7 +78,7 @@ def _compute(video: np.ndarray, product: str) -> np.ndarray:
             return blocks
         # one frame has no contact signal (it needs the gel at rest to compare with): none is read
         return signal_of_blocks(blocks).astype(np.float32) if len(blocks) > 1 else np.zeros(len(blocks), np.float32)
-    from .runs import gray_frames
+    from .video import gray_frames
 
     h, w = (int(v) for v in _GRAY.match(product).groups())
     return gray_frames(video, (h, w))
@@ -170,10 +170,10 @@ def prefetch(
     paths: Sequence[str | Path], products: Sequence[str], workers: int | None = None, progress: bool = True
 ) -> int:
     """Decode the videos among ``paths`` whose ``products`` are not cached yet, on ``workers``
-    processes (default one per core; :mod:`slipsense.training.parallel`), so that what reads them next finds
+    processes (default one per core; :mod:`slipsense.parallel`), so that what reads them next finds
     them cached. Videos that cannot be decoded are left for that reader to report. Returns how many
     were decoded."""
-    from slipsense.training.parallel import run_jobs
+    from slipsense.parallel import run_jobs
 
     missing = [Path(p) for p in paths if not _is_cached(Path(p), products)]
     if len(missing) >= 4:  # fewer: starting workers costs more than decoding here

@@ -240,7 +240,7 @@ def _label_runs(runs: list[list[Recording]], rule: Rule, progress: bool, workers
     several runs (decoding and the contact signals are most of a fresh labelling's time)."""
     if len(runs) < 4 or workers == 1:  # fewer runs: starting workers would cost more than it saves
         return [label_run(recs, rule=rule) for recs in runs]
-    from slipsense.training.parallel import run_jobs
+    from slipsense.parallel import run_jobs
 
     return run_jobs(_label_one, runs, rule, workers, progress=progress, desc="labelling runs")
 
@@ -270,7 +270,7 @@ def label_recordings(
             labelled again with a :class:`~slipsense.errors.CacheWarning`.
         rule: see :func:`find_moment_of_slip`.
         workers: processes labelling the runs the cache has no labels for (default: one per core;
-            :mod:`slipsense.training.parallel`).
+            :mod:`slipsense.parallel`).
 
     Returns:
         ``{(object, experiment, camera): VideoLabel}`` sorted by key.

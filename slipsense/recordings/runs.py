@@ -7,7 +7,7 @@ that is what is kept: ``gray`` uint8 ``(S, N, h, w)`` per run (S sensors, N fram
 camera's contact signal (:func:`slipsense.recordings.labels.contact_signal`, used only to score
 "alarms while the gel is at rest", never as model input).
 
-:func:`gray_frames` is the one conversion used both here and by the live detector, so training
+:func:`~slipsense.recordings.video.gray_frames` is the one conversion used both here and by the live detector, so training
 and streaming see the same pixels.
 """
 
@@ -17,24 +17,10 @@ import json
 from dataclasses import dataclass
 from typing import Iterable, Mapping, Sequence
 
-import cv2
 import numpy as np
 
 from ..errors import InputError
 from .types import Recording, VideoLabel
-
-
-def gray_frames(frames: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-    """uint8 BGR ``(N, H, W, 3)`` or one ``(H, W, 3)`` frame -> uint8 grey ``(N, h, w)`` / ``(h, w)``
-    at ``size = (h, w)``, area-averaged (which also smooths the codec's per-pixel flicker)."""
-    one = frames.ndim == 3
-    seq = frames[None] if one else frames
-    h, w = size
-    out = np.empty((len(seq), h, w), dtype=np.uint8)
-    for i, f in enumerate(seq):
-        g = cv2.cvtColor(f, cv2.COLOR_BGR2GRAY)
-        out[i] = g if g.shape == (h, w) else cv2.resize(g, (w, h), interpolation=cv2.INTER_AREA)
-    return out[0] if one else out
 
 
 @dataclass

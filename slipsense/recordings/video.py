@@ -374,3 +374,16 @@ def probe_video(
 
 
 __all__ = ["TRUNCATION_TOLERANCE", "VideoInfo", "frame_count", "probe_video", "read_video"]
+
+
+def gray_frames(frames: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """uint8 BGR ``(N, H, W, 3)`` or one ``(H, W, 3)`` frame -> uint8 grey ``(N, h, w)`` / ``(h, w)``
+    at ``size = (h, w)``, area-averaged (which also smooths the codec's per-pixel flicker)."""
+    one = frames.ndim == 3
+    seq = frames[None] if one else frames
+    h, w = size
+    out = np.empty((len(seq), h, w), dtype=np.uint8)
+    for i, f in enumerate(seq):
+        g = cv2.cvtColor(f, cv2.COLOR_BGR2GRAY)
+        out[i] = g if g.shape == (h, w) else cv2.resize(g, (w, h), interpolation=cv2.INTER_AREA)
+    return out[0] if one else out

@@ -183,34 +183,3 @@ def open_camera(index: int, fps: float, capture_format: str | None, frame_size: 
     cap.set(cv2.CAP_PROP_FPS, fps)
     cap.set(cv2.CAP_PROP_BUFFERSIZE, 1)  # the thread keeps the newest anyway; older ones only go stale
     return cap
-
-
-def capture_source(name: str, threads: Sequence[CaptureThread], fps: float, tolerance_s: float | None = None):
-    """A :class:`~slipsense.streaming.sources.Source` over running capture threads, paired by time
-    (``tolerance_s``: half a frame period by default); its ``stats`` are the threads'."""
-    from slipsense.recordings.bags import check_timing
-    from slipsense.streaming.sources import Source, Step
-
-    check_timing(fps, tolerance_s)
-    tol = 0.5 / fps if tolerance_s is None else tolerance_s
-    steps = (Step(list(frames), list(frames), stamps[0]) for frames, stamps in paired(threads, tol))
-
-    def close():
-        for th in threads:
-            th.close()
-
-    return Source(name, len(threads), steps, closer=close, stats=lambda: {"cameras": [th.stats() for th in threads]})
-
-
-def camera_source(indices, fps, capture_format=None, frame_size=None, tolerance_s=None):
-    """Live cameras (one per sensor) behind capture threads."""
-    threads = []
-    try:
-        for i in indices:
-            cap = open_camera(i, fps, capture_format, frame_size)
-            threads.append(CaptureThread(cap.read, f"camera {i}", release=cap.release))
-    except BaseException:
-        for th in threads:
-            th.close()
-        raise
-    return capture_source(f"camera {','.join(map(str, indices))}", threads, fps, tolerance_s)

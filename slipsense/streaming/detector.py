@@ -27,11 +27,12 @@ from typing import Any, Mapping
 import numpy as np
 from torch import nn
 
+from slipsense.alarm import debounce
 from slipsense.errors import ConfigError, InputError
 from slipsense.models.base import SlipModel, window_geometry
 from slipsense.models.streams import slip_probability
 from slipsense.resources import shipped_model
-from slipsense.streaming.runners import BACKENDS, DTYPES, onnx_cache_dir
+from slipsense.models.runners import BACKENDS, DTYPES, onnx_cache_dir, resolve_backend
 from slipsense.sensors.spec import GELSIGHT_MINI
 
 #: Frame rate of the GelSight recordings (frames per second): converts frames to milliseconds.
@@ -78,8 +79,6 @@ class Trace:
     @property
     def alarm(self) -> np.ndarray:
         """``(N,)`` bool: probability >= threshold for ``debounce`` frames in a row (NaN: no answer yet)."""
-        from slipsense.evaluation.pergrasp import debounce
-
         return debounce(self.probability, self.threshold, self.debounce)
 
 
@@ -107,7 +106,8 @@ class SlipDetector:
         sensors: frames per push (1, or 2 for both fingers); default: what a grasp model was
             trained on (both fingers for the shipped detector), else 1.
         combine: ``"max"`` (default: alarm when either sensor sees slip) or ``"mean"``.
-        backend: ``"torch"`` or ``"onnx"`` (ONNX Runtime; the parts are exported on first use).
+        backend: ``"torch"``, ``"onnx"`` (ONNX Runtime; the parts are exported on first use) or
+            ``"auto"`` (ONNX Runtime where it is installed). ``self.backend`` is the one running.
         dtype: ``"float32"`` (default) or, with ``backend="onnx"``, ``"int8"``: the exported parts'
             matrix products dynamically quantized to int8 weights (``onnxruntime.quantization``).
             A quarter of the weight bytes: what makes the paper-size STNet fast on a CPU, at the cost
@@ -140,6 +140,7 @@ class SlipDetector:
         if sensors is None:
             sensors = window_geometry(model, info).get("sensors", 1)
         check_settings(threshold, sensors, combine, backend, dtype)
+        backend = resolve_backend(backend)
         if isinstance(debounce, bool) or not isinstance(debounce, (int, np.integer)) or not 1 <= debounce <= 1000:
             raise ConfigError(f"debounce must be a whole number of frames in 1..1000, got {debounce!r}")
         self.model = model.eval()
@@ -160,7 +161,7 @@ class SlipDetector:
         threshold: float | None = None,
         sensors: int | None = None,
         combine: str = "max",
-        backend: str = "torch",
+        backend: str = "auto",
         onnx_dir: str | Path | None = None,
         dtype: str = "float32",
         debounce: int | None = None,
@@ -170,7 +171,8 @@ class SlipDetector:
         ``threshold`` / ``debounce`` default to the operating point stored in the checkpoint (chosen
         on its training objects only); a checkpoint without one gets 0.5 / 1 and a warning.
 
-        With ``backend="onnx"`` the ONNX parts are cached under ``onnx_dir`` (default
+        ``backend="auto"`` (default) runs on ONNX Runtime where it is installed, else on PyTorch;
+        :attr:`backend` says which. On ONNX Runtime the parts are cached under ``onnx_dir`` (default
         ``<cache_root>/onnx/<hash of the checkpoint file>``), so only the first use pays the export.
         """
         from slipsense.checkpoint import load_model
@@ -181,6 +183,7 @@ class SlipDetector:
         sensor_of(info, path)  # a malformed sensor spec is named with its file
         threshold, debounce = stored_operating_point(path, info, threshold, debounce)
         check_settings(threshold, 1 if sensors is None else sensors, combine, backend, dtype)
+        backend = resolve_backend(backend)
         if backend == "onnx" and onnx_dir is None:
             onnx_dir = onnx_cache_dir(Path(path))
         try:
@@ -357,7 +360,7 @@ def check_settings(threshold: Any, sensors: Any, combine: str, backend: str, dty
         raise ConfigError(f"backend must be one of {BACKENDS}, got {backend!r}")
     if dtype not in DTYPES:
         raise ConfigError(f"dtype must be one of {DTYPES}, got {dtype!r}")
-    if dtype == "int8" and backend != "onnx":
+    if dtype == "int8" and resolve_backend(backend) != "onnx":
         raise ConfigError("dtype 'int8' needs backend 'onnx' (ONNX Runtime dynamic quantization)")
 
 

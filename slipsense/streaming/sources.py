@@ -15,6 +15,7 @@ from typing import Any, Callable, Iterator, Sequence
 import numpy as np
 
 from slipsense.errors import InputError
+from slipsense.streaming.capture import CaptureThread, open_camera, paired
 
 
 @dataclass
@@ -107,8 +108,6 @@ def open_source(
                 None,
                 f"camera {source}: live cameras need a video model; marker models take a video file or a marker .npy",
             )
-        from slipsense.streaming.capture import camera_source
-
         return camera_source([int(i) for i in indices], fps, capture_format, frame_size, tolerance_s)
     raise InputError(path, "no such file or folder (nor a camera index)")
 
@@ -137,3 +136,33 @@ def _npy_source(path: Path, markers: int | None, fps: float) -> Source:
         raise InputError(path, f"expected a marker stream (T, M, 3) or (sensors, T, M, 3), got shape {x.shape}")
     steps = (Step([None] * len(x), [x[s, t] for s in range(len(x))], t / fps) for t in range(x.shape[1]))
     return Source(str(path), len(x), steps)
+
+
+def capture_source(name: str, threads: Sequence[CaptureThread], fps: float, tolerance_s: float | None = None):
+    """A :class:`Source` over running capture threads, paired by time
+    (``tolerance_s``: half a frame period by default); its ``stats`` are the threads'."""
+    from slipsense.recordings.bags import check_timing
+
+    check_timing(fps, tolerance_s)
+    tol = 0.5 / fps if tolerance_s is None else tolerance_s
+    steps = (Step(list(frames), list(frames), stamps[0]) for frames, stamps in paired(threads, tol))
+
+    def close():
+        for th in threads:
+            th.close()
+
+    return Source(name, len(threads), steps, closer=close, stats=lambda: {"cameras": [th.stats() for th in threads]})
+
+
+def camera_source(indices, fps, capture_format=None, frame_size=None, tolerance_s=None):
+    """Live cameras (one per sensor) behind capture threads."""
+    threads = []
+    try:
+        for i in indices:
+            cap = open_camera(i, fps, capture_format, frame_size)
+            threads.append(CaptureThread(cap.read, f"camera {i}", release=cap.release))
+    except BaseException:
+        for th in threads:
+            th.close()
+        raise
+    return capture_source(f"camera {','.join(map(str, indices))}", threads, fps, tolerance_s)

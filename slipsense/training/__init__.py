@@ -9,5 +9,5 @@ checkpoints, metrics and curves, progress), trains every model; a model declares
   split in :mod:`slipsense.training.splits` and ranks in :mod:`slipsense.training.distributed`;
 * ``"grasps"`` — whole runs of every sensor, per-frame targets: :class:`slipsense.training.grasps.GraspTask`
   and :mod:`slipsense.training.grasp_detector` (the detector with its operating point chosen on inner
-  folds, trainings side by side in :mod:`slipsense.training.parallel`).
+  folds, trainings side by side in :mod:`slipsense.parallel`).
 """

@@ -1,5 +1,5 @@
 """A grasp detector as users get it: its trainings planned (the detector itself and the inner folds
-that choose its operating point), run side by side (:mod:`slipsense.training.parallel`), and written
+that choose its operating point), run side by side (:mod:`slipsense.parallel`), and written
 as one checkpoint with its operating point, metrics and curves.
 
 :func:`train_detector` is what ``slipsense train --model motionnet`` and ``slipsense grasp train``
@@ -43,7 +43,7 @@ class FitJob:
 
 
 def fit_job(shared: tuple[Sequence[GraspRun], GraspTrainConfig], job: FitJob, tick=lambda units: None):
-    """Run one :class:`FitJob` (in this process or a worker, :func:`slipsense.training.parallel.run_jobs`):
+    """Run one :class:`FitJob` (in this process or a worker, :func:`slipsense.parallel.run_jobs`):
     ``{"history", "probs" (per predicted run), "state" (weights, when kept)}``; ticks
     ``len(job.train)`` units per epoch."""
     runs, cfg = shared
@@ -126,7 +126,7 @@ def train_with_operating_point(
     ``metrics.csv`` and ``curves.png`` there after every epoch."""
     import dataclasses
 
-    from slipsense.training.parallel import run_jobs
+    from slipsense.parallel import run_jobs
 
     jobs = plan_training(runs, held, cfg)
     if state_dir is not None:
@@ -154,7 +154,7 @@ def operating_point(
             raise ConfigError("inner_folds=0 needs the trained model")
         probs = predict_runs(model, usable)
     else:
-        from slipsense.training.parallel import run_jobs
+        from slipsense.parallel import run_jobs
 
         jobs = plan_training(usable, (), cfg)[1:]
         results = run_jobs(fit_job, jobs, (usable, cfg), workers, [job_weight(j, cfg) for j in jobs], progress=progress)
@@ -229,7 +229,7 @@ def train_detector(
         workers = 1
     state_dir = out / "resume"
     if d.main and not resume and state_dir.is_dir():
-        for stale in state_dir.glob("job*.state*"):  # a pretraining's state too
+        for stale in state_dir.glob("job*.state"):
             stale.unlink()
     if d.world > 1:
         import torch.distributed as dist

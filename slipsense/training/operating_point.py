@@ -45,7 +45,7 @@ def choose_on_training_runs(
         raise ConfigError(f"runs under {recordings} hold different numbers of cameras ({counts})")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the checkpoint has no threshold yet: that is what is chosen
-        det = SlipDetector.from_checkpoint(checkpoint, sensors=counts[0], threshold=0.5, debounce=1)
+        det = SlipDetector.from_checkpoint(checkpoint, sensors=counts[0], threshold=0.5, debounce=1, backend="torch")
     labels = label_runs(recs, overrides, on_error="skip", progress=progress)
     runs = replay_recordings(det, [r for r in recs if r.key in labels], labels, progress=progress)
     if not any(r.moment_of_slip is not None for r in runs):

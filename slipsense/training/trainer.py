@@ -40,6 +40,7 @@ import torch.nn as nn
 from slipsense.atomic import write_text
 from slipsense.checkpoint import load_resume_state, save_checkpoint, save_resume_state
 from slipsense.errors import InputError
+from slipsense.progress import progress_bar
 from slipsense.training.distributed import Dist, all_sum, micro_batch_rng, setup
 
 
@@ -151,8 +152,6 @@ def train(
         net.train()
         sums = torch.zeros(4, dtype=torch.float64)  # weighted loss sum, its weight, correct, counted
         batches = task.batches(steps, epoch, d, s.accumulate)
-        from slipsense.evaluation.evaluate import progress_bar
-
         bar = progress_bar(steps, s.progress and d.main, f"{s.desc} epoch {epoch + 1}/{s.epochs}".strip())
         for k, step in enumerate(bar):
             if step.weight <= 0:

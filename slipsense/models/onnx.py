@@ -1,0 +1,354 @@
+"""ONNX export of a slipsense model's parts, the ONNX Runtime session, and the verified cache of the
+streaming parts a live stream runs on ONNX Runtime (:mod:`slipsense.models.runners`).
+
+Which exporter, which files: :mod:`slipsense.streaming.export` (the user-facing export of a checkpoint).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import logging
+import os
+import sys
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterator, Mapping
+
+import numpy as np
+import torch
+from torch import nn
+
+from slipsense.atomic import atomic_path
+from slipsense.errors import InputError
+
+
+#: Opset for the TorchScript exporter (its newest well-tested one); the dynamo exporter picks its own.
+TORCHSCRIPT_OPSET = 17
+
+
+@dataclass
+class ExportResult:
+    """What :func:`export_onnx` wrote.
+
+    ``paths``: ``{"model" | "frame" | "window": file}``; ``exporter``: per file, ``"torchscript"``
+    or ``"dynamo"``; ``max_abs_diff``: per file, ONNX Runtime vs PyTorch on the example input
+    (only when verified).
+    """
+
+    paths: dict[str, Path] = field(default_factory=dict)
+    exporter: dict[str, str] = field(default_factory=dict)
+    max_abs_diff: dict[str, float] = field(default_factory=dict)
+
+
+def exportable(model: nn.Module) -> nn.Module:
+    """An eval-mode copy of ``model`` set up for tracing (each model says how: ``SlipModel.exportable``)."""
+    if not callable(
+        getattr(model, "onnx_parts", None)
+    ):  # not isinstance: models.base reaches this module through its streams
+        raise InputError(None, f"{type(model).__name__} is not a slipsense model (see slipsense.models.base)")
+    return model.exportable()
+
+
+def export_module(
+    module: nn.Module,
+    example: torch.Tensor | tuple[torch.Tensor, ...],
+    path: str | Path,
+    input_name: str | list[str],
+    output_name: str | list[str],
+    batch: int | None = None,
+    dynamic: Mapping[str, Mapping[int, str]] | None = None,
+) -> str:
+    """Export ``module(*example)`` to ``path`` (atomically); returns the exporter that worked.
+
+    ``dynamic`` names the free axes per input/output name; without it, ``batch=None`` makes axis 0
+    of every input and output free and an int fixes it (the example is cut or repeated to it).
+    Tries the TorchScript exporter, then the dynamo exporter; raises InputError with both reasons.
+    """
+    path = Path(path)
+    examples = example if isinstance(example, tuple) else (example,)
+    inputs = [input_name] if isinstance(input_name, str) else list(input_name)
+    outputs = [output_name] if isinstance(output_name, str) else list(output_name)
+    if dynamic is None:
+        if batch is not None:
+            examples = tuple(e.repeat(-(-batch // e.shape[0]), *[1] * (e.dim() - 1))[:batch] for e in examples)
+            dynamic = {}
+        else:
+            dynamic = {name: {0: "batch"} for name in inputs + outputs}
+    module = module.eval()
+    errors = []
+    for exporter in ("torchscript", "dynamo"):
+        try:
+            with atomic_path(path) as tmp, torch.no_grad(), _quiet():
+                if exporter == "torchscript":
+                    torch.onnx.export(
+                        module,
+                        examples,
+                        str(tmp),
+                        dynamo=False,
+                        opset_version=TORCHSCRIPT_OPSET,
+                        input_names=inputs,
+                        output_names=outputs,
+                        do_constant_folding=True,
+                        dynamic_axes={k: dict(v) for k, v in dynamic.items()} or None,
+                    )
+                else:
+                    dims: dict[str, Any] = {}
+                    shapes = tuple(
+                        {
+                            axis: dims.setdefault(label, torch.export.Dim(label, min=1, max=65536))
+                            for axis, label in dynamic.get(name, {}).items()
+                        }
+                        or None
+                        for name in inputs
+                    )
+                    program = torch.onnx.export(
+                        module,
+                        examples,
+                        dynamo=True,
+                        input_names=inputs,
+                        output_names=outputs,
+                        dynamic_shapes=shapes if any(shapes) else None,
+                        optimize=True,
+                        verbose=False,
+                    )
+                    program.save(str(tmp), external_data=False)
+            return exporter
+        except Exception as exc:  # each exporter raises its own zoo of error types
+            errors.append(f"{exporter}: {type(exc).__name__}: {' '.join(str(exc).split())[:300]}")
+    raise InputError(path, "ONNX export failed (" + "; ".join(errors) + ")")
+
+
+@contextlib.contextmanager
+def _quiet() -> Iterator[None]:
+    """Silence the exporters: deprecation/tracer warnings, progress lines and IR dumps on stdout, and
+    torch.onnx's logger (which reports e.g. missing torchvision ops). Errors still propagate."""
+    # torch.onnx's logger, and the root logger onnxruntime.quantization writes its advice to
+    loggers = [logging.getLogger("torch.onnx"), logging.getLogger()]
+    levels = [lg.level for lg in loggers]
+    for lg in loggers:
+        lg.setLevel(logging.ERROR)
+    sys.stdout.flush()
+    saved = os.dup(1)
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    # The TorchScript exporter switches its C++ log on whatever `verbose` says (torch 2.13) and dumps
+    # the whole IR graph to file descriptor 1 when an export fails: redirect the descriptor itself.
+    os.dup2(devnull, 1)
+    try:
+        with warnings.catch_warnings(), contextlib.redirect_stdout(io.StringIO()):
+            warnings.simplefilter("ignore")
+            yield
+    finally:
+        sys.stdout.flush()
+        os.dup2(saved, 1)
+        os.close(saved)
+        os.close(devnull)
+        for lg, level in zip(loggers, levels):
+            lg.setLevel(level)
+
+
+def quantize_int8(src: str | Path, dst: str | Path) -> Path:
+    """Dynamically quantize an ONNX file's MatMul/Gemm weights to int8 (``onnxruntime.quantization``).
+
+    Activations are quantized on the fly per batch; ONNX Runtime runs the products as int8. For
+    weight-bound models (the paper-size STNet streams 0.5 GB of float32 weights per window) this
+    cuts the per-frame time about 3x; results differ from float32 by quantization error.
+    """
+    try:
+        from onnxruntime.quantization import QuantType, quantize_dynamic
+    except ModuleNotFoundError:
+        raise InputError(src, "onnxruntime is not installed (pip install 'slipsense[export]')") from None
+    dst = Path(dst)
+    with atomic_path(dst) as tmp, _quiet():
+        quantize_dynamic(str(src), str(tmp), weight_type=QuantType.QInt8, op_types_to_quantize=["MatMul", "Gemm"])
+    return dst
+
+
+def onnx_session(path: str | Path, threads: int | None = None):
+    """An ONNX Runtime CPU session for ``path``.
+
+    ``threads``: intra-op threads; default ``torch.get_num_threads()``, so that both backends of the
+    live detector use the same cores (ONNX Runtime's own default, one spinning thread per physical
+    core, fights other processes on a shared machine).
+    """
+    try:
+        import onnxruntime as ort
+    except ModuleNotFoundError:
+        raise InputError(path, "onnxruntime is not installed (pip install 'slipsense[export]')") from None
+    opts = ort.SessionOptions()
+    opts.log_severity_level = 3
+    opts.intra_op_num_threads = int(threads if threads is not None else torch.get_num_threads())
+    try:
+        return ort.InferenceSession(str(path), sess_options=opts, providers=["CPUExecutionProvider"])
+    except Exception as exc:
+        raise InputError(
+            path, f"ONNX Runtime cannot load it ({type(exc).__name__}: {' '.join(str(exc).split())[:200]})"
+        ) from None
+
+
+def run_onnx(session, *x: np.ndarray | torch.Tensor) -> np.ndarray:
+    """Run a session on ``x`` (its inputs in order); returns its first output."""
+    arrays = [v.detach().cpu().numpy() if isinstance(v, torch.Tensor) else v for v in x]
+    feed = {i.name: np.ascontiguousarray(a) for i, a in zip(session.get_inputs(), arrays)}
+    return session.run(None, feed)[0]
+
+
+def max_abs_diff(path: str | Path, module: nn.Module, x: torch.Tensor | tuple[torch.Tensor, ...]) -> float:
+    """Largest |ONNX Runtime - PyTorch| over every output of ``module`` exported at ``path``, on ``x``."""
+    xs = x if isinstance(x, tuple) else (x,)
+    with torch.no_grad():
+        ref = module.eval()(*xs)
+    refs = ref if isinstance(ref, (tuple, list)) else (ref,)
+    session = onnx_session(path)
+    feed = {i.name: v.numpy() for i, v in zip(session.get_inputs(), xs)}
+    got = session.run(None, feed)
+    return max(float(np.abs(g - r.float().numpy()).max()) for g, r in zip(got, refs))
+
+
+def streaming_names(model: nn.Module, geometry: Mapping[str, Any]) -> list[str]:
+    return list(model.streaming_modules(geometry))
+
+
+def export_parts(
+    model: nn.Module,
+    folder: str | Path,
+    names: list[str],
+    *,
+    geometry: Mapping[str, Any],
+    batch: int | None = None,
+    verify: bool = True,
+    prefix: str = "",
+) -> ExportResult:
+    """Write the model's ONNX files ``names`` (:meth:`SlipModel.onnx_parts`) into ``folder`` as
+    ``<prefix><name>.onnx``, verified against the model as it runs in PyTorch."""
+    parts = exportable(model).onnx_parts(geometry, batch)
+    ref = {"model": model.eval(), **model.eval().streaming_modules(geometry)}
+    result = ExportResult()
+    folder = Path(folder)
+    for key in names:
+        part = parts[key]
+        path = folder / f"{prefix}{key}.onnx"
+        result.exporter[key] = export_module(
+            part.module, part.example, path, part.inputs, part.outputs, dynamic=part.dynamic
+        )
+        result.paths[key] = path
+        if verify:
+            result.max_abs_diff[key] = max_abs_diff(path, ref[key], part.example)
+    return result
+
+
+def export_streaming_parts(
+    model: nn.Module,
+    folder: str | Path,
+    *,
+    geometry: Mapping[str, Any] | None = None,
+    batch: int | None = None,
+    verify: bool = True,
+    prefix: str = "",
+) -> ExportResult:
+    """Write the modules a stream runs (``frame.onnx`` and ``window.onnx`` for a clip model,
+    ``frame.onnx`` and ``step.onnx`` for MotionNet) into ``folder``."""
+    geometry = geometry or model.window_geometry({})
+    names = streaming_names(model, geometry)
+    return export_parts(model, folder, names, geometry=geometry, batch=batch, verify=verify, prefix=prefix)
+
+
+# ------------------------------------------------------------------------------ verified parts cache
+#: Written last into a parts folder: format, what the parts were exported from, each file's sha256.
+PARTS_MANIFEST = "parts.json"
+PARTS_FORMAT = 1
+
+
+def _file_sha256(path: Path) -> str:
+    import hashlib
+
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _parts_key(model: nn.Module, geometry: Mapping[str, Any], dtype: str) -> dict[str, Any]:
+    import json
+
+    from slipsense import __version__
+
+    config = model.config() if hasattr(model, "config") else {}
+    return json.loads(
+        json.dumps(
+            {
+                "model": getattr(model, "model_name", type(model).__name__),
+                "config": config,
+                "geometry": dict(geometry),
+                "dtype": dtype,
+                "slipsense": __version__,
+                "torch": torch.__version__,
+            },
+            default=str,
+        )
+    )
+
+
+def check_parts(folder: str | Path, names: list[str], key: Mapping[str, Any]) -> str | None:
+    """Why the cached parts ``names`` in ``folder`` cannot be used (None: they can): the manifest is
+    missing or unreadable, records other inputs than ``key``, or a file's sha256 differs."""
+    import json
+
+    folder = Path(folder)
+    try:
+        manifest = json.loads((folder / PARTS_MANIFEST).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        return "no manifest"
+    except (OSError, ValueError) as exc:
+        return f"manifest unreadable ({exc})"
+    if not isinstance(manifest, dict) or manifest.get("format") != PARTS_FORMAT:
+        return "manifest of another format"
+    if manifest.get("key") != key:
+        return "exported from another model or setting"
+    files = manifest.get("files")
+    if not isinstance(files, dict):
+        return "manifest lists no files"
+    for name in names:
+        path = folder / name
+        if name not in files or not path.is_file():
+            return f"{name} missing"
+        if _file_sha256(path) != files[name]:
+            return f"{name}: checksum mismatch"
+    return None
+
+
+def cached_streaming_parts(
+    model: nn.Module, folder: str | Path, geometry: Mapping[str, Any], dtype: str = "float32"
+) -> dict[str, Path]:
+    """The model's streaming modules as ONNX files in ``folder``, exported unless a verified copy is
+    there: ``{name: path}`` (``frame.onnx``, ``window.onnx`` / ``step.onnx``), their ``*.int8.onnx``
+    copies for ``dtype="int8"``.
+
+    ``folder/parts.json`` (written last) records the model's name, config, geometry, dtype, the
+    library versions and each file's sha256; files that do not match it (damaged, half written,
+    from another checkpoint) are exported again with a :class:`~slipsense.errors.CacheWarning`.
+    """
+    import json
+
+    from slipsense.atomic import write_text
+    from slipsense.errors import CacheWarning
+
+    folder = Path(folder)
+    parts = streaming_names(model, geometry)
+    suffix = ".int8.onnx" if dtype == "int8" else ".onnx"
+    names = [p + suffix for p in parts]
+    key = _parts_key(model, geometry, dtype)
+    why = check_parts(folder, names, key)
+    if why is not None:
+        if why != "no manifest":
+            warnings.warn(f"{folder}: cached ONNX parts unusable ({why}); exporting again", CacheWarning, stacklevel=2)
+        (folder / PARTS_MANIFEST).unlink(missing_ok=True)
+        export_streaming_parts(model, folder, geometry=geometry, verify=False)
+        if dtype == "int8":
+            for p in parts:
+                quantize_int8(folder / f"{p}.onnx", folder / f"{p}.int8.onnx")
+        manifest = {"format": PARTS_FORMAT, "key": key, "files": {n: _file_sha256(folder / n) for n in names}}
+        write_text(folder / PARTS_MANIFEST, json.dumps(manifest, indent=1))
+    return {p: folder / n for p, n in zip(parts, names)}
