@@ -56,30 +56,36 @@ def fit(
     progress: bool = True,
     **settings: Any,
 ) -> TrainedDetector:
-    """Train a grasp detector (both sensors, every frame) on a recordings folder.
+    """Train a registered model on a recordings folder, as ``slipsense train`` does
+    (:func:`slipsense.training.recipe.fit`: the same sensor spec, one-finger split and resume).
 
     Args:
         recordings: the folder (default: the shared GelSight recordings, ``$SLIPSENSE_DATA``).
-        out: output folder (``detector.safetensors``, ``metrics.csv``, ``curves.png``).
-        model: a registered grasp model (``"motionnet"``, or ``"motion-energy"`` for the baseline).
-        held_out: objects kept out of training and scored per grasp at the end.
+        out: output folder (``detector.safetensors`` or ``last.safetensors``, ``metrics.csv``, ``curves.png``).
+        model: a registered model: ``"motionnet"`` (the default detector), ``"motion-energy"`` (the
+            non-learned baseline), or a clip model (``"vivit"``, ``"resnet3d50"``, ...).
+        held_out: objects kept out of training and scored at the end (per grasp for a grasp detector).
         overrides: label overrides CSV; True = the shipped hand labels for runs of the shared
             recordings; False = none.
-        settings: training or model settings, e.g. ``epochs=5``, ``width=8``
-            (:class:`slipsense.training.grasps.GraspTrainConfig`).
+        settings: the model's settings (e.g. ``width=8``) and training settings (e.g. ``epochs=5``),
+            each by its name.
     """
-    from slipsense.training.grasp_detector import train_detector
-    from slipsense.training.grasps import load_grasp_data, make_config
+    from slipsense.models import model_class, settings_of
+    from slipsense.training.recipe import fit as fit_recipe
 
-    root = recordings_folder(recordings)
-    cfg = make_config(model, {**settings, "seed": seed})
-    from slipsense.models import build
-
-    image_size = tuple(cfg.model_config.get("image_size") or build(model).image_size)
-    runs, labels = load_grasp_data(root, label_overrides(overrides), image_size, progress=progress)
-    result = train_detector(runs, labels, cfg, out, held=list(held_out), progress=progress)
-    held = {k: result[k] for k in ("per_grasp", "clips") if k in result} or None
-    return TrainedDetector(Path(result["checkpoint"]), result["operating_point"], result["history"], held)
+    model_keys = settings_of(model_class(model))
+    tree = {
+        "model": {"name": model, **{k: v for k, v in settings.items() if k in model_keys}},
+        "data": {
+            "recordings": str(recordings_folder(recordings)),
+            "overrides": label_overrides(overrides),
+            "test_objects": list(held_out),
+        },
+        "train": {**{k: v for k, v in settings.items() if k not in model_keys}, "seed": seed},
+    }
+    res = fit_recipe(tree, out, progress=progress)
+    held = {k: res[k] for k in ("per_grasp", "clips") if res.get(k) is not None} if held_out else None
+    return TrainedDetector(Path(res["checkpoint"]), res.get("operating_point") or {}, res.get("history") or [], held)
 
 
 __all__ = ["Evaluation", "TrainedDetector", "evaluate", "fit"]

@@ -160,4 +160,27 @@ def dump_tree(tree: Mapping[str, Any]) -> str:
     return yaml.safe_dump(to_plain(tree), sort_keys=False, default_flow_style=None)
 
 
-__all__ = ["SECTIONS", "check_keys", "dump_tree", "empty_tree", "given", "load_tree", "merge", "parse_sets", "to_plain"]
+#: Seeds are unsigned 32-bit integers (what NumPy's legacy generator takes, and every seed here fits).
+MAX_SEED = 2**32 - 1
+
+
+def check_seed(seed: int, option: str = "--seed") -> int:
+    """``seed`` if it is in 0..2**32-1, else ConfigError (a negative seed breaks NumPy's generators)."""
+    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= MAX_SEED:
+        raise ConfigError(f"{option} must be an integer in 0..{MAX_SEED}, got {seed!r}")
+    return seed
+
+
+__all__ = [
+    "SECTIONS",
+    "MAX_SEED",
+    "check_keys",
+    "check_seed",
+    "dump_tree",
+    "empty_tree",
+    "given",
+    "load_tree",
+    "merge",
+    "parse_sets",
+    "to_plain",
+]

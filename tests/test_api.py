@@ -64,6 +64,19 @@ def test_fit_then_evaluate_return_objects(tmp_path, grasp_recordings, cache, one
     assert trained.detector().sensors == 2
 
 
+def test_fit_applies_what_the_command_line_applies(tmp_path, grasp_recordings, cache, one_thread):
+    """One recipe: a one-finger detector trained from Python sees each camera as a grasp of its own
+    and stores the sensor spec, as `slipsense train` does (both go through training.recipe.fit)."""
+    from slipsense.checkpoint import read_info
+
+    trained = slipsense.fit(grasp_recordings, tmp_path / "one", held_out=["obj0"], progress=False, sensors=1, **SMALL)
+    g = trained.held_out["per_grasp"]
+    assert g["slip_runs"] + g["held_runs"] == 4  # obj0's two runs, two cameras each
+    info = read_info(trained.checkpoint)
+    assert info["data"]["sensors_per_grasp"] == 1 and info["sensor"]["name"] == "gelsight-mini"
+    assert trained.detector().sensors == 1
+
+
 def _quick_start() -> str:
     text = README.read_text(encoding="utf-8")
     section = text[text.index("## Python quick start") :]

@@ -9,7 +9,6 @@ from typing import List, Optional
 import typer
 
 from slipsense.cli.common import default_recordings, check_nonnegative, check_seed, friendly, parse_hw
-from slipsense.errors import ConfigError
 
 app = typer.Typer(
     add_completion=False,
@@ -109,7 +108,7 @@ def train(
     the resolved tree is stored in every checkpoint and written to OUT/config.yaml."""
     from slipsense.atomic import check_output_dir
     from slipsense.run_config import empty_tree, given, load_tree, merge, parse_sets
-    from slipsense.training.clips import TrainRequest, run_training
+    from slipsense.training.clips import TrainRequest
 
     check_output_dir(out, "--out")
     options = {
@@ -144,60 +143,13 @@ def train(
     }
     tree = merge(load_tree(config) if config else empty_tree(), given(options), parse_sets(set_))
     check_seed(tree["train"].get("seed", 0))
-    from slipsense.models import available, model_class
+    from slipsense.cli.common import command_line
+    from slipsense.cli.grasp import report_training
+    from slipsense.training.recipe import fit
 
-    name = tree["model"].get("name") or TrainRequest.model
-    if name in available() and model_class(name).training_task == "grasps":
-        from slipsense.cli.grasp import train_from_tree
-
-        held, fold, folds = _grasp_split(tree, name)
-        train_from_tree(tree, out, held=held, fold=fold, folds=folds, progress=progress, resume=resume)
-        return
-    run_training(TrainRequest.from_tree(tree, out=out, progress=progress), resume=resume)
-
-
-def _grasp_split(tree, name: str):
-    """``slipsense train``'s data options as a grasp training takes them; options that only cut clips
-    are refused by name. Returns ``(held objects, fold, folds)``; ``tree`` keeps the rest."""
-    data = tree["data"]
-    clip_only = [
-        k
-        for k in (
-            "markers",
-            "frames",
-            "horizon",
-            "wiggle_per_video",
-            "split",
-            "test_fraction",
-            "augment",
-            "marker_copies",
-        )
-        if data.get(k) is not None
-    ]
-    clip_only += [
-        f"train.{k}"
-        for k in ("num_workers", "device", "max_steps_per_epoch", "step_size", "gamma", "select_by")
-        if tree["train"].get(k) is not None
-    ]
-    if tree["model"].get("preset") is not None:
-        clip_only.append("preset")
-    if clip_only:
-        raise ConfigError(
-            f"{name} trains on whole grasps: {', '.join(clip_only)} only apply to clip models "
-            f"(grasp settings: slipsense grasp train --help)"
-        )
-    if data.get("size") is not None:
-        tree["model"]["image_size"] = list(data.pop("size"))
-    from slipsense.training.grasps import GraspTrainConfig
-    from slipsense.models import model_class, settings_of
-
-    model_keys = settings_of(model_class(name)) | {"name"}
-    for key in [k for k in tree["model"] if k not in model_keys and k in GraspTrainConfig.__dataclass_fields__]:
-        tree["train"][key] = tree["model"].pop(key)  # a bare --set KEY=VALUE naming a training setting
-    held = data.pop("test_objects", None)
-    held = [o for o in held.split(",") if o] if isinstance(held, str) else list(held or [])
-    fold, folds = data.pop("fold", None), data.pop("folds", None) or 5
-    return held, fold, folds
+    tree["model"]["name"] = tree["model"].get("name") or TrainRequest.model
+    res = fit(tree, out, progress=progress, resume=resume, command=command_line())
+    report_training(res)
 
 
 @app.command()

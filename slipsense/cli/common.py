@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import functools
+import shlex
+import sys
 import warnings
 from pathlib import Path
 from typing import Optional
@@ -10,6 +12,7 @@ from typing import Optional
 import typer
 
 from slipsense.errors import ConfigError, SlipsenseError
+from slipsense.run_config import MAX_SEED, check_seed  # noqa: F401  (the commands' seed check)
 
 
 def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> str:
@@ -47,17 +50,6 @@ def parse_hw(text: Optional[str], option: str = "--size") -> Optional[tuple[int,
     return (h, w)
 
 
-#: Seeds are unsigned 32-bit integers (what NumPy's legacy generator takes, and every seed here fits).
-MAX_SEED = 2**32 - 1
-
-
-def check_seed(seed: int, option: str = "--seed") -> int:
-    """``seed`` if it is in 0..2**32-1, else ConfigError (a negative seed breaks NumPy's generators)."""
-    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= MAX_SEED:
-        raise ConfigError(f"{option} must be an integer in 0..{MAX_SEED}, got {seed!r}")
-    return seed
-
-
 def check_nonnegative(value: float, option: str) -> float:
     """``value`` if it is a finite number >= 0, else ConfigError."""
     import math
@@ -71,3 +63,8 @@ def default_recordings() -> Path:
     from slipsense.config import gelsight_recordings
 
     return gelsight_recordings()
+
+
+def command_line() -> str:
+    """The command as it was typed (stored beside what it wrote, so a report names how it was made)."""
+    return "slipsense " + " ".join(shlex.quote(a) for a in sys.argv[1:])

@@ -3,12 +3,12 @@ judged per grasp on objects they never saw (registered by slipsense.cli)."""
 
 from __future__ import annotations
 
-import shlex
-import sys
 from pathlib import Path
 from typing import List, Optional
 
 import typer
+
+from slipsense.cli.common import command_line
 
 grasp_app = typer.Typer(
     add_completion=False,
@@ -27,9 +27,12 @@ SET_HELP = (
 def _prepare(
     config, model, sets, size, epochs, seed, inner_folds, recordings, overrides, on_error, progress, threads, out=None
 ):
-    """The configuration tree's training config, data and stored metadata (:func:`prepare_tree`)."""
+    """The configuration tree's training config, data and stored metadata
+    (:func:`slipsense.training.recipe.prepare_grasps`)."""
+    from slipsense.training.recipe import prepare_grasps
+
     tree = _grasp_tree(config, model, sets, size, epochs, seed, inner_folds, recordings, overrides, on_error)
-    return prepare_tree(tree, progress, threads, out)
+    return prepare_grasps(tree, progress, threads, out)
 
 
 def _grasp_tree(config, model, sets, size, epochs, seed, inner_folds, recordings, overrides, on_error):
@@ -47,130 +50,29 @@ def _grasp_tree(config, model, sets, size, epochs, seed, inner_folds, recordings
         "data": {"recordings": recordings, "overrides": overrides, "on_error": on_error},
         "train": {"epochs": epochs, "inner_folds": inner_folds, "seed": seed},
     }
-    return merge(load_tree(config) if config else empty_tree(), given(options), layer)
+    tree = merge(load_tree(config) if config else empty_tree(), given(options), layer)
+    tree["model"]["name"] = tree["model"].get("name") or "motionnet"
+    return tree
 
 
-def prepare_tree(tree, progress: bool = True, threads: int | None = None, out=None):
-    """From a grasp configuration tree (model / data / train sections): the training config, the
-    runs, their labels and the metadata checkpoints keep."""
-    from slipsense.cli.common import default_recordings, check_seed
-    from slipsense.training.grasps import GraspTrainConfig, load_grasp_data, make_config
-    from slipsense.run_config import check_keys, to_plain
-
-    if threads is not None:
-        import torch
-
-        torch.set_num_threads(threads)
-    from slipsense.atomic import check_output_dir
-
-    check_output_dir(out, "--out")
-    train_keys = set(GraspTrainConfig.__dataclass_fields__) - {"model", "model_config"}
-    check_keys(
-        tree,
-        {"train": train_keys, "data": ("recordings", "overrides", "on_error", "sensor"), "model": None},
-        "grasp configuration",
-    )
-    name = tree["model"].pop("name", "motionnet")
-    tree["train"]["seed"] = check_seed(tree["train"].get("seed", 0))
-    settings = {**tree["train"], **{f"model.{k}": v for k, v in tree["model"].items()}}
-    cfg = make_config(name, settings)
-    image_size = tuple(cfg.model_config.get("image_size") or _model_size(name))
-    from slipsense.config import resolve_path
-
-    root = resolve_path(tree["data"].get("recordings") or default_recordings())
-    overrides = tree["data"].get("overrides")
-    overrides = resolve_path(overrides) if overrides is not None else None
-    from slipsense.sensors.spec import GELSIGHT_MINI, sensor_named
-
-    sensor = sensor_named(tree["data"]["sensor"]) if tree["data"].get("sensor") else GELSIGHT_MINI
-    runs, labels = load_grasp_data(
-        root, overrides, image_size, tree["data"].get("on_error", "raise"), progress, sensor=sensor
-    )
-    from slipsense.models import build
-
-    sensors = build(name, **cfg.model_config).sensors
-    if sensors == 1:  # a one-finger detector: each camera of a run is a grasp of its own
-        from slipsense.recordings.runs import per_sensor
-
-        runs = per_sensor(runs)
-    from slipsense.config import portable_path
-
-    tree["model"] = {"name": name, **cfg.model_config}
-    data = {
-        "recordings": portable_path(root),
-        "overrides": None if overrides is None else portable_path(overrides),
-        "image_size": list(image_size),
-        "sensors_per_grasp": sensors,
-        "sensor": sensor.to_dict(),
-        "config": to_plain(tree),
-    }
-    return cfg, runs, labels, data
-
-
-def train_from_tree(
-    tree,
-    out,
-    *,
-    held: list[str] | None = None,
-    fold: int | None = None,
-    folds: int = 5,
-    progress: bool = True,
-    resume: bool = False,
-    workers: int | None = None,
-    threads: int | None = None,
-    echo=typer.echo,
-) -> dict:
-    """Train a grasp detector from a configuration tree (what ``slipsense grasp train`` and
-    ``slipsense train --model motionnet`` run): every object but ``held`` (or fold ``fold`` of
-    ``folds``), writing ``out/detector.safetensors``, ``metrics.csv``, ``curves.png``, ``config.yaml``."""
-    from slipsense.atomic import write_text
-    from slipsense.errors import ConfigError
-    from slipsense.training.grasp_detector import object_split, train_detector
-    from slipsense.run_config import dump_tree
-
-    import os
-
-    ranked = int(os.environ.get("WORLD_SIZE", "1")) > 1
-    if ranked and workers not in (None, 1):
-        raise ConfigError("under torchrun every training is shared out between the ranks: leave --workers out")
-    progress = progress and int(os.environ.get("RANK", "0")) == 0
-    cfg, runs, labels, data = prepare_tree(tree, progress, threads, out)
-    held = list(held or [])
-    if fold is not None:
-        split = object_split([r for r in runs if r.usable], folds, cfg.folds_seed)
-        if not 0 <= fold < len(split):
-            raise ConfigError(f"--fold must be in 0..{len(split) - 1}, got {fold}")
-        held = split[fold]
-    data["command"] = _command()
-    res = train_detector(runs, labels, cfg, out, held, data=data, progress=progress, workers=workers, resume=resume)
-    if ranked and int(os.environ.get("RANK", "0")) != 0:
-        return res  # rank 0 writes and reports
-    write_text(Path(out) / "config.yaml", dump_tree(data["config"]))
-    op = res["operating_point"]
-    echo(
-        f"detector -> {res['checkpoint']} (threshold {op['threshold']:g}, debounce {op['debounce']}, "
-        f"chosen on {op['chosen_on']})"
-    )
-    if held:
+def report_training(res: dict, echo=typer.echo) -> None:
+    """What a training prints after it: the detector and its operating point where one was chosen,
+    and the held-out objects' per-grasp outcomes when some were held out."""
+    op = res.get("operating_point")
+    if op:
+        echo(
+            f"detector -> {res['checkpoint']} (threshold {op['threshold']:g}, debounce {op['debounce']}, "
+            f"chosen on {op.get('chosen_on', 'the training objects')})"
+        )
+    if res.get("held_out") and res.get("per_grasp"):
         g, c = res["per_grasp"], res["clips"]
         echo(
-            f"held-out objects ({', '.join(held)}): warned in time {g['warned']}/{g['slip_runs']}, "
+            f"held-out objects ({', '.join(res['held_out'])}): warned in time {g['warned']}/{g['slip_runs']}, "
             f"premature {g['premature']}, missed {g['missed']}, false-positive grasps "
             f"{g['false_positive_grasps']}/{g['held_runs']}; clips: accuracy {c['accuracy']:.3f} "
             f"(always-wiggle {c['always_wiggle_accuracy']:.3f}), balanced {c['balanced_accuracy']:.3f}, "
             f"F1 {c['f1']:.3f}"
         )
-    return res
-
-
-def _model_size(name: str) -> tuple[int, int]:
-    from slipsense.models import build
-
-    return tuple(build(name).image_size)
-
-
-def _command() -> str:
-    return "slipsense " + " ".join(shlex.quote(a) for a in sys.argv[1:])
 
 
 def register(app: typer.Typer) -> None:
@@ -208,10 +110,12 @@ def register(app: typer.Typer) -> None:
         resume: bool = typer.Option(False, help="continue a killed training from OUT/resume/ (same weights)"),
     ):
         """Train a grasp detector (and its alarm operating point, chosen on its training objects)."""
+        from slipsense.training.recipe import fit
+
         tree = _grasp_tree(config, model, sets, size, epochs, seed, inner_folds, recordings, overrides, on_error)
-        train_from_tree(
-            tree, out, fold=fold, folds=folds, progress=progress, resume=resume, workers=workers, threads=threads
-        )
+        tree["data"].update(fold=fold, folds=folds)
+        res = fit(tree, out, progress=progress, resume=resume, workers=workers, threads=threads, command=command_line())
+        report_training(res)
 
     @grasp_app.command("folds")
     @friendly
@@ -260,7 +164,7 @@ def register(app: typer.Typer) -> None:
             cfg,
             out,
             folds,
-            meta={"command": _command(), **data},
+            meta={"command": command_line(), **data},
             progress=progress,
             echo=typer.echo,
             workers=workers,
@@ -298,7 +202,7 @@ def register(app: typer.Typer) -> None:
 
         check_output_dir(out, "--out")
         k = None if max_held_alarm is not None and max_held_alarm < 0 else max_held_alarm
-        rep = rechoose(src, out, k, command=_command(), echo=typer.echo, any_recipe=any_recipe)
+        rep = rechoose(src, out, k, command=command_line(), echo=typer.echo, any_recipe=any_recipe)
         g = rep["pooled"]["per_grasp"]
         ci = g.get("intervals", {})
         typer.echo(
@@ -328,7 +232,7 @@ def register(app: typer.Typer) -> None:
         root = resolve_path(recordings or default_recordings())
         runs, _ = load_grasp_data(root, overrides, (30, 40), progress=progress)
         rows = precursor_table(runs, window)
-        write_report(rows, aligned_means(runs), out, command=_command(), window=window)
+        write_report(rows, aligned_means(runs), out, command=command_line(), window=window)
         s = summary(rows)
         typer.echo(
             f"{s['any']} of {s['slip_runs']} slips stand out on some signal before contact is lost (motion "

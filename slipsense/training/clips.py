@@ -310,7 +310,7 @@ class TrainRequest:
         from slipsense.config import resolve_path
 
         for key in ("recordings", "markers", "overrides"):
-            if data.get(key) is not None:
+            if data.get(key) not in (None, False):  # overrides False: no hand labels at all
                 data[key] = resolve_path(data[key])  # "$SLIPSENSE_DATA/..." as checkpoints write it
         if data.get("size") is not None:
             size = data["size"]
@@ -408,7 +408,8 @@ def build_model(name: str, preset: str | None, overrides: dict[str, Any], data_c
 
 def run_training(req: TrainRequest, resume: bool = False) -> dict[str, Any]:
     """Prepare data, build and train the model, then evaluate ``last.safetensors`` on the held-out
-    part; returns the evaluation metrics (rank 0) or ``{}`` (other ranks)."""
+    part. Returns (rank 0; ``{}`` on other ranks) ``{"checkpoint", "operating_point" (None unless one
+    was chosen), "history" (a row per epoch), "clips" (the held-out part's metrics, None without one)}``."""
     from slipsense.evaluation.evaluate import evaluate_model
 
     cls = model_class(req.model)
@@ -462,14 +463,23 @@ def run_training(req: TrainRequest, resume: bool = False) -> dict[str, Any]:
         "preset": req.preset,
         "config": tree,
     }
-    fit(model, train_data, test_data, cfg, out, info=info, resume=resume, resume_state=state)
+    history = fit(model, train_data, test_data, cfg, out, info=info, resume=resume, resume_state=state)
     # a model reading frames is replayed over its training objects' runs to choose where it alarms
     replayable = cls.reads == "frames" and split_info.get("split") in ("objects", "all")
     if d.main and cfg.operating_point and replayable:
         _store_operating_point(out, split_info, req)
-    if not d.main or len(test_data) == 0:
+    if not d.main:
         return {}
-    from slipsense.checkpoint import load_model
+    from slipsense.checkpoint import load_model, read_info
+
+    result = {
+        "checkpoint": out / "last.safetensors",
+        "operating_point": read_info(out / "last.safetensors").get("operating_point"),
+        "history": history,
+        "clips": None,
+    }
+    if len(test_data) == 0:
+        return result
 
     # The held-out part is also the validation set that picked best.safetensors, so scoring that
     # checkpoint on it would be optimistic: the reported model is the last epoch's.
@@ -487,4 +497,4 @@ def run_training(req: TrainRequest, resume: bool = False) -> dict[str, Any]:
         progress=req.progress,
     )
     print(json.dumps({k: metrics[k] for k in ("accuracy", "precision", "recall", "f1", "n_clips")}))
-    return metrics
+    return {**result, "clips": metrics}

@@ -1,0 +1,184 @@
+"""One way in to training, whatever the model: :func:`fit` takes a configuration tree (``model``,
+``data`` and ``train`` sections, as ``configs/*.yaml`` and ``--set`` write it) and an output folder.
+
+``slipsense train``, ``slipsense grasp train`` and :func:`slipsense.fit` all build a tree and call
+:func:`fit`, so what it applies (the sensor spec, the one-sensor split of a one-finger detector, the
+held-out objects, resume) applies the same way from each. The model's ``training_task`` names the
+trainer in :data:`TRAINERS`: a plug-in table, so nothing here asks which kind of model it is.
+
+    >>> fit({"model": {"name": "motionnet"}, "data": {"test_objects": ["mug"]}, "train": {"epochs": 2}},
+    ...     "runs/mine")                                                     # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any, Callable
+
+from slipsense.errors import ConfigError
+
+#: Data settings that only cut clips from runs (a grasp model trains on whole runs).
+CLIP_DATA_KEYS = ("markers", "frames", "horizon", "wiggle_per_video", "split", "test_fraction", "augment")
+#: Training settings of the clip trainer only.
+CLIP_TRAIN_KEYS = ("num_workers", "device", "max_steps_per_epoch", "step_size", "gamma", "select_by")
+
+
+def fit(
+    tree: dict[str, Any],
+    out: str | Path,
+    *,
+    progress: bool = True,
+    resume: bool = False,
+    workers: int | None = None,
+    threads: int | None = None,
+    command: str | None = None,
+) -> dict[str, Any]:
+    """Train the tree's model (``tree["model"]["name"]``) into ``out``; returns (on rank 0 under
+    torchrun, ``{}`` on the others) what its trainer reports: for a grasp detector ``checkpoint``, ``operating_point``, ``history`` and, with held-out
+    objects (``data.test_objects``, or ``data.fold`` of ``data.folds``), ``per_grasp`` and ``clips``;
+    for a clip model the held-out part's clip metrics. ``command`` is kept with the checkpoint (how it
+    was made); ``tree`` is consumed (copy it to keep it)."""
+    from slipsense.models import available, model_class
+
+    for section in ("model", "data", "train"):
+        tree.setdefault(section, {})
+    name = tree["model"].get("name")
+    if name not in available():
+        raise ConfigError(f"unknown model {name!r}; available: {', '.join(available())}")
+    trainer = TRAINERS[model_class(name).training_task]
+    return trainer(tree, Path(out), progress=progress, resume=resume, workers=workers, threads=threads, command=command)
+
+
+def fit_clips(tree, out: Path, *, progress: bool, resume: bool, workers=None, threads=None, command=None) -> dict:
+    """A clip or marker-window model (:func:`slipsense.training.clips.run_training`)."""
+    from slipsense.training.clips import TrainRequest, run_training
+
+    if workers not in (None, 1):
+        raise ConfigError("a clip model trains in one process (torchrun shares it out between ranks)")
+    if threads is not None:
+        import torch
+
+        torch.set_num_threads(threads)
+    return run_training(TrainRequest.from_tree(tree, out=out, progress=progress), resume=resume)
+
+
+def fit_grasps(
+    tree,
+    out: Path,
+    *,
+    progress: bool,
+    resume: bool,
+    workers: int | None = None,
+    threads: int | None = None,
+    command: str | None = None,
+) -> dict[str, Any]:
+    """A detector over whole grasps with its operating point chosen on inner folds of its training
+    objects (:func:`slipsense.training.grasp_detector.train_detector`); writes ``out/config.yaml``."""
+    from slipsense.atomic import write_text
+    from slipsense.run_config import dump_tree
+    from slipsense.training.grasp_detector import object_split, train_detector
+
+    ranked = int(os.environ.get("WORLD_SIZE", "1")) > 1
+    if ranked and workers not in (None, 1):
+        raise ConfigError("under torchrun every training is shared out between the ranks: leave --workers out")
+    progress = progress and int(os.environ.get("RANK", "0")) == 0
+    held, fold, folds = grasp_split(tree)
+    cfg, runs, labels, data = prepare_grasps(tree, progress, threads, out)
+    if fold is not None:
+        split = object_split([r for r in runs if r.usable], folds, cfg.folds_seed)
+        if not 0 <= fold < len(split):
+            raise ConfigError(f"--fold must be in 0..{len(split) - 1}, got {fold}")
+        held = split[fold]
+    data["command"] = command
+    res = train_detector(runs, labels, cfg, out, held, data=data, progress=progress, workers=workers, resume=resume)
+    if ranked and int(os.environ.get("RANK", "0")) != 0:
+        return {}  # rank 0 writes and reports
+    write_text(out / "config.yaml", dump_tree(data["config"]))
+    return {**res, "held_out": held}
+
+
+def grasp_split(tree) -> tuple[list[str], int | None, int]:
+    """The held-out objects of a grasp training: ``(data.test_objects, data.fold, data.folds)``,
+    taken out of ``tree``; settings that only cut clips are refused by name."""
+    data, train = tree["data"], tree["train"]
+    clip_only = [k for k in CLIP_DATA_KEYS + ("marker_copies",) if data.get(k) is not None]
+    clip_only += [f"train.{k}" for k in CLIP_TRAIN_KEYS if train.get(k) is not None]
+    if tree["model"].get("preset") is not None:
+        clip_only.append("preset")
+    if clip_only:
+        raise ConfigError(
+            f"{tree['model']['name']} trains on whole grasps: {', '.join(clip_only)} only apply to clip models "
+            f"(grasp settings: slipsense grasp train --help)"
+        )
+    tree["model"].pop("preset", None)
+    for key in CLIP_DATA_KEYS + ("marker_copies",):
+        data.pop(key, None)
+    for key in CLIP_TRAIN_KEYS:
+        train.pop(key, None)
+    if data.get("size") is not None:
+        tree["model"]["image_size"] = list(data.pop("size"))
+    data.pop("size", None)
+    from slipsense.models import model_class, settings_of
+    from slipsense.training.grasps import GraspTrainConfig
+
+    model_keys = settings_of(model_class(tree["model"]["name"])) | {"name"}
+    for key in [k for k in tree["model"] if k not in model_keys and k in GraspTrainConfig.__dataclass_fields__]:
+        train[key] = tree["model"].pop(key)  # a bare --set KEY=VALUE naming a training setting
+    held = data.pop("test_objects", None)
+    held = [o for o in held.split(",") if o] if isinstance(held, str) else list(held or [])
+    fold, folds = data.pop("fold", None), data.pop("folds", None) or 5
+    return held, fold, folds
+
+
+def prepare_grasps(tree, progress: bool = True, threads: int | None = None, out=None):
+    """From a grasp configuration tree: ``(training config, runs, labels, metadata)``; the runs are
+    each camera on its own for a one-finger detector, read with the tree's sensor spec
+    (``data.sensor``, default the GelSight Mini). The metadata is what checkpoints and reports keep."""
+    from slipsense.atomic import check_output_dir
+    from slipsense.config import gelsight_recordings, portable_path, resolve_path
+    from slipsense.models import build
+    from slipsense.recordings.runs import per_sensor
+    from slipsense.run_config import check_keys, check_seed, to_plain
+    from slipsense.sensors.spec import GELSIGHT_MINI, sensor_named
+    from slipsense.training.grasps import GraspTrainConfig, load_grasp_data, make_config
+
+    if threads is not None:
+        import torch
+
+        torch.set_num_threads(threads)
+    check_output_dir(out, "--out")
+    train_keys = set(GraspTrainConfig.__dataclass_fields__) - {"model", "model_config"}
+    check_keys(
+        tree,
+        {"train": train_keys, "data": ("recordings", "overrides", "on_error", "sensor"), "model": None},
+        "grasp configuration",
+    )
+    name = tree["model"].pop("name", "motionnet")
+    tree["train"]["seed"] = check_seed(tree["train"].get("seed", 0))
+    cfg = make_config(name, {**tree["train"], **{f"model.{k}": v for k, v in tree["model"].items()}})
+    image_size = tuple(cfg.model_config.get("image_size") or build(name).image_size)
+    root = resolve_path(tree["data"].get("recordings") or gelsight_recordings())
+    overrides = tree["data"].get("overrides")  # None: the shipped hand labels; False: none
+    overrides = overrides if overrides in (None, False) else resolve_path(overrides)
+    sensor = sensor_named(tree["data"]["sensor"]) if tree["data"].get("sensor") else GELSIGHT_MINI
+    runs, labels = load_grasp_data(
+        root, overrides, image_size, tree["data"].get("on_error", "raise"), progress, sensor=sensor
+    )
+    sensors = build(name, **cfg.model_config).sensors
+    if sensors == 1:  # a one-finger detector: each camera of a run is a grasp of its own
+        runs = per_sensor(runs)
+    tree["model"] = {"name": name, **cfg.model_config}
+    data = {
+        "recordings": portable_path(root),
+        "overrides": overrides if overrides in (None, False) else portable_path(overrides),
+        "image_size": list(image_size),
+        "sensors_per_grasp": sensors,
+        "sensor": sensor.to_dict(),
+        "config": to_plain(tree),
+    }
+    return cfg, runs, labels, data
+
+
+#: ``training_task`` (a model class attribute) -> its trainer
+TRAINERS: dict[str, Callable[..., dict[str, Any]]] = {"clips": fit_clips, "grasps": fit_grasps}
