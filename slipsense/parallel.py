@@ -57,6 +57,21 @@ def _init_worker(shared: Any, ticks: Any) -> None:
 
 
 @contextlib.contextmanager
+def _heap_frozen_for_fork():
+    """Collect this process's garbage, then freeze what is left, while workers are forked: a forked
+    worker that collected a cycle holding an ONNX Runtime session (a live detector's, garbage by then)
+    would wait forever in its destructor for threads that do not exist after a fork."""
+    import gc
+
+    gc.collect()
+    gc.freeze()  # objects from before the fork: never collected in a worker (nor copied on write)
+    try:
+        yield
+    finally:
+        gc.unfreeze()
+
+
+@contextlib.contextmanager
 def _opencv_without_pool():
     """OpenCV on one thread here while workers are forked: a forked child that finds OpenCV's
     thread pool (whose threads stay behind in the parent) hangs in it; with no pool there is
@@ -152,6 +167,7 @@ def run_jobs(
         ticks = ctx.Queue()
         with (
             _opencv_without_pool(),
+            _heap_frozen_for_fork(),
             ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker, initargs=(shared, ticks)) as pool,
         ):
             pending = {pool.submit(_in_worker, fn, i, jobs[i]): i for i in range(n)}
