@@ -102,7 +102,7 @@ def watch_source(
     check_settings(0.5 if threshold is None else threshold, 1, combine, backend, dtype)
     if checkpoint is None:  # the shipped detectors read videos: one for one finger, one for both
         sensor = GELSIGHT_MINI
-        src = _open(source, "frames", None, sensor, topics, tolerance, realtime)
+        src = _open(source, None, sensor, topics, tolerance, realtime)  # the shipped detectors take pictures
         try:
             ckpt = _checkpoint(None, src.sensors)
             model, info = load_model(ckpt)
@@ -113,7 +113,7 @@ def watch_source(
         ckpt = _checkpoint(checkpoint)
         model, info = load_model(ckpt)
         sensor = sensor_of(info, ckpt)  # a malformed sensor spec is named with its file
-        src = _open(source, model.reads, getattr(model, "markers", None), sensor, topics, tolerance, realtime)
+        src = _open(source, model, sensor, topics, tolerance, realtime)
     threshold, debounce = stored_operating_point(ckpt, info, threshold, None)
     backend = resolve_backend(backend)
     try:
@@ -158,7 +158,7 @@ def watch_source(
                 echo(_reading_line(r))
             if writer is not None:
                 heat = [det.heatmap(s) for s in range(det.sensors)] if heatmap else []
-                clouds = list(inputs) if det.reads == "markers" else []
+                clouds = list(inputs) if src.converted else []
                 writer.add(annot.draw(display, r, heat, clouds))
     except KeyboardInterrupt:  # a live camera is stopped with Ctrl-C: still write what was seen
         pass
@@ -200,15 +200,14 @@ def watch_source(
     return summary
 
 
-def _open(source, reads, markers, sensor, topics, tolerance, realtime):
+def _open(source, model, sensor, topics, tolerance, realtime):
     """The source, with the sensor's rate, camera files and capture settings."""
     from slipsense.streaming.sources import open_source
 
     size = tuple(sensor.image_size) if sensor.image_size else None
     src = open_source(
         source,
-        reads,
-        markers,
+        model,
         sensor.camera_glob,
         topics=topics,
         fps=sensor.fps,
@@ -218,7 +217,7 @@ def _open(source, reads, markers, sensor, topics, tolerance, realtime):
     )
     if not realtime:
         return src
-    if reads != "frames" or src.stats().get("cameras"):
+    if src.converted or src.stats().get("cameras"):
         src.close()
         raise ConfigError(
             "--realtime plays recorded frames (a video, a recordings folder or a bag) at the sensor's rate"

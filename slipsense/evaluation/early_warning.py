@@ -24,7 +24,7 @@ from typing import Any, Iterable, Mapping, Sequence
 import numpy as np
 
 from slipsense.evaluation import pergrasp
-from slipsense.errors import ConfigError, InputError
+from slipsense.errors import InputError
 from slipsense.sensors.spec import GELSIGHT_MINI
 
 #: Columns of the early-warning CSV, in order.
@@ -93,12 +93,7 @@ def replay_recordings(
     from slipsense.recordings.frame_cache import video_products
     from slipsense.recordings.video import read_video
 
-    if detector.reads != "frames" and detector.cache_product is None:
-        raise ConfigError(
-            "early warning replays videos: this marker model was trained on markers that were not tracked "
-            "in videos (simulated, or a marker file without marker_layout), so nothing says how to take "
-            "its markers from one"
-        )
+    detector.model.check_video_replay(detector.geometry)
     runs: dict[tuple[str, int], list[Any]] = {}
     for r in recordings:
         runs.setdefault((r.object, r.experiment), []).append(r)

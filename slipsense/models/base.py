@@ -166,6 +166,21 @@ class SlipModel(nn.Module):
         geometry = window_geometry(self, info)
         return WindowStream(self, geometry, sensors=sensors, backend=backend, dtype=dtype, onnx_dir=onnx_dir)
 
+    def inputs_from_videos(self, videos: Sequence[np.ndarray], paths: Sequence[Any]) -> list[Any]:
+        """Per sensor, what a stream of recorded camera videos (uint8 ``(N, H, W, 3)`` each, read
+        from ``paths``) pushes frame by frame: the frames themselves for a model of pictures."""
+        return list(videos)
+
+    def inputs_from_array(self, array: np.ndarray, path: Any) -> np.ndarray:
+        """A saved input stream (a ``.npy`` file) as ``(sensors, T, ...)``; a model of pictures takes none."""
+        raise InputError(path, f"a marker .npy needs a marker model (stnet, temnet); {self.model_name} takes video")
+
+    def check_live_cameras(self, cameras: str) -> None:
+        """InputError unless live camera frames can be pushed as they come (a model of pictures: yes)."""
+
+    def check_video_replay(self, geometry: Mapping[str, Any]) -> None:
+        """ConfigError unless recorded videos can be replayed through the model (pictures: yes)."""
+
     def streaming_modules(self, geometry: Mapping[str, Any]) -> dict[str, nn.Module]:
         """The named modules a stream runs (``{"frame", "window"}`` by default, from
         :meth:`streaming_parts`; no ``"frame"`` when nothing can be cached)."""
@@ -206,6 +221,32 @@ class VideoModel(SlipModel):
 class MarkerModel(SlipModel):
     input_kind = "markers"
     reads = "markers"
+
+    def inputs_from_videos(self, videos: Sequence[np.ndarray], paths: Sequence[Any]) -> list[Any]:
+        """Markers tracked through each whole video (:mod:`slipsense.sensors.markers`), ``(N, M, 3)``."""
+        from slipsense.sensors.markers import marker_sequences, track_markers
+
+        return [marker_sequences(track_markers(v, source=p), self.markers) for v, p in zip(videos, paths)]
+
+    def inputs_from_array(self, array: np.ndarray, path: Any) -> np.ndarray:
+        """A marker stream ``(T, M, 3)`` or ``(sensors, T, M, 3)`` (mm) -> ``(sensors, T, M, 3)``."""
+        x = array[None] if array.ndim == 3 else array
+        if x.ndim != 4 or x.shape[-1] != 3:
+            raise InputError(path, f"expected a marker stream (T, M, 3) or (sensors, T, M, 3), got shape {array.shape}")
+        return x
+
+    def check_video_replay(self, geometry: Mapping[str, Any]) -> None:
+        if geometry.get("marker_layout") is None:
+            raise ConfigError(
+                "early warning replays videos: this marker model was trained on markers that were not tracked "
+                "in videos (simulated, or a marker file without marker_layout), so nothing says how to take "
+                "its markers from one"
+            )
+
+    def check_live_cameras(self, cameras: str) -> None:
+        raise InputError(
+            None, f"camera {cameras}: live cameras need a video model; marker models take a video file or a marker .npy"
+        )
 
     def window_geometry(self, spec: Mapping[str, Any]) -> dict[str, Any]:
         frames = getattr(self, "frames", None) or spec.get("frames") or DEFAULT_FRAMES

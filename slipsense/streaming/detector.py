@@ -224,11 +224,6 @@ class SlipDetector:
         return self.geometry["kind"]
 
     @property
-    def reads(self) -> str:
-        """``"frames"`` or ``"markers"``: what :meth:`push` takes (:attr:`SlipModel.reads`)."""
-        return self.model.reads
-
-    @property
     def frames(self) -> int:
         return self.geometry["frames"]
 

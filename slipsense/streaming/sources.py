@@ -31,13 +31,16 @@ class Step:
 @dataclass
 class Source:
     """Steps to stream. ``sensors``: streams per step; ``name``: for messages; ``stats``: what the
-    source knows of its own delivery (a live camera's achieved rate, dropped and repeated frames)."""
+    source knows of its own delivery (a live camera's achieved rate, dropped and repeated frames);
+    ``converted``: the inputs are not the pictures shown (markers tracked in them, a saved stream)."""
 
     name: str
     sensors: int
     steps: Iterator[Step]
     closer: Callable[[], None] | None = None
     stats: Callable[[], dict[str, Any]] = field(default=lambda: {})
+    #: the inputs are not the pictures shown (markers tracked in them, or a saved stream)
+    converted: bool = False
 
     def frames(self) -> Iterator[Step]:
         return self.steps
@@ -49,8 +52,7 @@ class Source:
 
 def open_source(
     source: str,
-    reads: str,
-    markers: int | None = None,
+    model: Any = None,
     camera_glob: str | None = None,
     topics: Sequence[str] = (),
     fps: float = 25.0,
@@ -62,11 +64,11 @@ def open_source(
     bag (``topics``: one image topic per sensor), a marker ``.npy`` (``(T, M, 3)`` or
     ``(S, T, M, 3)`` mm) or a camera index (``0``, ``1``, ...; several as ``0,2``).
 
-    ``reads`` is what the model reads (:attr:`~slipsense.models.base.SlipModel.reads`): ``"frames"``
-    need pictures; ``"markers"`` take a ``.npy`` or track the markers of videos
-    (:mod:`slipsense.sensors.markers`) first. ``fps``: the sensor's rate (stamps of files without
-    time, the pairing tolerance of bags); ``capture_format`` / ``frame_size``: what a camera is asked
-    for (:class:`~slipsense.streaming.capture.CaptureThread`).
+    ``model`` (a :class:`~slipsense.models.base.SlipModel`) turns what is read into its inputs
+    (:meth:`~slipsense.models.base.SlipModel.inputs_from_videos`: pictures as they are, or markers
+    tracked first; a ``.npy`` holds them already); None pushes the pictures as they are. ``fps``: the
+    sensor's rate (stamps of files without time, the pairing tolerance of bags); ``capture_format`` /
+    ``frame_size``: what a camera is asked for (:class:`~slipsense.streaming.capture.CaptureThread`).
     """
     from slipsense.recordings.bags import is_bag, read_bag
     from slipsense.recordings.folders import CAMERA_GLOB
@@ -81,7 +83,7 @@ def open_source(
         videos = [np.stack([step[k] for step in bag.frames]) for k in range(len(topics))]
         stamps = bag.stamps[:, 0] * 1e-9
         name = f"{path} ({', '.join(topics)})"
-        src = _array_source(name, videos, [Path(f"{path}:{t}") for t in topics], reads, markers, stamps)
+        src = _array_source(name, videos, [Path(f"{path}:{t}") for t in topics], model, stamps)
         src.stats = lambda: {"dropped_unpaired": dict(bag.dropped)}
         return src
     if path.is_dir():
@@ -91,51 +93,36 @@ def open_source(
         videos = [read_video(p, expected_size=None, min_frames=1) for p in cams]
         if len({len(v) for v in videos}) != 1:
             raise InputError(path, f"the camera videos differ in frame count: {[len(v) for v in videos]}")
-        return _array_source(str(path), videos, cams, reads, markers, np.arange(len(videos[0])) / fps)
+        return _array_source(str(path), videos, cams, model, np.arange(len(videos[0])) / fps)
     if path.is_file():
         if path.suffix.lower() == ".npy":
-            if reads != "markers":
-                raise InputError(
-                    path, "a marker .npy needs a marker model (stnet, temnet); this checkpoint takes video"
-                )
-            return _npy_source(path, markers, fps)
+            return _npy_source(path, model, fps)
         video = read_video(path, expected_size=None, min_frames=1)
-        return _array_source(str(path), [video], [path], reads, markers, np.arange(len(video)) / fps)
+        return _array_source(str(path), [video], [path], model, np.arange(len(video)) / fps)
     indices = source.replace(" ", "").split(",")
     if all(i.isdigit() for i in indices):
-        if reads != "frames":
-            raise InputError(
-                None,
-                f"camera {source}: live cameras need a video model; marker models take a video file or a marker .npy",
-            )
+        if model is not None:
+            model.check_live_cameras(source)
         return camera_source([int(i) for i in indices], fps, capture_format, frame_size, tolerance_s)
     raise InputError(path, "no such file or folder (nor a camera index)")
 
 
-def _array_source(
-    name: str, videos: list[np.ndarray], paths: list[Path], reads: str, markers: int | None, stamps: np.ndarray
-) -> Source:
-    if reads == "frames":
-        steps = (Step(list(fr), list(fr), float(t)) for fr, t in zip(zip(*videos), stamps))
-        return Source(name, len(videos), steps)
-    from slipsense.sensors.markers import marker_sequences, track_markers
-
-    clouds = [marker_sequences(track_markers(v, source=p), markers) for v, p in zip(videos, paths)]
-    steps = (Step(list(fr), list(cl), float(t)) for fr, cl, t in zip(zip(*videos), zip(*clouds), stamps))
-    return Source(name, len(videos), steps)
+def _array_source(name: str, videos: list[np.ndarray], paths: list[Path], model: Any, stamps: np.ndarray) -> Source:
+    inputs = videos if model is None else model.inputs_from_videos(videos, paths)
+    steps = (Step(list(fr), list(x), float(t)) for fr, x, t in zip(zip(*videos), zip(*inputs), stamps))
+    return Source(name, len(videos), steps, converted=any(x is not v for x, v in zip(inputs, videos)))
 
 
-def _npy_source(path: Path, markers: int | None, fps: float) -> Source:
+def _npy_source(path: Path, model: Any, fps: float) -> Source:
     try:
         x = np.load(path, allow_pickle=False)
     except Exception as exc:
         raise InputError(path, f"not a readable .npy file ({type(exc).__name__}: {exc})") from None
-    if x.ndim == 3:
-        x = x[None]
-    if x.ndim != 4 or x.shape[-1] != 3:
-        raise InputError(path, f"expected a marker stream (T, M, 3) or (sensors, T, M, 3), got shape {x.shape}")
+    if model is None:
+        raise InputError(path, "a marker .npy needs a marker model (stnet, temnet): give its --checkpoint")
+    x = model.inputs_from_array(x, path)
     steps = (Step([None] * len(x), [x[s, t] for s in range(len(x))], t / fps) for t in range(x.shape[1]))
-    return Source(str(path), len(x), steps)
+    return Source(str(path), len(x), steps, converted=True)
 
 
 def capture_source(name: str, threads: Sequence[CaptureThread], fps: float, tolerance_s: float | None = None):
