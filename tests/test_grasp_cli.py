@@ -185,41 +185,6 @@ def test_grasp_folds_same_results_on_one_or_two_workers(tmp_path, grasps, monkey
     for f in doc["per_fold"]:
         assert "0% of held grasps" in f["operating_point"]["rule"]
     assert "warned_low" in doc["curve"][0] and (rep / "tradeoff.png").is_file()
-    # two reports of the same recipe and folds: their mean (here of equal traces: the same result)
-    both = tmp_path / "both"
-    res = CliRunner().invoke(
-        app,
-        [
-            "grasp",
-            "rechoose",
-            str(tmp_path / "folds-1"),
-            str(tmp_path / "folds-2"),
-            "--out",
-            str(both),
-            "--max-held-alarm",
-            "0",
-        ],
-    )
-    assert res.exit_code == 0, res.output
-    ens = json.loads((both / "folds.json").read_text())
-    assert [f["operating_point"] for f in ens["per_fold"]] == [f["operating_point"] for f in doc["per_fold"]]
-    assert ens["pooled"]["per_grasp"] == doc["pooled"]["per_grasp"] and len(ens["rechosen_from"]) == 2
-    # another recipe on the same folds: refused unless asked for (an ensemble of different detectors)
-    rep2 = tmp_path / "folds-2" / "folds.json"
-    doc2 = json.loads(rep2.read_text())
-    rep2.write_text(json.dumps({**doc2, "train_config": {**doc2["train_config"], "lr": 0.5}}))
-    mixed = ["grasp", "rechoose", str(tmp_path / "folds-1"), str(tmp_path / "folds-2"), "--max-held-alarm", "0"]
-    res = CliRunner().invoke(app, [*mixed, "--out", str(tmp_path / "m1")])
-    assert res.exit_code == 2 and "another recipe" in res.output and "lr" in res.output
-    res = CliRunner().invoke(app, [*mixed, "--out", str(tmp_path / "m2"), "--any-recipe"])
-    assert res.exit_code == 0, res.output
-    mix = json.loads((tmp_path / "m2" / "folds.json").read_text())
-    assert [c["lr"] for c in mix["member_train_configs"]] == [doc2["train_config"]["lr"], 0.5]
-    assert mix["pooled"]["per_grasp"] == doc["pooled"]["per_grasp"]
-    rep2.write_text(json.dumps({**doc2, "train_config": {**doc2["train_config"], "horizon": 7}}))
-    res = CliRunner().invoke(app, [*mixed, "--out", str(tmp_path / "m3"), "--any-recipe"])
-    assert res.exit_code == 2 and "horizon" in res.output
-    rep2.write_text(json.dumps(doc2))
     other = tmp_path / "folds-2" / "fold1.json"  # a fold a later run with other settings wrote
     other.write_text(json.dumps({**json.loads(other.read_text()), "config_key": "another"}))
     res = CliRunner().invoke(app, ["grasp", "rechoose", str(tmp_path / "folds-2"), "--out", str(tmp_path / "y")])

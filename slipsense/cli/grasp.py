@@ -182,27 +182,22 @@ def register(app: typer.Typer) -> None:
     @grasp_app.command("rechoose")
     @friendly
     def rechoose_cmd(
-        src: list[Path] = typer.Argument(
-            ...,
-            help="a `slipsense grasp folds` report folder (its fold files keep inner traces); several reports "
-            "of the same recipe and folds with other seeds: their traces are averaged (a seed ensemble)",
+        src: Path = typer.Argument(
+            ..., help="a `slipsense grasp folds` report folder (its fold files keep inner traces)"
         ),
         out: Path = typer.Option(..., help="report folder to write: README.md, folds.json, tradeoff.png"),
         max_held_alarm: Optional[float] = typer.Option(
             0.05, help="at most this fraction of held grasps may alarm (0.05: 5%); a negative value: best score"
         ),
-        any_recipe: bool = typer.Option(
-            False, help="the reports may be different recipes on the same folds (an ensemble of different detectors)"
-        ),
     ):
         """Choose every fold's operating point again by another rule, on its training objects' inner
-        traces, and pool: no training (seconds). Several reports: the mean of their detectors."""
+        traces, and pool: no training (seconds)."""
         from slipsense.atomic import check_output_dir
         from slipsense.evaluation.folds import rechoose
 
         check_output_dir(out, "--out")
         k = None if max_held_alarm is not None and max_held_alarm < 0 else max_held_alarm
-        rep = rechoose(src, out, k, command=command_line(), echo=typer.echo, any_recipe=any_recipe)
+        rep = rechoose(src, out, k, command=command_line(), echo=typer.echo)
         g = rep["pooled"]["per_grasp"]
         ci = g.get("intervals", {})
         typer.echo(

@@ -14,14 +14,12 @@ from __future__ import annotations
 
 import hashlib
 import json
-import warnings
 import math
 import platform
 import time
 from pathlib import Path
 from typing import Any, Sequence
 
-import numpy as np
 
 from slipsense import atomic
 from slipsense.evaluation.grasp_scores import fold_result, pool_folds, stored_trace
@@ -135,58 +133,30 @@ def run_folds(
     return report
 
 
-def rechoose(
-    src, out, max_held_alarm: float | None, command: str = "", echo=print, any_recipe: bool = False
-) -> dict[str, Any]:
-    """The folds of ``src`` (a ``slipsense grasp folds`` report, or several) with every fold's operating
-    point chosen again by another rule, on the inner folds' traces its fold file keeps (training
-    objects only), each fold scored again on its held-out traces, pooled, written into ``out``
-    (README.md, folds.json, tradeoff.png). No training: a rule is compared with another in seconds.
-
-    Several reports of the same folds and runs (the recipe trained with other seeds) are combined
-    first: each run's probability is the mean of theirs, outer and inner traces alike (an ensemble of
-    the reports' detectors, judged as the live detector averaging them would be). ``any_recipe``:
-    the reports may be different recipes (models, inputs, training settings) as long as their folds
-    hold the same objects and runs and they share the horizon and number of inner folds."""
+def rechoose(src, out, max_held_alarm: float | None, command: str = "", echo=print) -> dict[str, Any]:
+    """The folds of ``src`` (a ``slipsense grasp folds`` report) with every fold's operating point
+    chosen again by another rule, on the inner folds' traces its fold file keeps (training objects
+    only), each fold scored again on its held-out traces, pooled, written into ``out`` (README.md,
+    folds.json, tradeoff.png). No training: a rule is compared with another in seconds."""
     from slipsense.errors import InputError
     from slipsense.evaluation import pergrasp
     from slipsense.evaluation.grasp_scores import fold_at
 
-    srcs = [Path(s) for s in (src if isinstance(src, (list, tuple)) else [src])]
-    out = Path(out)
-    reports = []
-    for one in srcs:
-        try:
-            reports.append(json.loads((one / "folds.json").read_text(encoding="utf-8")))
-        except (OSError, ValueError) as exc:
-            raise InputError(one / "folds.json", f"is not a folds report ({exc})") from None
-    report = reports[0]
-    defaults = GraspTrainConfig().to_dict()  # a report written before a setting existed had its default
-    setting = lambda rep, k: rep["train_config"].get(k, defaults.get(k))  # noqa: E731
-    for one, other in zip(srcs[1:], reports[1:]):
-        differ = sorted(
-            k
-            for k in set(report["train_config"]) | set(other["train_config"])
-            # the seeds may differ: each fold's objects and runs are compared fold by fold (_ensemble)
-            if k not in ("seed", "split_seed", "max_held_alarm")
-            and setting(report, k) != setting(other, k)
-            and (not any_recipe or k in ("horizon", "inner_folds"))
-        )
-        if differ or other["folds"] != report["folds"]:
-            raise InputError(one, f"is another recipe than {srcs[0]} ({', '.join(differ) or 'folds'} differ)")
+    src, out = Path(src), Path(out)
+    try:
+        report = json.loads((src / "folds.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise InputError(src / "folds.json", f"is not a folds report ({exc})") from None
     cfg = {**report["train_config"], "max_held_alarm": max_held_alarm}
-    folds, keys = [], [set() for _ in srcs]
+    folds, keys = [], set()
     for k in range(int(report["folds"])):
-        paths = [one / f"fold{k}.json" for one in srcs]
-        members = [_read_fold(path) for path in paths]
-        for seen, member, path in zip(keys, members, paths):
-            seen.add(member.get("config_key"))
-            if len(seen) > 1:  # a later run with other settings wrote some of the report's folds
-                raise InputError(
-                    path,
-                    f"was written with other settings than the folds before it (config keys {sorted(map(str, seen))})",
-                )
-        fold = _ensemble(members, paths)
+        path = src / f"fold{k}.json"
+        fold = _read_fold(path)
+        keys.add(fold.get("config_key"))
+        if len(keys) > 1:  # a later run with other settings wrote some of the report's folds
+            raise InputError(
+                path, f"was written with other settings than the folds before it (config keys {sorted(map(str, keys))})"
+            )
         probs = [stored_trace(r) for r in fold["inner"]]
         op = pergrasp.choose_operating_point(
             probs, [r["moment_of_slip"] for r in fold["inner"]], horizon=cfg["horizon"], max_held_alarm=max_held_alarm
@@ -198,9 +168,8 @@ def rechoose(
     new = {
         **{k: v for k, v in report.items() if k not in ("pooled", "curve", "per_fold")},
         "command": command or report.get("command", ""),
-        "rechosen_from": [str(one) for one in srcs] if len(srcs) > 1 else str(srcs[0]),
+        "rechosen_from": str(src),
         "train_config": cfg,
-        **({"member_train_configs": [r["train_config"] for r in reports]} if any_recipe and len(reports) > 1 else {}),
         "pooled": {k: v for k, v in pooled.items() if k != "curve"},
         "curve": pooled["curve"],
         "per_fold": [
@@ -226,40 +195,6 @@ def _read_fold(path: Path) -> dict[str, Any]:
     if not fold.get("inner"):
         raise InputError(path, "keeps no inner-fold traces (written before they were kept, or inner_folds=0)")
     return fold
-
-
-def _ensemble(folds: Sequence[dict[str, Any]], paths: Sequence[Path]) -> dict[str, Any]:
-    """One fold whose every trace is the mean of ``folds``' (the same objects and runs in each)."""
-    from slipsense.errors import InputError
-
-    if len(folds) == 1:
-        return folds[0]
-    ident = lambda rows: [(r["object"], r["experiment"], r["moment_of_slip"], len(r["probability"])) for r in rows]  # noqa: E731
-    for f, path in zip(folds[1:], paths[1:]):
-        if f["objects"] != folds[0]["objects"] or ident(f["runs"]) != ident(folds[0]["runs"]):
-            raise InputError(path, f"holds other objects or runs than {paths[0]}")
-        if ident(f["inner"]) != ident(folds[0]["inner"]):
-            raise InputError(path, f"holds other inner-fold runs than {paths[0]}")
-
-    def mean(rows_per_fold):
-        out = []
-        for rows in zip(*rows_per_fold):
-            p = np.array([stored_trace(r) for r in rows])
-            with np.errstate(invalid="ignore"), warnings.catch_warnings():
-                warnings.simplefilter("ignore", RuntimeWarning)  # start-up frames: NaN in every member
-                m = np.nanmean(p, axis=0)
-            out.append({**rows[0], "probability": [None if np.isnan(v) else round(float(v), 6) for v in m]})
-        return out
-
-    clips = [np.asarray(f["clip_probability"], dtype=float) for f in folds]
-    if any(len(c) != len(clips[0]) for c in clips) or any(f["clip_label"] != folds[0]["clip_label"] for f in folds):
-        raise InputError(paths[0], "the reports' folds hold other clips")
-    return {
-        **folds[0],
-        "runs": mean([f["runs"] for f in folds]),
-        "inner": mean([f["inner"] for f in folds]),
-        "clip_probability": np.mean(clips, axis=0).round(6).tolist(),
-    }
 
 
 def _traces(runs: Sequence[GraspRun], probs) -> list[dict[str, Any]]:
