@@ -46,7 +46,7 @@ def run_noise(
             )
         clips = source.clips(spec)
         _, te, present = object_split(clips, test_objects)
-        rep.add_model("vivit", model, checkpoint=str(checkpoint))
+        rep.add_model(model.model_name, model, checkpoint=str(checkpoint))  # whichever video model it holds
         rep.config.update(checkpoint=str(checkpoint), trained_here=False, checkpoint_train=info.get("train"))
         trained = info.get("train", {})
         rep.notes.append(
