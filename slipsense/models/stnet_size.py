@@ -8,24 +8,13 @@ from typing import Any
 
 
 def _full_config(config: dict[str, Any] | None, model: str) -> dict[str, Any]:
-    """``config`` with STNet's defaults filled in (what the analytic counts below need)."""
-    c = dict(
-        frames=12,
-        markers=552,
-        d_model=None,
-        heads=8,
-        blocks=5,
-        ff_dim=2048,
-        head_hidden=None,
-        codec_channels=16,
-        codec_kernel=3,
-        codec_layers=4,
-        pool="flatten",
-        num_classes=2,
-        use_codecs=(model == "stnet"),
-    )
-    c.update(config or {})
-    return c
+    """``config`` with STNet's own defaults filled in (what the analytic counts below need)."""
+    import inspect
+
+    from slipsense.models.stnet import STNet
+
+    defaults = {k: p.default for k, p in inspect.signature(STNet.__init__).parameters.items() if k != "self"}
+    return {**defaults, "use_codecs": model == "stnet", **(config or {})}
 
 
 def count_parameters_for(config: dict[str, Any] | None = None, model: str = "stnet") -> int:
