@@ -19,7 +19,16 @@ from typing import Any, Callable
 from slipsense.errors import ConfigError
 
 #: Data settings that only cut clips from runs (a grasp model trains on whole runs).
-CLIP_DATA_KEYS = ("markers", "frames", "horizon", "wiggle_per_video", "split", "test_fraction", "augment")
+CLIP_DATA_KEYS = (
+    "markers",
+    "frames",
+    "horizon",
+    "wiggle_per_video",
+    "split",
+    "test_fraction",
+    "augment",
+    "marker_copies",
+)
 #: Training settings of the clip trainer only.
 CLIP_TRAIN_KEYS = ("num_workers", "device", "max_steps_per_epoch", "step_size", "gamma", "select_by")
 
@@ -102,7 +111,7 @@ def grasp_split(tree) -> tuple[list[str], int | None, int]:
     """The held-out objects of a grasp training: ``(data.test_objects, data.fold, data.folds)``,
     taken out of ``tree``; settings that only cut clips are refused by name."""
     data, train = tree["data"], tree["train"]
-    clip_only = [k for k in CLIP_DATA_KEYS + ("marker_copies",) if data.get(k) is not None]
+    clip_only = [k for k in CLIP_DATA_KEYS if data.get(k) is not None]
     clip_only += [f"train.{k}" for k in CLIP_TRAIN_KEYS if train.get(k) is not None]
     if tree["model"].get("preset") is not None:
         clip_only.append("preset")
@@ -112,7 +121,7 @@ def grasp_split(tree) -> tuple[list[str], int | None, int]:
             f"(grasp settings: slipsense grasp train --help)"
         )
     tree["model"].pop("preset", None)
-    for key in CLIP_DATA_KEYS + ("marker_copies",):
+    for key in CLIP_DATA_KEYS:
         data.pop(key, None)
     for key in CLIP_TRAIN_KEYS:
         train.pop(key, None)
