@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from conftest import REAL_RUN
 from slipsense import experiments as E
 from slipsense.errors import ConfigError
 from slipsense.recordings.clips import ClipSet
@@ -321,9 +322,17 @@ def test_stnet_real_row_on_a_grid_makes_checkpoints_that_replay_on_it(tmp_path, 
     res = E.run_stnet(tiny(tmp_path), source, data=("real",), markers="2x3", frames=4)
     assert [r["model"] for r in res["rows"]] == ["stnet", "temnet"]
     assert json.loads((tmp_path / "config.json").read_text())["config"]["real"]["marker_layout"] == "2x3"
+    from slipsense.recordings.frame_cache import video_products
+    from slipsense.recordings.video import read_video
+
+    video = REAL_RUN / "camera_0.avi"
     for name in ("stnet", "temnet"):
         det = SlipDetector.from_checkpoint(tmp_path / "runs" / f"real-{name}" / "last.safetensors", threshold=0.5)
         assert det.cache_product == "markers:2x3" and det.sensor.name == "gelsight-mini"
+        if name == "stnet" and video.is_file():  # the shared recordings beside the checkout
+            # what `watch VIDEO` pushes is what it trained on and what replays read: its layout, in mm
+            (watched,) = det.model.inputs_from_videos([read_video(video)], [video], det.geometry)
+            np.testing.assert_allclose(watched, video_products(video, ["markers:2x3"])["markers:2x3"], atol=1e-5)
 
 
 def test_marker_layout_of_the_real_row():

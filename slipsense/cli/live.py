@@ -86,6 +86,7 @@ def watch_source(
     from slipsense.sensors.spec import GELSIGHT_MINI, sensor_of
     from slipsense.streaming.annotate import AnnotatedWriter, Annotator
     from slipsense.models.runners import resolve_backend
+    from slipsense.models.base import window_geometry
     from slipsense.streaming.detector import SlipDetector, check_settings, onnx_cache_dir, stored_operating_point
     from slipsense.streaming.readings import reading_record
 
@@ -113,7 +114,7 @@ def watch_source(
         ckpt = _checkpoint(checkpoint)
         model, info = load_model(ckpt)
         sensor = sensor_of(info, ckpt)  # a malformed sensor spec is named with its file
-        src = _open(source, model, sensor, topics, tolerance, realtime)
+        src = _open(source, model, sensor, topics, tolerance, realtime, window_geometry(model, info))
     threshold, debounce = stored_operating_point(ckpt, info, threshold, None)
     backend = resolve_backend(backend)
     try:
@@ -200,7 +201,7 @@ def watch_source(
     return summary
 
 
-def _open(source, model, sensor, topics, tolerance, realtime):
+def _open(source, model, sensor, topics, tolerance, realtime, geometry=None):
     """The source, with the sensor's rate, camera files and capture settings."""
     from slipsense.streaming.sources import open_source
 
@@ -209,6 +210,7 @@ def _open(source, model, sensor, topics, tolerance, realtime):
         source,
         model,
         sensor.camera_glob,
+        geometry,
         topics=topics,
         fps=sensor.fps,
         tolerance_s=tolerance,

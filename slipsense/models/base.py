@@ -166,9 +166,12 @@ class SlipModel(nn.Module):
         geometry = window_geometry(self, info)
         return WindowStream(self, geometry, sensors=sensors, backend=backend, dtype=dtype, onnx_dir=onnx_dir)
 
-    def inputs_from_videos(self, videos: Sequence[np.ndarray], paths: Sequence[Any]) -> list[Any]:
+    def inputs_from_videos(
+        self, videos: Sequence[np.ndarray], paths: Sequence[Any], geometry: Mapping[str, Any] | None = None
+    ) -> list[Any]:
         """Per sensor, what a stream of recorded camera videos (uint8 ``(N, H, W, 3)`` each, read
-        from ``paths``) pushes frame by frame: the frames themselves for a model of pictures."""
+        from ``paths``) pushes frame by frame: the frames themselves for a model of pictures.
+        ``geometry``: the checkpoint's :func:`window_geometry`."""
         return list(videos)
 
     def inputs_from_array(self, array: np.ndarray, path: Any) -> np.ndarray:
@@ -222,11 +225,19 @@ class MarkerModel(SlipModel):
     input_kind = "markers"
     reads = "markers"
 
-    def inputs_from_videos(self, videos: Sequence[np.ndarray], paths: Sequence[Any]) -> list[Any]:
-        """Markers tracked through each whole video (:mod:`slipsense.sensors.markers`), ``(N, M, 3)``."""
-        from slipsense.sensors.markers import marker_sequences, track_markers
+    def inputs_from_videos(
+        self, videos: Sequence[np.ndarray], paths: Sequence[Any], geometry: Mapping[str, Any] | None = None
+    ) -> list[Any]:
+        """Markers tracked through each whole video (:mod:`slipsense.sensors.markers`), ``(N, M, 3)``:
+        in the checkpoint's ``marker_layout`` (mm, as it was trained and as replays read them), or,
+        for a model trained on markers not tracked in videos, the markers nearest the centre."""
+        from slipsense.sensors.markers import marker_clouds, marker_sequences, track_markers
 
-        return [marker_sequences(track_markers(v, source=p), self.markers) for v, p in zip(videos, paths)]
+        layout = (geometry or {}).get("marker_layout")
+        tracks = [track_markers(v, source=p) for v, p in zip(videos, paths)]
+        if layout is None:
+            return [marker_sequences(track, self.markers) for track in tracks]
+        return [marker_clouds(track, layout) for track in tracks]
 
     def inputs_from_array(self, array: np.ndarray, path: Any) -> np.ndarray:
         """A marker stream ``(T, M, 3)`` or ``(sensors, T, M, 3)`` (mm) -> ``(sensors, T, M, 3)``."""

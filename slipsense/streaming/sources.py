@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterator, Sequence
+from typing import Any, Callable, Iterator, Mapping, Sequence
 
 import numpy as np
 
@@ -54,6 +54,7 @@ def open_source(
     source: str,
     model: Any = None,
     camera_glob: str | None = None,
+    geometry: Mapping[str, Any] | None = None,
     topics: Sequence[str] = (),
     fps: float = 25.0,
     tolerance_s: float | None = None,
@@ -66,7 +67,8 @@ def open_source(
 
     ``model`` (a :class:`~slipsense.models.base.SlipModel`) turns what is read into its inputs
     (:meth:`~slipsense.models.base.SlipModel.inputs_from_videos`: pictures as they are, or markers
-    tracked first; a ``.npy`` holds them already); None pushes the pictures as they are. ``fps``: the
+    tracked first, in the layout of the checkpoint's ``geometry``; a ``.npy`` holds them already); None
+    pushes the pictures as they are. ``fps``: the
     sensor's rate (stamps of files without time, the pairing tolerance of bags); ``capture_format`` /
     ``frame_size``: what a camera is asked for (:class:`~slipsense.streaming.capture.CaptureThread`).
     """
@@ -83,7 +85,7 @@ def open_source(
         videos = [np.stack([step[k] for step in bag.frames]) for k in range(len(topics))]
         stamps = bag.stamps[:, 0] * 1e-9
         name = f"{path} ({', '.join(topics)})"
-        src = _array_source(name, videos, [Path(f"{path}:{t}") for t in topics], model, stamps)
+        src = _array_source(name, videos, [Path(f"{path}:{t}") for t in topics], model, stamps, geometry)
         src.stats = lambda: {"dropped_unpaired": dict(bag.dropped)}
         return src
     if path.is_dir():
@@ -93,12 +95,12 @@ def open_source(
         videos = [read_video(p, expected_size=None, min_frames=1) for p in cams]
         if len({len(v) for v in videos}) != 1:
             raise InputError(path, f"the camera videos differ in frame count: {[len(v) for v in videos]}")
-        return _array_source(str(path), videos, cams, model, np.arange(len(videos[0])) / fps)
+        return _array_source(str(path), videos, cams, model, np.arange(len(videos[0])) / fps, geometry)
     if path.is_file():
         if path.suffix.lower() == ".npy":
             return _npy_source(path, model, fps)
         video = read_video(path, expected_size=None, min_frames=1)
-        return _array_source(str(path), [video], [path], model, np.arange(len(video)) / fps)
+        return _array_source(str(path), [video], [path], model, np.arange(len(video)) / fps, geometry)
     indices = source.replace(" ", "").split(",")
     if all(i.isdigit() for i in indices):
         if model is not None:
@@ -107,8 +109,8 @@ def open_source(
     raise InputError(path, "no such file or folder (nor a camera index)")
 
 
-def _array_source(name: str, videos: list[np.ndarray], paths: list[Path], model: Any, stamps: np.ndarray) -> Source:
-    inputs = videos if model is None else model.inputs_from_videos(videos, paths)
+def _array_source(name: str, videos: list, paths: list[Path], model: Any, stamps: np.ndarray, geometry=None) -> Source:
+    inputs = videos if model is None else model.inputs_from_videos(videos, paths, geometry)
     steps = (Step(list(fr), list(x), float(t)) for fr, x, t in zip(zip(*videos), zip(*inputs), stamps))
     return Source(name, len(videos), steps, converted=any(x is not v for x, v in zip(inputs, videos)))
 
