@@ -138,6 +138,17 @@ def check_output_dir(path: str | Path | None, option: str = "output folder") -> 
         raise OutputError(path, f"cannot be written: {base} does not take new files (read-only or no permission)")
 
 
+def file_sha256(path: str | Path) -> str:
+    """The sha256 of a file's bytes (hex), read in 1 MB blocks: what cache sidecars and manifests keep."""
+    import hashlib
+
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
 def write_bytes(path: str | Path, data: bytes) -> None:
     with atomic_path(path) as tmp:
         tmp.write_bytes(data)

@@ -20,7 +20,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from slipsense.atomic import atomic_path
+from slipsense.atomic import atomic_path, file_sha256
 from slipsense.errors import InputError
 
 
@@ -260,16 +260,6 @@ PARTS_MANIFEST = "parts.json"
 PARTS_FORMAT = 1
 
 
-def _file_sha256(path: Path) -> str:
-    import hashlib
-
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 def _parts_key(model: nn.Module, geometry: Mapping[str, Any], dtype: str) -> dict[str, Any]:
     import json
 
@@ -314,7 +304,7 @@ def check_parts(folder: str | Path, names: list[str], key: Mapping[str, Any]) ->
         path = folder / name
         if name not in files or not path.is_file():
             return f"{name} missing"
-        if _file_sha256(path) != files[name]:
+        if file_sha256(path) != files[name]:
             return f"{name}: checksum mismatch"
     return None
 
@@ -349,6 +339,6 @@ def cached_streaming_parts(
         if dtype == "int8":
             for p in parts:
                 quantize_int8(folder / f"{p}.onnx", folder / f"{p}.int8.onnx")
-        manifest = {"format": PARTS_FORMAT, "key": key, "files": {n: _file_sha256(folder / n) for n in names}}
+        manifest = {"format": PARTS_FORMAT, "key": key, "files": {n: file_sha256(folder / n) for n in names}}
         write_text(folder / PARTS_MANIFEST, json.dumps(manifest, indent=1))
     return {p: folder / n for p, n in zip(parts, names)}

@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from ..atomic import file_sha256
 from .marker_tracking import MarkerTrack
 
 #: Bump when detection, tracking or the cache layout changes, so stale cache files are ignored.
@@ -58,14 +59,6 @@ def _identity(path: Path, params: dict[str, Any]) -> str:
     )
 
 
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 def _save_cached_track(cfile: Path, path: Path, params: dict[str, Any], track: "MarkerTrack") -> None:
     """Write the track and, last, a sidecar with its sha256 and inputs (a write failure only warns)."""
     import warnings
@@ -78,7 +71,7 @@ def _save_cached_track(cfile: Path, path: Path, params: dict[str, Any], track: "
 
     def writer(tmp: Path) -> None:
         np.savez(tmp, **arrays)
-        digest.append(_sha256(tmp))
+        digest.append(file_sha256(tmp))
 
     try:
         write_with(cfile, writer)
@@ -134,7 +127,7 @@ def _load_cached_track(
         info = json.loads(sidecar.read_text(encoding="utf-8"))
         if not isinstance(info, dict) or info.get("inputs") != _identity(path, params):
             raise ValueError("made from another video or other settings")
-        if info.get("sha256") != _sha256(cfile):
+        if info.get("sha256") != file_sha256(cfile):
             raise ValueError("checksum mismatch")
         with np.load(cfile, allow_pickle=False) as data:
             track = MarkerTrack.from_arrays(data)
