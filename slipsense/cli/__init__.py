@@ -179,9 +179,10 @@ def evaluate(
     from slipsense.evaluation.evaluate import evaluate_checkpoint
 
     if checkpoint is None:
-        from slipsense.resources import shipped_model
+        from slipsense.evaluation.replay import shipped_for
 
-        checkpoint = shipped_model()
+        checkpoint = shipped_for(recordings)
+        typer.echo(f"evaluating the shipped detector {checkpoint.stem}", err=True)
 
     check_nonnegative(noise_std, "--noise-std")
     check_output_file(json_out, "--json")
@@ -201,7 +202,13 @@ def evaluate(
         per_grasp=per_grasp,
     )
     if "clips" in m:  # a grasp detector: per grasp, and per clip on the same traces
+        from slipsense.evaluation.outcome import table_lines
+
         g, c = m["per_grasp"], m["clips"]["operating_point"]
+        typer.echo("\n".join(table_lines(m["grasp_measure"])))
+        if g["slip_runs"] == 0 and m["grasp_measure"]["detector"]["slipped"]:
+            typer.echo(f"no moment of slip in these labels: the early-warning figures do not apply -> {json_out}")
+            return
         typer.echo(json.dumps(g, default=float))
         typer.echo(
             f"per grasp: warned in time {g['warned']}/{g['slip_runs']}, premature {g['premature']}, missed "

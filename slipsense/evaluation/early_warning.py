@@ -17,7 +17,7 @@ import csv
 import io
 import json
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
@@ -48,7 +48,10 @@ class RunTrace:
         self, threshold: float, debounce: int = 1, horizon: int = pergrasp.HORIZON, startup: int = pergrasp.STARTUP
     ) -> pergrasp.GraspOutcome:
         alarm = pergrasp.debounce(self.probability, threshold, debounce)
-        return pergrasp.grasp_outcome(alarm, self.moment_of_slip, horizon, startup, self.rest)
+        verdict = pergrasp.grasp_outcome(alarm, self.moment_of_slip, horizon, startup, self.rest)
+        if self.slipped and self.moment_of_slip is None:  # nothing to warn of in time: neither slip nor held
+            return replace(verdict, outcome="slip_without_moment")
+        return verdict
 
 
 def early_warning_table(
@@ -76,6 +79,7 @@ def replay_recordings(
     progress: bool = True,
     limit: int | None = None,
     overrides=None,
+    keep_without_moment: bool = False,
 ) -> list[RunTrace]:
     """Replay every run (all cameras of an experiment as the detector's sensors) through ``detector``.
 
@@ -86,8 +90,9 @@ def replay_recordings(
         labels: ``{(object, experiment, camera): VideoLabel}``; default: the automatic labels with
             ``overrides`` (:func:`slipsense.data.label_runs`).
         limit: replay at most this many runs (in sorted order).
-
-    Slipped runs without a moment of slip are left out (nothing to warn of).
+        keep_without_moment: replay slipped runs without a moment of slip too (grasps labelled as a
+            whole, judged by :mod:`slipsense.evaluation.outcome`); by default they are left out
+            (nothing to warn of).
     """
     from slipsense.data import label_runs
     from slipsense.recordings.frame_cache import video_products
@@ -113,13 +118,13 @@ def replay_recordings(
         else:
             groups = [cams]
         for group in groups:
-            trace = _replay_run(detector, key, group, cams, labels, read_video, video_products)
+            trace = _replay_run(detector, key, group, cams, labels, read_video, video_products, keep_without_moment)
             if trace is not None:
                 out.append(trace)
     return out
 
 
-def _replay_run(detector, key, cams, run_cams, labels, read_video, video_products) -> RunTrace | None:
+def _replay_run(detector, key, cams, run_cams, labels, read_video, video_products, keep=False) -> RunTrace | None:
     """One run (or one camera of it) replayed; None for a slip without a moment of slip."""
     if len(cams) != detector.sensors:
         raise InputError(
@@ -133,7 +138,7 @@ def _replay_run(detector, key, cams, run_cams, labels, read_video, video_product
         labs.append(labels[r.key])
     moment = next((l.moment_of_slip for l in labs if l.moment_of_slip is not None), None)
     slipped = any(l.slipped for l in labs)
-    if slipped and moment is None:
+    if slipped and moment is None and not keep:
         return None
     # what the model reads (grey frames, tracked markers) and the contact signal come from the
     # frame cache (no decode after labelling); a model on colour frames replays the decoded video

@@ -276,6 +276,7 @@ def _evaluate_grasps(checkpoint, recordings, split, markers, json_out, overrides
         "horizon": ev.horizon,
         "per_grasp": ev.summary(),
         "clips": ev.clips(),
+        "grasp_measure": ev.grasp_measure(),
         "runs": [
             {
                 "object": r.object,

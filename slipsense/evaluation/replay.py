@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from slipsense.config import gelsight_recordings
-from slipsense.evaluation import pergrasp
+from slipsense.evaluation import outcome, pergrasp
 
 
 def recordings_folder(recordings: str | Path | None) -> Path:
@@ -23,6 +23,20 @@ def label_overrides(overrides: str | Path | None | bool) -> Path | None | bool:
     if overrides is True:
         return None
     return False if overrides is False or overrides is None else Path(overrides)
+
+
+def shipped_for(recordings: str | Path | None) -> Path:
+    """The shipped detector for a recordings folder: the one-finger one where its grasps have one
+    camera each (frame folders, single videos), else the two-finger default."""
+    import warnings
+
+    from slipsense.recordings.folders import camera_counts, find_recordings
+    from slipsense.resources import default_model_name, shipped_model
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the evaluation that follows reports them
+        found = find_recordings(recordings_folder(recordings), on_error="skip")
+    return shipped_model(default_model_name(1 if camera_counts(found) == [1] else None))
 
 
 @dataclass
@@ -39,9 +53,29 @@ class Evaluation:
     debounce: int
     horizon: int = pergrasp.HORIZON
     labels: dict | None = None  # {(object, experiment, camera): VideoLabel} of the replayed videos
+    recordings: list | None = None  # the replayed Recordings (their frames feed the baselines)
+    startup: int = pergrasp.STARTUP  # leading frames never scored (0 for grasps labelled as a whole)
 
     def outcomes(self) -> list[pergrasp.GraspOutcome]:
-        return [r.outcome(self.threshold, self.debounce, self.horizon) for r in self.runs]
+        return [r.outcome(self.threshold, self.debounce, self.horizon, self.startup) for r in self.runs]
+
+    def grasp_measure(self, draws: int = outcome.BOOTSTRAP) -> dict[str, Any]:
+        """Slipped against held grasps (:mod:`slipsense.evaluation.outcome`): the detector's ROC AUC,
+        accuracy and balanced accuracy at its operating point and with thresholds chosen on the other
+        objects, 95% intervals over objects; beside it the non-learned baselines
+        (:mod:`slipsense.evaluation.baselines`) on the same frames, and where it does not beat them."""
+        from slipsense.evaluation.baselines import baseline_scores
+
+        slipped = [r.slipped for r in self.runs]
+        objects = [r.object for r in self.runs]
+        score = [outcome.peak_alarm_score(r.probability, self.debounce, self.startup) for r in self.runs]
+        alarmed = [v >= self.threshold for v in score]  # anywhere in the grasp, after the slip too
+        detector = outcome.outcome_measure(score, slipped, objects, alarmed, draws)
+        baselines = {"majority_class": outcome.majority_measure(slipped, objects, draws)}
+        if self.recordings is not None:
+            for name, s in baseline_scores(self.runs, self.recordings, self.labels or {}, self.startup).items():
+                baselines[name] = outcome.outcome_measure(s, slipped, objects, None, draws)
+        return {"detector": detector, "baselines": baselines, "not_beaten": outcome.beats(detector, baselines)}
 
     def summary(self) -> dict[str, Any]:
         """Slips warned in time / premature / missed, false-positive grasps, alarms at rest, lead times."""
@@ -104,13 +138,11 @@ def evaluate(
     import warnings
 
     from slipsense.checkpoint import read_info
-    from slipsense.resources import shipped_model
-
     from slipsense.errors import InputError
     from slipsense.sensors.spec import sensor_of
 
     root = recordings_folder(recordings)
-    path = checkpoint or shipped_model()
+    path = checkpoint or shipped_for(root)
     info = read_info(path)
     trained_on = set(((info.get("data") or {}).get("objects")) or ())
     found = find_recordings(root, on_error=on_error, sensor=sensor_of(info, path))
@@ -123,12 +155,8 @@ def evaluate(
         if len(counts) != 1:
             raise InputError(root, f"runs hold different numbers of camera videos ({counts}); a replay needs the same")
         sensors = counts[0]
-    detector = (
-        SlipDetector.pretrained(sensors=sensors, threshold=threshold, debounce=debounce, backend="torch")
-        if checkpoint is None
-        else SlipDetector.from_checkpoint(
-            checkpoint, sensors=sensors, threshold=threshold, debounce=debounce, backend="torch"
-        )
+    detector = SlipDetector.from_checkpoint(
+        path, sensors=sensors, threshold=threshold, debounce=debounce, backend="torch"
     )
     seen = sorted(trained_on & {r.object for r in recs})
     if seen:
@@ -141,5 +169,6 @@ def evaluate(
 
     labels = label_runs(recs, label_overrides(overrides), on_error=on_error, progress=progress)
     recs = [r for r in recs if r.key in labels]  # left out by on_error="skip"
-    runs = replay_recordings(detector, recs, labels, progress=progress)
-    return Evaluation(runs, detector.threshold, detector.debounce, horizon, labels)
+    runs = replay_recordings(detector, recs, labels, progress=progress, keep_without_moment=True)
+    startup = 0 if recs and all(r.per_grasp for r in recs) else pergrasp.STARTUP
+    return Evaluation(runs, detector.threshold, detector.debounce, horizon, labels, recs, startup)

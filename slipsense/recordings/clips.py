@@ -35,6 +35,7 @@ from ..sensors.spec import GELSIGHT_MINI
 from ..atomic import write_text, write_with
 from ..errors import ConfigError, InputError
 from .folders import SkippedInputWarning
+from .frames import source_stat
 from .types import Recording, VideoLabel
 from .video import read_video
 
@@ -351,7 +352,7 @@ def cache_key(recordings: Iterable[Recording], labels: Mapping[Key, VideoLabel],
     videos = []
     for rec in sorted(recordings, key=lambda r: r.key):
         try:
-            st = rec.path.stat()
+            size, mtime = source_stat(rec.path)
         except OSError:
             raise InputError(rec.path, "video file does not exist") from None
         label = labels.get(rec.key)
@@ -359,8 +360,8 @@ def cache_key(recordings: Iterable[Recording], labels: Mapping[Key, VideoLabel],
             [
                 list(rec.key),
                 str(Path(rec.path).resolve()),
-                st.st_size,
-                st.st_mtime_ns,
+                size,
+                mtime,
                 rec.slipped,
                 None if label is None else asdict(label),
             ]

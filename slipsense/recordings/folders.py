@@ -17,6 +17,7 @@ from typing import Iterable, Literal
 
 from ..errors import ConfigError, InputError
 from ..sensors.spec import GELSIGHT_MINI, SensorSpec
+from .frame_folders import find_frame_recordings, is_frame_layout
 from .types import Recording
 from .video import probe_video
 
@@ -59,7 +60,9 @@ def _visible_dirs(folder: Path) -> list[Path]:
 def find_recordings(
     root: str | Path, on_error: OnError = "raise", sensor: SensorSpec = GELSIGHT_MINI
 ) -> list[Recording]:
-    """List every camera video under ``root``, sorted by (object, experiment, camera).
+    """List every camera video under ``root``, sorted by (object, experiment, camera); or, where
+    ``root`` holds grasps as folders of frames, every grasp folder
+    (:mod:`~slipsense.recordings.frame_folders`, whatever ``sensor`` says).
 
     Args:
         root: folder holding one sub-folder per object, e.g. ``config.gelsight_recordings()``.
@@ -91,6 +94,11 @@ def find_recordings(
     if not objects:
         raise InputError(root, "no object folders (expected <object>/exp_num_<N>/camera_*.avi)")
 
+    if is_frame_layout(root):
+        found = find_frame_recordings(root, lambda path, problem: report(path, problem, on_error))
+        if not found:
+            raise InputError(root, "no usable recordings found")
+        return found
     found: list[Recording] = []
     if not (sensor.experiment_pattern and sensor.camera_glob and sensor.slip_marker):
         raise ConfigError(

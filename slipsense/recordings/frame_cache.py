@@ -39,6 +39,7 @@ import numpy as np
 
 from .. import atomic, config
 from ..errors import CacheWarning, InputError
+from .frames import source_stat
 
 #: Bump when what a product holds could change (the block or grey conversion).
 FRAMES_VERSION = "frames-1"
@@ -48,8 +49,8 @@ _MARKERS = re.compile(r"^markers:([1-9]\d*)(?:x([1-9]\d*))?$")
 
 
 def _identity(path: Path) -> dict:
-    st = path.stat()
-    return {"path": str(path.resolve()), "bytes": int(st.st_size), "mtime_ns": int(st.st_mtime_ns)}
+    size, mtime = source_stat(path)
+    return {"path": str(path.resolve()), "bytes": size, "mtime_ns": mtime}
 
 
 def _entry(path: Path, product: str) -> Path:

@@ -14,6 +14,7 @@ from typing import Sequence
 from .. import atomic, config
 from ..errors import CacheWarning, InputError
 from .contact import Rule
+from .frames import source_stat
 from .types import Recording, VideoLabel
 
 #: Bump whenever the automatic labels (contact.py, labels.py) could change; it keys the label cache.
@@ -27,15 +28,15 @@ def _inputs(recs: Sequence[Recording], rule: Rule) -> list:
     """What a run's labels are computed from: algorithm, rule and each video's identity."""
     out: list = [ALGORITHM_VERSION, rule]
     for r in sorted(recs, key=lambda r: r.camera):
-        st = Path(r.path).stat()
+        size, mtime = source_stat(r.path)
         out.append(
             [
                 r.object,
                 int(r.experiment),
                 r.camera,
                 str(Path(r.path).resolve()),
-                int(st.st_size),
-                int(st.st_mtime_ns),
+                size,
+                mtime,
                 bool(r.slipped),
             ]
         )

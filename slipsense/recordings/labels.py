@@ -209,6 +209,9 @@ def label_run(recordings_of_one_experiment: Sequence[Recording], rule: Rule = "e
     counts = {r.camera: len(b) for r, b in zip(recs, blocks)}
     if len(set(counts.values())) != 1:
         raise InputError(recs[0].path.parent, f"the cameras of this run differ in frame count: {counts}")
+    if any(r.per_grasp for r in recs):  # labelled as a whole: no moment to find, every frame the grasp
+        n = len(blocks[0])
+        return [VideoLabel(r.object, r.experiment, r.camera, n, r.slipped, None, 0, n - 1) for r in recs]
     tails = [_signal(b, "tail") for b in blocks]
     labels = _run_labels(recs, [s for s, _ in tails], rule)
     if any(r.slipped for r in recs):

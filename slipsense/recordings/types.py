@@ -8,13 +8,18 @@ from pathlib import Path
 
 @dataclass(frozen=True)
 class Recording:
-    """One sensor video of one experiment: ``<root>/<object>/exp_num_<experiment>/<camera>.avi``."""
+    """One sensor video of one experiment: ``<root>/<object>/exp_num_<experiment>/<camera>.avi``,
+    or a folder of its frames (:mod:`slipsense.recordings.frame_folders`).
+
+    ``per_grasp``: the data labels the grasp as a whole (slipped or held, no moment of slip to find).
+    """
 
     object: str
     experiment: int
     camera: str  # file stem, e.g. "camera_0"
     path: Path
     slipped: bool  # slip.txt present in the experiment folder
+    per_grasp: bool = False
 
     @property
     def key(self) -> tuple[str, int, str]:

@@ -31,6 +31,7 @@ import numpy as np  # noqa: E402
 
 from ..errors import InputError  # noqa: E402
 from ..sensors.spec import GELSIGHT_MINI  # noqa: E402
+from .frames import frame_files, is_frame_folder, probe_frames, read_frames  # noqa: E402
 
 #: Largest accepted gap between the frame count the container states and the frames decoded.
 TRUNCATION_TOLERANCE = 1
@@ -76,7 +77,7 @@ def _check_file(path: Path) -> None:
     if not path.exists():
         raise InputError(path, "video file does not exist")
     if not path.is_file():
-        raise InputError(path, "is not a file (expected a video file)")
+        raise InputError(path, "is not a file (expected a video file, or a folder of frame images)")
     try:
         size = path.stat().st_size
         with open(path, "rb") as fh:
@@ -189,7 +190,8 @@ def read_video(
     """Decode a whole video into memory.
 
     Args:
-        path: video file (AVI as recorded by the GelSight setup; MP4/MKV also decode).
+        path: video file (AVI as recorded by the GelSight setup; MP4/MKV also decode), or a folder
+            of frames (:mod:`slipsense.recordings.frames`).
         expected_size: required frame size as ``(height, width)`` in pixels, or None for any size.
         min_frames: fewest decoded frames accepted.
 
@@ -205,6 +207,8 @@ def read_video(
     """
     path = Path(path)
     _check_args(expected_size, min_frames)
+    if is_frame_folder(path):
+        return read_frames(path, expected_size, min_frames)
     cap, count, height, width, _fps, _fourcc_tag = _open_checked(path)
     try:
         if width > 0 and height > 0:
@@ -293,6 +297,8 @@ def frame_count(path: str | Path) -> int | None:
     """The frame count ``path``'s container states (no decoding; about 1 ms), or None when it
     states none that can be trusted or the file cannot be opened."""
     path = Path(path)
+    if is_frame_folder(path):
+        return len(frame_files(path))
     try:
         _check_file(path)
         cap = _open_capture(path)
@@ -327,6 +333,9 @@ def probe_video(
     """
     path = Path(path)
     _check_args(expected_size, min_frames)
+    if is_frame_folder(path):
+        n, height, width = probe_frames(path, expected_size, min_frames)
+        return VideoInfo(n_frames=n, height=height, width=width, fps=0.0, fourcc="frames")
     cap, count, height, width, fps, fourcc = _open_checked(path)
     try:
         try:

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from ..atomic import file_sha256
+from ..recordings.frames import source_stat
 from .marker_tracking import MarkerTrack
 
 #: Bump when detection, tracking or the cache layout changes, so stale cache files are ignored.
@@ -25,19 +26,7 @@ CACHE_VERSION = 2  # 2: a .json sidecar (sha256, inputs) beside each entry
 
 def _cache_file(cache_dir: Path, path: Path, params: dict[str, Any]) -> Path:
     """Cache file for ``path`` tracked with ``params``: keyed by path, size, mtime and params."""
-    st = path.stat()
-    key = json.dumps(
-        {
-            "version": CACHE_VERSION,
-            "path": str(path.resolve()),
-            "size": st.st_size,
-            "mtime_ns": st.st_mtime_ns,
-            "params": params,
-        },
-        sort_keys=True,
-        default=str,
-    )
-    digest = hashlib.sha256(key.encode()).hexdigest()[:20]
+    digest = hashlib.sha256(_identity(path, params).encode()).hexdigest()[:20]
     # Readable prefix (object, experiment, camera) so the folder can be browsed.
     stem = re.sub(r"[^A-Za-z0-9_.-]+", "_", "-".join(path.parts[-3:-1] + (path.stem,)))
     return cache_dir / f"{stem}-{digest}.npz"
@@ -45,13 +34,13 @@ def _cache_file(cache_dir: Path, path: Path, params: dict[str, Any]) -> Path:
 
 def _identity(path: Path, params: dict[str, Any]) -> str:
     """What a cached track was computed from (the same fields as its file name's hash)."""
-    st = path.stat()
+    size, mtime = source_stat(path)
     return json.dumps(
         {
             "version": CACHE_VERSION,
             "path": str(path.resolve()),
-            "size": st.st_size,
-            "mtime_ns": st.st_mtime_ns,
+            "size": size,
+            "mtime_ns": mtime,
             "params": params,
         },
         sort_keys=True,

@@ -108,7 +108,13 @@ GELSIGHT_MINI = SensorSpec(
 #: (no recordings are public; :mod:`slipsense.sensors.simulator` simulates it).
 BINOCULAR_MARKERS = SensorSpec(name="binocular-markers", output="markers", fps=20.0, markers=24 * 23)
 
-SENSORS = {s.name: s for s in (GELSIGHT_MINI, BINOCULAR_MARKERS)}
+#: The GelSight of Li, Dong and Adelson (ICRA 2018; the shared ``gelsight-lift`` data): 640 x 480,
+#: a dense grid of black markers, one finger, frames stored as JPEG files per grasp
+#: (:mod:`slipsense.recordings.frame_folders`). The data does not state its frame rate: 30 frames/s
+#: is assumed (the camera's usual rate); a ``sensor.json`` in the recordings folder states another.
+GELSIGHT_LIFT = SensorSpec(name="gelsight-lift", output="video", fps=30.0, image_size=(480, 640), camera_glob="*.jpg")
+
+SENSORS = {s.name: s for s in (GELSIGHT_MINI, BINOCULAR_MARKERS, GELSIGHT_LIFT)}
 
 
 def register_sensor(spec: SensorSpec) -> SensorSpec:
@@ -147,6 +153,7 @@ def sensor_of(info: Mapping[str, Any] | None, path: Any = None) -> SensorSpec:
 
 __all__ = [
     "BINOCULAR_MARKERS",
+    "GELSIGHT_LIFT",
     "GELSIGHT_MINI",
     "SENSORS",
     "SensorSpec",

@@ -1,0 +1,159 @@
+"""Grasps stored as folders of frames and labelled as a whole (slipped or held), one finger.
+
+Layout (the shared ``gelsight-lift`` data is the first instance; lay out your own the same way)::
+
+    <root>/<object>/<grasp>/<frames>       the frames of one grasp: .jpg/.png/.bmp files numbered
+                                           without gaps (see :mod:`slipsense.recordings.frames`)
+    <root>/<object>_result.dat             one line per grasp, naming its folder and outcome; or,
+                                           without it, <grasp>/slip.txt when the object slipped
+    <root>/sensor.json                     optional: the sensor (name, fps, image_size, ...), e.g.
+                                           {"name": "my-gelsight", "output": "video", "fps": 30}
+
+A line of ``<object>_result.dat`` (Li, Dong and Adelson's format, space-separated), e.g.
+``68 fail 0 160 450 398 068_00 _s09_``: column 2 is the outcome (``fail`` or ``slip``: the object
+slipped; ``ok`` or ``success``: it held), column 3 says the same as 0 or 1, column 7 names the grasp's
+folder (``068_00`` for the folder ``068_00_mm``); the other columns are not read. A grasp's number
+(``Recording.experiment``) is the digits of its folder's name: ``068_00_mm`` is grasp 6800.
+
+Every grasp folder must be named by exactly one line of its object's file and every line must name a
+folder; anything else is an :class:`~slipsense.errors.InputError` naming the file (``on_error="skip"``:
+a warning, the grasp left out).
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+from typing import Callable
+
+from ..errors import InputError
+from ..sensors.spec import GELSIGHT_LIFT, SensorSpec
+from .frames import FRAME_SUFFIXES, frame_files
+from .types import Recording
+
+Report = Callable[[Path, str], None]
+
+RESULT_SUFFIX = "_result.dat"
+#: The camera name of a frame folder's recording (one finger per grasp).
+CAMERA = "gelsight"
+SLIPPED_WORDS = ("fail", "slip")
+HELD_WORDS = ("ok", "success")
+
+
+def _dirs(folder: Path) -> list[Path]:
+    return sorted(p for p in folder.iterdir() if p.is_dir() and not p.name.startswith("."))
+
+
+def is_frame_layout(root: str | Path) -> bool:
+    """Whether ``root`` holds grasps as frame folders: it has ``*_result.dat`` files, or its first
+    object's first grasp folder holds image files."""
+    root = Path(root)
+    if not root.is_dir():
+        return False
+    if any(root.glob(f"*{RESULT_SUFFIX}")):
+        return True
+    objects = _dirs(root)
+    grasps = _dirs(objects[0]) if objects else []
+    return bool(grasps) and bool(frame_files(grasps[0]))
+
+
+def data_sensor(root: str | Path) -> SensorSpec | None:
+    """The sensor a frame-folder data set states: its ``sensor.json``, else the GelSight of the
+    ``gelsight-lift`` data where the folder is laid out as that data is (``*_result.dat``), else
+    None (a video data set: the detector's own sensor applies)."""
+    root = Path(root)
+    path = root / "sensor.json"
+    if path.is_file():
+        try:
+            return SensorSpec.from_dict(json.loads(path.read_text(encoding="utf-8")))
+        except (ValueError, UnicodeDecodeError) as exc:
+            raise InputError(path, f"not a sensor spec ({exc})") from None
+    return GELSIGHT_LIFT if any(root.glob(f"*{RESULT_SUFFIX}")) else None
+
+
+def grasp_number(folder: Path) -> int:
+    digits = "".join(re.findall(r"\d", folder.name))
+    if not digits:
+        raise InputError(folder, "grasp folder name holds no number (its digits number the grasp)")
+    return int(digits)
+
+
+def read_result_file(path: Path) -> dict[str, bool]:
+    """``{folder name as the line writes it: slipped}`` of one ``<object>_result.dat``."""
+    out: dict[str, bool] = {}
+    try:
+        lines = path.read_text(encoding="utf-8").splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(path, f"cannot be read ({exc})") from None
+    for number, line in enumerate(lines, 1):
+        cols = line.split()
+        if not cols:
+            continue
+        if len(cols) < 7:
+            raise InputError(path, f"line {number} has {len(cols)} columns, expected at least 7")
+        word, flag, name = cols[1].lower(), cols[2], cols[6]
+        if word not in SLIPPED_WORDS + HELD_WORDS:
+            raise InputError(
+                path, f"line {number}: outcome {cols[1]!r} is none of {', '.join(SLIPPED_WORDS + HELD_WORDS)}"
+            )
+        slipped = word in SLIPPED_WORDS
+        if flag not in ("0", "1") or (flag == "0") != slipped:
+            raise InputError(path, f"line {number}: column 3 ({flag!r}) does not agree with the outcome {cols[1]!r}")
+        if name in out:
+            raise InputError(path, f"line {number} names grasp {name} a second time")
+        out[name] = slipped
+    return out
+
+
+def _object_grasps(root: Path, obj: Path, report: Report) -> list[Recording]:
+    result = root / f"{obj.name}{RESULT_SUFFIX}"
+    outcomes = read_result_file(result) if result.is_file() else None
+    folders = {g.name: g for g in _dirs(obj)}
+    found: list[Recording] = []
+    named: set[str] = set()
+    if outcomes is not None:
+        for name in outcomes:
+            folder = next((folders[n] for n in (name, f"{name}_mm") if n in folders), None)
+            if folder is None:
+                report(result, f"names grasp folder {name}, which {obj} does not hold")
+                continue
+            named.add(folder.name)
+    seen: dict[int, Path] = {}
+    for folder in folders.values():
+        if outcomes is not None and folder.name not in named:
+            report(folder, f"no line of {result} names this grasp folder")
+            continue
+        try:
+            number = grasp_number(folder)
+        except InputError as exc:
+            report(folder, exc.problem)
+            continue
+        if number in seen:
+            report(folder, f"grasp {number} also found as {seen[number].name}")
+            continue
+        seen[number] = folder
+        if outcomes is not None:
+            slipped = outcomes.get(folder.name, outcomes.get(folder.name.removesuffix("_mm")))
+        else:
+            slipped = (folder / "slip.txt").exists()
+        found.append(Recording(obj.name, number, CAMERA, folder, bool(slipped), per_grasp=True))
+    if not folders:
+        report(obj, f"object folder holds no grasp folders of frames ({', '.join(FRAME_SUFFIXES)})")
+    return found
+
+
+def find_frame_recordings(root: str | Path, report: Report) -> list[Recording]:
+    """One :class:`Recording` per grasp folder under ``root`` (``path``: the folder; ``per_grasp``
+    True), sorted by key. Frames are not read here (see
+    :func:`~slipsense.recordings.folders.validate_recordings`). ``report(path, problem)`` raises or
+    warns (:func:`slipsense.recordings.folders.find_recordings` passes its ``on_error`` rule)."""
+    root = Path(root)
+    found: list[Recording] = []
+    objects = _dirs(root)
+    for result in sorted(root.glob(f"*{RESULT_SUFFIX}")):
+        if not (root / result.name.removesuffix(RESULT_SUFFIX)).is_dir():
+            report(result, f"names object {result.name.removesuffix(RESULT_SUFFIX)}, which has no folder")
+    for obj in objects:
+        found.extend(_object_grasps(root, obj, report))
+    return sorted(found, key=lambda r: r.key)

@@ -1,0 +1,139 @@
+"""A folder of image files as one sensor's recording: the frames of a grasp, in the order of the
+numbers in their names.
+
+Some sensors' software stores frames, not videos (the GelSight data of Li et al. 2018:
+``gelsight_imgw066_60_s09_00007675.jpg``, ...). Every reader of recordings takes such a folder where
+it takes a video file: :func:`slipsense.recordings.video.read_video` and ``probe_video`` hand it
+here, so labelling, the frame cache, training and replays need nothing else.
+
+A frame folder must be whole: frames of one size, each decodable, numbered without gaps (the last
+number in a file name is the frame's number; a gap means frames were lost, and a detector that
+counts frames would read the time wrong). Anything else is an
+:class:`~slipsense.errors.InputError` naming the file.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+
+#: Image files read as frames (case-insensitive).
+FRAME_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp")
+
+_LAST_NUMBER = re.compile(r"(\d+)(?!.*\d)")
+
+
+def frame_files(folder: str | Path) -> list[Path]:
+    """The image files of ``folder`` in frame order (by the last number in each name, then by name);
+    hidden files are not frames. Empty when the folder holds none."""
+    folder = Path(folder)
+    try:
+        files = [
+            p
+            for p in folder.iterdir()
+            if p.suffix.lower() in FRAME_SUFFIXES and not p.name.startswith(".") and p.is_file()
+        ]
+    except PermissionError:
+        raise InputError(folder, "frame folder is not readable (permission denied)") from None
+
+    def order(p: Path):
+        m = _LAST_NUMBER.search(p.stem)
+        return (int(m.group(1)) if m else -1, p.name)
+
+    return sorted(files, key=order)
+
+
+def is_frame_folder(path: str | Path) -> bool:
+    path = Path(path)
+    return path.is_dir() and bool(frame_files(path))
+
+
+def source_stat(path: str | Path) -> tuple[int, int]:
+    """``(bytes, mtime_ns)`` that change when a recording changes: a video file's own; for a frame
+    folder the sum of its frames' sizes and the latest modification of the folder or any frame (an
+    edited, added or removed frame changes it). What the caches key a recording by."""
+    path = Path(path)
+    st = path.stat()
+    if not path.is_dir():
+        return int(st.st_size), int(st.st_mtime_ns)
+    stats = [p.stat() for p in frame_files(path)]
+    return sum(int(s.st_size) for s in stats), max([int(st.st_mtime_ns)] + [int(s.st_mtime_ns) for s in stats])
+
+
+def _checked_files(folder: Path, min_frames: int) -> list[Path]:
+    files = frame_files(folder)
+    if not files:
+        raise InputError(folder, f"frame folder holds no image files ({', '.join(FRAME_SUFFIXES)})")
+    numbers = [_LAST_NUMBER.search(p.stem) for p in files]
+    if all(numbers):
+        values = [int(m.group(1)) for m in numbers]
+        for a, b, pa, pb in zip(values, values[1:], files, files[1:]):
+            if b == a:
+                raise InputError(pb, f"frame number {b} also found as {pa.name}")
+            if b != a + 1:
+                missing = f"frame {a + 1}" if b == a + 2 else f"frames {a + 1} to {b - 1}"
+                raise InputError(folder, f"{missing} missing: the numbering jumps from {pa.name} to {pb.name}")
+    if len(files) < min_frames:
+        raise InputError(folder, f"only {len(files)} frame{'s' if len(files) != 1 else ''}, need at least {min_frames}")
+    return files
+
+
+def _read_image(path: Path) -> np.ndarray:
+    import cv2
+
+    try:
+        frame = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    except cv2.error:
+        frame = None
+    if frame is None:
+        raise InputError(path, "frame cannot be decoded as an image")
+    return frame
+
+
+def _check_size(path: Path, frame: np.ndarray, first: tuple[int, int], first_name: str) -> None:
+    if frame.shape[:2] != first:
+        raise InputError(
+            path,
+            f"frames of mixed sizes: {first_name} is {first[1]}x{first[0]}, this one "
+            f"{frame.shape[1]}x{frame.shape[0]} (width x height)",
+        )
+
+
+def _first_frame(path: Path, expected_size: tuple[int, int] | None) -> np.ndarray:
+    frame = _read_image(path)
+    if expected_size is not None and frame.shape[:2] != tuple(expected_size):
+        h, w = expected_size
+        raise InputError(
+            path, f"frames are {frame.shape[1]}x{frame.shape[0]} pixels (width x height), expected {w}x{h}"
+        )
+    return frame
+
+
+def read_frames(folder: str | Path, expected_size: tuple[int, int] | None = None, min_frames: int = 2) -> np.ndarray:
+    """Every frame of a frame folder -> uint8 BGR ``(T, H, W, 3)``; InputError naming the file for a
+    missing, undecodable or differently sized frame, or a wrong ``expected_size`` ``(h, w)``."""
+    folder = Path(folder)
+    files = _checked_files(folder, min_frames)
+    first = _first_frame(files[0], expected_size)
+    size = first.shape[:2]
+    out = np.empty((len(files),) + first.shape, np.uint8)
+    out[0] = first
+    for i, p in enumerate(files[1:], 1):
+        frame = _read_image(p)
+        _check_size(p, frame, size, files[0].name)
+        out[i] = frame
+    return out
+
+
+def probe_frames(folder: str | Path, expected_size: tuple[int, int] | None = None, min_frames: int = 2):
+    """The cheap check of a frame folder (the numbering, the first and last frames decode at one
+    size) -> ``(n_frames, height, width)``."""
+    folder = Path(folder)
+    files = _checked_files(folder, min_frames)
+    first = _first_frame(files[0], expected_size)
+    _check_size(files[-1], _read_image(files[-1]), first.shape[:2], files[0].name)
+    return len(files), int(first.shape[0]), int(first.shape[1])

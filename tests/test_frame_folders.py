@@ -1,0 +1,137 @@
+"""Grasps as folders of frames, labelled per grasp (the gelsight-lift layout): found, read, judged by
+`slipsense evaluate` with the outcome measure and its baselines, and every bad input refused in one line."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from slipsense.cli import app
+from slipsense.recordings.folders import find_recordings
+from slipsense.recordings.video import read_video
+
+runner = CliRunner()
+
+
+def _grasp(folder: Path, slipped: bool, seed: int, n: int = 12, size=(48, 64), start: int = 7675) -> None:
+    """A pressed square that stays put (held) or keeps sliding (slipped), one JPEG per frame."""
+    rng = np.random.default_rng(seed)
+    folder.mkdir(parents=True)
+    h, w = size
+    for t in range(n):
+        f = np.full((h, w, 3), 110, np.uint8) + rng.integers(0, 4, (h, w, 3), dtype=np.uint8)
+        x = 10 + (3 * t if slipped else 0)
+        f[12:36, x : x + 16] = 200
+        cv2.imwrite(str(folder / f"gelsight_imgw{folder.name[:6]}_s09_{start + t:08d}.jpg"), f)
+
+
+def _lift_data(root: Path, objects: int = 3) -> Path:
+    """``objects`` objects of four grasps (two slipped) in the gelsight-lift layout."""
+    for i in range(objects):
+        lines = []
+        for g, slipped in enumerate((True, False, True, False)):
+            name = f"06{g}_{i}0"
+            _grasp(root / f"object{i:03d}" / f"{name}_mm", slipped, seed=10 * i + g)
+            lines.append(f"6{g}.{i} {'fail 0' if slipped else 'ok 1'} 100 300 200 {name} _s09_")
+        (root / f"object{i:03d}_result.dat").write_text("\n".join(lines))  # no final newline, as published
+    return root
+
+
+def test_frame_folders_are_found_labelled_per_grasp_and_read_in_order(tmp_path):
+    root = _lift_data(tmp_path / "lift")
+    recs = find_recordings(root)
+    assert len(recs) == 12 and all(r.per_grasp and r.camera == "gelsight" for r in recs)
+    first = recs[0]
+    assert (first.object, first.experiment, first.slipped) == ("object000", 6000, True)  # 060_00_mm
+    frames = read_video(first.path, expected_size=None)
+    assert frames.shape == (12, 48, 64, 3)
+    files = sorted(first.path.iterdir())
+    assert np.array_equal(frames[5], cv2.imread(str(files[5])))
+
+
+def test_evaluate_a_frame_folder_set_prints_the_outcome_measure_with_baselines(tmp_path, cache):
+    root = _lift_data(tmp_path / "lift")
+    out = tmp_path / "ev.json"
+    res = runner.invoke(app, ["evaluate", "--recordings", str(root), "--json", str(out), "--no-progress"])
+    assert res.exit_code == 0, res.output
+    assert "motionnet-gelsight-1" in res.output  # one camera per grasp: the one-finger detector
+    assert "6 of 12 grasps slipped, 3 objects" in res.output
+    for name in ("detector", "majority_class", "frame_difference", "mean_frame_difference", "difference_to_contact"):
+        assert name in res.output
+    assert "early-warning figures do not apply" in res.output
+    doc = json.loads(out.read_text())
+    measure = doc["grasp_measure"]
+    assert measure["detector"]["grasps"] == 12
+    # the sliding square is what the frame difference sees: it ranks these grasps perfectly
+    assert measure["baselines"]["mean_frame_difference"]["roc_auc"]["value"] == 1.0
+    lo, hi = measure["detector"]["roc_auc"]["interval"]
+    assert 0.0 <= lo <= measure["detector"]["roc_auc"]["value"] <= hi <= 1.0
+
+
+def _error(res) -> str:
+    lines = [l for l in res.output.splitlines() if l.startswith("error: ")]
+    assert res.exit_code == 2 and len(lines) == 1, res.output
+    return lines[0]
+
+
+def _break_missing_frame(root: Path) -> tuple[Path, str]:
+    folder = root / "object001" / "061_10_mm"
+    sorted(folder.iterdir())[4].unlink()
+    return folder, "missing"
+
+
+def _break_unreadable_frame(root: Path) -> tuple[Path, str]:
+    frame = sorted((root / "object001" / "061_10_mm").iterdir())[3]
+    frame.write_bytes(b"\xff\xd8\xff garbage")
+    return frame, "cannot be decoded"
+
+
+def _break_mixed_sizes(root: Path) -> tuple[Path, str]:
+    frame = sorted((root / "object002" / "062_20_mm").iterdir())[-1]
+    cv2.imwrite(str(frame), np.zeros((40, 64, 3), np.uint8))
+    return frame, "mixed sizes"
+
+
+def _break_line_without_folder(root: Path) -> tuple[Path, str]:
+    path = root / "object000_result.dat"
+    path.write_text(path.read_text() + "\n70 ok 1 1 2 1 070_00 _s09_\n")
+    return path, "070_00"
+
+
+def _break_folder_without_line(root: Path) -> tuple[Path, str]:
+    folder = root / "object000" / "069_00_mm"
+    _grasp(folder, False, seed=99)
+    return folder, "no line"
+
+
+def _break_bad_outcome(root: Path) -> tuple[Path, str]:
+    path = root / "object002_result.dat"
+    path.write_text(path.read_text().replace("ok 1", "maybe 1", 1))
+    return path, "outcome"
+
+
+@pytest.mark.parametrize(
+    "breaks",
+    [
+        _break_missing_frame,
+        _break_unreadable_frame,
+        _break_mixed_sizes,
+        _break_line_without_folder,
+        _break_folder_without_line,
+        _break_bad_outcome,
+    ],
+)
+def test_bad_frame_folders_and_label_files_end_in_one_line(tmp_path, cache, breaks):
+    root = _lift_data(tmp_path / "lift")
+    path, words = breaks(root)
+    res = runner.invoke(
+        app, ["evaluate", "--recordings", str(root), "--json", str(tmp_path / "e.json"), "--no-progress"]
+    )
+    line = _error(res)
+    assert str(path) in line and words in line, line
+    assert not (tmp_path / "e.json").exists()
