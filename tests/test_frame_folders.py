@@ -135,3 +135,15 @@ def test_bad_frame_folders_and_label_files_end_in_one_line(tmp_path, cache, brea
     line = _error(res)
     assert str(path) in line and words in line, line
     assert not (tmp_path / "e.json").exists()
+
+
+def test_label_and_watch_take_frame_folders(tmp_path, cache):
+    root = _lift_data(tmp_path / "lift", objects=1)
+    res = runner.invoke(app, ["label", "--recordings", str(root), "--csv", str(tmp_path / "l.csv"), "--no-progress"])
+    assert "expected 640x480" in _error(res)  # laid out as gelsight-lift: that sensor's size, unless stated
+    sensor = {"name": "tiny-gelsight", "output": "video", "fps": 30, "image_size": [48, 64]}
+    (root / "sensor.json").write_text(json.dumps(sensor))
+    res = runner.invoke(app, ["label", "--recordings", str(root), "--csv", str(tmp_path / "l.csv"), "--no-progress"])
+    assert res.exit_code == 0 and "4 videos labelled (0 with a moment of slip)" in res.output, res.output
+    res = runner.invoke(app, ["watch", str(root / "object000" / "060_00_mm"), "--quiet"])
+    assert res.exit_code == 0 and "12 frames" in res.output, res.output

@@ -30,13 +30,16 @@ def label(
     """Find the moment of slip in every video and write it as CSV."""
     from slipsense.data import label_runs
     from slipsense.recordings.folders import find_recordings, validate_recordings
+    from slipsense.recordings.frame_folders import data_sensor
     from slipsense.recordings.label_csv import read_overrides_csv, write_labels_csv
+    from slipsense.sensors.spec import GELSIGHT_MINI
 
     from slipsense.atomic import check_output_file
 
     check_output_file(csv, "--csv")
     root = recordings or default_recordings()
-    recs = validate_recordings(find_recordings(root, on_error=on_error), on_error=on_error)
+    sensor = data_sensor(root) or GELSIGHT_MINI  # frame folders state their own size
+    recs = validate_recordings(find_recordings(root, on_error=on_error), on_error, sensor.image_size)
     if overrides:
         read_overrides_csv(overrides)  # a malformed file is refused before any video is decoded
     # the path, not the parsed rows: label_recordings reads it against the recordings, so an error

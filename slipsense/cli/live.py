@@ -446,9 +446,13 @@ def run_early_warning(
     from slipsense.checkpoint import read_info
     from slipsense.sensors.spec import sensor_of
 
+    root = Path(recordings) if recordings else gelsight_recordings()
+    if checkpoint is None:
+        from slipsense.evaluation.replay import shipped_for
+
+        checkpoint = shipped_for(root)  # one camera per grasp: the one-finger detector
     ckpt = _checkpoint(checkpoint)
     info = read_info(ckpt)
-    root = Path(recordings) if recordings else gelsight_recordings()
     recs = find_recordings(root, on_error=on_error, sensor=sensor_of(info, ckpt))
     counts = camera_counts(recs)
     if len(counts) != 1:

@@ -61,7 +61,8 @@ def open_source(
     capture_format: str | None = None,
     frame_size: tuple[int, int] | None = None,
 ) -> Source:
-    """A video file, a recordings experiment folder (its ``camera_*.avi`` videos as sensors), a ROS 2
+    """A video file, a folder of one sensor's frames (:mod:`slipsense.recordings.frames`), a recordings
+    experiment folder (its ``camera_*.avi`` videos as sensors), a ROS 2
     bag (``topics``: one image topic per sensor), a marker ``.npy`` (``(T, M, 3)`` or
     ``(S, T, M, 3)`` mm) or a camera index (``0``, ``1``, ...; several as ``0,2``).
 
@@ -74,6 +75,7 @@ def open_source(
     """
     from slipsense.recordings.bags import is_bag, read_bag
     from slipsense.recordings.folders import CAMERA_GLOB
+    from slipsense.recordings.frames import is_frame_folder
     from slipsense.recordings.video import read_video
 
     camera_glob = camera_glob or CAMERA_GLOB  # the sensor's camera files (the GelSight study's by default)
@@ -88,6 +90,9 @@ def open_source(
         src = _array_source(name, videos, [Path(f"{path}:{t}") for t in topics], model, stamps, geometry)
         src.stats = lambda: {"dropped_unpaired": dict(bag.dropped)}
         return src
+    if path.is_dir() and is_frame_folder(path):  # one sensor's frames, read as its video
+        video = read_video(path, expected_size=None, min_frames=1)
+        return _array_source(str(path), [video], [path], model, np.arange(len(video)) / fps, geometry)
     if path.is_dir():
         cams = sorted(p for p in path.glob(camera_glob) if p.is_file())
         if not cams:
