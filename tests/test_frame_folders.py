@@ -147,3 +147,35 @@ def test_label_and_watch_take_frame_folders(tmp_path, cache):
     assert res.exit_code == 0 and "4 videos labelled (0 with a moment of slip)" in res.output, res.output
     res = runner.invoke(app, ["watch", str(root / "object000" / "060_00_mm"), "--quiet"])
     assert res.exit_code == 0 and "12 frames" in res.output, res.output
+
+
+def test_calibrate_chooses_a_threshold_on_the_users_grasps_and_states_its_promise(tmp_path, cache):
+    from slipsense.checkpoint import read_info
+    from slipsense.evaluation.calibrate import calibrated_threshold
+
+    root = _lift_data(tmp_path / "lift")
+    out = tmp_path / "mine.safetensors"
+    res = runner.invoke(app, ["calibrate", "--recordings", str(root), "--out", str(out), "--no-progress"])
+    assert res.exit_code == 0, res.output
+    op = read_info(out)["operating_point"]
+    assert op["held_alarm"]["held_grasps"] == 6 and op["held_alarm"]["held_objects"] == 3
+    assert op["held_alarm"]["alarming"] == 0  # 5% of 6 held grasps allows none
+    assert op["held_alarm"]["bound_counting_objects"] > op["held_alarm"]["bound_counting_grasps"] > 0
+    assert "at most" in res.output and "counting the 3 objects" in res.output
+    doc = tmp_path / "e.json"
+    res = runner.invoke(app, ["evaluate", "--checkpoint", str(out), "--recordings", str(root), "--json", str(doc)])
+    assert res.exit_code == 0 and json.loads(doc.read_text())["threshold"] == op["threshold"]
+    # the rule itself: just above the held grasps that must stay quiet, below the slipped ones above them
+    assert calibrated_threshold([0.1, 0.2, 0.3], [0.5, 0.05], 0.0) == pytest.approx(0.4)
+    assert calibrated_threshold([0.1, 0.2, 0.9] + [0.0] * 17, [0.5], 0.05) == pytest.approx(0.35)
+
+
+def test_calibrate_without_held_grasps_or_with_a_bad_budget_ends_in_one_line(tmp_path, cache):
+    root = _lift_data(tmp_path / "lift", objects=1)
+    path = root / "object000_result.dat"
+    path.write_text(path.read_text().replace("ok 1", "fail 0"))
+    out = tmp_path / "mine.safetensors"
+    res = runner.invoke(app, ["calibrate", "--recordings", str(root), "--out", str(out), "--no-progress"])
+    assert "no grasp that held" in _error(res) and not out.exists()
+    res = runner.invoke(app, ["calibrate", "--recordings", str(root), "--out", str(out), "--budget", "1.5"])
+    assert "--budget" in _error(res)

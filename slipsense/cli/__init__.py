@@ -237,6 +237,33 @@ def evaluate(
 
 @app.command()
 @friendly
+def calibrate(
+    recordings: Path = typer.Option(..., help="your own grasps (held ones required; slipped ones where you have them)"),
+    out: Path = typer.Option(..., help="the calibrated checkpoint to write"),
+    checkpoint: Optional[Path] = typer.Option(None, help="default: the shipped detector for the data"),
+    budget: float = typer.Option(0.05, help="fraction of the held grasps allowed to alarm"),
+    overrides: Optional[Path] = typer.Option(None, help="CSV of hand labels for --recordings"),
+    progress: bool = typer.Option(True),
+):
+    """Calibrate a detector to your sensor: a new alarm threshold chosen on your grasps, so that at
+    most --budget of the held ones alarm, stated with its bound on new objects (weights unchanged)."""
+    from slipsense.atomic import check_output_file
+    from slipsense.evaluation.calibrate import calibrate as run_calibration
+
+    check_output_file(out, "--out")
+    result = run_calibration(
+        out,
+        checkpoint,
+        recordings,
+        budget=budget,
+        overrides=True if overrides is None else overrides,
+        progress=progress,
+    )
+    typer.echo("\n".join(result.lines()))
+
+
+@app.command()
+@friendly
 def models():
     """List the registered models and their parameter counts at default settings."""
     from slipsense.models import available, build, count_parameters

@@ -115,6 +115,7 @@ def watch_source(
         model, info = load_model(ckpt)
         sensor = sensor_of(info, ckpt)  # a malformed sensor spec is named with its file
         src = _open(source, model, sensor, topics, tolerance, realtime, window_geometry(model, info))
+    own_point = threshold is None
     threshold, debounce = stored_operating_point(ckpt, info, threshold, None)
     backend = resolve_backend(backend)
     try:
@@ -135,6 +136,10 @@ def watch_source(
     if not quiet:
         runs_on = "ONNX Runtime" if det.backend == "onnx" else "PyTorch"
         echo(f"{Path(ckpt).stem} on {runs_on}, {det.sensors} sensor(s), alarm at {det.threshold:g}", err=jsonl == "-")
+        if own_point:  # the checkpoint's own operating point: what it promises
+            from slipsense.evaluation.pergrasp import promise_text
+
+            echo(promise_text(info.get("operating_point")), err=jsonl == "-")
     annot = Annotator(det.threshold, det.sensors, fps=det.sensor.fps) if out is not None else None
     writer = AnnotatedWriter(out, fps=det.sensor.fps) if out is not None else None
     sinks = _sinks(jsonl, bag_out, src, det)

@@ -250,7 +250,56 @@ def bootstrap_rates(outcomes: Sequence[str], samples: int = 2000, seed: int = 0,
     return out
 
 
-def wilson(k: int, n: int, z: float = 1.959964) -> tuple[float, float]:
+def held_alarm_promise(alarmed: Sequence[bool], objects: Sequence[str]) -> dict[str, Any]:
+    """What a held-alarm rate promises on objects not seen: the rate over these held grasps with the
+    upper end of its 95% Wilson interval counting *objects*, not grasps, as the independent units.
+
+    The grasps of one object share its surface, weight and the way it was grasped: when one alarms,
+    others tend to. Counting each object as one trial, with the pooled rate (a design effect with
+    the within-object correlation taken as 1), is the conservative reading: 0 alarms on 85 held
+    grasps of 29 objects promises at most 11.7% on new objects, not the 4.3% that counting grasps
+    gives. Both bounds are returned.
+
+    Args:
+        alarmed: ``(N,)`` whether each held grasp alarmed at the operating point.
+        objects: ``(N,)`` each held grasp's object.
+    """
+    a, objs = np.asarray(alarmed, bool), np.asarray(objects)
+    n, k = len(a), int(a.sum())
+    units = len(np.unique(objs))
+    rate = k / n if n else math.nan
+    return {
+        "held_grasps": n,
+        "held_objects": units,
+        "alarming": k,
+        "rate": rate,
+        "bound_counting_objects": wilson(rate * units, units)[1] if n else math.nan,
+        "bound_counting_grasps": wilson(k, n)[1] if n else math.nan,
+    }
+
+
+def promise_text(op: Any) -> str:
+    """What a checkpoint's operating point (its ``held_alarm``, :func:`held_alarm_promise`) promises
+    about held grasps, in one line; older checkpoints say what they have."""
+    if not isinstance(op, dict):
+        return "no operating point stored: nothing is promised about held grasps"
+    h = op.get("held_alarm")
+    if isinstance(h, dict) and h.get("held_grasps"):
+        return (
+            f"held grasps alarming: {100 * h['rate']:.1f}% ({h['alarming']} of {h['held_grasps']}) on "
+            f"{op.get('chosen_on', 'the grasps it was chosen on')}; on new objects at most "
+            f"{100 * h['bound_counting_objects']:.0f}% (95%, counting the {h['held_objects']} objects as the units)"
+        )
+    rate = op.get("false_positive_rate_on_training_runs")
+    if isinstance(rate, (int, float)):
+        return (
+            f"held grasps alarming: {100 * rate:.1f}% on {op.get('chosen_on', 'its training runs')} "
+            "(no bound counting objects stored: `slipsense calibrate` states one)"
+        )
+    return "nothing is promised about held grasps (no rate stored)"
+
+
+def wilson(k: float, n: int, z: float = 1.959964) -> tuple[float, float]:
     """The 95% Wilson score interval of a rate of ``k`` events in ``n`` runs (``(0, 0.043)`` for 0 of 85)."""
     if n == 0:
         return (math.nan, math.nan)

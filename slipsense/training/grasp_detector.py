@@ -171,6 +171,13 @@ def _chosen_operating_point(probs: Sequence[np.ndarray], runs: Sequence[GraspRun
     op["chosen_on"] = (
         f"{cfg.inner_folds} inner folds of the training objects" if cfg.inner_folds else "the training runs themselves"
     )
+    held = [(p, r.object) for p, r in zip(probs, runs) if not r.slipped]
+    alarmed = [
+        pergrasp.grasp_outcome(pergrasp.debounce(p, op["threshold"], op["debounce"]), None, cfg.horizon).first_alarm
+        is not None
+        for p, _ in held
+    ]
+    op["held_alarm"] = pergrasp.held_alarm_promise(alarmed, [o for _, o in held])
     return op
 
 

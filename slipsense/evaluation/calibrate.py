@@ -1,0 +1,133 @@
+"""Calibration to the user's own sensor: a new operating point from a few of their grasps.
+
+A detector trained on one GelSight can rank another sensor's grasps well and still never alarm (the
+shipped detector's probabilities on the ``gelsight-lift`` grasps stay below its 0.995 threshold).
+Recording some grasps on one's own sensor, held ones at least, and choosing the threshold on them
+costs minutes, not a data set: :func:`calibrate` replays them through the detector as
+:func:`slipsense.evaluation.replay.evaluate` does, puts the threshold just above all but a
+``budget`` fraction of the held grasps' peak scores (:func:`calibrated_threshold`) and writes a copy
+of the checkpoint with that operating point, what it was chosen on and what it promises on new
+objects (:func:`slipsense.evaluation.pergrasp.held_alarm_promise`, objects as the unit). The weights
+are not touched.
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from slipsense.errors import ConfigError, InputError
+from slipsense.evaluation import outcome, pergrasp
+
+
+def calibrated_threshold(held: Sequence[float], others: Sequence[float], budget: float) -> float:
+    """The threshold (alarm at score >= it) that leaves at most ``floor(budget * len(held))`` of the
+    ``held`` grasps' scores at or above it, as low as that allows (so that slipped grasps are caught):
+    halfway between the highest held score that must stay quiet and the next higher score of any
+    grasp (``others``: the slipped grasps'), or halfway to 1 when there is none. Scores in [0, 1]."""
+    h = np.sort(np.asarray(held, float))[::-1]
+    if h.size == 0:
+        raise ValueError("no held grasps")
+    allowed = int(math.floor(budget * h.size + 1e-9))
+    if allowed >= h.size:
+        return float(max(0.0, h.min() / 2))
+    quiet = h[allowed]  # the highest held score that must not alarm
+    above = [v for v in list(h) + list(others) if v > quiet]
+    return float((quiet + (min(above) if above else 1.0)) / 2)
+
+
+@dataclass
+class Calibration:
+    """What :func:`calibrate` did: the checkpoint it wrote, its operating point, and the figures on
+    the calibration grasps before (the original operating point) and after."""
+
+    checkpoint: Path
+    threshold: float
+    debounce: int
+    held_alarm: dict[str, Any]
+    slipped: int
+    slipped_caught: int
+    before: dict[str, Any]
+
+    def lines(self) -> list[str]:
+        h, b = self.held_alarm, self.before
+        caught = f"{self.slipped_caught} of {self.slipped}" if self.slipped else "none given"
+        return [
+            f"before: threshold {b['threshold']:g}: {b['held_alarming']} of {h['held_grasps']} held grasps alarm, "
+            f"{b['slipped_caught']} of {self.slipped} slipped grasps caught",
+            f"after:  threshold {self.threshold:.6g} x{self.debounce}: {h['alarming']} of {h['held_grasps']} held "
+            f"grasps alarm ({100 * h['rate']:.1f}%; at most {100 * h['bound_counting_objects']:.0f}% on new objects "
+            f"counting the {h['held_objects']} objects, {100 * h['bound_counting_grasps']:.0f}% counting grasps), "
+            f"slipped grasps caught: {caught}",
+            f"-> {self.checkpoint}",
+        ]
+
+
+def calibrate(
+    out: str | Path,
+    checkpoint: str | Path | None = None,
+    recordings: str | Path | None = None,
+    *,
+    budget: float = 0.05,
+    overrides: str | Path | None | bool = True,
+    objects: Sequence[str] | None = None,
+    progress: bool = True,
+) -> Calibration:
+    """Choose a detector's operating point on the user's grasps and write the calibrated copy.
+
+    Args:
+        out: the calibrated checkpoint's path (weights of ``checkpoint``, the new operating point).
+        checkpoint: default: the shipped detector for the data (one finger for one camera per grasp).
+        recordings: the user's grasps (any recordings layout, e.g. frame folders labelled per grasp);
+            held grasps are required, slipped ones make the figures say what is caught.
+        budget: the fraction of held grasps allowed to alarm (on these grasps; the promise on new
+            objects is the bound stated beside it).
+        objects: only the grasps of these objects.
+    """
+    from slipsense.checkpoint import read_info, update_info
+    from slipsense.evaluation.replay import evaluate, recordings_folder, shipped_for
+    from slipsense.recordings.frame_folders import data_sensor
+
+    if isinstance(budget, bool) or not isinstance(budget, (int, float)) or not 0.0 <= budget < 1.0:
+        raise ConfigError(f"--budget must be a fraction in [0, 1), got {budget!r}")
+    root = recordings_folder(recordings)
+    source = Path(checkpoint) if checkpoint is not None else shipped_for(root)
+    ev = evaluate(source, root, overrides=overrides, progress=progress, objects=objects)
+    scores = np.array([outcome.peak_alarm_score(r.probability, ev.debounce, ev.startup) for r in ev.runs])
+    slipped = np.array([r.slipped for r in ev.runs], bool)
+    if not (~slipped).any():
+        raise InputError(root, "no grasp that held: calibration needs held grasps (slipped ones are optional)")
+    threshold = min(1.0, calibrated_threshold(scores[~slipped], scores[slipped], budget))
+    held_objects = [r.object for r in ev.runs if not r.slipped]
+    promise = pergrasp.held_alarm_promise(scores[~slipped] >= threshold, held_objects)
+    before = {
+        "threshold": ev.threshold,
+        "held_alarming": int((scores[~slipped] >= ev.threshold).sum()),
+        "slipped_caught": int((scores[slipped] >= ev.threshold).sum()),
+    }
+    info = read_info(source)
+    op = {
+        **(info.get("operating_point") or {}),
+        "threshold": threshold,
+        "debounce": ev.debounce,
+        "rule": f"at most {100 * budget:g}% of held grasps alarming",
+        "chosen_on": f"calibration on {len(ev.runs)} grasps of {len({r.object for r in ev.runs})} objects",
+        "held_alarm": promise,
+        "calibrated": {"from": source.name, "recordings": root.name, "before": before},
+    }
+    out = Path(out)
+    if out.resolve() != source.resolve():
+        from slipsense.atomic import atomic_path
+
+        with atomic_path(out) as tmp:
+            shutil.copyfile(source, tmp)
+    sensor = data_sensor(root)
+    update_info(out, {"operating_point": op, **({"sensor": sensor.to_dict()} if sensor else {})})
+    return Calibration(
+        out, threshold, ev.debounce, promise, int(slipped.sum()), int((scores[slipped] >= threshold).sum()), before
+    )
