@@ -179,3 +179,16 @@ def test_calibrate_without_held_grasps_or_with_a_bad_budget_ends_in_one_line(tmp
     assert "no grasp that held" in _error(res) and not out.exists()
     res = runner.invoke(app, ["calibrate", "--recordings", str(root), "--out", str(out), "--budget", "1.5"])
     assert "--budget" in _error(res)
+
+
+def test_calibration_is_judged_on_objects_left_out(tmp_path, cache):
+    root = _lift_data(tmp_path / "lift")
+    doc_path = tmp_path / "check.json"
+    res = runner.invoke(app, ["calibrate", "--recordings", str(root), "--check", str(doc_path), "--no-progress"])
+    assert res.exit_code == 0, res.output
+    doc = json.loads(doc_path.read_text())
+    assert [r["object"] for r in doc["objects"]] == ["object000", "object001", "object002"]
+    assert doc["held"] == 6 and doc["slipped"] == 6 and "pooled:" in res.output
+    assert 0 <= doc["held_alarm_rate"] <= 1 and doc["largest_stated_bound"] > 0
+    res = runner.invoke(app, ["calibrate", "--recordings", str(root), "--no-progress"])
+    assert "--out" in _error(res)

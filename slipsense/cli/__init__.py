@@ -239,7 +239,10 @@ def evaluate(
 @friendly
 def calibrate(
     recordings: Path = typer.Option(..., help="your own grasps (held ones required; slipped ones where you have them)"),
-    out: Path = typer.Option(..., help="the calibrated checkpoint to write"),
+    out: Optional[Path] = typer.Option(None, help="the calibrated checkpoint to write"),
+    check: Optional[Path] = typer.Option(
+        None, help="instead: leave each object out in turn, calibrate on the others, judge it; JSON here"
+    ),
     checkpoint: Optional[Path] = typer.Option(None, help="default: the shipped detector for the data"),
     budget: float = typer.Option(0.05, help="fraction of the held grasps allowed to alarm"),
     overrides: Optional[Path] = typer.Option(None, help="CSV of hand labels for --recordings"),
@@ -247,11 +250,23 @@ def calibrate(
 ):
     """Calibrate a detector to your sensor: a new alarm threshold chosen on your grasps, so that at
     most --budget of the held ones alarm, stated with its bound on new objects (weights unchanged)."""
-    from slipsense.atomic import check_output_file
-    from slipsense.evaluation.calibrate import calibrate as run_calibration
+    from slipsense.atomic import check_output_file, write_text
+    from slipsense.errors import ConfigError
+    from slipsense.evaluation import calibrate as calibration
 
+    if (out is None) == (check is None):
+        raise ConfigError("give --out (write a calibrated checkpoint) or --check (judge calibration by objects)")
+    overrides = True if overrides is None else overrides
+    if check is not None:
+        check_output_file(check, "--check")
+        doc = calibration.check_by_objects(
+            checkpoint, recordings, budget=budget, overrides=overrides, progress=progress
+        )
+        write_text(check, json.dumps(doc, indent=1))
+        typer.echo("\n".join(calibration.check_lines(doc) + [f"-> {check}"]))
+        return
     check_output_file(out, "--out")
-    result = run_calibration(
+    result = calibration.calibrate(
         out,
         checkpoint,
         recordings,
