@@ -155,11 +155,11 @@ def test_shipped_overrides_apply_to_the_shared_recordings_only(tmp_path):
 
 def test_shipped_detectors_record_their_sensor_and_one_finger_has_its_own(one_thread):
     from slipsense.checkpoint import read_info
-    from slipsense.sensors.spec import GELSIGHT_MINI, SensorSpec
+    from slipsense.sensors.spec import GELSIGHT_LIFT, GELSIGHT_MINI, SensorSpec
 
     for name in slipsense.resources.shipped_models():
         spec = SensorSpec.from_dict(read_info(slipsense.resources.shipped_model(name))["sensor"])
-        assert spec == GELSIGHT_MINI
+        assert spec == (GELSIGHT_LIFT if name.endswith("-lift") else GELSIGHT_MINI)
     one, two = slipsense.SlipDetector.pretrained(sensors=1), slipsense.SlipDetector.pretrained()
     assert (one.sensors, two.sensors) == (1, 2) and one.sensor.fps == 25.0
     frame = np.full((240, 320, 3), 120, np.uint8)

@@ -59,7 +59,7 @@ def test_evaluate_a_frame_folder_set_prints_the_outcome_measure_with_baselines(t
     out = tmp_path / "ev.json"
     res = runner.invoke(app, ["evaluate", "--recordings", str(root), "--json", str(out), "--no-progress"])
     assert res.exit_code == 0, res.output
-    assert "motionnet-gelsight-1" in res.output  # one camera per grasp: the one-finger detector
+    assert "motionnet-gelsight-lift" in res.output  # laid out as that data set: its sensor's detector
     assert "6 of 12 grasps slipped, 3 objects" in res.output
     for name in ("detector", "majority_class", "frame_difference", "mean_frame_difference", "difference_to_contact"):
         assert name in res.output
@@ -192,3 +192,20 @@ def test_calibration_is_judged_on_objects_left_out(tmp_path, cache):
     assert 0 <= doc["held_alarm_rate"] <= 1 and doc["largest_stated_bound"] > 0
     res = runner.invoke(app, ["calibrate", "--recordings", str(root), "--no-progress"])
     assert "--out" in _error(res)
+
+
+def test_the_shipped_detector_is_picked_by_the_inputs_sensor():
+    from slipsense.checkpoint import read_info
+    from slipsense.resources import shipped_model
+    from slipsense.streaming.detector import SlipDetector, shipped_name
+
+    assert shipped_name(1, (480, 640)) == "motionnet-gelsight-lift"
+    assert shipped_name(1, (240, 320)) == "motionnet-gelsight-1"
+    assert shipped_name(2, (240, 320)) == shipped_name() == "motionnet-gelsight"
+    assert shipped_name(2, (480, 640)) == "motionnet-gelsight"  # none shipped for two such fingers
+    info = read_info(shipped_model("motionnet-gelsight-lift"))
+    assert info["sensor"]["name"] == "gelsight-lift"
+    held = info["operating_point"]["held_alarm"]
+    assert held["held_objects"] == 5 and held["bound_counting_objects"] > held["rate"]
+    det = SlipDetector.pretrained(sensors=1, image_size=(480, 640), backend="torch")
+    assert det.threshold == info["operating_point"]["threshold"]

@@ -54,6 +54,24 @@ def _checkpoint(path: Optional[Path], sensors: int | None = None) -> Path:
     return Path(path)
 
 
+def _shipped_for_source(source: str, sensors: int) -> Path:
+    """The shipped detector for what ``source`` holds: by its frame size where it is a video or a
+    frame folder (a 480 x 640 GelSight gets the one calibrated to it), else by its sensor count."""
+    from slipsense.recordings.video import probe_video
+    from slipsense.resources import shipped_model
+    from slipsense.streaming.detector import shipped_name
+
+    size = None
+    path = Path(source)
+    if path.is_file() and path.suffix.lower() != ".npy" or path.is_dir() and not any(path.glob("camera_*")):
+        try:
+            info = probe_video(path, expected_size=None, min_frames=1)
+            size = (info.height, info.width)
+        except InputError:
+            size = None  # opening the source reports what is wrong with it
+    return _checkpoint(shipped_model(shipped_name(sensors, size)))
+
+
 # ---------------------------------------------------------------------------------------------
 # commands
 # ---------------------------------------------------------------------------------------------
@@ -105,7 +123,7 @@ def watch_source(
         sensor = GELSIGHT_MINI
         src = _open(source, None, sensor, topics, tolerance, realtime)  # the shipped detectors take pictures
         try:
-            ckpt = _checkpoint(None, src.sensors)
+            ckpt = _shipped_for_source(source, src.sensors)
             model, info = load_model(ckpt)
         except BaseException:
             src.close()

@@ -118,7 +118,12 @@ def calibrate(
         "rule": f"at most {100 * budget:g}% of held grasps alarming",
         "chosen_on": f"calibration on {len(ev.runs)} grasps of {len({r.object for r in ev.runs})} objects",
         "held_alarm": promise,
-        "calibrated": {"from": source.name, "recordings": root.name, "before": before},
+        "calibrated": {
+            "from": source.name,
+            "recordings": root.name,
+            "objects": sorted({r.object for r in ev.runs}),
+            "before": before,
+        },
     }
     out = Path(out)
     if out.resolve() != source.resolve():

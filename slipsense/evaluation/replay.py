@@ -26,17 +26,27 @@ def label_overrides(overrides: str | Path | None | bool) -> Path | None | bool:
 
 
 def shipped_for(recordings: str | Path | None) -> Path:
-    """The shipped detector for a recordings folder: the one-finger one where its grasps have one
-    camera each (frame folders, single videos), else the two-finger default."""
+    """The shipped detector for a recordings folder (:func:`~slipsense.streaming.detector.shipped_name`):
+    the one of its sensor where one is shipped (the frame size its ``sensor.json`` or layout states,
+    else its first recording's), for one finger where its grasps have one camera each."""
     import warnings
 
     from slipsense.recordings.folders import camera_counts, find_recordings
-    from slipsense.resources import default_model_name, shipped_model
+    from slipsense.recordings.frame_folders import data_sensor
+    from slipsense.recordings.video import probe_video
+    from slipsense.resources import shipped_model
+    from slipsense.streaming.detector import shipped_name
 
+    root = recordings_folder(recordings)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the evaluation that follows reports them
-        found = find_recordings(recordings_folder(recordings), on_error="skip")
-    return shipped_model(default_model_name(1 if camera_counts(found) == [1] else None))
+        found = find_recordings(root, on_error="skip")
+    sensor = data_sensor(root)
+    size = sensor.image_size if sensor is not None else None
+    if size is None:
+        info = probe_video(found[0].path, expected_size=None)
+        size = (info.height, info.width)
+    return shipped_model(shipped_name(1 if camera_counts(found) == [1] else 2, size))
 
 
 @dataclass
@@ -144,7 +154,8 @@ def evaluate(
     root = recordings_folder(recordings)
     path = checkpoint or shipped_for(root)
     info = read_info(path)
-    trained_on = set(((info.get("data") or {}).get("objects")) or ())
+    calibrated = ((info.get("operating_point") or {}).get("calibrated") or {}).get("objects") or ()
+    trained_on = set(((info.get("data") or {}).get("objects")) or ()) | set(calibrated)
     found = find_recordings(root, on_error=on_error, sensor=sensor_of(info, path))
     recs = validate_recordings(found, on_error=on_error, expected_size=None)
     if objects is not None:
@@ -161,7 +172,7 @@ def evaluate(
     seen = sorted(trained_on & {r.object for r in recs})
     if seen:
         warnings.warn(
-            f"the detector was trained on {len(seen)} of these objects ({', '.join(seen[:5])}"
+            f"the detector was trained or calibrated on {len(seen)} of these objects ({', '.join(seen[:5])}"
             f"{', ...' if len(seen) > 5 else ''}): their runs do not measure objects it never saw",
             stacklevel=2,
         )

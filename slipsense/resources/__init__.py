@@ -19,6 +19,9 @@ DEFAULT_MODEL = "motionnet-gelsight"
 ONE_SENSOR_MODEL = "motionnet-gelsight-1"
 #: The paper-faithful ViViT, kept for reproduction.
 PAPER_MODEL = "vivit-gelsight"
+#: The one-finger detector calibrated to the GelSight of the gelsight-lift data (480 x 640): the same
+#: weights as ONE_SENSOR_MODEL, its threshold chosen on those grasps (`slipsense calibrate`, README).
+LIFT_MODEL = "motionnet-gelsight-lift"
 
 
 def _path(*parts: str) -> Path:
@@ -27,7 +30,7 @@ def _path(*parts: str) -> Path:
 
 
 def shipped_model(name: str = DEFAULT_MODEL) -> Path:
-    """Path of a shipped checkpoint: ``"motionnet-gelsight"`` (default) or ``"vivit-gelsight"``."""
+    """Path of a shipped checkpoint (:func:`shipped_models`; ``"motionnet-gelsight"`` by default)."""
     return _path("models", f"{name}.safetensors")
 
 

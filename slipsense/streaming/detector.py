@@ -202,14 +202,18 @@ class SlipDetector:
             raise InputError(path, str(exc)) from None
 
     @classmethod
-    def pretrained(cls, name: str | None = None, **kwargs: Any) -> "SlipDetector":
+    def pretrained(
+        cls, name: str | None = None, image_size: tuple[int, int] | None = None, **kwargs: Any
+    ) -> "SlipDetector":
         """A shipped detector (:func:`slipsense.resources.shipped_models`): by default the one for the
-        number of sensors asked (``sensors=2``, the default: ``"motionnet-gelsight"``, both fingers;
-        ``sensors=1``: ``"motionnet-gelsight-1"``, one finger); ``"vivit-gelsight"`` is the paper's
-        ViViT. ``kwargs`` as :meth:`from_checkpoint`."""
-        from slipsense.resources import default_model_name, shipped_models
+        input (:func:`shipped_name`: the sensor's frame size ``image_size`` ``(h, w)`` and the number of
+        sensors asked; ``sensors=2``, the default: ``"motionnet-gelsight"``, both fingers;
+        ``sensors=1``: ``"motionnet-gelsight-1"``, one finger; a 480 x 640 GelSight:
+        ``"motionnet-gelsight-lift"``); ``"vivit-gelsight"`` is the paper's ViViT. ``kwargs`` as
+        :meth:`from_checkpoint`."""
+        from slipsense.resources import shipped_models
 
-        name = name or default_model_name(kwargs.get("sensors"))
+        name = name or shipped_name(kwargs.get("sensors"), image_size)
         if name not in shipped_models():
             raise ConfigError(f"no shipped detector {name!r}; shipped: {', '.join(shipped_models())}")
         return cls.from_checkpoint(shipped_model(name), **kwargs)
@@ -318,6 +322,21 @@ class SlipDetector:
         self._stream.close()
 
 
+def shipped_name(sensors: int | None = None, image_size: tuple[int, int] | None = None) -> str:
+    """The shipped detector for an input: the one whose sensor has frames of ``image_size`` ``(h, w)``
+    and that takes ``sensors`` sensors (default 2), else the GelSight Mini's for that many fingers."""
+    from slipsense.checkpoint import read_info
+    from slipsense.resources import default_model_name, shipped_model, shipped_models
+
+    if image_size is not None:
+        for name in shipped_models():
+            info = read_info(shipped_model(name))
+            size = (info.get("sensor") or {}).get("image_size")
+            if size and tuple(size) == tuple(image_size) and info["model_config"].get("sensors") == (sensors or 2):
+                return name
+    return default_model_name(sensors)
+
+
 def stored_operating_point(
     path: str | Path, info: Mapping[str, Any], threshold: float | None, debounce: int | None
 ) -> tuple[float, int]:
@@ -368,6 +387,7 @@ __all__ = [
     "alarm_at",
     "combine_probabilities",
     "onnx_cache_dir",
+    "shipped_name",
     "window_geometry",
     "slip_probability",
     "stored_operating_point",
