@@ -209,3 +209,56 @@ def test_the_shipped_detector_is_picked_by_the_inputs_sensor():
     assert held["held_objects"] == 5 and held["bound_counting_objects"] > held["rate"]
     det = SlipDetector.pretrained(sensors=1, image_size=(480, 640), backend="torch")
     assert det.threshold == info["operating_point"]["threshold"]
+
+
+def test_grasps_labelled_as_a_whole_fine_tune_the_shipped_detector(tmp_path, cache, one_thread):
+    """Slipped grasps without a moment train as bags of frames (the most slip-like frame is slip); the
+    detector starts from the shipped weights and its threshold is chosen per grasp."""
+    from slipsense.checkpoint import read_info
+    from slipsense.resources import ONE_SENSOR_MODEL, shipped_model
+
+    root = _lift_data(tmp_path / "lift")
+    out = tmp_path / "tuned"
+    init = str(shipped_model(ONE_SENSOR_MODEL))
+    args = ["grasp", "train", "--recordings", str(root), "--set", f"train.init={init}", "--set", "train.startup=0"]
+    res = runner.invoke(app, [*args, "--epochs", "2", "--inner-folds", "0", "--out", str(out), "--no-progress"])
+    assert res.exit_code == 0, res.output
+    info = read_info(out / "detector.safetensors")
+    assert info["model_config"] == read_info(init)["model_config"]  # the shipped model, trained further
+    assert info["sensor"]["name"] == "gelsight-lift" and info["train_config"]["init"] == init
+    op = info["operating_point"]
+    assert "labelled as a whole" in op["rule"] and op["startup"] == 0 and op["held_alarm"]["held_grasps"] == 6
+    res = runner.invoke(app, [*args, "--set", "model.width=4", "--out", str(tmp_path / "x"), "--no-progress"])
+    assert "come from train.init" in _error(res)
+
+
+def test_a_bag_is_learned_from_its_most_slip_like_frame():
+    import torch
+
+    from slipsense.training.grasps import BAG, GraspTask
+
+    task = object.__new__(GraspTask)
+    task.cfg = type("C", (), {"chunk": 4})()
+    task.weight = torch.tensor([1.0, 1.0])
+    start = torch.zeros(2, 4, 2)
+    start[1, 2, 1] = 1.0  # frame 2 is the bag's most slip-like
+    logits = start.requires_grad_()
+    y = torch.tensor([[0, 0, 0, 0], [-1, BAG, BAG, BAG]])
+    loss, stats = task.loss(lambda x, n: logits, (None, y, 1.0), 1.0, 1)
+    loss.backward()
+    g = logits.grad
+    assert g[1, 0].abs().sum() == 0  # an ignored frame
+    assert g[1, 2, 1] < 0 and g[1, 1, 1] == 0 and g[1, 3, 1] == 0  # only the most slip-like frame learns
+    assert (g[0, :, 1] > 0).all()  # held frames are pushed away from slip
+
+
+def test_the_adaptation_study_runs_every_row(tmp_path, cache, one_thread):
+    from slipsense.experiments.adaptation import adaptation_study, write
+
+    root = _lift_data(tmp_path / "lift")
+    doc = adaptation_study(root, sizes=(5,), epochs=1, draws=50, progress=False)
+    names = [r["row"] for r in doc["rows"]]
+    assert names[:4] == ["as is", "recalibrated", "fine-tuned, 5 grasps", "this set alone"]
+    assert all(r["grasps"] == 12 for r in doc["rows"]) and any(n.startswith("baseline") for n in names)
+    paths = write(doc, tmp_path / "report")
+    assert all(p.is_file() for p in paths) and "| recalibrated |" in paths[1].read_text()

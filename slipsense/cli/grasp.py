@@ -8,7 +8,7 @@ from typing import List, Optional
 
 import typer
 
-from slipsense.cli.common import command_line
+from slipsense.cli.common import check_seed, command_line
 
 grasp_app = typer.Typer(
     add_completion=False,
@@ -262,5 +262,29 @@ def register(app: typer.Typer) -> None:
                     f"  held grasps' 10 highest peaks at frames {ph['held_peaks']}; slips lost at frames < 60: "
                     f"{ph['lost_before_60']}, 60-150: {ph['lost_60_150']}, > 150: {ph['lost_after_150']}"
                 )
+
+    @grasp_app.command("adaptation")
+    @friendly
+    def adaptation_cmd(
+        recordings: Path = typer.Option(..., help="grasps of another sensor, one camera each, labelled per grasp"),
+        out: Path = typer.Option(Path("reports/adaptation"), help="report folder"),
+        epochs: int = typer.Option(10, help="epochs of every training"),
+        seed: int = typer.Option(0, help="seed of the grasp draws and the trainings"),
+        progress: bool = typer.Option(True),
+    ):
+        """Leave-objects-out on a new sensor: the shipped one-finger detector as is, recalibrated,
+        fine-tuned on 5, 10, 20 and all grasps, trained on the set alone, beside the baselines."""
+        from slipsense.atomic import check_output_dir
+        from slipsense.errors import ConfigError
+        from slipsense.experiments.adaptation import adaptation_study, table, write
+
+        if not 1 <= epochs <= 1000:
+            raise ConfigError(f"--epochs must be in 1..1000, got {epochs}")
+        check_output_dir(out, "--out")
+        doc = adaptation_study(recordings, epochs=epochs, seed=check_seed(seed), progress=progress)
+        doc["command"] = command_line()
+        paths = write(doc, out)
+        typer.echo(table(doc))
+        typer.echo(f"-> {', '.join(str(p) for p in paths)}")
 
     app.add_typer(grasp_app, name="grasp")

@@ -39,6 +39,7 @@ class GraspRun:
     gray: np.ndarray
     contact: np.ndarray
     cameras: tuple[str, ...]
+    whole: bool = False  # labelled as a whole (slipped or held, no moment): trained on as one bag of frames
 
     @property
     def n_frames(self) -> int:
@@ -50,8 +51,8 @@ class GraspRun:
 
     @property
     def usable(self) -> bool:
-        """A run scored per grasp: it held, or it slipped at a known moment."""
-        return not self.slipped or self.moment_of_slip is not None
+        """A run scored per grasp: it held, slipped at a known moment, or is labelled as a whole."""
+        return not self.slipped or self.moment_of_slip is not None or self.whole
 
 
 def _decode_run(recs: Sequence[Recording], size: tuple[int, int]) -> dict[str, np.ndarray]:
@@ -115,6 +116,7 @@ def load_runs(
                 arrays["gray"],
                 arrays["contact"],
                 tuple(r.camera for r in recs),
+                any(r.per_grasp for r in recs),
             )
         )
     return runs
@@ -124,7 +126,16 @@ def per_sensor(runs: Sequence[GraspRun]) -> list[GraspRun]:
     """Each camera of each run as a grasp of its own (``gray (1, N, h, w)``): what a detector for one
     finger trains and is judged on. A run's cameras share its label (the grasp is lost for both)."""
     return [
-        GraspRun(r.object, r.experiment, r.slipped, r.moment_of_slip, r.gray[s : s + 1], r.contact[s : s + 1], (cam,))
+        GraspRun(
+            r.object,
+            r.experiment,
+            r.slipped,
+            r.moment_of_slip,
+            r.gray[s : s + 1],
+            r.contact[s : s + 1],
+            (cam,),
+            r.whole,
+        )
         for r in runs
         for s, cam in enumerate(r.cameras)
     ]

@@ -56,7 +56,7 @@ def fit_job(shared: tuple[Sequence[GraspRun], GraspTrainConfig], job: FitJob, ti
         out=job.out,
         info=job.info,
     )
-    probs = predict_runs(model, [runs[i] for i in job.predict])
+    probs = predict_runs(model, [runs[i] for i in job.predict], cfg.startup)
     state = {k: v.detach().clone() for k, v in model.state_dict().items()} if job.keep_model else None
     return {"history": history, "probs": probs, "state": state}
 
@@ -93,11 +93,11 @@ def finish_training(
     out-of-fold traces (or, with ``inner_folds=0``, on the model's own traces of its training runs)."""
     from slipsense.models import build
 
-    model = build(cfg.model, **cfg.model_config)
+    model = build(cfg.model, **cfg.model_config)  # the init checkpoint's settings where fine-tuned
     model.load_state_dict(results[0]["state"])
     model.eval()
     train = [runs[i] for i in jobs[0].train]
-    probs = inner_traces(jobs, results) if cfg.inner_folds else predict_runs(model, train)
+    probs = inner_traces(jobs, results) if cfg.inner_folds else predict_runs(model, train, cfg.startup)
     return model, results[0]["history"], _chosen_operating_point(probs, train, cfg), results[0]["probs"]
 
 
@@ -152,7 +152,7 @@ def operating_point(
     if cfg.inner_folds == 0:
         if model is None:
             raise ConfigError("inner_folds=0 needs the trained model")
-        probs = predict_runs(model, usable)
+        probs = predict_runs(model, usable, cfg.startup)
     else:
         from slipsense.parallel import run_jobs
 
@@ -164,16 +164,40 @@ def operating_point(
 
 
 def _chosen_operating_point(probs: Sequence[np.ndarray], runs: Sequence[GraspRun], cfg: GraspTrainConfig) -> dict:
-    """The threshold and debounce that best separate ``runs``' slips from their held grasps, and on what."""
-    op = pergrasp.choose_operating_point(
-        probs, [r.moment_of_slip for r in runs], horizon=cfg.horizon, max_held_alarm=cfg.max_held_alarm
-    )
+    """The threshold and debounce that best separate ``runs``' slips from their held grasps, and on what.
+    Runs labelled as a whole (no moment to warn before) are judged per grasp: the threshold just above
+    all but ``max_held_alarm`` (default 5%) of the held grasps' peaks
+    (:func:`~slipsense.evaluation.calibrate.calibrated_threshold`), debounce 1."""
+    if any(r.whole for r in runs):
+        from slipsense.evaluation.calibrate import calibrated_threshold
+        from slipsense.evaluation.outcome import peak_alarm_score
+
+        budget = 0.05 if cfg.max_held_alarm is None else cfg.max_held_alarm
+        peak = np.array([peak_alarm_score(p, 1, cfg.startup) for p in probs])
+        slipped = np.array([r.slipped for r in runs], bool)
+        op = {
+            "threshold": min(1.0, calibrated_threshold(peak[~slipped], peak[slipped], budget)),
+            "debounce": 1,
+            "horizon": cfg.horizon,
+            "startup": cfg.startup,
+            "rule": f"at most {100 * budget:g}% of held grasps alarming (grasps labelled as a whole)",
+        }
+    else:
+        op = pergrasp.choose_operating_point(
+            probs,
+            [r.moment_of_slip for r in runs],
+            horizon=cfg.horizon,
+            startup=cfg.startup,
+            max_held_alarm=cfg.max_held_alarm,
+        )
     op["chosen_on"] = (
         f"{cfg.inner_folds} inner folds of the training objects" if cfg.inner_folds else "the training runs themselves"
     )
     held = [(p, r.object) for p, r in zip(probs, runs) if not r.slipped]
     alarmed = [
-        pergrasp.grasp_outcome(pergrasp.debounce(p, op["threshold"], op["debounce"]), None, cfg.horizon).first_alarm
+        pergrasp.grasp_outcome(
+            pergrasp.debounce(p, op["threshold"], op["debounce"]), None, cfg.horizon, cfg.startup
+        ).first_alarm
         is not None
         for p, _ in held
     ]

@@ -59,6 +59,8 @@ class GraspTrainConfig:
         None  # operating point: at most this fraction of held grasps alarm (None: best score)
     )
     accumulate: int = 1  # micro-batches per process per step (a step's runs cut into world x accumulate groups)
+    startup: int = pergrasp.STARTUP  # leading frames never trained on or scored (the camera's start-up; 0: none)
+    init: str | None = None  # a checkpoint of cfg.model whose weights training starts from (fine-tuning)
 
     def __post_init__(self):
         checks = {
@@ -73,6 +75,7 @@ class GraspTrainConfig:
             "seed": (0, 2**32 - 1),
             "inner_folds": (0, 20),
             "accumulate": (1, 1024),
+            "startup": (0, 1000),
         }
         if self.split_seed is not None:
             checks["split_seed"] = (0, 2**32 - 1)
@@ -85,6 +88,8 @@ class GraspTrainConfig:
             positive = key in ("lr", "positive_weight")
             if not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0 or (positive and v == 0):
                 raise ConfigError(f"{key} must be a finite number {'> 0' if positive else '>= 0'}, got {v!r}")
+        if self.init is not None and not isinstance(self.init, str):
+            raise ConfigError(f"init must be the path of a checkpoint, got {self.init!r}")
         if self.inner_folds == 1:
             raise ConfigError("inner_folds must be 0 or at least 2")
         k = self.max_held_alarm
@@ -100,8 +105,16 @@ class GraspTrainConfig:
         return self.seed if self.split_seed is None else self.split_seed
 
 
-def frame_targets(n: int, moment: int | None, onset: int, horizon: int) -> np.ndarray:
-    """``(n,)`` int8 targets of a run's frames (1 onset, 0 no slip, -1 ignored); indices as in the run."""
+#: Target of the frames of a grasp labelled slipped as a whole: some frame among them is slip (a
+#: bag, scored by its most slip-like frame), which one is not known.
+BAG = 2
+
+
+def frame_targets(n: int, moment: int | None, onset: int, horizon: int, bag: bool = False) -> np.ndarray:
+    """``(n,)`` int8 targets of a run's frames (1 onset, 0 no slip, -1 ignored, :data:`BAG` every frame
+    of a grasp labelled slipped as a whole); indices as in the run."""
+    if bag:
+        return np.full(n, BAG, dtype=np.int8)
     y = np.zeros(n, dtype=np.int8)
     if moment is None:
         return y
@@ -120,12 +133,13 @@ class _Chunks:
         for r in runs:
             if not r.usable:
                 continue
-            s = pergrasp.STARTUP if r.n_frames > pergrasp.STARTUP + 1 else 0
+            s = cfg.startup if r.n_frames > cfg.startup + 1 else 0
             gray = r.gray[:, s:]
             moment = None if r.moment_of_slip is None else r.moment_of_slip - s
             if moment is not None and moment < 0:
                 continue  # lost during the camera start-up: none of its frames is scored
-            y = frame_targets(gray.shape[1], moment, cfg.onset_frames, cfg.horizon)
+            bag = r.slipped and r.moment_of_slip is None  # labelled as a whole (usable: r.whole)
+            y = frame_targets(gray.shape[1], moment, cfg.onset_frames, cfg.horizon, bag)
             self.items.append((gray, y, moment))
 
     def draw(
@@ -137,6 +151,9 @@ class _Chunks:
         out = []
         for i, (gray, y, moment) in enumerate(self.items):
             n = gray.shape[1]
+            if y[0] == BAG:  # the whole grasp is the bag: one chunk ending at its last frame
+                out.append((i, [n - 1], _chunk_targets(y, [n - 1], self.cfg.chunk)))
+                continue
             ends = [int(rng.integers(0, n)) for _ in range(self.cfg.negatives)]
             if hardness is not None and self.cfg.hard_negatives:
                 w = np.where(y == 0, np.nan_to_num(hardness[i], nan=0.0) + 1e-3, 0.0)
@@ -146,10 +163,20 @@ class _Chunks:
                 ends.append(min(n - 1, moment + int(rng.integers(0, 6))))
             if not ends:
                 continue  # a held run when no random chunks are drawn (negatives=0) before any mining
-            frames = np.asarray(ends, dtype=np.int64)[:, None] + np.arange(1 - self.cfg.chunk, 1)[None]
-            targets = np.where(frames >= 0, y[frames.clip(min=0)], -1).astype(np.int64)
-            out.append((i, ends, targets))
+            out.append((i, ends, _chunk_targets(y, ends, self.cfg.chunk)))
         return [out[i] for i in rng.permutation(len(out))]
+
+
+def _chunk_targets(y: np.ndarray, ends: Sequence[int], chunk: int) -> np.ndarray:
+    frames = np.asarray(ends, dtype=np.int64)[:, None] + np.arange(1 - chunk, 1)[None]
+    return np.where(frames >= 0, y[frames.clip(min=0)], -1).astype(np.int64)
+
+
+def _weights(y: np.ndarray, w: np.ndarray) -> float:
+    """Loss weight of chunk targets ``y`` (C, chunk): the class weight of each labelled frame, the
+    slip weight once for each bag."""
+    frames = y[(y == 0) | (y == 1)]
+    return float(w[frames].sum() + w[1] * (y == BAG).any(axis=1).sum())
 
 
 class _ChunkForward(nn.Module):
@@ -181,8 +208,8 @@ class GraspTask:
         self.data = _Chunks(runs, cfg)
         if not self.data.items:
             raise ConfigError("no usable training runs (every run excluded, or slip runs without a moment)")
-        if not any(m is not None for _, _, m in self.data.items):
-            raise ConfigError("the training runs hold no slip with a known moment: nothing to learn onset from")
+        if not any(m is not None or y[0] == BAG for _, y, m in self.data.items):
+            raise ConfigError("the training runs hold no slip (with a known moment, or labelled as a whole)")
         self.hardness: list[np.ndarray] | None = None
         self.weight = torch.ones(2)
         self._stats: dict[str, Any] = {}
@@ -210,14 +237,13 @@ class GraspTask:
             self.hardness = _predict_items(model, self.data.items)
         chunks = self.data.draw(self.rng, self.hardness)
         ys = np.concatenate([c[2] for c in chunks])
-        n_pos, n_neg = int((ys == 1).sum()), int((ys == 0).sum())
+        n_pos, n_neg = int((ys == 1).sum() + (ys == BAG).any(axis=1).sum()), int((ys == 0).sum())
         self.weight = torch.tensor([1.0, cfg.positive_weight * n_neg / max(n_pos, 1)])
         self._stats = {"onset_frames": n_pos, "other_frames": n_neg}
         w = self.weight.double().numpy()
 
         def weigh(runs) -> float:
-            y = np.concatenate([c[2] for c in runs]) if runs else np.zeros(0, np.int64)
-            return float(w[y[y >= 0]].sum())
+            return _weights(np.concatenate([c[2] for c in runs]), w) if runs else 0.0
 
         return _steps(chunks, cfg, self.rng, d.world * accumulate, weigh)
 
@@ -236,8 +262,14 @@ class GraspTask:
     def loss(self, net, batch, step_weight: float, world: int):
         x, y, weight = batch
         logits = net(x, self.cfg.chunk)
-        keep = y >= 0
-        mean = F.cross_entropy(logits[keep], y[keep], weight=self.weight)
+        keep = (y == 0) | (y == 1)
+        w = self.weight.to(logits.dtype)
+        total = (F.cross_entropy(logits[keep], y[keep], reduction="none") * w[y[keep]]).sum()
+        bags = (y == BAG).any(dim=1)
+        if bags.any():  # each bag as slip by its most slip-like frame (multiple-instance learning)
+            margin = (logits[bags, :, 1] - logits[bags, :, 0]).masked_fill(y[bags] != BAG, float("-inf"))
+            total = total + w[1] * F.softplus(-margin.amax(dim=1)).sum()
+        mean = total / (w[y[keep]].sum() + w[1] * bags.sum())
         n = int(keep.sum())
         correct = int((logits[keep].argmax(-1) == y[keep]).sum())
         stats = torch.tensor([float(mean.detach()) * weight, weight, correct, n], dtype=torch.float64)
@@ -313,13 +345,26 @@ def fit_runs(
     from slipsense.models import build
 
     torch.manual_seed(cfg.seed)
-    model = build(cfg.model, **cfg.model_config)
+    model = build(cfg.model, **cfg.model_config) if cfg.init is None else _initial_model(cfg)
     settings = LoopSettings(
         epochs=cfg.epochs, seed=cfg.seed, accumulate=cfg.accumulate, device="cpu", progress=progress, desc=cfg.model
     )
     task = GraspTask(runs, cfg)
     history = train(model, task, settings, out=out, info=info, state_path=state_path, on_epoch=on_epoch)
     return model.eval(), history
+
+
+def _initial_model(cfg: GraspTrainConfig):
+    """The model of ``cfg.init`` (its own settings), to be trained further; InputError naming the file
+    for a checkpoint of another model."""
+    from slipsense.checkpoint import load_model
+
+    model, _ = load_model(cfg.init)
+    if model.model_name != cfg.model:
+        from slipsense.errors import InputError
+
+        raise InputError(cfg.init, f"holds a {model.model_name}, not the {cfg.model} to train")
+    return model.train()
 
 
 @torch.no_grad()
@@ -330,11 +375,11 @@ def _predict_items(model, items) -> list[np.ndarray]:
 
 
 @torch.no_grad()
-def predict_runs(model, runs: Sequence[GraspRun]) -> list[np.ndarray]:
+def predict_runs(model, runs: Sequence[GraspRun], startup: int = pergrasp.STARTUP) -> list[np.ndarray]:
     """P(slip) at every frame of every run, as a replay from the first frame gives it; NaN during
-    the camera start-up (the detector does not answer there). The model's own stream replays them
+    the ``startup`` frames (the detector does not answer there). The model's own stream replays them
     (:meth:`~slipsense.models.base.SlipModel.stream`): the numbers the live detector gives."""
-    stream = model.stream()
+    stream = model.stream(info={"operating_point": {"startup": startup}})
     return [stream.replay_cached(r.gray)[:, 0] for r in runs]
 
 
@@ -352,6 +397,14 @@ def make_config(model: str, settings: dict[str, Any], size: tuple[int, int] | No
             model_cfg[key] = value
     if size is not None:
         model_cfg["image_size"] = list(size)
+    if train.get("init") is not None:  # fine-tuning: the model is the checkpoint's, settings and all
+        if model_cfg:
+            raise ConfigError(f"model settings ({', '.join(sorted(model_cfg))}) come from train.init's checkpoint")
+        from slipsense.checkpoint import read_info
+        from slipsense.config import resolve_path
+
+        train["init"] = str(resolve_path(train["init"]))
+        model_cfg = dict(read_info(train["init"])["model_config"])
     from slipsense.run_config import typed
 
     cfg = GraspTrainConfig(model=model, model_config=model_cfg, **typed(GraspTrainConfig, train, "grasp training"))
@@ -373,7 +426,7 @@ def load_grasp_data(
     ``sensor`` (a :class:`~slipsense.sensors.spec.SensorSpec`, default the GelSight Mini) names the
     folder layout."""
     from slipsense.data import label_runs
-    from slipsense.recordings.folders import find_recordings, validate_recordings
+    from slipsense.recordings.folders import camera_counts, find_recordings, validate_recordings
     from slipsense.recordings.runs import load_runs
     from slipsense.sensors.spec import GELSIGHT_MINI
 
@@ -385,4 +438,6 @@ def load_grasp_data(
         raise InputError(recordings, "no usable recordings")
     labels = label_runs(recs, overrides, on_error=on_error, progress=progress)
     recs = [r for r in recs if r.key in labels]  # runs left out by on_error="skip"
-    return load_runs(recs, labels, image_size, progress=progress), labels
+    counts = camera_counts(recs)  # one camera per grasp (frame folders) or both fingers
+    sensors = counts[0] if len(counts) == 1 else 2
+    return load_runs(recs, labels, image_size, sensors=sensors, progress=progress), labels

@@ -147,6 +147,7 @@ def prepare_grasps(tree, progress: bool = True, threads: int | None = None, out=
     from slipsense.atomic import check_output_dir
     from slipsense.config import gelsight_recordings, portable_path, resolve_path
     from slipsense.models import build
+    from slipsense.recordings.frame_folders import data_sensor
     from slipsense.recordings.runs import per_sensor
     from slipsense.run_config import check_keys, check_seed, to_plain
     from slipsense.sensors.spec import GELSIGHT_MINI, sensor_named
@@ -170,7 +171,7 @@ def prepare_grasps(tree, progress: bool = True, threads: int | None = None, out=
     root = resolve_path(tree["data"].get("recordings") or gelsight_recordings())
     overrides = tree["data"].get("overrides")  # None: the shipped hand labels; False: none
     overrides = overrides if overrides in (None, False) else resolve_path(overrides)
-    sensor = sensor_named(tree["data"]["sensor"]) if tree["data"].get("sensor") else GELSIGHT_MINI
+    sensor = sensor_named(tree["data"]["sensor"]) if tree["data"].get("sensor") else data_sensor(root) or GELSIGHT_MINI
     runs, labels = load_grasp_data(
         root, overrides, image_size, tree["data"].get("on_error", "raise"), progress, sensor=sensor
     )

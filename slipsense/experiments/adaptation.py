@@ -1,0 +1,201 @@
+"""Adaptation to a new sensor, measured leave-objects-out: what does a user gain from a few grasps?
+
+On a data set of another sensor labelled per grasp (e.g. the shared ``gelsight-lift``), each object
+in turn is held out and, from the other objects' grasps only:
+
+* ``as is``: the shipped one-finger detector with its own operating point;
+* ``recalibrated``: the same weights, the threshold chosen on the other objects' grasps
+  (:func:`slipsense.evaluation.calibrate.calibrated_threshold`, at most 5% of held grasps alarming);
+* ``fine-tuned, n grasps``: the shipped weights trained further on ``n`` grasps drawn from the other
+  objects (both outcomes among them; ``all``: every one), grasps that slipped as bags of frames
+  (:data:`slipsense.training.grasps.BAG`), the threshold then chosen on those same grasps;
+* ``this set alone``: the same recipe from random weights on all the other objects' grasps;
+* the non-learned baselines (:mod:`slipsense.evaluation.baselines`) and the majority class, their
+  thresholds chosen on the other objects.
+
+Every row is judged on the held-out objects' grasps: ROC AUC of the per-grasp peak score (pooled over
+the folds' detectors), accuracy and balanced accuracy at each fold's own threshold, and the held
+grasps that alarm; 95% intervals from a bootstrap over objects
+(:mod:`slipsense.evaluation.outcome`). ``slipsense grasp adaptation`` writes ``adaptation.json``,
+``adaptation.md`` and ``adaptation.png``.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from slipsense.evaluation import outcome
+from slipsense.evaluation.calibrate import calibrated_threshold
+
+#: Training grasps drawn for the fine-tuning rows (None: all of the other objects').
+SIZES = (5, 10, 20, None)
+BUDGET = 0.05
+
+
+def _subset(runs: Sequence, n: int | None, rng: np.random.Generator) -> list:
+    """``n`` of ``runs`` at random, with at least one slipped and one held grasp (all for None)."""
+    if n is None or n >= len(runs):
+        return list(runs)
+    slipped = [r for r in runs if r.slipped]
+    held = [r for r in runs if not r.slipped]
+    first = [slipped[rng.integers(len(slipped))], held[rng.integers(len(held))]]
+    rest = [r for r in runs if all(r is not f for f in first)]
+    return first + [rest[i] for i in rng.choice(len(rest), n - 2, replace=False)]
+
+
+def _peaks(model, runs: Sequence, startup: int) -> np.ndarray:
+    from slipsense.training.grasps import predict_runs
+
+    return np.array([outcome.peak_alarm_score(p, 1, 0) for p in predict_runs(model, runs, startup)])
+
+
+def _row(name: str, scores, alarmed, slipped, objects, seconds: float, draws: int) -> dict[str, Any]:
+    m = outcome.outcome_measure(scores, slipped, objects, alarmed, draws)
+    held = ~np.asarray(slipped, bool)
+    m.update(row=name, held_alarming=int(np.asarray(alarmed, bool)[held].sum()), seconds=round(seconds, 1))
+    return m
+
+
+def adaptation_study(
+    recordings: str | Path,
+    sizes: Sequence[int | None] = SIZES,
+    epochs: int = 10,
+    seed: int = 0,
+    draws: int = outcome.BOOTSTRAP,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """The rows of the module notes on ``recordings`` (one camera per grasp): ``{"rows": [...]}``."""
+    from slipsense.checkpoint import load_model
+    from slipsense.evaluation.baselines import frame_scores
+    from slipsense.progress import progress_bar
+    from slipsense.resources import ONE_SENSOR_MODEL, shipped_model
+    from slipsense.training.grasps import fit_runs, load_grasp_data, make_config
+
+    shipped = shipped_model(ONE_SENSOR_MODEL)
+    model, info = load_model(shipped)
+    op = info["operating_point"]
+    runs, _ = load_grasp_data(recordings, None, tuple(model.image_size), progress=progress)
+    slipped = np.array([r.slipped for r in runs], bool)
+    objects = np.array([r.object for r in runs])
+    names = sorted(set(objects))
+    rows = []
+
+    t0 = time.perf_counter()
+    as_is = _peaks(model.eval(), runs, int(op.get("startup", 0)))
+    rows.append(_row("as is", as_is, as_is >= op["threshold"], slipped, objects, time.perf_counter() - t0, draws))
+    t0 = time.perf_counter()
+    alarmed = np.zeros(len(runs), bool)
+    for o in names:
+        other, mine = objects != o, objects == o
+        th = calibrated_threshold(as_is[other & ~slipped], as_is[other & slipped], BUDGET)
+        alarmed[mine] = as_is[mine] >= th
+    rows.append(_row("recalibrated", as_is, alarmed, slipped, objects, time.perf_counter() - t0, draws))
+
+    plans = [(f"fine-tuned, {n or 'all'} grasps", {"init": str(shipped)}, n) for n in sizes]
+    plans.append(("this set alone", {"model.sensors": 1}, None))
+    for name, settings, n in progress_bar(plans, progress, "adaptation rows"):
+        t0 = time.perf_counter()
+        scores, alarmed = np.zeros(len(runs)), np.zeros(len(runs), bool)
+        for k, o in enumerate(names):
+            rng = np.random.default_rng(seed + k)
+            train = _subset([r for r in runs if r.object != o], n, rng)
+            cfg = make_config(
+                "motionnet", {**settings, "startup": 0, "epochs": epochs, "inner_folds": 0, "seed": seed + k}
+            )
+            fitted, _ = fit_runs(train, cfg, progress=False)
+            own = _peaks(fitted, train, 0)
+            train_slipped = np.array([r.slipped for r in train], bool)
+            th = calibrated_threshold(own[~train_slipped], own[train_slipped], BUDGET)
+            mine = objects == o
+            scores[mine] = _peaks(fitted, [r for r in runs if r.object == o], 0)
+            alarmed[mine] = scores[mine] >= th
+        rows.append(_row(name, scores, alarmed, slipped, objects, time.perf_counter() - t0, draws))
+
+    for name in ("mean_frame_difference", "difference_to_contact", "frame_difference"):
+        s = np.array([frame_scores(r.gray[0], 0)[name] for r in runs])  # on the detector's own grey frames
+        lo = outcome.leave_objects_out(s, slipped, objects)
+        rows.append(_row(f"baseline: {name}", s, lo, slipped, objects, 0.0, draws))
+    m = outcome.majority_measure(slipped, objects, draws)
+    m.update(row="baseline: majority class", held_alarming=0, seconds=0.0)
+    m["operating_point"] = m.pop("leave_objects_out")
+    rows.append(m)
+    return {
+        "recordings": Path(recordings).name,
+        "grasps": len(runs),
+        "objects": names,
+        "epochs": epochs,
+        "seed": seed,
+        "budget": BUDGET,
+        "rows": rows,
+    }
+
+
+def table(doc: dict[str, Any]) -> str:
+    """The study as a Markdown table."""
+
+    def cell(m: dict | None) -> str:
+        return "-" if m is None else f"{m['value']:.3f} [{m['interval'][0]:.2f}, {m['interval'][1]:.2f}]"
+
+    lines = [
+        "| detector | ROC AUC | accuracy | balanced accuracy | held grasps alarming | seconds |",
+        "|---|---|---|---|---|---|",
+    ]
+    for r in doc["rows"]:
+        own = r.get("operating_point") or {}
+        n_held = r["grasps"] - r["slipped"]
+        lines.append(
+            f"| {r['row']} | {cell(r['roc_auc'])} | {cell(own.get('accuracy'))} | "
+            f"{cell(own.get('balanced_accuracy'))} | {r['held_alarming']} of {n_held} | {r['seconds']} |"
+        )
+    return "\n".join(lines)
+
+
+def plot(doc: dict[str, Any], path: str | Path) -> Path:
+    """Accuracy and ROC AUC against the grasps fine-tuned on, the as-is and recalibrated detectors and
+    the best baseline as lines."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from slipsense.atomic import atomic_path
+
+    rows = {r["row"]: r for r in doc["rows"]}
+    tuned = [r for r in doc["rows"] if r["row"].startswith("fine-tuned")]
+    xs = list(range(len(tuned)))
+    fig, ax = plt.subplots(figsize=(6.4, 4))
+    for key, style in (("roc_auc", "o-"), ("accuracy", "s-")):
+        vals = [r["roc_auc"]["value"] if key == "roc_auc" else r["operating_point"]["accuracy"]["value"] for r in tuned]
+        ax.plot(xs, vals, style, label=f"fine-tuned: {key.replace('_', ' ')}")
+    for name, color in (("as is", "grey"), ("recalibrated", "tab:green")):
+        ax.axhline(rows[name]["operating_point"]["accuracy"]["value"], color=color, ls="--", label=f"{name}: accuracy")
+    best = max(
+        (r for r in doc["rows"] if r["row"].startswith("baseline")),
+        key=lambda r: r["operating_point"]["accuracy"]["value"],
+    )
+    ax.axhline(best["operating_point"]["accuracy"]["value"], color="black", ls=":", label=f"{best['row']}: accuracy")
+    ax.set_xticks(xs, [r["row"].split(", ")[1] for r in tuned])
+    ax.set_xlabel("grasps of the new sensor trained on")
+    ax.set_ylim(0.3, 1.0)
+    ax.set_title(f"{doc['recordings']}: leave-objects-out, {len(doc['objects'])} objects")
+    ax.legend(fontsize=7, loc="lower right")
+    fig.tight_layout()
+    with atomic_path(Path(path)) as tmp:
+        fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    return Path(path)
+
+
+def write(doc: dict[str, Any], out: str | Path) -> list[Path]:
+    from slipsense.atomic import write_text
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    write_text(out / "adaptation.json", json.dumps(doc, indent=1, default=float))
+    write_text(out / "adaptation.md", table(doc) + "\n")
+    return [out / "adaptation.json", out / "adaptation.md", plot(doc, out / "adaptation.png")]
