@@ -19,8 +19,8 @@ DEFAULT_MODEL = "motionnet-gelsight"
 ONE_SENSOR_MODEL = "motionnet-gelsight-1"
 #: The paper-faithful ViViT, kept for reproduction.
 PAPER_MODEL = "vivit-gelsight"
-#: The one-finger detector calibrated to the GelSight of the gelsight-lift data (480 x 640): the same
-#: weights as ONE_SENSOR_MODEL, its threshold chosen on those grasps (`slipsense calibrate`, README).
+#: The one-finger detector adapted to the GelSight of the gelsight-lift data (480 x 640): ONE_SENSOR_MODEL
+#: fine-tuned on those 44 grasps, its threshold from 2 inner folds (docs/new-sensor.md has the command).
 LIFT_MODEL = "motionnet-gelsight-lift"
 
 

@@ -359,7 +359,9 @@ def _initial_model(cfg: GraspTrainConfig):
     for a checkpoint of another model."""
     from slipsense.checkpoint import load_model
 
-    model, _ = load_model(cfg.init)
+    from slipsense.config import resolve_path
+
+    model, _ = load_model(resolve_path(cfg.init))
     if model.model_name != cfg.model:
         from slipsense.errors import InputError
 
@@ -401,10 +403,10 @@ def make_config(model: str, settings: dict[str, Any], size: tuple[int, int] | No
         if model_cfg:
             raise ConfigError(f"model settings ({', '.join(sorted(model_cfg))}) come from train.init's checkpoint")
         from slipsense.checkpoint import read_info
-        from slipsense.config import resolve_path
+        from slipsense.config import portable_path, resolve_path
 
-        train["init"] = str(resolve_path(train["init"]))
-        model_cfg = dict(read_info(train["init"])["model_config"])
+        train["init"] = portable_path(resolve_path(train["init"]))  # kept as the checkpoint says it, resolvable
+        model_cfg = dict(read_info(resolve_path(train["init"]))["model_config"])
     from slipsense.run_config import typed
 
     cfg = GraspTrainConfig(model=model, model_config=model_cfg, **typed(GraspTrainConfig, train, "grasp training"))
