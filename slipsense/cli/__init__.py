@@ -291,7 +291,7 @@ def _register_extensions() -> None:
     """Commands defined beside their subsystems (live detection, export, sensors, experiments)."""
     import importlib
 
-    modules = ("live", "sensors", "experiments", "grasp", "bags")
+    modules = ("live", "sensors", "experiments", "grasp", "bags", "record")
     for mod in (f"slipsense.cli.{m}" for m in modules):
         try:
             importlib.import_module(mod).register(app)

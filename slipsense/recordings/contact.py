@@ -111,6 +111,13 @@ def _score(blocks: np.ndarray, ref: np.ndarray) -> np.ndarray:
     return np.partition(d, d.shape[1] - k, axis=1)[:, -k:].mean(axis=1)
 
 
+def block_score(blocks: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """How far each frame's blocks ``(T, h, w, C)`` are from the gel at rest ``reference`` ``(h, w, C)``:
+    the mean of the TOP_FRACTION most changed blocks, 8-bit grey levels, ``(T,)`` (what the contact
+    signal is made of; ``slipsense record`` starts and stops grasps on it)."""
+    return _score(np.asarray(blocks, np.float32), np.asarray(reference, np.float32))
+
+
 def _rest_reference(blocks: np.ndarray, reference: str) -> tuple[np.ndarray, int]:
     """Median of the rest frames at the end (``"tail"``) or after the transient (``"head"``).
 

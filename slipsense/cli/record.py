@@ -1,0 +1,76 @@
+"""``slipsense record``: capture grasps from cameras into the recordings layout."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+
+def _stdin_commands():
+    """``commands(index)`` for :func:`slipsense.streaming.record.record`: the lines typed on standard
+    input since the last call (a thread reads them, so frames keep coming while nobody types)."""
+    import queue
+    import sys
+    import threading
+
+    lines: queue.Queue[str] = queue.Queue()
+
+    def read():
+        for line in sys.stdin:
+            lines.put(line.strip().lower())
+
+    threading.Thread(target=read, name="slipsense-record-keys", daemon=True).start()
+
+    def commands(index: int) -> list[str]:
+        out = []
+        while not lines.empty():
+            out.append(lines.get_nowait())
+        return out
+
+    return commands
+
+
+def register(app: typer.Typer) -> None:
+    from slipsense.cli.common import friendly
+
+    @app.command()
+    @friendly
+    def record(
+        source: str = typer.Argument(..., help="camera index (two fingers: 0,2), or a video / run folder to cut"),
+        out: Path = typer.Option(..., help="recordings folder: <out>/<object>/exp_num_<N>/camera_<i>.avi"),
+        object_name: str = typer.Option(..., "--object", help="the object grasped (names its folder)"),
+        by_contact: bool = typer.Option(False, help="start and stop each grasp when the gels are touched and let go"),
+        fps: Optional[float] = typer.Option(None, help="frame rate of the cameras (default: the GelSight Mini's 25)"),
+        max_grasps: Optional[int] = typer.Option(None, help="stop after this many grasps"),
+    ):
+        """Record grasps: Enter starts and stops a grasp, s + Enter marks it slipped, q + Enter quits
+        (--by-contact: the gels start and stop it). Every command then reads the folder."""
+        from slipsense.errors import ConfigError
+        from slipsense.sensors.spec import GELSIGHT_MINI
+        from slipsense.streaming.record import check_object_name, record as run
+        from slipsense.streaming.sources import open_source
+
+        check_object_name(object_name)
+        rate = GELSIGHT_MINI.fps if fps is None else fps
+        if not 0 < rate <= 1000:
+            raise ConfigError(f"--fps must be in (0, 1000], got {rate}")
+        if max_grasps is not None and max_grasps < 1:
+            raise ConfigError(f"--max-grasps must be 1 or more, got {max_grasps}")
+        src = open_source(source, None, fps=rate, capture_format=GELSIGHT_MINI.capture_format)
+        try:
+            typer.echo(f"{src.name}: {src.sensors} camera(s); Enter starts/stops a grasp, s marks it slipped, q quits")
+            done = run(
+                (step.display for step in src.frames()),
+                out,
+                object_name,
+                rate,
+                commands=_stdin_commands(),
+                by_contact=by_contact,
+                max_grasps=max_grasps,
+                echo=typer.echo,
+            )
+        finally:
+            src.close()
+        typer.echo(f"{len(done)} grasp(s) recorded in {out}")

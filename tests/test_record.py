@@ -1,0 +1,69 @@
+"""`slipsense record`: grasps captured into the recordings layout, started and stopped by command or by
+contact, read back by every command; a grasp cut short leaves no video that looks whole."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+from typer.testing import CliRunner
+
+from slipsense.cli import app
+from slipsense.recordings.folders import find_recordings
+from slipsense.recordings.video import read_video
+from slipsense.streaming.record import GraspWriter, record
+
+
+def _frames(n: int, contacts: list[tuple[int, int]], seed: int = 0) -> list[np.ndarray]:
+    """48 x 64 frames of a gel at rest, with a pressed square during each (first, last) contact."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for t in range(n):
+        f = np.full((48, 64, 3), 110, np.uint8) + rng.integers(0, 4, (48, 64, 3), dtype=np.uint8)
+        if any(a <= t <= b for a, b in contacts):
+            f[12:36, 16:40] = 200
+        out.append(f)
+    return out
+
+
+def test_commands_start_stop_and_mark_a_grasp(tmp_path):
+    frames = _frames(30, [])
+    keys = {5: [""], 10: ["s"], 15: [""], 20: [""], 25: ["q"]}
+    done = record(
+        ([f, f] for f in frames), tmp_path, "cup", 25.0, commands=lambda i: keys.get(i, []), echo=lambda s: None
+    )
+    assert [p.name for p in done] == ["exp_num_0", "exp_num_1"]  # the second still open at "q": kept
+    assert (done[0] / "slip.txt").exists() and not (done[1] / "slip.txt").exists()
+    assert len(read_video(done[0] / "camera_0.avi", expected_size=None)) == 10  # frames 5..14
+    recs = find_recordings(tmp_path)
+    assert [(r.object, r.experiment, r.camera) for r in recs][:2] == [("cup", 0, "camera_0"), ("cup", 0, "camera_1")]
+    again = record(([f, f] for f in frames), tmp_path, "cup", 25.0, commands=lambda i: [""] if i == 3 else [])
+    assert again[0].name == "exp_num_2"  # recording again adds grasps
+
+
+def test_contact_starts_and_stops_grasps_and_the_cli_writes_videos(tmp_path):
+    video = tmp_path / "long.avi"
+    w = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"XVID"), 25, (64, 48))
+    for f in _frames(140, [(20, 50), (90, 120)]):
+        w.write(f)
+    w.release()
+    res = CliRunner().invoke(
+        app, ["record", str(video), "--out", str(tmp_path / "rec"), "--object", "mug", "--by-contact"]
+    )
+    assert res.exit_code == 0, res.output
+    assert "2 grasp(s) recorded" in res.output
+    for k in (0, 1):
+        n = len(read_video(tmp_path / "rec" / "mug" / f"exp_num_{k}" / "camera_0.avi", expected_size=None))
+        assert 25 <= n <= 40, n  # about the 31 frames of contact, started and stopped 5 frames late
+    res = CliRunner().invoke(app, ["record", str(video), "--out", str(tmp_path / "rec"), "--object", "a b"])
+    assert res.exit_code == 2 and "object name" in res.output
+
+
+def test_a_grasp_cut_short_leaves_only_a_partial_file(tmp_path):
+    writer = GraspWriter(tmp_path / "cup" / "exp_num_0", 1, 25.0)
+    for f in _frames(5, []):
+        writer.add([f])
+    names = sorted(p.name for p in (tmp_path / "cup" / "exp_num_0").iterdir())
+    assert names == ["camera_0.partial.avi"]  # killed here: nothing reads it as a video
+    assert not list(Path(tmp_path).glob("*/*/camera_0.avi"))
