@@ -356,16 +356,12 @@ def fit_runs(
 
 def _initial_model(cfg: GraspTrainConfig):
     """The model of ``cfg.init`` (its own settings), to be trained further; InputError naming the file
-    for a checkpoint of another model."""
+    for a checkpoint of another model than ``cfg.model``."""
     from slipsense.checkpoint import load_model
 
     from slipsense.config import resolve_path
 
-    model, _ = load_model(resolve_path(cfg.init))
-    if model.model_name != cfg.model:
-        from slipsense.errors import InputError
-
-        raise InputError(cfg.init, f"holds a {model.model_name}, not the {cfg.model} to train")
+    model, _ = load_model(resolve_path(cfg.init), expect_model=cfg.model)
     return model.train()
 
 
