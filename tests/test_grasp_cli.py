@@ -326,3 +326,24 @@ def test_a_fold_file_is_reused_only_under_the_key_of_todays_whole_settings(tmp_p
     assert _load_fold(fold, key) == {"config_key": key, "fold": 0}
     fold.write_text(json.dumps({"config_key": old.hexdigest()[:16], "fold": 0}))
     assert _load_fold(fold, key) is None
+
+
+def test_grasp_promise_restates_what_training_stated(tmp_path, grasps, monkeypatch):
+    """A detector trained before checkpoints carried a held-alarm bound gets it from its own recipe's
+    inner folds trained again: the same numbers the training stated."""
+    from slipsense.checkpoint import read_info, update_info
+
+    monkeypatch.setenv("SLIPSENSE_CACHE", str(tmp_path / "cache"))
+    out = tmp_path / "det"
+    args = ["grasp", "train", "--recordings", str(grasps), "--out", str(out), "--inner-folds", "2", *SMALL]
+    assert CliRunner().invoke(app, args).exit_code == 0
+    ckpt = out / "detector.safetensors"
+    op = read_info(ckpt)["operating_point"]
+    stated = op.pop("held_alarm")
+    assert stated["held_objects"] == 4 and stated["held_grasps"] == 4
+    update_info(ckpt, {"operating_point": op})  # as checkpoints were written before
+    res = CliRunner().invoke(app, ["grasp", "promise", str(ckpt), "--workers", "1", "--no-progress"])
+    assert res.exit_code == 0, res.output
+    again = read_info(ckpt)["operating_point"]["held_alarm"]
+    assert again.pop("restated") and again == stated
+    assert "on new objects at most" in res.output

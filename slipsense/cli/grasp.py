@@ -263,6 +263,22 @@ def register(app: typer.Typer) -> None:
                     f"{ph['lost_before_60']}, 60-150: {ph['lost_60_150']}, > 150: {ph['lost_after_150']}"
                 )
 
+    @grasp_app.command("promise")
+    @friendly
+    def promise_cmd(
+        checkpoint: Path = typer.Argument(..., help="a grasp detector whose operating point came from inner folds"),
+        workers: Optional[int] = typer.Option(None, help="training processes (default: one per core)"),
+        progress: bool = typer.Option(True),
+    ):
+        """State what a detector trained before checkpoints carried it promises on new objects: its
+        inner folds trained again, judged at its threshold (held-alarm rate, bound counting objects)."""
+        from slipsense.evaluation.pergrasp import promise_text
+        from slipsense.checkpoint import read_info
+        from slipsense.training.recipe import restate_promise
+
+        restate_promise(checkpoint, workers=workers, progress=progress)
+        typer.echo(f"{checkpoint}: {promise_text(read_info(checkpoint)['operating_point'])}")
+
     @grasp_app.command("adaptation")
     @friendly
     def adaptation_cmd(

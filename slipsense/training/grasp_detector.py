@@ -154,13 +154,32 @@ def operating_point(
             raise ConfigError("inner_folds=0 needs the trained model")
         probs = predict_runs(model, usable, cfg.startup)
     else:
-        from slipsense.parallel import run_jobs
-
-        jobs = plan_training(usable, (), cfg)[1:]
-        results = run_jobs(fit_job, jobs, (usable, cfg), workers, [job_weight(j, cfg) for j in jobs], progress=progress)
-        by_index = {i: p for job, res in zip(jobs, results) for i, p in zip(job.predict, res["probs"])}
-        probs = [by_index[i] for i in range(len(usable))]
+        probs = inner_fold_traces(usable, cfg, workers, progress)
     return _chosen_operating_point(probs, usable, cfg)
+
+
+def inner_fold_traces(usable: Sequence[GraspRun], cfg: GraspTrainConfig, workers=1, progress=False) -> list[np.ndarray]:
+    """P(slip) traces of ``usable`` runs, each from the model of ``cfg.inner_folds`` inner folds by
+    object that did not train on its object (what an operating point is chosen on)."""
+    from slipsense.parallel import run_jobs
+
+    jobs = plan_training(usable, (), cfg)[1:]
+    results = run_jobs(fit_job, jobs, (usable, cfg), workers, [job_weight(j, cfg) for j in jobs], progress=progress)
+    by_index = {i: p for job, res in zip(jobs, results) for i, p in zip(job.predict, res["probs"])}
+    return [by_index[i] for i in range(len(usable))]
+
+
+def held_alarm_of(probs: Sequence[np.ndarray], runs: Sequence[GraspRun], op: dict, cfg: GraspTrainConfig) -> dict:
+    """:func:`~slipsense.evaluation.pergrasp.held_alarm_promise` of the held ``runs`` at ``op``."""
+    held = [(p, r.object) for p, r in zip(probs, runs) if not r.slipped]
+    alarm = [
+        pergrasp.grasp_outcome(
+            pergrasp.debounce(p, op["threshold"], op["debounce"]), None, cfg.horizon, cfg.startup
+        ).first_alarm
+        is not None
+        for p, _ in held
+    ]
+    return pergrasp.held_alarm_promise(alarm, [o for _, o in held])
 
 
 def _chosen_operating_point(probs: Sequence[np.ndarray], runs: Sequence[GraspRun], cfg: GraspTrainConfig) -> dict:
@@ -193,15 +212,7 @@ def _chosen_operating_point(probs: Sequence[np.ndarray], runs: Sequence[GraspRun
     op["chosen_on"] = (
         f"{cfg.inner_folds} inner folds of the training objects" if cfg.inner_folds else "the training runs themselves"
     )
-    held = [(p, r.object) for p, r in zip(probs, runs) if not r.slipped]
-    alarmed = [
-        pergrasp.grasp_outcome(
-            pergrasp.debounce(p, op["threshold"], op["debounce"]), None, cfg.horizon, cfg.startup
-        ).first_alarm
-        is not None
-        for p, _ in held
-    ]
-    op["held_alarm"] = pergrasp.held_alarm_promise(alarmed, [o for _, o in held])
+    op["held_alarm"] = held_alarm_of(probs, runs, op, cfg)
     return op
 
 

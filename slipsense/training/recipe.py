@@ -192,3 +192,28 @@ def prepare_grasps(tree, progress: bool = True, threads: int | None = None, out=
 
 #: ``training_task`` (a model class attribute) -> its trainer
 TRAINERS: dict[str, Callable[..., dict[str, Any]]] = {"clips": fit_clips, "grasps": fit_grasps}
+
+
+def restate_promise(checkpoint, workers: int | None = 1, progress: bool = False) -> dict[str, Any]:
+    """The held-alarm promise of a grasp detector trained before checkpoints stated one: its recipe's
+    inner folds trained again on its training objects (its own configuration tree and seed), judged at
+    its stored operating point, and written into the checkpoint (weights untouched). Returns it."""
+    import json
+
+    from slipsense.checkpoint import read_info, update_info
+    from slipsense.training.grasp_detector import held_alarm_of, inner_fold_traces
+
+    info = read_info(checkpoint)
+    tree = json.loads(json.dumps(info["config"]))
+    tree["data"] = {**tree.get("data", {}), "recordings": info["data"]["recordings"]}
+    tree.setdefault("train", {})
+    cfg, runs, _, _ = prepare_grasps(tree, progress=progress)
+    trained = set(info["data"]["objects"])
+    usable = [r for r in runs if r.usable and r.object in trained]
+    if not cfg.inner_folds:
+        raise ConfigError(f"{checkpoint}: its operating point was chosen on its training runs, not inner folds")
+    op = dict(info["operating_point"])
+    op["held_alarm"] = held_alarm_of(inner_fold_traces(usable, cfg, workers, progress), usable, op, cfg)
+    op["held_alarm"]["restated"] = f"{cfg.inner_folds} inner folds trained again by `slipsense grasp promise`"
+    update_info(checkpoint, {"operating_point": op})
+    return op["held_alarm"]
