@@ -269,3 +269,42 @@ def test_the_adaptation_study_runs_every_row(tmp_path, cache, one_thread):
     assert any(n.startswith("baseline") for n in names)
     paths = write(doc, tmp_path / "report")
     assert all(p.is_file() for p in paths) and "| recalibrated |" in paths[1].read_text()
+
+
+def test_review_cases_of_frame_folders_are_refused_in_one_line(tmp_path, cache):
+    root = _lift_data(tmp_path / "lift")
+    res = runner.invoke(
+        app, ["early-warning", "--recordings", str(root), "--out", str(tmp_path / "ew"), "--no-progress"]
+    )
+    assert "slipsense evaluate" in _error(res)  # no moment to warn before
+    stray = root / "object001" / "061_10_mm" / "preview.jpg"
+    cv2.imwrite(str(stray), np.zeros((48, 64, 3), np.uint8))
+    res = runner.invoke(
+        app, ["evaluate", "--recordings", str(root), "--json", str(tmp_path / "e.json"), "--no-progress"]
+    )
+    assert str(stray) in _error(res)  # an unnumbered image would have been frame 0
+    stray.unlink()
+    (root / "object002_result.dat").unlink()  # its grasps would all read as held
+    res = runner.invoke(
+        app, ["evaluate", "--recordings", str(root), "--json", str(tmp_path / "e.json"), "--no-progress"]
+    )
+    assert "object002" in _error(res) and "object002_result.dat" in _error(res)
+
+
+def test_held_out_grasps_labelled_as_a_whole_are_not_counted_as_held(tmp_path, cache, one_thread):
+    from slipsense.resources import ONE_SENSOR_MODEL, shipped_model
+
+    root = _lift_data(tmp_path / "lift")
+    out = tmp_path / "tuned"
+    init = str(shipped_model(ONE_SENSOR_MODEL))
+    args = ["grasp", "train", "--recordings", str(root), "--set", f"train.init={init}", "--set", "train.startup=0"]
+    res = runner.invoke(
+        app, [*args, "--epochs", "1", "--fold", "0", "--folds", "3", "--out", str(out), "--no-progress"]
+    )
+    assert res.exit_code == 0, res.output
+    held_out = json.loads((out / "held_out.json").read_text())
+    assert held_out["per_grasp"]["held_runs"] == 2 and held_out["per_grasp"]["slip_runs"] == 0
+    # the run's own configuration trains again (its model settings are the init checkpoint's)
+    res = runner.invoke(app, ["grasp", "train", "--config", str(out / "config.yaml"), "--out", str(tmp_path / "again"),
+                              "--epochs", "1", "--no-progress"])  # fmt: skip
+    assert res.exit_code == 0, res.output

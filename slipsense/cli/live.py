@@ -477,6 +477,10 @@ def run_early_warning(
     ckpt = _checkpoint(checkpoint)
     info = read_info(ckpt)
     recs = find_recordings(root, on_error=on_error, sensor=sensor_of(info, ckpt))
+    if all(r.per_grasp for r in recs):
+        raise InputError(
+            root, "grasps labelled as a whole have no moment of slip to warn before: judge them with slipsense evaluate"
+        )
     counts = camera_counts(recs)
     if len(counts) != 1:
         raise InputError(root, f"runs hold different numbers of camera videos ({counts}); early warning needs the same")

@@ -125,14 +125,13 @@ def calibrate(
             "before": before,
         },
     }
-    out = Path(out)
-    if out.resolve() != source.resolve():
-        from slipsense.atomic import atomic_path
+    from slipsense.atomic import atomic_path
 
-        with atomic_path(out) as tmp:
-            shutil.copyfile(source, tmp)
+    out = Path(out)
     sensor = data_sensor(root)
-    update_info(out, {"operating_point": op, **({"sensor": sensor.to_dict()} if sensor else {})})
+    with atomic_path(out) as tmp:  # copied and calibrated before it takes the name: never half of it
+        shutil.copyfile(source, tmp)
+        update_info(tmp, {"operating_point": op, **({"sensor": sensor.to_dict()} if sensor else {})})
     return Calibration(
         out, threshold, ev.debounce, promise, int(slipped.sum()), int((scores[slipped] >= threshold).sum()), before
     )

@@ -22,6 +22,7 @@ from typing import Any, Sequence
 
 
 from slipsense import atomic
+from slipsense.errors import ConfigError
 from slipsense.evaluation.grasp_scores import fold_result, pool_folds, stored_trace
 from slipsense.training.grasp_detector import (
     finish_training,
@@ -62,6 +63,11 @@ def run_folds(
 
     out = Path(out)
     usable = [r for r in runs if r.usable]
+    if any(r.whole for r in usable):
+        raise ConfigError(
+            "these grasps are labelled as a whole (no moment of slip): their leave-objects-out figures are "
+            "`slipsense grasp adaptation --recordings DIR` (slipped against held, intervals over objects)"
+        )
     split = object_split(usable, folds, cfg.folds_seed)
     key = _config_key(cfg, folds, usable)
     done: dict[int, dict[str, Any]] = {}

@@ -7,6 +7,8 @@ or a training's out-of-fold predictions gave.
 
 from __future__ import annotations
 
+import dataclasses
+
 import math
 from typing import Any, Sequence
 
@@ -97,6 +99,7 @@ def fold_result(
                 "experiment": r.experiment,
                 "cameras": list(r.cameras),
                 "moment_of_slip": r.moment_of_slip,
+                "slipped": r.slipped,
                 "outcome": o.outcome,
                 "first_alarm": o.first_alarm,
                 "lead": o.lead,
@@ -156,13 +159,17 @@ def evaluate_held_out(
 
 
 def _outcomes(runs, probs, op: dict[str, Any], horizon: int, rests) -> list[pergrasp.GraspOutcome]:
-    """Each run's per-grasp verdict at the operating point ``op``."""
-    return [
-        pergrasp.grasp_outcome(
-            pergrasp.debounce(p, op["threshold"], op["debounce"]), r.moment_of_slip, horizon, rest=rest
+    """Each run's per-grasp verdict at the operating point ``op`` (from its ``startup``); a slip
+    labelled as a whole (no moment to warn before) is ``slip_without_moment``, neither slip nor held."""
+    startup = int(op.get("startup", pergrasp.STARTUP))
+    outs = []
+    for r, p, rest in zip(runs, probs, rests):
+        alarm = pergrasp.debounce(p, op["threshold"], op["debounce"])
+        o = pergrasp.grasp_outcome(alarm, r.moment_of_slip, horizon, startup, rest=rest)
+        outs.append(
+            dataclasses.replace(o, outcome="slip_without_moment") if r.slipped and r.moment_of_slip is None else o
         )
-        for r, p, rest in zip(runs, probs, rests)
-    ]
+    return outs
 
 
 def fold_at(fold: dict[str, Any], op: dict[str, Any], horizon: int) -> dict[str, Any]:
@@ -175,8 +182,14 @@ def fold_at(fold: dict[str, Any], op: dict[str, Any], horizon: int) -> dict[str,
         rest = np.zeros(len(p), dtype=bool)
         rest[r["rest"]] = True
         o = pergrasp.grasp_outcome(
-            pergrasp.debounce(p, op["threshold"], op["debounce"]), r["moment_of_slip"], horizon, rest=rest
+            pergrasp.debounce(p, op["threshold"], op["debounce"]),
+            r["moment_of_slip"],
+            horizon,
+            int(op.get("startup", pergrasp.STARTUP)),
+            rest=rest,
         )
+        if r.get("slipped") and r["moment_of_slip"] is None:  # labelled as a whole
+            o = dataclasses.replace(o, outcome="slip_without_moment")
         outs.append(o)
         runs.append({**r, "outcome": o.outcome, "first_alarm": o.first_alarm, "lead": o.lead})
     p = np.asarray(fold["clip_probability"], dtype=np.float64)

@@ -48,6 +48,10 @@ def _subset(runs: Sequence, n: int | None, rng: np.random.Generator) -> list:
         return list(runs)
     slipped = [r for r in runs if r.slipped]
     held = [r for r in runs if not r.slipped]
+    if not slipped or not held:
+        from slipsense.errors import InputError
+
+        raise InputError(None, f"the grasps to draw {n} from are all {'held' if held else 'slipped'}")
     first = [slipped[rng.integers(len(slipped))], held[rng.integers(len(held))]]
     rest = [r for r in runs if all(r is not f for f in first)]
     return first + [rest[i] for i in rng.choice(len(rest), n - 2, replace=False)]

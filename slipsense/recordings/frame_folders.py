@@ -55,7 +55,7 @@ def is_frame_layout(root: str | Path) -> bool:
         return True
     objects = _dirs(root)
     grasps = _dirs(objects[0]) if objects else []
-    return bool(grasps) and bool(frame_files(grasps[0]))
+    return bool(grasps) and bool(frame_files(grasps[0])) and not any(grasps[0].glob("camera_*"))
 
 
 def data_sensor(root: str | Path) -> SensorSpec | None:
@@ -106,8 +106,11 @@ def read_result_file(path: Path) -> dict[str, bool]:
     return out
 
 
-def _object_grasps(root: Path, obj: Path, report: Report) -> list[Recording]:
+def _object_grasps(root: Path, obj: Path, report: Report, with_results: bool) -> list[Recording]:
     result = root / f"{obj.name}{RESULT_SUFFIX}"
+    if with_results and not result.is_file():  # its grasps would all read as held
+        report(obj, f"no {result.name} beside it, where the other objects have theirs")
+        return []
     outcomes = read_result_file(result) if result.is_file() else None
     folders = {g.name: g for g in _dirs(obj)}
     found: list[Recording] = []
@@ -154,6 +157,7 @@ def find_frame_recordings(root: str | Path, report: Report) -> list[Recording]:
     for result in sorted(root.glob(f"*{RESULT_SUFFIX}")):
         if not (root / result.name.removesuffix(RESULT_SUFFIX)).is_dir():
             report(result, f"names object {result.name.removesuffix(RESULT_SUFFIX)}, which has no folder")
+    with_results = any(root.glob(f"*{RESULT_SUFFIX}"))
     for obj in objects:
-        found.extend(_object_grasps(root, obj, report))
+        found.extend(_object_grasps(root, obj, report, with_results))
     return sorted(found, key=lambda r: r.key)

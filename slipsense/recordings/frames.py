@@ -54,14 +54,21 @@ def is_frame_folder(path: str | Path) -> bool:
 
 def source_stat(path: str | Path) -> tuple[int, int]:
     """``(bytes, mtime_ns)`` that change when a recording changes: a video file's own; for a frame
-    folder the sum of its frames' sizes and the latest modification of the folder or any frame (an
-    edited, added or removed frame changes it). What the caches key a recording by."""
+    folder the sum of its frames' sizes and, in place of a time, a digest of every frame's name, size
+    and modification time (an edited, added, removed or restored frame changes it). What the caches
+    key a recording by."""
     path = Path(path)
     st = path.stat()
     if not path.is_dir():
         return int(st.st_size), int(st.st_mtime_ns)
-    stats = [p.stat() for p in frame_files(path)]
-    return sum(int(s.st_size) for s in stats), max([int(st.st_mtime_ns)] + [int(s.st_mtime_ns) for s in stats])
+    import hashlib
+
+    files = frame_files(path)
+    stats = [p.stat() for p in files]
+    listing = [[p.name, int(s.st_size), int(s.st_mtime_ns)] for p, s in zip(files, stats)]
+    digest = hashlib.sha256(repr(listing).encode()).hexdigest()
+    # a folder has no one modification time: a digest of every frame's name, size and time stands in
+    return sum(int(s.st_size) for s in stats), int(digest[:15], 16)
 
 
 def _checked_files(folder: Path, min_frames: int) -> list[Path]:
@@ -69,6 +76,9 @@ def _checked_files(folder: Path, min_frames: int) -> list[Path]:
     if not files:
         raise InputError(folder, f"frame folder holds no image files ({', '.join(FRAME_SUFFIXES)})")
     numbers = [_LAST_NUMBER.search(p.stem) for p in files]
+    unnumbered = [p for p, m in zip(files, numbers) if m is None]
+    if unnumbered and len(unnumbered) < len(files):
+        raise InputError(unnumbered[0], "image without a frame number among numbered frames (move it out)")
     if all(numbers):
         values = [int(m.group(1)) for m in numbers]
         for a, b, pa, pb in zip(values, values[1:], files, files[1:]):

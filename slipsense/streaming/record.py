@@ -11,8 +11,10 @@ the gel at rest (the median of the first frames) above ``REST_TOLERANCE + MIN_CO
 (``slipsense record`` reads them as lines on its standard input): ``""`` (Enter) starts or stops a
 grasp, ``"s"`` marks the current grasp (or, between grasps, the last one) as slipped, ``"q"`` quits.
 
-Videos are written under a temporary name and renamed when their grasp ends: a recording killed in
-the middle of a grasp leaves no video that looks whole.
+A grasp is written into a hidden folder (``.exp_num_<N>.partial``) renamed into place when it ends,
+``slip.txt`` included: a recording killed in the middle of a grasp leaves nothing any command reads.
+A grasp started by contact begins :data:`PRE_ROLL` frames before it (the gel at rest, which labelling
+and the detectors take as the grasp's start).
 """
 
 from __future__ import annotations
@@ -29,6 +31,9 @@ from slipsense.recordings import contact
 
 #: Codec of the written videos (the shared recordings' own).
 FOURCC = "XVID"
+#: Frames kept from before a contact starts a grasp: the camera start-up frames labelling skips
+#: (:data:`~slipsense.recordings.contact.STARTUP_FRAMES`) and the frames the contact rule waits.
+PRE_ROLL = contact.STARTUP_FRAMES + contact.MIN_CONTACT_FRAMES + 5
 
 
 def check_object_name(obj: str) -> None:
@@ -40,32 +45,35 @@ def next_grasp_folder(out: Path, obj: str) -> Path:
     """``<out>/<obj>/exp_num_<N>`` with ``N`` one above the largest there (0 in a new folder)."""
     check_object_name(obj)
     folder = Path(out) / obj
-    numbers = [int(m.group(1)) for p in folder.glob("exp_num_*") if (m := re.fullmatch(r"exp_num_(\d+)", p.name))]
+    # a grasp cut short by a kill keeps its number (its hidden .exp_num_<N>.partial is left as it was)
+    names = [p.name for p in folder.glob("*exp_num_*")]
+    numbers = [int(m.group(1)) for n in names if (m := re.fullmatch(r"\.?exp_num_(\d+)(\.partial)?", n))]
     return folder / f"exp_num_{max(numbers) + 1 if numbers else 0}"
 
 
 class GraspWriter:
-    """One grasp's videos, one per camera, renamed into place by :meth:`finish`."""
+    """One grasp's videos, one per camera, in a hidden folder renamed into place by :meth:`finish`."""
 
     def __init__(self, folder: Path, cameras: int, fps: float):
         self.folder, self.fps, self.cameras = Path(folder), float(fps), cameras
+        self.partial = self.folder.with_name(f".{self.folder.name}.partial")
         self._writers: list[cv2.VideoWriter] = []
         self.frames = 0
 
-    def _path(self, i: int, partial: bool) -> Path:
-        return self.folder / f"camera_{i}{'.partial' if partial else ''}.avi"
-
     def add(self, frames: Sequence[np.ndarray]) -> None:
+        if any(f is None for f in frames):
+            raise InputError(None, "this source holds no pictures to record (a marker stream?)")
         if not self._writers:
             try:
-                self.folder.mkdir(parents=True, exist_ok=False)
+                self.partial.mkdir(parents=True, exist_ok=False)
             except OSError as exc:
-                raise OutputError(self.folder, f"cannot create the grasp folder ({exc.strerror or exc})") from None
+                raise OutputError(self.partial, f"cannot create the grasp folder ({exc.strerror or exc})") from None
             for i, f in enumerate(frames):
                 h, w = f.shape[:2]
-                writer = cv2.VideoWriter(str(self._path(i, True)), cv2.VideoWriter_fourcc(*FOURCC), self.fps, (w, h))
+                path = self.partial / f"camera_{i}.avi"
+                writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*FOURCC), self.fps, (w, h))
                 if not writer.isOpened():
-                    raise OutputError(self._path(i, True), f"cannot write a {FOURCC} video here")
+                    raise OutputError(path, f"cannot write a {FOURCC} video here")
                 self._writers.append(writer)
         for writer, f in zip(self._writers, frames):
             writer.write(f if f.ndim == 3 else cv2.cvtColor(f, cv2.COLOR_GRAY2BGR))
@@ -77,10 +85,9 @@ class GraspWriter:
             w.release()
         if not self._writers:
             return None
-        for i in range(len(self._writers)):
-            self._path(i, True).replace(self._path(i, False))
         if slipped:
-            (self.folder / "slip.txt").write_text("")
+            (self.partial / "slip.txt").write_text("")
+        self.partial.rename(self.folder)
         return self.folder
 
 
@@ -126,8 +133,11 @@ def record(
 
     ``commands(index)``: the commands given since the last step (``""``, ``"s"``, ``"q"``).
     Returns the grasp folders written; a grasp still open when the frames end is kept."""
+    from collections import deque
+
     check_object_name(obj)
     trigger = ContactTrigger() if by_contact else None
+    before: deque = deque(maxlen=PRE_ROLL)  # the latest frames while no grasp is written
     writer: GraspWriter | None = None
     slipped, done = False, []
 
@@ -160,8 +170,13 @@ def record(
         if start:
             writer, slipped = GraspWriter(next_grasp_folder(Path(out), obj), len(frames), fps), False
             echo(f"recording grasp {len(done) + 1} into {writer.folder}")
+            for earlier in before if state is True else ():  # started by contact: from the gel at rest
+                writer.add(earlier)
+            before.clear()
         if writer is not None:
             writer.add(frames)
+        else:
+            before.append(frames)
     if writer is not None:
         close()
     return done

@@ -194,6 +194,8 @@ def _chosen_operating_point(probs: Sequence[np.ndarray], runs: Sequence[GraspRun
         budget = 0.05 if cfg.max_held_alarm is None else cfg.max_held_alarm
         peak = np.array([peak_alarm_score(p, 1, cfg.startup) for p in probs])
         slipped = np.array([r.slipped for r in runs], bool)
+        if slipped.all():
+            raise ConfigError("no held grasp among the training runs: the alarm threshold needs some")
         op = {
             "threshold": min(1.0, calibrated_threshold(peak[~slipped], peak[slipped], budget)),
             "debounce": 1,

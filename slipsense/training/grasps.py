@@ -151,7 +151,7 @@ class _Chunks:
         out = []
         for i, (gray, y, moment) in enumerate(self.items):
             n = gray.shape[1]
-            if y[0] == BAG:  # the whole grasp is the bag: one chunk ending at its last frame
+            if y[0] == BAG:  # the bag: the grasp's last `chunk` frames, by which it has slipped
                 out.append((i, [n - 1], _chunk_targets(y, [n - 1], self.cfg.chunk)))
                 continue
             ends = [int(rng.integers(0, n)) for _ in range(self.cfg.negatives)]
@@ -396,13 +396,15 @@ def make_config(model: str, settings: dict[str, Any], size: tuple[int, int] | No
     if size is not None:
         model_cfg["image_size"] = list(size)
     if train.get("init") is not None:  # fine-tuning: the model is the checkpoint's, settings and all
-        if model_cfg:
-            raise ConfigError(f"model settings ({', '.join(sorted(model_cfg))}) come from train.init's checkpoint")
         from slipsense.checkpoint import read_info
         from slipsense.config import portable_path, resolve_path
 
         train["init"] = portable_path(resolve_path(train["init"]))  # kept as the checkpoint says it, resolvable
-        model_cfg = dict(read_info(resolve_path(train["init"]))["model_config"])
+        theirs = dict(read_info(resolve_path(train["init"]))["model_config"])
+        other = sorted(k for k, v in model_cfg.items() if theirs.get(k) != v)
+        if other:
+            raise ConfigError(f"model settings ({', '.join(other)}) come from train.init's checkpoint")
+        model_cfg = theirs
     from slipsense.run_config import typed
 
     cfg = GraspTrainConfig(model=model, model_config=model_cfg, **typed(GraspTrainConfig, train, "grasp training"))

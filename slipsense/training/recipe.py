@@ -203,15 +203,17 @@ def restate_promise(checkpoint, workers: int | None = 1, progress: bool = False)
     from slipsense.checkpoint import read_info, update_info
     from slipsense.training.grasp_detector import held_alarm_of, inner_fold_traces
 
+    from slipsense.errors import InputError
+
     info = read_info(checkpoint)
+    if not isinstance(info.get("config"), dict) or not (info.get("train_config") or {}).get("inner_folds"):
+        raise InputError(checkpoint, "not a grasp detector whose operating point came from inner folds")
     tree = json.loads(json.dumps(info["config"]))
     tree["data"] = {**tree.get("data", {}), "recordings": info["data"]["recordings"]}
     tree.setdefault("train", {})
     cfg, runs, _, _ = prepare_grasps(tree, progress=progress)
     trained = set(info["data"]["objects"])
     usable = [r for r in runs if r.usable and r.object in trained]
-    if not cfg.inner_folds:
-        raise ConfigError(f"{checkpoint}: its operating point was chosen on its training runs, not inner folds")
     op = dict(info["operating_point"])
     op["held_alarm"] = held_alarm_of(inner_fold_traces(usable, cfg, workers, progress), usable, op, cfg)
     op["held_alarm"]["restated"] = f"{cfg.inner_folds} inner folds trained again by `slipsense grasp promise`"
