@@ -266,7 +266,7 @@ def test_the_adaptation_study_runs_every_row(tmp_path, cache, one_thread):
     assert names[:4] == ["as is", "recalibrated", "fine-tuned, 5 grasps", "this set alone"]
     grasps = {r["row"]: r["grasps"] for r in doc["rows"]}
     assert grasps["fine-tuned, 5 grasps"] == 36 and grasps["as is"] == 12  # three draws of 5 grasps, pooled
-    assert any(n.startswith("baseline") for n in names)
+    assert any(n.startswith("baseline") for n in names) and any(n.startswith("shear retention") for n in names)
     paths = write(doc, tmp_path / "report")
     assert all(p.is_file() for p in paths) and "| recalibrated |" in paths[1].read_text()
 

@@ -11,6 +11,9 @@ in turn is held out and, from the other objects' grasps only:
   (:data:`slipsense.training.grasps.BAG`), the threshold then chosen on those same grasps (``all``:
   on :data:`INNER_FOLDS` inner folds of those objects, as ``motionnet-gelsight-lift`` was made);
 * ``this set alone``: the same recipe from random weights on all the other objects' grasps;
+* ``shear retention``: no learning, physics: how much of the shear the lift put on the gel has been
+  let go (:func:`slipsense.evaluation.baselines.shear_lost`), its two settings and threshold chosen on
+  the other objects;
 * the non-learned baselines (:mod:`slipsense.evaluation.baselines`) and the majority class, their
   thresholds chosen on the other objects.
 
@@ -37,6 +40,10 @@ from slipsense.evaluation.calibrate import calibrated_threshold
 #: Training grasps drawn for the fine-tuning rows (None: all of the other objects').
 SIZES = (5, 10, 20, None)
 BUDGET = 0.05
+#: The shear-retention row's settings (gate in pixels at 120 x 160, debounce in frames), chosen per
+#: held-out object on the others (:func:`_shear_rows`).
+SHEAR_GRID = tuple((g, k) for g in (0.25, 0.5, 1.0) for k in (1, 3, 5))
+SHEAR_ROW = "shear retention (no learning; gate and debounce chosen on the other objects)"
 #: Inner folds by object that choose the threshold of a detector trained on every other object's grasps
 #: (the shipped recipe's); one trained on a few grasps takes its threshold on those grasps.
 INNER_FOLDS = 2
@@ -143,6 +150,9 @@ def adaptation_study(
         )
         rows.append({**row, "draws_of_training_grasps": k})
 
+    t0 = time.perf_counter()
+    scores, alarmed, chosen = _shear_rows(recordings, slipped, objects, names, progress)
+    rows.append({**_row(SHEAR_ROW, scores, alarmed, slipped, objects, time.perf_counter() - t0, draws), **chosen})
     for name in ("mean_frame_difference", "difference_to_contact", "frame_difference"):
         s = np.array([frame_scores(r.gray[0], 0)[name] for r in runs])  # on the detector's own grey frames
         lo = outcome.leave_objects_out(s, slipped, objects)
@@ -160,6 +170,32 @@ def adaptation_study(
         "budget": BUDGET,
         "rows": rows,
     }
+
+
+def _shear_rows(recordings, slipped, objects, names, progress):
+    """The shear-retention row: per held-out object, the (gate, debounce) of :data:`SHEAR_GRID` that
+    separates the other objects' grasps best (leave-objects-out accuracy among them), its threshold
+    chosen on them (:func:`calibrated_threshold`), the held-out grasps judged at it."""
+    from slipsense.evaluation.baselines import SHEAR_SIZE, net_shear, shear_lost
+    from slipsense.training.grasps import load_grasp_data
+
+    runs, _ = load_grasp_data(recordings, None, SHEAR_SIZE, progress=progress)
+    shear = [net_shear(r.gray[0]) for r in runs]
+    table = {(g, k): np.array([outcome.peak_alarm_score(shear_lost(s, g), k) for s in shear]) for g, k in SHEAR_GRID}
+    scores, alarmed, picks = np.zeros(len(runs)), np.zeros(len(runs), bool), {}
+    for o in names:
+        other, mine = objects != o, objects == o
+
+        def quality(setting):
+            s = table[setting][other]
+            return outcome.accuracy(outcome.leave_objects_out(s, slipped[other], objects[other]), slipped[other])
+
+        best = max(SHEAR_GRID, key=quality)  # the first of equals: the grid's order
+        s = table[best]
+        th = calibrated_threshold(s[other & ~slipped], s[other & slipped], BUDGET)
+        scores[mine], alarmed[mine] = s[mine], s[mine] >= th
+        picks[o] = {"gate_px": best[0], "debounce": best[1]}
+    return scores, alarmed, {"chosen": picks}
 
 
 def table(doc: dict[str, Any]) -> str:
