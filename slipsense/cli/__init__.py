@@ -99,13 +99,17 @@ def train(
     device: Optional[str] = typer.Option(None, help="auto (default), cpu, cuda, cuda:1, ..."),
     max_steps_per_epoch: Optional[int] = typer.Option(None, help="cap steps per epoch (smoke runs)"),
     resume: bool = typer.Option(False, help="continue from OUT/resume.pt"),
+    cross_validate: bool = typer.Option(
+        False, "--cross-validate", help="train every fold of --folds (default 5) into OUT/fold<k>, pooled into OUT"
+    ),
     on_error: Optional[str] = typer.Option(
         None, help="raise (default): stop at a bad video; skip: warn and leave it out"
     ),
     overrides: Optional[Path] = typer.Option(None, help="CSV of hand labels replacing automatic moments of slip"),
     progress: bool = typer.Option(True),
 ):
-    """Train a model on recordings or marker sequences (works under torchrun for DDP).
+    """Train a model on recordings or marker sequences (works under torchrun for DDP); with
+    --cross-validate, every fold by object, each judged on its unseen objects, pooled.
 
     Settings come from the command's defaults, then --config, then the options given here, then --set;
     the resolved tree is stored in every checkpoint and written to OUT/config.yaml."""
@@ -151,6 +155,15 @@ def train(
     from slipsense.training.recipe import fit
 
     tree["model"]["name"] = tree["model"].get("name") or TrainRequest.model
+    if cross_validate:
+        from slipsense.training.recipe import cross_validate as run_folds
+
+        n = tree["data"].get("folds") or 5
+        report = run_folds(tree, out, n, progress=progress, command=command_line())
+        pooled = report["pooled"]
+        shown = pooled.get("per_grasp") or {k: pooled[k] for k in ("accuracy", "precision", "recall", "f1", "n_clips")}
+        typer.echo(f"{n} folds pooled: {json.dumps(shown, default=float)} -> {out}")
+        return
     res = fit(tree, out, progress=progress, resume=resume, command=command_line())
     report_training(res)
 

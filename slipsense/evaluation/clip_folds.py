@@ -1,4 +1,5 @@
-"""Pool the held-out evaluations of cross-validation folds: ``python -m slipsense.evaluation.clip_folds RUN... --json OUT``.
+"""Pool the held-out evaluations of a clip model's cross-validation folds
+(:func:`slipsense.training.recipe.cross_validate`, ``slipsense train --cross-validate``).
 
 Each run folder holds ``evaluation.json`` (written by ``slipsense train``); the pooled scores come
 from the summed confusion matrices, so every held-out clip counts once.
@@ -6,13 +7,11 @@ from the summed confusion matrices, so every held-out clip counts once.
 
 from __future__ import annotations
 
-import argparse
 import json
 from pathlib import Path
 
 import numpy as np
 
-from slipsense.atomic import write_text
 from slipsense.errors import InputError
 from slipsense.evaluation.metrics import scores
 
@@ -41,17 +40,3 @@ def pool(run_dirs: list[Path]) -> dict:
     }
     mean = {k: float(np.mean([f[k] for f in folds])) for k in ("accuracy", "precision", "recall", "f1")}
     return {"folds": folds, "pooled": pooled, "mean_over_folds": mean}
-
-
-def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("runs", nargs="+", type=Path)
-    ap.add_argument("--json", type=Path, required=True)
-    args = ap.parse_args(argv)
-    result = pool(args.runs)
-    write_text(args.json, json.dumps(result, indent=2))
-    print(json.dumps({"pooled": result["pooled"], "mean_over_folds": result["mean_over_folds"]}, indent=1))
-
-
-if __name__ == "__main__":
-    main()

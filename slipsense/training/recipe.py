@@ -59,6 +59,64 @@ def fit(
     return trainer(tree, Path(out), progress=progress, resume=resume, workers=workers, threads=threads, command=command)
 
 
+def cross_validate(
+    tree: dict[str, Any],
+    out: str | Path,
+    folds: int = 5,
+    *,
+    progress: bool = True,
+    workers: int | None = None,
+    threads: int | None = None,
+    command: str | None = None,
+) -> dict[str, Any]:
+    """Leave objects out for any model: ``folds`` folds by object, each trained and judged on its
+    unseen objects, pooled into ``out``. A grasp detector goes through
+    :func:`slipsense.evaluation.folds.run_folds` (per grasp, its report); a clip or marker model is
+    :func:`fit` once per fold into ``out/fold<k>`` (a fold already judged is kept; a killed one
+    resumes) and the held-out clips pooled into ``out/folds.json``
+    (:func:`slipsense.evaluation.clip_folds.pool`). Returns the pooled report."""
+    import copy
+    import json
+
+    from slipsense.models import available, model_class
+
+    for section in ("model", "data", "train"):
+        tree.setdefault(section, {})
+    name = tree["model"].get("name")
+    if name not in available():
+        raise ConfigError(f"unknown model {name!r}; available: {', '.join(available())}")
+    if tree["data"].get("fold") is not None or tree["data"].get("test_objects"):
+        raise ConfigError("cross-validation holds out every fold in turn: leave --fold and --test-objects out")
+    out = Path(out)
+    if model_class(name).training_task == "grasps":
+        from slipsense.evaluation.folds import run_folds
+
+        tree["data"].pop("folds", None)
+        cfg, runs, labels, data = prepare_grasps(tree, progress, threads, out)
+        meta = {"command": command, **data}
+        return run_folds(runs, labels, cfg, out, folds, meta=meta, progress=progress, workers=workers)
+    from slipsense.atomic import write_text
+    from slipsense.evaluation.clip_folds import pool
+
+    for k in range(folds):
+        fold_out = out / f"fold{k}"
+        if (fold_out / "evaluation.json").is_file():
+            continue  # judged already
+        sub = copy.deepcopy(tree)
+        sub["data"].update(fold=k, folds=folds)
+        fit(
+            sub,
+            fold_out,
+            progress=progress,
+            resume=(fold_out / "resume.pt").is_file(),
+            threads=threads,
+            command=command,
+        )
+    report = pool([out / f"fold{k}" for k in range(folds)])
+    write_text(out / "folds.json", json.dumps({"command": command, **report}, indent=2))
+    return report
+
+
 def fit_clips(tree, out: Path, *, progress: bool, resume: bool, workers=None, threads=None, command=None) -> dict:
     """A clip or marker-window model (:func:`slipsense.training.clips.run_training`)."""
     from slipsense.training.clips import TrainRequest, run_training
