@@ -48,14 +48,7 @@ def fit(
     objects (``data.test_objects``, or ``data.fold`` of ``data.folds``), ``per_grasp`` and ``clips``;
     for a clip model the held-out part's clip metrics. ``command`` is kept with the checkpoint (how it
     was made); ``tree`` is consumed (copy it to keep it)."""
-    from slipsense.models import available, model_class
-
-    for section in ("model", "data", "train"):
-        tree.setdefault(section, {})
-    name = tree["model"].get("name")
-    if name not in available():
-        raise ConfigError(f"unknown model {name!r}; available: {', '.join(available())}")
-    trainer = TRAINERS[model_class(name).training_task]
+    trainer = TRAINERS[_task(tree)]
     return trainer(tree, Path(out), progress=progress, resume=resume, workers=workers, threads=threads, command=command)
 
 
@@ -75,9 +68,15 @@ def cross_validate(
     :func:`fit` once per fold into ``out/fold<k>`` (a fold already judged is kept; a killed one
     resumes) and the held-out clips pooled into ``out/folds.json``
     (:func:`slipsense.evaluation.clip_folds.pool`). Returns the pooled report."""
-    import copy
-    import json
+    task = _task(tree)
+    if tree["data"].get("fold") is not None or tree["data"].get("test_objects"):
+        raise ConfigError("cross-validation holds out every fold in turn: leave --fold and --test-objects out")
+    tree["data"].pop("folds", None)
+    return FOLDS[task](tree, Path(out), folds, progress=progress, workers=workers, threads=threads, command=command)
 
+
+def _task(tree: dict[str, Any]) -> str:
+    """The training task of the tree's model (its sections made present); ConfigError for an unknown model."""
     from slipsense.models import available, model_class
 
     for section in ("model", "data", "train"):
@@ -85,16 +84,21 @@ def cross_validate(
     name = tree["model"].get("name")
     if name not in available():
         raise ConfigError(f"unknown model {name!r}; available: {', '.join(available())}")
-    if tree["data"].get("fold") is not None or tree["data"].get("test_objects"):
-        raise ConfigError("cross-validation holds out every fold in turn: leave --fold and --test-objects out")
-    out = Path(out)
-    if model_class(name).training_task == "grasps":
-        from slipsense.evaluation.folds import run_folds
+    return model_class(name).training_task
 
-        tree["data"].pop("folds", None)
-        cfg, runs, labels, data = prepare_grasps(tree, progress, threads, out)
-        meta = {"command": command, **data}
-        return run_folds(runs, labels, cfg, out, folds, meta=meta, progress=progress, workers=workers)
+
+def _grasp_folds(tree, out: Path, folds: int, *, progress, workers, threads, command) -> dict[str, Any]:
+    from slipsense.evaluation.folds import run_folds
+
+    cfg, runs, labels, data = prepare_grasps(tree, progress, threads, out)
+    meta = {"command": command, **data}
+    return run_folds(runs, labels, cfg, out, folds, meta=meta, progress=progress, workers=workers)
+
+
+def _clip_folds(tree, out: Path, folds: int, *, progress, workers, threads, command) -> dict[str, Any]:
+    import copy
+    import json
+
     from slipsense.atomic import write_text
     from slipsense.evaluation.clip_folds import pool
 
@@ -103,7 +107,7 @@ def cross_validate(
         if (fold_out / "evaluation.json").is_file():
             continue  # judged already
         sub = copy.deepcopy(tree)
-        sub["data"].update(fold=k, folds=folds)
+        sub["data"].update(fold=k, folds=folds)  # fit's checks of the tree apply to each fold
         fit(
             sub,
             fold_out,
@@ -248,8 +252,9 @@ def prepare_grasps(tree, progress: bool = True, threads: int | None = None, out=
     return cfg, runs, labels, data
 
 
-#: ``training_task`` (a model class attribute) -> its trainer
+#: ``training_task`` (a model class attribute) -> its trainer, and its cross-validation
 TRAINERS: dict[str, Callable[..., dict[str, Any]]] = {"clips": fit_clips, "grasps": fit_grasps}
+FOLDS: dict[str, Callable[..., dict[str, Any]]] = {"clips": _clip_folds, "grasps": _grasp_folds}
 
 
 def restate_promise(checkpoint, workers: int | None = 1, progress: bool = False) -> dict[str, Any]:
