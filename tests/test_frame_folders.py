@@ -308,3 +308,14 @@ def test_held_out_grasps_labelled_as_a_whole_are_not_counted_as_held(tmp_path, c
     res = runner.invoke(app, ["grasp", "train", "--config", str(out / "config.yaml"), "--out", str(tmp_path / "again"),
                               "--epochs", "1", "--no-progress"])  # fmt: skip
     assert res.exit_code == 0, res.output
+
+
+def test_watch_stamps_a_grasp_folder_at_its_sensors_rate(tmp_path, cache):
+    grasp = tmp_path / "object000" / "060_00_mm"
+    _grasp(grasp, False, seed=1, n=4, size=(480, 640))  # the gelsight-lift sensor's frame size
+    out = tmp_path / "r.jsonl"
+    res = runner.invoke(app, ["watch", str(grasp), "--jsonl", str(out)])
+    assert "motionnet-gelsight-lift" in res.output.splitlines()[0]
+    assert res.exit_code == 0, res.output
+    stamps = [json.loads(line)["stamp"] for line in out.read_text().splitlines()]
+    assert stamps[1] - stamps[0] == pytest.approx(1 / 30)  # the gelsight-lift sensor's 30 frames/s, not 25

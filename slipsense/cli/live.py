@@ -128,6 +128,10 @@ def watch_source(
         except BaseException:
             src.close()
             raise
+        if sensor_of(info, ckpt).fps != sensor.fps:  # picked for another sensor: its rate stamps the frames
+            src.close()
+            sensor = sensor_of(info, ckpt)
+            src = _open(source, None, sensor, topics, tolerance, realtime)
     else:
         ckpt = _checkpoint(checkpoint)
         model, info = load_model(ckpt)
