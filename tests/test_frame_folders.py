@@ -257,16 +257,18 @@ def test_a_bag_is_learned_from_its_most_slip_like_frame():
     assert (g[0, :, 1] > 0).all()  # held frames are pushed away from slip
 
 
-def test_the_adaptation_study_runs_every_row(tmp_path, cache, one_thread):
+def test_the_adaptation_study_runs_every_row(tmp_path, cache, one_thread, grasp_recordings):
     from slipsense.experiments.adaptation import adaptation_study, write
 
     root = _lift_data(tmp_path / "lift")
-    doc = adaptation_study(root, sizes=(5,), epochs=1, draws=50, progress=False)
+    doc = adaptation_study(root, sizes=(5,), epochs=1, draws=50, progress=False, also=grasp_recordings, also_epochs=1)
     names = [r["row"] for r in doc["rows"]]
     assert names[:4] == ["as is", "recalibrated", "fine-tuned, 5 grasps", "this set alone"]
     grasps = {r["row"]: r["grasps"] for r in doc["rows"]}
     assert grasps["fine-tuned, 5 grasps"] == 36 and grasps["as is"] == 12  # three draws of 5 grasps, pooled
     assert any(n.startswith("baseline") for n in names) and any(n.startswith("shear retention") for n in names)
+    both = next(r for r in doc["rows"] if r["row"].startswith("trained on both sets"))
+    assert "16 grasps of" in both["row"] and both["grasps"] == 12  # the other set's 8 runs, each camera a grasp
     paths = write(doc, tmp_path / "report")
     assert all(p.is_file() for p in paths) and "| recalibrated |" in paths[1].read_text()
 

@@ -285,6 +285,9 @@ def register(app: typer.Typer) -> None:
         recordings: Path = typer.Option(..., help="grasps of another sensor, one camera each, labelled per grasp"),
         out: Path = typer.Option(Path("reports/adaptation"), help="report folder"),
         epochs: int = typer.Option(10, help="epochs of every training"),
+        also: Optional[Path] = typer.Option(
+            None, help="the shipped detector's own recordings: add the row trained from scratch on both sets"
+        ),
         seed: int = typer.Option(0, help="seed of the grasp draws and the trainings"),
         progress: bool = typer.Option(True),
     ):
@@ -297,7 +300,7 @@ def register(app: typer.Typer) -> None:
         if not 1 <= epochs <= 1000:
             raise ConfigError(f"--epochs must be in 1..1000, got {epochs}")
         check_output_dir(out, "--out")
-        doc = adaptation_study(recordings, epochs=epochs, seed=check_seed(seed), progress=progress)
+        doc = adaptation_study(recordings, epochs=epochs, seed=check_seed(seed), progress=progress, also=also)
         doc["command"] = command_line()
         paths = write(doc, out)
         typer.echo(table(doc))

@@ -11,6 +11,8 @@ in turn is held out and, from the other objects' grasps only:
   (:data:`slipsense.training.grasps.BAG`), the threshold then chosen on those same grasps (``all``:
   on :data:`INNER_FOLDS` inner folds of those objects, as ``motionnet-gelsight-lift`` was made);
 * ``this set alone``: the same recipe from random weights on all the other objects' grasps;
+* ``trained on both sets`` (with ``also``): the shipped detector's own recipe from random weights on
+  the runs it was trained on and the other objects' grasps, the threshold chosen on those grasps;
 * ``shear retention``: no learning, physics: how much of the shear the lift put on the gel has been
   let go (:func:`slipsense.evaluation.baselines.shear_lost`), its two settings and threshold chosen on
   the other objects;
@@ -85,16 +87,20 @@ def adaptation_study(
     draws: int = outcome.BOOTSTRAP,
     progress: bool = True,
     repeats: int = 3,
+    also: str | Path | None = None,
+    also_epochs: int | None = None,
 ) -> dict[str, Any]:
     """The rows of the module notes on ``recordings`` (one camera per grasp): ``{"rows": [...]}``.
     Rows trained on ``n`` of the grasps pool ``repeats`` draws of them (each draw a grasp judged once
-    more: a single draw of 5 grasps is mostly luck)."""
+    more: a single draw of 5 grasps is mostly luck). ``also``: the recordings the shipped detector was
+    trained on (another sensor's), for the row trained from scratch on both sets (``also_epochs``:
+    other than the recipe's)."""
     from slipsense.checkpoint import load_model
     from slipsense.evaluation.baselines import frame_scores
     from slipsense.progress import progress_bar
     from slipsense.resources import ONE_SENSOR_MODEL, shipped_model
     from slipsense.training.grasp_detector import train_with_operating_point
-    from slipsense.training.grasps import load_grasp_data, make_config
+    from slipsense.training.grasps import fit_runs, load_grasp_data, make_config
 
     shipped = shipped_model(ONE_SENSOR_MODEL)
     model, info = load_model(shipped)
@@ -150,6 +156,35 @@ def adaptation_study(
         )
         rows.append({**row, "draws_of_training_grasps": k})
 
+    if also is not None:  # the shipped recipe from scratch on the other sensor's runs and these grasps
+        t0 = time.perf_counter()
+        others, _ = load_grasp_data(resolve_path(also), None, tuple(model.image_size), progress=progress)
+        from slipsense.recordings.runs import per_sensor
+
+        others = [r for r in per_sensor(others) if r.usable]
+        scores, alarmed = np.zeros(len(runs)), np.zeros(len(runs), bool)
+        for k, o in enumerate(progress_bar(names, progress, "both sets")):
+            train = [r for r in runs if r.object != o]
+            recipe = info["config"]  # the shipped detector's own tree: its model and training settings
+            cfg = make_config(
+                recipe["model"]["name"],
+                {
+                    **{f"model.{key}": v for key, v in recipe["model"].items() if key != "name"},
+                    **{key: v for key, v in recipe["train"].items() if key not in ("inner_folds", "seed")},
+                    "inner_folds": 0,
+                    "seed": seed + k,
+                    **({"epochs": also_epochs} if also_epochs else {}),
+                },
+            )
+            fitted, _ = fit_runs(others + train, cfg, progress=False)
+            own = _peaks(fitted, train, 0)
+            train_slipped = np.array([r.slipped for r in train], bool)
+            th = calibrated_threshold(own[~train_slipped], own[train_slipped], BUDGET)
+            mine = objects == o
+            scores[mine] = _peaks(fitted, [r for r in runs if r.object == o], 0)
+            alarmed[mine] = scores[mine] >= th
+        name = f"trained on both sets ({len(others)} grasps of {Path(str(also)).name} too)"
+        rows.append(_row(name, scores, alarmed, slipped, objects, time.perf_counter() - t0, draws))
     t0 = time.perf_counter()
     scores, alarmed, chosen = _shear_rows(recordings, slipped, objects, names, progress)
     rows.append({**_row(SHEAR_ROW, scores, alarmed, slipped, objects, time.perf_counter() - t0, draws), **chosen})

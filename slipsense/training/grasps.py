@@ -133,7 +133,8 @@ class _Chunks:
         for r in runs:
             if not r.usable:
                 continue
-            s = cfg.startup if r.n_frames > cfg.startup + 1 else 0
+            # a grasp labelled as a whole was cut from a stream (no camera start-up in it)
+            s = cfg.startup if r.n_frames > cfg.startup + 1 and not r.whole else 0
             gray = r.gray[:, s:]
             moment = None if r.moment_of_slip is None else r.moment_of_slip - s
             if moment is not None and moment < 0:
