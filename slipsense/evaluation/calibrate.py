@@ -22,7 +22,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from slipsense.errors import ConfigError, InputError
-from slipsense.evaluation import outcome, pergrasp
+from slipsense.evaluation import pergrasp
 
 
 def calibrated_threshold(held: Sequence[float], others: Sequence[float], budget: float) -> float:
@@ -98,7 +98,7 @@ def calibrate(
     root = recordings_folder(recordings)
     source = Path(checkpoint) if checkpoint is not None else shipped_for(root)
     ev = evaluate(source, root, overrides=overrides, progress=progress, objects=objects)
-    scores = np.array([outcome.peak_alarm_score(r.probability, ev.debounce, ev.startup) for r in ev.runs])
+    scores = ev.peak_scores()
     slipped = np.array([r.slipped for r in ev.runs], bool)
     if not (~slipped).any():
         raise InputError(root, "no grasp that held: calibration needs held grasps (slipped ones are optional)")
@@ -155,7 +155,7 @@ def check_by_objects(
     root = recordings_folder(recordings)
     source = Path(checkpoint) if checkpoint is not None else shipped_for(root)
     ev = evaluate(source, root, overrides=overrides, progress=progress)
-    scores = np.array([outcome.peak_alarm_score(r.probability, ev.debounce, ev.startup) for r in ev.runs])
+    scores = ev.peak_scores()
     slipped = np.array([r.slipped for r in ev.runs], bool)
     objects = np.array([r.object for r in ev.runs])
     rows = []

@@ -9,6 +9,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
+import numpy as np
+
 from slipsense.config import gelsight_recordings
 from slipsense.evaluation import outcome, pergrasp
 
@@ -69,6 +71,11 @@ class Evaluation:
     def outcomes(self) -> list[pergrasp.GraspOutcome]:
         return [r.outcome(self.threshold, self.debounce, self.horizon, self.startup) for r in self.runs]
 
+    def peak_scores(self) -> np.ndarray:
+        """``(runs,)`` each run's :func:`~slipsense.evaluation.outcome.peak_alarm_score` at this
+        debounce: it alarms somewhere at threshold t exactly when its score is >= t."""
+        return np.array([outcome.peak_alarm_score(r.probability, self.debounce, self.startup) for r in self.runs])
+
     def grasp_measure(self, draws: int = outcome.BOOTSTRAP) -> dict[str, Any]:
         """Slipped against held grasps (:mod:`slipsense.evaluation.outcome`): the detector's ROC AUC,
         accuracy and balanced accuracy at its operating point and with thresholds chosen on the other
@@ -78,7 +85,7 @@ class Evaluation:
 
         slipped = [r.slipped for r in self.runs]
         objects = [r.object for r in self.runs]
-        score = [outcome.peak_alarm_score(r.probability, self.debounce, self.startup) for r in self.runs]
+        score = self.peak_scores()
         alarmed = [v >= self.threshold for v in score]  # anywhere in the grasp, after the slip too
         detector = outcome.outcome_measure(score, slipped, objects, alarmed, draws)
         baselines = {"majority_class": outcome.majority_measure(slipped, objects, draws)}
