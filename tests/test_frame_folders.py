@@ -59,7 +59,7 @@ def test_evaluate_a_frame_folder_set_prints_the_outcome_measure_with_baselines(t
     out = tmp_path / "ev.json"
     res = runner.invoke(app, ["evaluate", "--recordings", str(root), "--json", str(out), "--no-progress"])
     assert res.exit_code == 0, res.output
-    assert "motionnet-gelsight-lift" in res.output  # laid out as that data set: its sensor's detector
+    assert "shear-retention-gelsight-lift" in res.output  # laid out as that data set: its sensor's detector
     assert "6 of 12 grasps slipped, 3 objects" in res.output
     for name in ("detector", "majority_class", "frame_difference", "mean_frame_difference", "difference_to_contact"):
         assert name in res.output
@@ -199,11 +199,11 @@ def test_the_shipped_detector_is_picked_by_the_inputs_sensor():
     from slipsense.resources import shipped_model
     from slipsense.streaming.detector import SlipDetector, shipped_name
 
-    assert shipped_name(1, (480, 640)) == "motionnet-gelsight-lift"
+    assert shipped_name(1, (480, 640)) == "shear-retention-gelsight-lift"
     assert shipped_name(1, (240, 320)) == "motionnet-gelsight-1"
     assert shipped_name(2, (240, 320)) == shipped_name() == "motionnet-gelsight"
     assert shipped_name(2, (480, 640)) == "motionnet-gelsight"  # none shipped for two such fingers
-    info = read_info(shipped_model("motionnet-gelsight-lift"))
+    info = read_info(shipped_model("shear-retention-gelsight-lift"))
     assert info["sensor"]["name"] == "gelsight-lift"
     held = info["operating_point"]["held_alarm"]
     assert held["held_objects"] == 5 and held["bound_counting_objects"] > held["rate"]
@@ -317,7 +317,7 @@ def test_watch_stamps_a_grasp_folder_at_its_sensors_rate(tmp_path, cache):
     _grasp(grasp, False, seed=1, n=4, size=(480, 640))  # the gelsight-lift sensor's frame size
     out = tmp_path / "r.jsonl"
     res = runner.invoke(app, ["watch", str(grasp), "--jsonl", str(out)])
-    assert "motionnet-gelsight-lift" in res.output.splitlines()[0]
+    assert "shear-retention-gelsight-lift" in res.output.splitlines()[0]
     assert res.exit_code == 0, res.output
     stamps = [json.loads(line)["stamp"] for line in out.read_text().splitlines()]
     assert stamps[1] - stamps[0] == pytest.approx(1 / 30)  # the gelsight-lift sensor's 30 frames/s, not 25

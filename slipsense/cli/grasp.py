@@ -86,7 +86,7 @@ def register(app: typer.Typer) -> None:
             None, help="a configuration tree (YAML: model/data/train), e.g. configs/motionnet.yaml"
         ),
         model: Optional[str] = typer.Option(
-            None, help="a model that takes whole grasps (motionnet (default), motion-energy)"
+            None, help="a model that takes whole grasps (motionnet by default; `slipsense models` lists them all)"
         ),
         fold: Optional[int] = typer.Option(
             None, help="hold out this fold of objects (with --folds); default: train on every object"

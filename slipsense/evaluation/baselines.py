@@ -58,29 +58,3 @@ def baseline_scores(
             for name in NAMES:
                 out[name][i] = max(out[name][i], scores[name])
     return out
-
-
-#: ``(h, w)`` of the grey frames the shear is measured on.
-SHEAR_SIZE = (120, 160)
-
-
-def net_shear(gray: np.ndarray) -> np.ndarray:
-    """How far the gel's image has moved since the grasp's first frame: the length of the mean dense
-    optical flow (OpenCV's Farneback, pixels at the frames' size) from frame 0 to each frame of
-    uint8 ``(N, h, w)`` -> float ``(N,)``. The gel's markers move with its surface, so this is the net
-    shear the grasp puts on it."""
-    import cv2
-
-    out = np.zeros(len(gray))
-    for t in range(1, len(gray)):
-        flow = cv2.calcOpticalFlowFarneback(gray[0], gray[t], None, 0.5, 3, 15, 3, 5, 1.2, 0)
-        out[t] = float(np.linalg.norm(flow.reshape(-1, 2).mean(axis=0)))
-    return out
-
-
-def shear_lost(shear: np.ndarray, gate: float) -> np.ndarray:
-    """Per frame, the fraction of the largest shear so far that has been let go, ``(N,)`` in [0, 1]:
-    0 while the shear holds (or has not yet reached ``gate`` pixels), near 1 when the gel springs
-    back, as it does when the object slides out of the grip."""
-    peak = np.maximum.accumulate(shear)
-    return np.where(peak >= gate, 1.0 - shear / np.maximum(peak, 1e-9), 0.0)

@@ -13,9 +13,9 @@ in turn is held out and, from the other objects' grasps only:
 * ``this set alone``: the same recipe from random weights on all the other objects' grasps;
 * ``trained on both sets`` (with ``also``): the shipped detector's own recipe from random weights on
   the runs it was trained on and the other objects' grasps, the threshold chosen on those grasps;
-* ``shear retention``: no learning, physics: how much of the shear the lift put on the gel has been
-  let go (:func:`slipsense.evaluation.baselines.shear_lost`), its two settings and threshold chosen on
-  the other objects;
+* ``shear retention``: physics with four learned numbers (:mod:`slipsense.models.shear`): how much of
+  the shear the lift put on the gel's markers has been given up, trained and its threshold chosen as
+  for ``this set alone``;
 * the non-learned baselines (:mod:`slipsense.evaluation.baselines`) and the majority class, their
   thresholds chosen on the other objects.
 
@@ -42,10 +42,7 @@ from slipsense.evaluation.calibrate import calibrated_threshold
 #: Training grasps drawn for the fine-tuning rows (None: all of the other objects').
 SIZES = (5, 10, 20, None)
 BUDGET = 0.05
-#: The shear-retention row's settings (gate in pixels at 120 x 160, debounce in frames), chosen per
-#: held-out object on the others (:func:`_shear_rows`).
-SHEAR_GRID = tuple((g, k) for g in (0.25, 0.5, 1.0) for k in (1, 3, 5))
-SHEAR_ROW = "shear retention (no learning; gate and debounce chosen on the other objects)"
+SHEAR_ROW = "shear retention (4 numbers learned on the other objects)"
 #: Inner folds by object that choose the threshold of a detector trained on every other object's grasps
 #: (the shipped recipe's); one trained on a few grasps takes its threshold on those grasps.
 INNER_FOLDS = 2
@@ -125,22 +122,31 @@ def adaptation_study(
         alarmed[mine] = as_is[mine] >= th
     rows.append(_row("recalibrated", as_is, alarmed, slipped, objects, time.perf_counter() - t0, draws))
 
-    plans = [(f"fine-tuned, {n or 'all'} grasps", {"init": str(shipped)}, n) for n in sizes]
-    plans.append(("this set alone", {"model.sensors": 1}, None))
-    for name, settings, n in progress_bar(plans, progress, "adaptation rows"):
+    from slipsense.models import model_class
+
+    shear_size = tuple(model_class("shear-retention")().image_size)
+    by_size = {tuple(model.image_size): runs}  # the grasps read at each model's frame size
+    plans = [(f"fine-tuned, {n or 'all'} grasps", "motionnet", {"init": str(shipped)}, n) for n in sizes]
+    plans.append(("this set alone", "motionnet", {"model.sensors": 1}, None))
+    plans.append((SHEAR_ROW, "shear-retention", {"model.sensors": 1, "model.image_size": list(shear_size)}, None))
+    for name, model_name, settings, n in progress_bar(plans, progress, "adaptation rows"):
         t0 = time.perf_counter()
+        size = tuple(settings.get("model.image_size") or model.image_size)
+        if size not in by_size:
+            by_size[size] = load_grasp_data(recordings, None, size, progress=False)[0]
+        grasps = by_size[size]  # the same grasps in the same order as ``runs``
         parts = []  # (scores, alarmed) of every grasp, once per draw of the training grasps
         for rep in range(repeats if n is not None else 1):
-            scores, alarmed = np.zeros(len(runs)), np.zeros(len(runs), bool)
+            scores, alarmed = np.zeros(len(grasps)), np.zeros(len(grasps), bool)
             for k, o in enumerate(names):
                 rng = np.random.default_rng([seed, rep, k])
-                train = _subset([r for r in runs if r.object != o], n, rng)
+                train = _subset([r for r in grasps if r.object != o], n, rng)
                 inner = INNER_FOLDS if n is None else 0  # a few grasps: the threshold on those grasps
                 cfg = make_config(
-                    "motionnet", {**settings, "startup": 0, "epochs": epochs, "inner_folds": inner, "seed": seed + k}
+                    model_name, {**settings, "startup": 0, "epochs": epochs, "inner_folds": inner, "seed": seed + k}
                 )
                 mine = objects == o
-                _, _, op, probs = train_with_operating_point(train + [r for r in runs if r.object == o], [o], cfg)
+                _, _, op, probs = train_with_operating_point(train + [r for r in grasps if r.object == o], [o], cfg)
                 scores[mine] = [outcome.peak_alarm_score(p, 1, 0) for p in probs]
                 alarmed[mine] = scores[mine] >= op["threshold"]
             parts.append((scores, alarmed))
@@ -185,9 +191,6 @@ def adaptation_study(
             alarmed[mine] = scores[mine] >= th
         name = f"trained on both sets ({len(others)} grasps of {Path(str(also)).name} too)"
         rows.append(_row(name, scores, alarmed, slipped, objects, time.perf_counter() - t0, draws))
-    t0 = time.perf_counter()
-    scores, alarmed, chosen = _shear_rows(recordings, slipped, objects, names, progress)
-    rows.append({**_row(SHEAR_ROW, scores, alarmed, slipped, objects, time.perf_counter() - t0, draws), **chosen})
     for name in ("mean_frame_difference", "difference_to_contact", "frame_difference"):
         s = np.array([frame_scores(r.gray[0], 0)[name] for r in runs])  # on the detector's own grey frames
         lo = outcome.leave_objects_out(s, slipped, objects)
@@ -205,32 +208,6 @@ def adaptation_study(
         "budget": BUDGET,
         "rows": rows,
     }
-
-
-def _shear_rows(recordings, slipped, objects, names, progress):
-    """The shear-retention row: per held-out object, the (gate, debounce) of :data:`SHEAR_GRID` that
-    separates the other objects' grasps best (leave-objects-out accuracy among them), its threshold
-    chosen on them (:func:`calibrated_threshold`), the held-out grasps judged at it."""
-    from slipsense.evaluation.baselines import SHEAR_SIZE, net_shear, shear_lost
-    from slipsense.training.grasps import load_grasp_data
-
-    runs, _ = load_grasp_data(recordings, None, SHEAR_SIZE, progress=progress)
-    shear = [net_shear(r.gray[0]) for r in runs]
-    table = {(g, k): np.array([outcome.peak_alarm_score(shear_lost(s, g), k) for s in shear]) for g, k in SHEAR_GRID}
-    scores, alarmed, picks = np.zeros(len(runs)), np.zeros(len(runs), bool), {}
-    for o in names:
-        other, mine = objects != o, objects == o
-
-        def quality(setting):
-            s = table[setting][other]
-            return outcome.accuracy(outcome.leave_objects_out(s, slipped[other], objects[other]), slipped[other])
-
-        best = max(SHEAR_GRID, key=quality)  # the first of equals: the grid's order
-        s = table[best]
-        th = calibrated_threshold(s[other & ~slipped], s[other & slipped], BUDGET)
-        scores[mine], alarmed[mine] = s[mine], s[mine] >= th
-        picks[o] = {"gate_px": best[0], "debounce": best[1]}
-    return scores, alarmed, {"chosen": picks}
 
 
 def table(doc: dict[str, Any]) -> str:

@@ -32,7 +32,7 @@ from torch import Tensor, nn
 
 from slipsense.errors import ConfigError, InputError
 from slipsense.models.base import GraspModel, register
-from slipsense.models.streams import slip_probability
+from slipsense.models.grasp_stream import GraspStream, slip_probability
 
 #: Bounds on settings a checkpoint may carry (refused before anything is allocated).
 _LIMITS = {"width": 256, "features": 512, "temporal": 512, "sensors": 8, "max_lag": 250, "pixels": 512 * 512}
@@ -328,59 +328,20 @@ class MotionStep(nn.Module):
         return (self.net.head(x), *nxt)
 
 
-class MotionStream:
+class MotionStream(GraspStream):
     """Push one frame per sensor, get the slip probability of that frame (fused over sensors).
 
     Keeps the last ``max_lag + 1`` grey frames and the temporal stack's state, so each push encodes
     one frame per sensor and computes one output per layer: the same numbers as
     :meth:`MotionNet.forward` over the whole sequence (repeating the first input to the left of every
     layer equals repeating the first feature to the left of the stack). The frame encoder and the
-    step run on PyTorch or, exported to ONNX, on ONNX Runtime (``backend``).
-
-    ``sensors``: frames per push; the model fuses any number of sensors symmetrically, but was
-    trained on ``model.sensors`` and is refused others. The first ``startup`` frames (the camera's
-    start-up transient, from the checkpoint's operating point) get no answer.
+    step run on PyTorch or ONNX Runtime (:class:`~slipsense.models.grasp_stream.GraspStream`).
     """
 
-    def __init__(self, model: MotionNet, *, sensors=None, info=None, backend="torch", dtype="float32", onnx_dir=None):
-        from slipsense.recordings.contact import STARTUP_FRAMES as STARTUP
-        from slipsense.models.runners import make_runner
-
-        self.model = model.eval()
-        self.sensors = model.sensors if sensors is None else int(sensors)
-        if self.sensors != model.sensors:
-            hint = (
-                " (the shipped one-finger detector: SlipDetector.pretrained('motionnet-gelsight-1'))"
-                if self.sensors == 1
-                else ""
-            )
-            raise ConfigError(
-                f"{model.model_name} was trained on {model.sensors} sensor(s) seen together; "
-                f"the detector was given sensors={self.sensors}{hint}"
-            )
-        if dtype != "float32":
-            raise ConfigError(
-                f"{model.model_name} streams in float32 only (it needs no more to stay under 2 ms per push)"
-            )
-        self.gray_size = tuple(model.image_size)
-        self.startup = int(((info or {}).get("operating_point") or {}).get("startup", STARTUP))
-        self.geometry = {**model.window_geometry({}), "startup": self.startup}
-        self._run, self.tmpdir = make_runner(model, self.geometry, backend, dtype, onnx_dir)
-        self._step = MotionStep(model)
-        self.reset()
-
-    def describe(self) -> dict:
-        return dict(self.geometry)
-
     def reset(self) -> None:
+        super().reset()
         self._frames: deque[np.ndarray] = deque(maxlen=self.model.max_lag + 1)
-        self._states = [np.zeros((1, *shape), np.float32) for shape in self._step.state_shapes]
-        self._shapes: dict[int, tuple] = {}
-        self._pushed = 0
-
-    @property
-    def ready(self) -> bool:
-        return self._pushed > self.startup
+        self._states = [np.zeros((1, *shape), np.float32) for shape in MotionStep(self.model).state_shapes]
 
     def push_gray(self, gray: np.ndarray) -> float:
         """``gray``: uint8 ``(S, h, w)``, one frame per sensor at the model's size. Returns P(slip)."""
@@ -399,75 +360,6 @@ class MotionStream:
         feat = self._run("frame", diffs)[0]
         logits, *self._states = self._run("step", feat, np.array([float(fresh)], np.float32), *self._states)
         return float(slip_probability(logits)[0])
-
-    def push(self, frames, index: int):
-        from slipsense.models.streams import check_image
-        from slipsense.recordings.video import gray_frames
-
-        gray = np.empty((self.sensors, *self.gray_size), dtype=np.uint8)
-        images = [check_image(f, f"frame {index}, sensor {s}", None) for s, f in enumerate(frames)]
-        for s, image in enumerate(images):  # every frame checked before the stream remembers any size
-            known = self._shapes.get(s, image.shape)
-            if known != image.shape:
-                raise InputError(
-                    None,
-                    f"frame {index}, sensor {s}: image is {image.shape[1]}x{image.shape[0]}, "
-                    f"the earlier frames of this sensor were {known[1]}x{known[0]} (call reset() to start a new stream)",
-                )
-        for s, image in enumerate(images):
-            self._shapes[s] = image.shape
-            gray[s] = gray_frames(image, self.gray_size)
-        self._pushed += 1
-        if self._pushed <= self.startup:  # the camera's start-up transient is not the scene
-            return None
-        return np.full(self.sensors, self.push_gray(gray))
-
-    def replay(self, streams) -> np.ndarray:
-        from slipsense.models.streams import check_video_stream
-        from slipsense.recordings.video import gray_frames
-
-        streams = [check_video_stream(s, f"sensor {i}") for i, s in enumerate(streams)]
-        return self.replay_gray(np.stack([gray_frames(s, self.gray_size) for s in streams]))
-
-    @property
-    def cache_product(self) -> str:
-        """The frame cache's name of what :meth:`replay_cached` takes."""
-        return f"gray:{self.gray_size[0]}x{self.gray_size[1]}"
-
-    def replay_cached(self, gray: np.ndarray) -> np.ndarray:
-        return self.replay_gray(gray)
-
-    def replay_gray(self, gray: np.ndarray) -> np.ndarray:
-        """:meth:`replay` from grey frames already at the model's size: uint8 ``(S, N, h, w)``
-        (:func:`slipsense.recordings.runs.gray_frames`, as the frame cache keeps them) -> ``(N, S)``.
-        Runs the whole-run forward on PyTorch (the same numbers as pushing, faster)."""
-        if (
-            gray.dtype != np.uint8
-            or gray.ndim != 4
-            or gray.shape[0] != self.sensors
-            or gray.shape[2:] != self.gray_size
-        ):
-            raise InputError(
-                None,
-                f"replay_gray takes uint8 (S={self.sensors}, N, {self.gray_size[0]}, {self.gray_size[1]}), "
-                f"got {gray.dtype} {gray.shape}",
-            )
-        n = gray.shape[1]
-        p = np.full(n, np.nan)
-        if n > self.startup:
-            with torch.no_grad():
-                x = torch.from_numpy(np.ascontiguousarray(gray[None, :, self.startup :])).float().div_(255.0)
-                logits = self.model(x)[0]
-            p[self.startup :] = torch.softmax(logits, dim=-1)[:, 1].double().numpy()
-        return np.repeat(p[:, None], self.sensors, axis=1)
-
-    def attention(self, sensor: int):
-        return None
-
-    def close(self) -> None:
-        if self.tmpdir is not None:
-            self.tmpdir.cleanup()
-            self.tmpdir = None
 
 
 @register("motion-energy")

@@ -19,9 +19,6 @@ DEFAULT_MODEL = "motionnet-gelsight"
 ONE_SENSOR_MODEL = "motionnet-gelsight-1"
 #: The paper-faithful ViViT, kept for reproduction.
 PAPER_MODEL = "vivit-gelsight"
-#: The one-finger detector adapted to the GelSight of the gelsight-lift data (480 x 640): ONE_SENSOR_MODEL
-#: fine-tuned on those 44 grasps, its threshold from 2 inner folds (docs/new-sensor.md has the command).
-LIFT_MODEL = "motionnet-gelsight-lift"
 
 
 def _path(*parts: str) -> Path:

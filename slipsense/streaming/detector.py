@@ -209,7 +209,7 @@ class SlipDetector:
         input (:func:`shipped_name`: the sensor's frame size ``image_size`` ``(h, w)`` and the number of
         sensors asked; ``sensors=2``, the default: ``"motionnet-gelsight"``, both fingers;
         ``sensors=1``: ``"motionnet-gelsight-1"``, one finger; a 480 x 640 GelSight:
-        ``"motionnet-gelsight-lift"``); ``"vivit-gelsight"`` is the paper's ViViT. ``kwargs`` as
+        ``"shear-retention-gelsight-lift"``); ``"vivit-gelsight"`` is the paper's ViViT. ``kwargs`` as
         :meth:`from_checkpoint`."""
         from slipsense.resources import shipped_models
 

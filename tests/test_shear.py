@@ -1,0 +1,75 @@
+"""Shear retention (slipsense.models.shear) on synthetic marker gels: a grasp whose markers shift and
+stay is held, one whose markers shift and spring back is a slip, and a gel that never moves or only
+moves a little stays quiet."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from slipsense.errors import ConfigError
+from slipsense.models import build
+from slipsense.models.shear import running_max
+
+H, W = 60, 80
+
+
+def _gel(shifts, seed: int = 0) -> np.ndarray:
+    """uint8 ``(N, H, W)``: dark square markers every 10 pixels on a light shaded gel, the markers
+    displaced by ``shifts[t]`` = ``(dx, dy)`` pixels in frame ``t`` (subpixel, drawn by area)."""
+    rng = np.random.default_rng(seed)
+    shade = 180 + 30 * np.linspace(0, 1, W)[None] + rng.normal(0, 2, (H, W))
+    yy, xx = np.mgrid[0:H * 4, 0:W * 4] / 4.0  # 4x supersampled
+    frames = []
+    for dx, dy in shifts:
+        u, v = (xx - dx - 5) % 10, (yy - dy - 5) % 10
+        dots = ((np.abs(u - 5) < 1.5) & (np.abs(v - 5) < 1.5)).astype(float)
+        dots = dots.reshape(H, 4, W, 4).mean(axis=(1, 3))
+        frames.append(np.clip(shade * (1 - 0.7 * dots), 0, 255))
+    return np.round(np.stack(frames)).astype(np.uint8)
+
+
+def _peak(model, gray: np.ndarray) -> float:
+    x = torch.from_numpy(gray).float()[None, None] / 255.0
+    with torch.no_grad():
+        return float(torch.softmax(model(x)[0], dim=-1)[:, 1].max())
+
+
+@pytest.fixture(scope="module")
+def model():
+    return build("shear-retention", sensors=1, image_size=(H, W), patch=10).eval()
+
+
+def test_shear_held_is_quiet_and_shear_given_up_alarms(model):
+    lift = [(0.0, 0.0)] * 3 + [(0.0, 0.7 * k) for k in range(1, 5)]  # the lift shears the gel 2.8 px
+    held = _gel(lift + [(0.0, 2.8)] * 8)
+    slipped = _gel(lift + [(0.0, 2.8 - 0.35 * k) for k in range(1, 9)])  # it springs back as the object slides
+    still = _gel([(0.0, 0.0)] * 15)
+    assert _peak(model, slipped) > 0.9
+    assert _peak(model, held) < 0.1
+    assert _peak(model, still) < 0.1
+
+
+def test_stream_pushes_like_the_whole_run_and_reset_starts_a_grasp(model):
+    gray = _gel([(0.0, 0.0)] * 2 + [(0.5 * k, 0.3 * k) for k in range(6)] + [(1.0, 0.5)] * 4, seed=1)
+    x = torch.from_numpy(gray).float()[None, None] / 255.0
+    with torch.no_grad():
+        whole = torch.softmax(model(x)[0], dim=-1)[:, 1].numpy()
+    stream = model.stream()
+    for _ in range(2):  # a second grasp after reset() answers as the first did
+        stream.reset()
+        pushed = [stream.push_gray(g[None]) for g in gray]
+        np.testing.assert_allclose(pushed, whole, atol=1e-5)
+
+
+def test_running_max_is_the_cumulative_maximum():
+    x = torch.randn(300, 3)
+    torch.testing.assert_close(running_max(x, dim=0), torch.cummax(x, dim=0).values)
+
+
+def test_settings_outside_the_contract_are_refused():
+    with pytest.raises(ConfigError, match="divisible"):
+        build("shear-retention", image_size=(65, 80), patch=10)
+    with pytest.raises(ConfigError, match="iterations"):
+        build("shear-retention", iterations=0)
