@@ -321,3 +321,21 @@ def test_watch_stamps_a_grasp_folder_at_its_sensors_rate(tmp_path, cache):
     assert res.exit_code == 0, res.output
     stamps = [json.loads(line)["stamp"] for line in out.read_text().splitlines()]
     assert stamps[1] - stamps[0] == pytest.approx(1 / 30)  # the gelsight-lift sensor's 30 frames/s, not 25
+
+
+def test_folds_train_on_another_data_set_too_but_never_hold_it_out_or_judge_it(tmp_path, cache, one_thread, grasp_recordings):
+    """``data.also``: the lift grasps join every fold's training (one finger: each camera a grasp), the
+    folds and their verdicts stay on the first set's objects, and the operating point is chosen on them."""
+    lift = _lift_data(tmp_path / "lift")
+    out = tmp_path / "folds"
+    args = ["grasp", "folds", "--out", str(out), "--recordings", str(grasp_recordings), "--folds", "2",
+            "--inner-folds", "0", "--epochs", "1", "--set", "model.sensors=1", "--set", f"data.also={lift}",
+            "--no-progress"]  # fmt: skip
+    res = runner.invoke(app, args)
+    assert res.exit_code == 0, res.output
+    rep = json.loads((out / "folds.json").read_text())
+    held = [o for f in rep["per_fold"] for o in f["objects"]]
+    assert sorted(held) == ["obj0", "obj1", "obj2", "obj3"]  # never a lift object
+    assert rep["pooled"]["per_grasp"]["slip_runs"] == 8 and rep["pooled"]["per_grasp"]["held_runs"] == 8
+    assert rep["data"]["runs"] > 16  # the lift grasps were read and trained on
+    assert "labelled as a whole" not in rep["per_fold"][0]["operating_point"]["rule"]  # chosen on the first set

@@ -28,6 +28,7 @@ from slipsense.training.grasp_detector import (
     finish_training,
     fit_job,
     inner_traces,
+    judged_indices,
     job_weight,
     object_split,
     plan_training,
@@ -63,7 +64,7 @@ def run_folds(
 
     out = Path(out)
     usable = [r for r in runs if r.usable]
-    if any(r.whole for r in usable):
+    if any(r.whole and not r.extra for r in usable):
         raise ConfigError(
             "these grasps are labelled as a whole (no moment of slip): their leave-objects-out figures are "
             "`slipsense grasp adaptation --recordings DIR` (slipped against held, intervals over objects)"
@@ -94,7 +95,9 @@ def run_folds(
             "fold": k,
             **fold_result(test, probs, op, history, labels, split[k], cfg),
             # what chose the operating point, kept so another rule can be chosen on it later
-            "inner": _traces([usable[i] for i in plans[k][0].train], inner_traces(plans[k], ordered))
+            "inner": _traces(
+                [usable[i] for i in judged_indices(usable, plans[k])], inner_traces(usable, plans[k], ordered)
+            )
             if cfg.inner_folds
             else [],
             "seconds": round(time.perf_counter() - t0, 1),  # since the pool started: folds share it

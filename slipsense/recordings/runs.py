@@ -40,6 +40,7 @@ class GraspRun:
     contact: np.ndarray
     cameras: tuple[str, ...]
     whole: bool = False  # labelled as a whole (slipped or held, no moment): trained on as one bag of frames
+    extra: bool = False  # another data set's grasp (``data.also``): trained on, never held out, judged or calibrated on
 
     @property
     def n_frames(self) -> int:
@@ -135,6 +136,7 @@ def per_sensor(runs: Sequence[GraspRun]) -> list[GraspRun]:
             r.contact[s : s + 1],
             (cam,),
             r.whole,
+            r.extra,
         )
         for r in runs
         for s, cam in enumerate(r.cameras)

@@ -24,10 +24,11 @@ from slipsense.training.grasps import GraspTrainConfig, fit_runs, predict_runs
 
 
 def object_split(runs: Sequence[GraspRun], folds: int, seed: int = 0) -> list[list[str]]:
-    """Objects of ``runs`` in ``folds`` folds (:func:`slipsense.recordings.clips.object_folds`)."""
+    """Objects of ``runs`` in ``folds`` folds (:func:`slipsense.recordings.clips.object_folds`); another
+    data set's grasps (``extra``) are never held out."""
     from slipsense.recordings.clips import object_folds
 
-    return object_folds({r.object for r in runs}, folds, seed)
+    return object_folds({r.object for r in runs if not r.extra}, folds, seed)
 
 
 @dataclass(frozen=True)
@@ -96,16 +97,21 @@ def finish_training(
     model = build(cfg.model, **cfg.model_config)  # the init checkpoint's settings where fine-tuned
     model.load_state_dict(results[0]["state"])
     model.eval()
-    train = [runs[i] for i in jobs[0].train]
-    probs = inner_traces(jobs, results) if cfg.inner_folds else predict_runs(model, train, cfg.startup)
-    return model, results[0]["history"], _chosen_operating_point(probs, train, cfg), results[0]["probs"]
+    judged = [runs[i] for i in judged_indices(runs, jobs)]
+    probs = inner_traces(runs, jobs, results) if cfg.inner_folds else predict_runs(model, judged, cfg.startup)
+    return model, results[0]["history"], _chosen_operating_point(probs, judged, cfg), results[0]["probs"]
 
 
-def inner_traces(jobs: Sequence[FitJob], results: Sequence[dict[str, Any]]) -> list[np.ndarray]:
-    """The out-of-fold P(slip) traces of the detector's training runs (``jobs[0].train``, in that
-    order), each from the inner-fold model that did not train on its object."""
+def judged_indices(runs: Sequence[GraspRun], jobs: Sequence[FitJob]) -> list[int]:
+    """The detector's training runs that choose its operating point: all but another data set's."""
+    return [i for i in jobs[0].train if not runs[i].extra]
+
+
+def inner_traces(runs: Sequence[GraspRun], jobs: Sequence[FitJob], results: Sequence[dict[str, Any]]) -> list[np.ndarray]:
+    """The out-of-fold P(slip) traces of the detector's judged training runs (:func:`judged_indices`,
+    in that order), each from the inner-fold model that did not train on its object."""
     by_index = {i: p for job, res in zip(jobs[1:], results[1:]) for i, p in zip(job.predict, res["probs"])}
-    return [by_index[i] for i in jobs[0].train]
+    return [by_index[i] for i in judged_indices(runs, jobs)]
 
 
 def train_with_operating_point(
@@ -149,24 +155,26 @@ def operating_point(
     on out-of-fold predictions of ``cfg.inner_folds`` inner folds by object (each inner model trained
     like the outer one), or, with ``inner_folds=0``, on ``model``'s own predictions of ``runs``."""
     usable = [r for r in runs if r.usable]
+    judged = [r for r in usable if not r.extra]
     if cfg.inner_folds == 0:
         if model is None:
             raise ConfigError("inner_folds=0 needs the trained model")
-        probs = predict_runs(model, usable, cfg.startup)
+        probs = predict_runs(model, judged, cfg.startup)
     else:
         probs = inner_fold_traces(usable, cfg, workers, progress)
-    return _chosen_operating_point(probs, usable, cfg)
+    return _chosen_operating_point(probs, judged, cfg)
 
 
 def inner_fold_traces(usable: Sequence[GraspRun], cfg: GraspTrainConfig, workers=1, progress=False) -> list[np.ndarray]:
-    """P(slip) traces of ``usable`` runs, each from the model of ``cfg.inner_folds`` inner folds by
-    object that did not train on its object (what an operating point is chosen on)."""
+    """P(slip) traces of ``usable`` runs but another data set's, each from the model of
+    ``cfg.inner_folds`` inner folds by object that did not train on its object (what an operating
+    point is chosen on)."""
     from slipsense.parallel import run_jobs
 
     jobs = plan_training(usable, (), cfg)[1:]
     results = run_jobs(fit_job, jobs, (usable, cfg), workers, [job_weight(j, cfg) for j in jobs], progress=progress)
     by_index = {i: p for job, res in zip(jobs, results) for i, p in zip(job.predict, res["probs"])}
-    return [by_index[i] for i in range(len(usable))]
+    return [by_index[i] for i, r in enumerate(usable) if not r.extra]
 
 
 def held_alarm_of(probs: Sequence[np.ndarray], runs: Sequence[GraspRun], op: dict, cfg: GraspTrainConfig) -> dict:

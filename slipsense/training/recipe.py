@@ -205,7 +205,12 @@ def grasp_split(tree) -> tuple[list[str], int | None, int]:
 def prepare_grasps(tree, progress: bool = True, threads: int | None = None, out=None):
     """From a grasp configuration tree: ``(training config, runs, labels, metadata)``; the runs are
     each camera on its own for a one-finger detector, read with the tree's sensor spec
-    (``data.sensor``, default the GelSight Mini). The metadata is what checkpoints and reports keep."""
+    (``data.sensor``, default the GelSight Mini). ``data.also``: another data set's recordings, read
+    with their own sensor and labels and trained on alongside, never held out, judged or calibrated on
+    (:attr:`GraspRun.extra`, their objects named ``<folder>/<object>``). The metadata is what
+    checkpoints and reports keep."""
+    import dataclasses
+
     from slipsense.atomic import check_output_dir
     from slipsense.config import gelsight_recordings, portable_path, resolve_path
     from slipsense.models import build
@@ -223,7 +228,7 @@ def prepare_grasps(tree, progress: bool = True, threads: int | None = None, out=
     train_keys = set(GraspTrainConfig.__dataclass_fields__) - {"model", "model_config"}
     check_keys(
         tree,
-        {"train": train_keys, "data": ("recordings", "overrides", "on_error", "sensor"), "model": None},
+        {"train": train_keys, "data": ("recordings", "overrides", "on_error", "sensor", "also"), "model": None},
         "grasp configuration",
     )
     name = tree["model"].pop("name", "motionnet")
@@ -237,6 +242,12 @@ def prepare_grasps(tree, progress: bool = True, threads: int | None = None, out=
     runs, labels = load_grasp_data(
         root, overrides, image_size, tree["data"].get("on_error", "raise"), progress, sensor=sensor
     )
+    also = resolve_path(tree["data"]["also"]) if tree["data"].get("also") else None
+    if also is not None:
+        extra, _ = load_grasp_data(
+            also, None, image_size, tree["data"].get("on_error", "raise"), progress, sensor=data_sensor(also) or GELSIGHT_MINI
+        )
+        runs = runs + [dataclasses.replace(r, object=f"{also.name}/{r.object}", extra=True) for r in extra]
     sensors = build(name, **cfg.model_config).sensors
     if sensors == 1:  # a one-finger detector: each camera of a run is a grasp of its own
         runs = per_sensor(runs)
@@ -244,6 +255,7 @@ def prepare_grasps(tree, progress: bool = True, threads: int | None = None, out=
     data = {
         "recordings": portable_path(root),
         "overrides": overrides if overrides in (None, False) else portable_path(overrides),
+        **({"also": portable_path(also)} if also is not None else {}),
         "image_size": list(image_size),
         "sensors_per_grasp": sensors,
         "sensor": sensor.to_dict(),
