@@ -340,12 +340,28 @@ def _results_cmd(
     typer.echo(f"{sum(map(len, found.values()))} report(s) of {len(found)} experiment(s) -> {path}")
 
 
+def _tables_cmd(
+    root: Path = typer.Option(Path("."), help="project folder (holding README.md and docs/)"),
+    check: bool = typer.Option(False, help="change nothing; exit 1 when a page is out of date"),
+):
+    """Copy each report's table into README.md and docs/ where a page marks it
+    (`<!-- from reports/... -->` ... `<!-- end -->`), so the pages cannot disagree with the reports."""
+    from slipsense.experiments.tables import sync
+
+    changed = sync(root, check)
+    for page in changed:
+        typer.echo(f"{page}: {'out of date' if check else 'updated'}")
+    if check and changed:
+        raise typer.Exit(1)
+
+
 def register(app: typer.Typer) -> None:
-    """Add ``slipsense experiment <name>`` for every experiment and ``results``."""
+    """Add ``slipsense experiment <name>`` for every experiment, ``results`` and ``tables``."""
     from slipsense.cli.common import friendly
 
     group = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False, help=HELP)
     for name, train, fn in _DEFINITIONS:
         group.command(name, help=fn.__doc__)(_command(name, train, fn))
     group.command("results")(friendly(_results_cmd))
+    group.command("tables")(friendly(_tables_cmd))
     app.add_typer(group, name="experiment")
