@@ -323,7 +323,9 @@ def test_watch_stamps_a_grasp_folder_at_its_sensors_rate(tmp_path, cache):
     assert stamps[1] - stamps[0] == pytest.approx(1 / 30)  # the gelsight-lift sensor's 30 frames/s, not 25
 
 
-def test_folds_train_on_another_data_set_too_but_never_hold_it_out_or_judge_it(tmp_path, cache, one_thread, grasp_recordings):
+def test_folds_train_on_another_data_set_too_but_never_hold_it_out_or_judge_it(
+    tmp_path, cache, one_thread, grasp_recordings
+):
     """``data.also``: the lift grasps join every fold's training (one finger: each camera a grasp), the
     folds and their verdicts stay on the first set's objects, and the operating point is chosen on them."""
     lift = _lift_data(tmp_path / "lift")

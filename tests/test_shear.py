@@ -20,7 +20,7 @@ def _gel(shifts, seed: int = 0) -> np.ndarray:
     displaced by ``shifts[t]`` = ``(dx, dy)`` pixels in frame ``t`` (subpixel, drawn by area)."""
     rng = np.random.default_rng(seed)
     shade = 180 + 30 * np.linspace(0, 1, W)[None] + rng.normal(0, 2, (H, W))
-    yy, xx = np.mgrid[0:H * 4, 0:W * 4] / 4.0  # 4x supersampled
+    yy, xx = np.mgrid[0 : H * 4, 0 : W * 4] / 4.0  # 4x supersampled
     frames = []
     for dx, dy in shifts:
         u, v = (xx - dx - 5) % 10, (yy - dy - 5) % 10

@@ -35,7 +35,13 @@ from slipsense.models.base import (  # noqa: F401  (re-exported: the public face
 )
 
 # Modules that register models on import; imported lazily so `import slipsense` stays fast.
-_MODULES = ("slipsense.models.vivit", "slipsense.models.resnet3d", "slipsense.models.stnet", "slipsense.models.motion", "slipsense.models.shear")
+_MODULES = (
+    "slipsense.models.vivit",
+    "slipsense.models.resnet3d",
+    "slipsense.models.stnet",
+    "slipsense.models.motion",
+    "slipsense.models.shear",
+)
 
 
 def _load_all() -> None:

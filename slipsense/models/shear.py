@@ -153,7 +153,9 @@ class ShearRetention(GraspModel):
         fx = F.avg_pool2d(cur, p) * 0.0  # the cells' shift (R, n, h/p, w/p), pixels
         fy = fx
         for _ in range(self.iterations):
-            dense = torch.stack([F.interpolate(fx, scale_factor=float(p)), F.interpolate(fy, scale_factor=float(p))], -1)
+            dense = torch.stack(
+                [F.interpolate(fx, scale_factor=float(p)), F.interpolate(fy, scale_factor=float(p))], -1
+            )
             grid = (self._grid + dense * self._pixel).reshape(-1, h, w, 2)  # (R n, h, w, 2)
             warped = F.grid_sample(cur.reshape(-1, 1, h, w), grid, padding_mode="border", align_corners=True)
             diff = warped.reshape(cur.shape) - ref

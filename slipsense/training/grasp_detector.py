@@ -107,7 +107,9 @@ def judged_indices(runs: Sequence[GraspRun], jobs: Sequence[FitJob]) -> list[int
     return [i for i in jobs[0].train if not runs[i].extra]
 
 
-def inner_traces(runs: Sequence[GraspRun], jobs: Sequence[FitJob], results: Sequence[dict[str, Any]]) -> list[np.ndarray]:
+def inner_traces(
+    runs: Sequence[GraspRun], jobs: Sequence[FitJob], results: Sequence[dict[str, Any]]
+) -> list[np.ndarray]:
     """The out-of-fold P(slip) traces of the detector's judged training runs (:func:`judged_indices`,
     in that order), each from the inner-fold model that did not train on its object."""
     by_index = {i: p for job, res in zip(jobs[1:], results[1:]) for i, p in zip(job.predict, res["probs"])}

@@ -245,7 +245,12 @@ def prepare_grasps(tree, progress: bool = True, threads: int | None = None, out=
     also = resolve_path(tree["data"]["also"]) if tree["data"].get("also") else None
     if also is not None:
         extra, _ = load_grasp_data(
-            also, None, image_size, tree["data"].get("on_error", "raise"), progress, sensor=data_sensor(also) or GELSIGHT_MINI
+            also,
+            None,
+            image_size,
+            tree["data"].get("on_error", "raise"),
+            progress,
+            sensor=data_sensor(also) or GELSIGHT_MINI,
         )
         runs = runs + [dataclasses.replace(r, object=f"{also.name}/{r.object}", extra=True) for r in extra]
     sensors = build(name, **cfg.model_config).sensors
