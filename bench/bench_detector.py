@@ -1,6 +1,8 @@
 """Per-push latency of the shipped detector as a gripper runs it: two sensors, default settings,
 frames of a real recording, side by side in one run with the same detector on ONNX Runtime, the
-one-finger detector (one camera per push) and the paper's ViViT detector.
+one-finger detector (one camera per push), the paper's ViViT detector and, where the shared
+``gelsight-lift`` grasps are there, that GelSight's shipped detector (shear retention) on its 480 x 640
+frames.
 
     .venv/bin/python bench/bench_detector.py --threads 1 --out reports/bench/detector.md
 
@@ -24,7 +26,7 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from slipsense.config import gelsight_recordings  # noqa: E402
+from slipsense.config import data_root, gelsight_recordings  # noqa: E402
 from slipsense.streaming.detector import DEFAULT_CHECKPOINT, SlipDetector  # noqa: E402
 from slipsense.recordings.video import read_video  # noqa: E402
 from slipsense.resources import shipped_model  # noqa: E402
@@ -32,6 +34,8 @@ from slipsense.resources import shipped_model  # noqa: E402
 TARGET_P99_MS = 2.0
 VIVIT_CHECKPOINT = shipped_model("vivit-gelsight")
 ONE_FINGER = shipped_model("motionnet-gelsight-1")
+LIFT = shipped_model("shear-retention-gelsight-lift")
+LIFT_GRASP = "gelsight-lift/object001/068_00_mm"  # a grasp that slipped, under SLIPSENSE_DATA
 
 
 def main(argv=None) -> int:
@@ -48,7 +52,8 @@ def main(argv=None) -> int:
     torch.set_num_threads(args.threads)
     folder = gelsight_recordings() / args.run
     cams = [read_video(folder / f"camera_{c}.avi") for c in (0, 2)]
-    n = min(len(c) for c in cams)
+    lift_folder = data_root() / LIFT_GRASP
+    lift = [read_video(lift_folder, expected_size=None)] if lift_folder.is_dir() and LIFT.is_file() else None
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         stem = args.checkpoint.stem
@@ -67,14 +72,22 @@ def main(argv=None) -> int:
             detectors["paper ViViT (vivit-gelsight), PyTorch"] = SlipDetector.from_checkpoint(
                 VIVIT_CHECKPOINT, sensors=2, backend="torch"
             )
+        sources = {name: cams for name in detectors}
+        for backend, label in (("torch", "PyTorch"), ("onnx", "ONNX Runtime")):
+            if lift is not None and not (backend == "onnx" and args.no_onnx):
+                name = f"gelsight-lift (shear-retention-gelsight-lift, 480 x 640), {label}"
+                detectors[name] = SlipDetector.from_checkpoint(LIFT, sensors=1, backend=backend)
+                sources[name] = lift
     times: dict[str, list[float]] = {k: [] for k in detectors}
     for name, det in detectors.items():  # warm up: fill windows, first-call allocations
+        src = sources[name]
         for i in range(40):
-            det.push(*(cams[s][i % n] for s in range(det.sensors)))
+            det.push(*(src[s][i % len(src[s])] for s in range(det.sensors)))
     for _ in range(args.rounds):
         for name, det in detectors.items():
+            src = sources[name]
             for i in range(args.pushes):
-                frames = [cams[s][i % n] for s in range(det.sensors)]
+                frames = [src[s][i % len(src[s])] for s in range(det.sensors)]
                 t0 = time.perf_counter()
                 det.push(*frames)
                 times[name].append(time.perf_counter() - t0)
@@ -96,7 +109,8 @@ def main(argv=None) -> int:
         f"# Live detector latency, two sensors, {args.threads} thread(s)",
         "",
         f"`python bench/bench_detector.py --threads {args.threads}` on {cpu_description()}; frames of "
-        f"`{args.run}` (240 x 320, both cameras).",
+        f"`{args.run}` (240 x 320, both cameras)"
+        + (f"; the gelsight-lift rows: `{LIFT_GRASP}` (480 x 640, one camera)." if lift is not None else "."),
         "",
         "| detector | pushes | p50 ms | p99 ms | max ms | p50 / shipped on PyTorch | p99 target 2 ms |",
         "|---|---:|---:|---:|---:|---:|---|",

@@ -331,9 +331,10 @@ def test_folds_train_on_another_data_set_too_but_never_hold_it_out_or_judge_it(
     lift = _lift_data(tmp_path / "lift")
     out = tmp_path / "folds"
     args = ["grasp", "folds", "--out", str(out), "--recordings", str(grasp_recordings), "--folds", "2",
-            "--inner-folds", "0", "--epochs", "1", "--set", "model.sensors=1", "--set", f"data.also={lift}",
-            "--no-progress"]  # fmt: skip
-    res = runner.invoke(app, args)
+            "--inner-folds", "0", "--epochs", "1", "--set", f"data.also={lift}", "--no-progress"]  # fmt: skip
+    res = runner.invoke(app, args)  # both fingers at once: the lift grasps have one camera
+    assert res.exit_code == 2 and "data.also" in res.output and "1 camera" in res.output, res.output
+    res = runner.invoke(app, [*args, "--set", "model.sensors=1"])
     assert res.exit_code == 0, res.output
     rep = json.loads((out / "folds.json").read_text())
     held = [o for f in rep["per_fold"] for o in f["objects"]]
@@ -341,3 +342,5 @@ def test_folds_train_on_another_data_set_too_but_never_hold_it_out_or_judge_it(
     assert rep["pooled"]["per_grasp"]["slip_runs"] == 8 and rep["pooled"]["per_grasp"]["held_runs"] == 8
     assert rep["data"]["runs"] > 16  # the lift grasps were read and trained on
     assert "labelled as a whole" not in rep["per_fold"][0]["operating_point"]["rule"]  # chosen on the first set
+    res = runner.invoke(app, [*args[:-3], "--set", f"data.also={grasp_recordings}", "--set", "model.sensors=1"])
+    assert res.exit_code == 2 and "the training recordings themselves" in res.output, res.output

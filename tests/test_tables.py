@@ -37,3 +37,13 @@ def test_a_missing_source_is_one_line_naming_the_page(tmp_path, src):
     (tmp_path / "README.md").write_text(f"<!-- from {src} -->\n<!-- end -->\n")
     res = CliRunner().invoke(app, ["experiment", "tables", "--root", str(tmp_path)])
     assert res.exit_code == 2 and res.output.startswith("error:") and "Traceback" not in res.output
+
+
+def test_an_unterminated_marker_is_refused(tmp_path):
+    (tmp_path / "reports").mkdir()
+    (tmp_path / "reports" / "r.md").write_text("| a |\n")
+    (tmp_path / "README.md").write_text(
+        "<!-- from reports/r.md -->\nold\n<!-- from reports/r.md -->\nx\n<!-- end -->\n"
+    )
+    res = CliRunner().invoke(app, ["experiment", "tables", "--root", str(tmp_path)])
+    assert res.exit_code == 2 and "no <!-- end -->" in res.output

@@ -162,7 +162,8 @@ def evaluate(
     path = checkpoint or shipped_for(root)
     info = read_info(path)
     calibrated = ((info.get("operating_point") or {}).get("calibrated") or {}).get("objects") or ()
-    trained_on = set(((info.get("data") or {}).get("objects")) or ()) | set(calibrated)
+    # another data set's objects are stored as <folder>/<object> (data.also): they count by their own name
+    trained_on = {o.rsplit("/", 1)[-1] for o in ((info.get("data") or {}).get("objects")) or ()} | set(calibrated)
     found = find_recordings(root, on_error=on_error, sensor=sensor_of(info, path))
     recs = validate_recordings(found, on_error=on_error, expected_size=None)
     if objects is not None:

@@ -19,7 +19,8 @@ from pathlib import Path
 from slipsense.atomic import write_text
 from slipsense.errors import InputError
 
-_BLOCK = re.compile(r"(<!-- from (?P<src>[^\n]+?) -->\n)(?P<body>.*?)(<!-- end -->)", re.S)
+_BLOCK = re.compile(r"(<!-- from (?P<src>[^\n]+?) -->\n)(?P<body>(?:(?!<!-- from ).)*?)(<!-- end -->)", re.S)
+_OPEN = re.compile(r"<!-- from [^\n]+? -->")
 
 
 def _section(text: str, heading: str, source: Path) -> str:
@@ -38,6 +39,8 @@ def _section(text: str, heading: str, source: Path) -> str:
 def _source_text(root: Path, src: str, page: Path) -> str:
     path, _, heading = src.partition("#")
     source = root / path
+    if Path(path).is_absolute() or ".." in Path(path).parts:
+        raise InputError(page, f"copies a table from {path}: give a path inside the project")
     if not source.is_file():
         raise InputError(page, f"copies a table from {path}, which does not exist (run the command that writes it)")
     text = source.read_text(encoding="utf-8")
@@ -48,6 +51,8 @@ def sync_page(page: Path, root: Path, write: bool = True) -> bool:
     """Replace every marked block of ``page`` by its source's text; True when the page changed (with
     ``write=False``: would change)."""
     text = page.read_text(encoding="utf-8")
+    if len(_OPEN.findall(text)) != len(_BLOCK.findall(text)):
+        raise InputError(page, "a <!-- from ... --> marker has no <!-- end --> before the next one")
     new = _BLOCK.sub(lambda m: m.group(1) + _source_text(root, m.group("src"), page) + m.group(4), text)
     if new != text and write:
         write_text(page, new)
@@ -63,4 +68,6 @@ def sync(root: str | Path = ".", check: bool = False) -> list[Path]:
     """Bring every page's copied tables up to date (``check``: change nothing); returns the pages that
     changed (or are out of date)."""
     root = Path(root)
+    if not (root / "README.md").is_file():
+        raise InputError(root, "no README.md here: give the project folder")
     return [p for p in pages(root) if sync_page(p, root, write=not check)]

@@ -371,7 +371,7 @@ def build_registered(name: str, **config: Any) -> SlipModel:
         if n > MAX_PARAMETERS:
             raise ConfigError(f"model {name!r}: {n:,} parameters is beyond {MAX_PARAMETERS:,}")
         return cls(**config)
-    except TypeError as exc:
+    except (TypeError, ValueError) as exc:  # a setting of the wrong type: int("abc"), a number for a list
         raise ConfigError(f"model {name!r}: {exc}") from None
 
 

@@ -41,9 +41,7 @@ class GraspStream:
                 f"the detector was given sensors={self.sensors}{hint}"
             )
         if dtype != "float32":
-            raise ConfigError(
-                f"{model.model_name} streams in float32 only (it needs no more to stay under 2 ms per push)"
-            )
+            raise ConfigError(f"{model.model_name} streams in float32 only")
         self.gray_size = tuple(model.image_size)
         self.startup = int(((info or {}).get("operating_point") or {}).get("startup", STARTUP))
         self.geometry = {**model.window_geometry({}), "startup": self.startup}

@@ -98,6 +98,9 @@ class ShearRetention(GraspModel):
                 f"shear-retention: sensors 1..8, iterations 1..20 and blur 0.3..8 pixels, "
                 f"got {sensors}, {iterations}, {blur}"
             )
+        numbers = {"blur": blur, "gate": gate, "letgo": letgo, "slope": slope, "bias": bias}
+        if not all(np.isfinite(float(v)) for v in numbers.values()):
+            raise ConfigError(f"shear-retention: {', '.join(numbers)} must be finite numbers, got {numbers}")
         self.sensors, self.image_size, self.patch = int(sensors), image_size, patch
         self.blur, self.iterations = float(blur), iterations
         self.gate = nn.Parameter(torch.tensor(float(gate)))
@@ -203,7 +206,7 @@ class ShearRetention(GraspModel):
         return torch.cat(out)
 
     def check_input(self, x: Tensor) -> None:
-        if x.ndim != 5 or x.shape[1] != self.sensors or tuple(x.shape[3:]) != self.image_size:
+        if x.ndim != 5 or x.shape[1] != self.sensors or x.shape[2] < 1 or tuple(x.shape[3:]) != self.image_size:
             raise InputError(
                 None,
                 f"shear-retention takes grey frames (B, {self.sensors}, N, {self.image_size[0]}, "

@@ -291,9 +291,11 @@ def train_detector(
         dist.barrier()  # no rank reads a stale state rank 0 is removing
     usable = [r for r in runs if r.usable]
     train = [r for r in usable if r.object not in set(held)]
-    unknown = sorted(set(held) - {r.object for r in usable})
+    unknown = sorted(set(held) - {r.object for r in usable if not r.extra})
     if unknown:
-        raise ConfigError(f"held-out objects without usable runs: {', '.join(unknown)}")
+        raise ConfigError(
+            f"held-out objects without usable runs: {', '.join(unknown)} (data.also's grasps are never held out)"
+        )
     data = {**(data or {}), "held_out_objects": sorted(held)}
     card = _checkpoint_info(cfg, None, train, data, [])
     card = {k: v for k, v in card.items() if k not in ("operating_point", "history")}

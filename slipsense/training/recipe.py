@@ -242,8 +242,11 @@ def prepare_grasps(tree, progress: bool = True, threads: int | None = None, out=
     runs, labels = load_grasp_data(
         root, overrides, image_size, tree["data"].get("on_error", "raise"), progress, sensor=sensor
     )
+    sensors = build(name, **cfg.model_config).sensors
     also = resolve_path(tree["data"]["also"]) if tree["data"].get("also") else None
     if also is not None:
+        if also.resolve() == root.resolve():
+            raise ConfigError(f"data.also ({also}) is the training recordings themselves")
         extra, _ = load_grasp_data(
             also,
             None,
@@ -252,8 +255,13 @@ def prepare_grasps(tree, progress: bool = True, threads: int | None = None, out=
             progress,
             sensor=data_sensor(also) or GELSIGHT_MINI,
         )
+        cameras = sorted({r.gray.shape[0] for r in extra})
+        if sensors != 1 and cameras != [sensors]:
+            raise ConfigError(
+                f"data.also ({also}) has grasps of {'/'.join(map(str, cameras))} camera(s); {name} takes {sensors} "
+                "sensors together (model.sensors=1 trains on each camera alone)"
+            )
         runs = runs + [dataclasses.replace(r, object=f"{also.name}/{r.object}", extra=True) for r in extra]
-    sensors = build(name, **cfg.model_config).sensors
     if sensors == 1:  # a one-finger detector: each camera of a run is a grasp of its own
         runs = per_sensor(runs)
     tree["model"] = {"name": name, **cfg.model_config}
@@ -290,12 +298,15 @@ def restate_promise(checkpoint, workers: int | None = 1, progress: bool = False)
         raise InputError(checkpoint, "not a grasp detector whose operating point came from inner folds")
     tree = json.loads(json.dumps(info["config"]))
     tree["data"] = {**tree.get("data", {}), "recordings": info["data"]["recordings"]}
+    if info["data"].get("also"):
+        tree["data"]["also"] = info["data"]["also"]
     tree.setdefault("train", {})
     cfg, runs, _, _ = prepare_grasps(tree, progress=progress)
     trained = set(info["data"]["objects"])
     usable = [r for r in runs if r.usable and r.object in trained]
     op = dict(info["operating_point"])
-    op["held_alarm"] = held_alarm_of(inner_fold_traces(usable, cfg, workers, progress), usable, op, cfg)
+    judged = [r for r in usable if not r.extra]  # the traces inner_fold_traces returns
+    op["held_alarm"] = held_alarm_of(inner_fold_traces(usable, cfg, workers, progress), judged, op, cfg)
     op["held_alarm"]["restated"] = f"{cfg.inner_folds} inner folds trained again by `slipsense grasp promise`"
     update_info(checkpoint, {"operating_point": op})
     return op["held_alarm"]
