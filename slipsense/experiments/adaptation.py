@@ -9,7 +9,7 @@ in turn is held out and, from the other objects' grasps only:
 * ``fine-tuned, n grasps``: the shipped weights trained further on ``n`` grasps drawn from the other
   objects (both outcomes among them; ``all``: every one), grasps that slipped as bags of frames
   (:data:`slipsense.training.grasps.BAG`), the threshold then chosen on those same grasps (``all``:
-  on :data:`INNER_FOLDS` inner folds of those objects, as ``motionnet-gelsight-lift`` was made);
+  on :data:`INNER_FOLDS` inner folds of those objects, as the shipped detectors are made);
 * ``this set alone``: the same recipe from random weights on all the other objects' grasps;
 * ``trained on both sets`` (with ``also``): the shipped detector's own recipe from random weights on
   the runs it was trained on and the other objects' grasps, the threshold chosen on those grasps;
