@@ -285,6 +285,17 @@ class GraspModel(SlipModel):
         """A fresh :class:`Stream` over whole grasps (a grasp model has no clip window to slide)."""
         raise NotImplementedError(f"{type(self).__name__} must define stream() (see MotionStream)")
 
+    def check_input(self, x) -> None:
+        """Grey frames ``(B, sensors, N >= 1, h, w)`` at the model's ``image_size``, finite floats."""
+        if x.ndim != 5 or x.shape[1] != self.sensors or x.shape[2] < 1 or tuple(x.shape[3:]) != tuple(self.image_size):
+            raise InputError(
+                None,
+                f"{self.model_name} takes grey frames (B, {self.sensors}, N, {self.image_size[0]}, "
+                f"{self.image_size[1]}), got {tuple(x.shape)}",
+            )
+        if not x.dtype.is_floating_point or not bool(torch.isfinite(x).all()):
+            raise InputError(None, f"{self.model_name} input must be finite floats in [0, 1]")
+
     def chunk_logits(self, runs, n_out: int):
         """What training on whole grasps calls: ``runs`` is a list of ``(gray (S, N, h, w) float,
         chunk ends)``; returns ``(C, n_out, 2)`` logits of the ``n_out`` frames ending at each end,

@@ -227,16 +227,6 @@ class MotionNet(GraspModel):
         feats = self.encode(diffs.movedim(-1, 2)[None])[0]  # (U, 2F)
         return self.classify(feats[torch.cat(gathers)])
 
-    def check_input(self, x: Tensor) -> None:
-        if x.ndim != 5 or x.shape[1] != self.sensors or tuple(x.shape[3:]) != self.image_size:
-            raise InputError(
-                None,
-                f"motionnet takes grey frames (B, {self.sensors}, N, {self.image_size[0]}, "
-                f"{self.image_size[1]}), got {tuple(x.shape)}",
-            )
-        if not x.dtype.is_floating_point or not bool(torch.isfinite(x).all()):
-            raise InputError(None, "motionnet input must be finite floats in [0, 1]")
-
     def stream(
         self,
         *,

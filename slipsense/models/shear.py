@@ -205,16 +205,6 @@ class ShearRetention(GraspModel):
             out.append(logits[rows])
         return torch.cat(out)
 
-    def check_input(self, x: Tensor) -> None:
-        if x.ndim != 5 or x.shape[1] != self.sensors or x.shape[2] < 1 or tuple(x.shape[3:]) != self.image_size:
-            raise InputError(
-                None,
-                f"shear-retention takes grey frames (B, {self.sensors}, N, {self.image_size[0]}, "
-                f"{self.image_size[1]}), got {tuple(x.shape)}",
-            )
-        if not x.dtype.is_floating_point or not bool(torch.isfinite(x).all()):
-            raise InputError(None, "shear-retention input must be finite floats in [0, 1]")
-
     # streaming
 
     def stream(self, *, sensors=None, info=None, backend="torch", dtype="float32", onnx_dir=None) -> "ShearStream":
