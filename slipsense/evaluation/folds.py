@@ -287,6 +287,13 @@ def summary_markdown(report: dict[str, Any]) -> str:
         f"chosen per fold on its training objects only ({cfg['inner_folds']} inner folds; 0 = on the training "
         f"runs themselves; rule: {_rule(report)}).",
         *(
+            [
+                f"Every fold also trained on {d['also_runs']} grasps of another data set (`data.also`: never held out or judged)."
+            ]
+            if d.get("also_runs")
+            else []
+        ),
+        *(
             ["", "One finger: each camera of a run is a grasp of its own (a run's two cameras count twice)."]
             if report.get("sensors_per_grasp") == 1
             else []

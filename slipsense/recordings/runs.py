@@ -144,12 +144,15 @@ def per_sensor(runs: Sequence[GraspRun]) -> list[GraspRun]:
 
 
 def runs_summary(runs: Sequence[GraspRun]) -> dict[str, int]:
-    """Counts a report states: runs, slip runs with a moment, slip runs without one, runs that held."""
+    """Counts a report states: runs, slip runs with a moment, slip runs without one, runs that held,
+    and another data set's grasps trained on alongside (``also_runs``, counted apart from the rest)."""
+    judged = [r for r in runs if not r.extra]
     return {
-        "runs": len(runs),
-        "slip_with_moment": sum(r.slipped and r.moment_of_slip is not None for r in runs),
-        "slip_without_moment": sum(r.slipped and r.moment_of_slip is None for r in runs),
-        "held": sum(not r.slipped for r in runs),
+        "runs": len(judged),
+        "slip_with_moment": sum(r.slipped and r.moment_of_slip is not None for r in judged),
+        "slip_without_moment": sum(r.slipped and r.moment_of_slip is None for r in judged),
+        "held": sum(not r.slipped for r in judged),
+        **({"also_runs": len(runs) - len(judged)} if len(judged) < len(runs) else {}),
     }
 
 
