@@ -139,7 +139,7 @@ def watch_source(
         src = _open(source, model, sensor, topics, tolerance, realtime, window_geometry(model, info))
     own_point = threshold is None
     threshold, debounce = stored_operating_point(ckpt, info, threshold, None)
-    backend = resolve_backend(backend)
+    backend = resolve_backend(backend, model)
     try:
         det = SlipDetector(
             model,

@@ -112,6 +112,9 @@ class SlipModel(nn.Module):
     slot_tokens: bool = False
     #: epochs of the experiments' quick setting
     quick_epochs: int = 10
+    #: where ``backend="auto"`` streams it: ``"onnx"`` (ONNX Runtime where installed: several times
+    #: faster for most small streaming models) or ``"torch"`` for a model measured faster on PyTorch
+    auto_backend: str = "onnx"
     #: the training settings of the model's paper (slipsense.training.clips.TrainConfig keys)
     paper_training: dict[str, Any] = {}
     #: training settings a preset comes with, over :attr:`paper_training` (a compact network trains

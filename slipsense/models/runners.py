@@ -20,10 +20,13 @@ BACKENDS = ("auto", "torch", "onnx")
 DTYPES = ("float32", "int8")
 
 
-def resolve_backend(backend: str) -> str:
-    """``"torch"`` or ``"onnx"``: ``"auto"`` is ONNX Runtime where it and the ONNX exporter are installed."""
+def resolve_backend(backend: str, model: nn.Module | None = None) -> str:
+    """``"torch"`` or ``"onnx"``: ``"auto"`` is ONNX Runtime where it and the ONNX exporter are installed,
+    unless ``model`` streams faster on PyTorch (its ``auto_backend``)."""
     if backend != "auto":
         return backend
+    if getattr(model, "auto_backend", "onnx") == "torch":
+        return "torch"
     import importlib.util
 
     return "onnx" if all(importlib.util.find_spec(m) is not None for m in ("onnxruntime", "onnx")) else "torch"
@@ -83,7 +86,7 @@ def make_runner(
         raise ConfigError(f"backend must be one of {BACKENDS}, got {backend!r}")
     if dtype not in DTYPES:
         raise ConfigError(f"dtype must be one of {DTYPES}, got {dtype!r}")
-    backend = resolve_backend(backend)
+    backend = resolve_backend(backend, model)
     if backend == "torch":
         if dtype != "float32":
             raise ConfigError("dtype 'int8' needs backend 'onnx' (ONNX Runtime dynamic quantization)")

@@ -60,6 +60,9 @@ def running_max(x: Tensor, dim: int) -> Tensor:
 class ShearRetention(GraspModel):
     """Slip as shear given up: see the module notes.
 
+    It streams on PyTorch by default: grid sampling made its ONNX Runtime parts slower (p50 8.0 against
+    6.3 ms per push of a 480 x 640 frame, one thread; ``python bench/bench_detector.py --threads 1``).
+
     Args:
         sensors: sensors per frame (2: both fingers; a slip on either is the grasp's).
         image_size: ``(h, w)`` of the grey frames; both divisible by ``patch``.
@@ -70,6 +73,8 @@ class ShearRetention(GraspModel):
         letgo: initial share of its peak a cell must give up to count as let go.
         slope, bias: initial logit ``slope * (score - bias)``.
     """
+
+    auto_backend = "torch"
 
     def __init__(
         self,

@@ -140,7 +140,7 @@ class SlipDetector:
         if sensors is None:
             sensors = window_geometry(model, info).get("sensors", 1)
         check_settings(threshold, sensors, combine, backend, dtype)
-        backend = resolve_backend(backend)
+        backend = resolve_backend(backend, model)
         if isinstance(debounce, bool) or not isinstance(debounce, (int, np.integer)) or not 1 <= debounce <= 1000:
             raise ConfigError(f"debounce must be a whole number of frames in 1..1000, got {debounce!r}")
         self.model = model.eval()
@@ -183,7 +183,7 @@ class SlipDetector:
         sensor_of(info, path)  # a malformed sensor spec is named with its file
         threshold, debounce = stored_operating_point(path, info, threshold, debounce)
         check_settings(threshold, 1 if sensors is None else sensors, combine, backend, dtype)
-        backend = resolve_backend(backend)
+        backend = resolve_backend(backend, model)
         if backend == "onnx" and onnx_dir is None:
             onnx_dir = onnx_cache_dir(Path(path))
         try:
