@@ -172,12 +172,14 @@ class ShearRetention(GraspModel):
             fy = fy + ((b * bx - a * by) / det).clamp(-1.0, 1.0)
         return (fx.square() + fy.square()).add(1e-12).sqrt().flatten(2)
 
-    def frame_shift(self, first: Tensor, gray: Tensor) -> Tensor:
-        """The frame part: ``first``, ``gray`` ``(B, S, h, w)`` -> cell displacements ``(B, S, C)``."""
+    def frame_shift(self, reference: Tensor, gray: Tensor) -> tuple[Tensor, Tensor]:
+        """The frame part: the marker map of the grasp's first frame ``(B, S, h, w)`` (kept by the
+        stream) and a grey frame ``(B, S, h, w)`` -> (cell displacements ``(B, S, C)``, the frame's
+        marker map ``(B, S, h, w)``)."""
         b = gray.shape[0]
-        ref = self.markers(rearrange(first, "b s h w -> (b s) 1 h w"))
         cur = self.markers(rearrange(gray, "b s h w -> (b s) 1 h w"))
-        return rearrange(self.displacements(ref, cur), "(b s) 1 c -> b s c", b=b)
+        shift = self.displacements(rearrange(reference, "b s h w -> (b s) 1 h w"), cur)
+        return rearrange(shift, "(b s) 1 c -> b s c", b=b), rearrange(cur, "(b s) 1 h w -> b s h w", b=b)
 
     def logits_of(self, shift: Tensor, peak: Tensor) -> Tensor:
         """Cell displacements and their peaks so far ``(..., S, C)`` -> logits ``(..., 2)``."""
@@ -217,7 +219,8 @@ class ShearRetention(GraspModel):
         return ShearStream(self, sensors=sensors, info=info, backend=backend, dtype=dtype, onnx_dir=onnx_dir)
 
     def streaming_modules(self, geometry=None) -> dict[str, nn.Module]:
-        """``frame``: first and current frames ``(1, S, h, w)`` -> cell displacements ``(1, S, C)``;
+        """``frame``: the first frame's marker map and the current frame ``(1, S, h, w)`` -> cell
+        displacements ``(1, S, C)`` and the frame's marker map;
         ``step``: the displacements, ``fresh (1,)`` and the peaks so far -> logits ``(1, 2)``, new peaks."""
         return {"frame": _Frame(self), "step": _Step(self)}
 
@@ -232,7 +235,7 @@ class ShearRetention(GraspModel):
             "model": OnnxPart(
                 self, (gray,), ["gray"], ["logits"], {"gray": {**free, 2: "frames"}, "logits": {**free, 1: "frames"}}
             ),
-            "frame": OnnxPart(_Frame(self), (frame, frame.flip(-1)), ["first", "gray"], ["shift"], {}),
+            "frame": OnnxPart(_Frame(self), (frame, frame.flip(-1)), ["reference", "gray"], ["shift", "markers"], {}),
             "step": OnnxPart(
                 _Step(self), (shift, torch.zeros(1), shift * 2), ["shift", "fresh", "peak"], ["logits", "peak_next"], {}
             ),
@@ -244,8 +247,8 @@ class _Frame(nn.Module):
         super().__init__()
         self.net = net
 
-    def forward(self, first: Tensor, gray: Tensor) -> Tensor:
-        return self.net.frame_shift(first, gray)
+    def forward(self, reference: Tensor, gray: Tensor):
+        return self.net.frame_shift(reference, gray)
 
 
 class _Step(nn.Module):
@@ -259,19 +262,20 @@ class _Step(nn.Module):
 
 
 class ShearStream(GraspStream):
-    """Keeps the grasp's first frame and every cell's peak displacement: each push runs the frame part
-    once (first vs current frame) and one step, the same numbers as :meth:`ShearRetention.forward`."""
+    """Keeps the marker map of the grasp's first frame and every cell's peak displacement: each push
+    runs the frame part once (the current frame against that map) and one step, the same numbers as
+    :meth:`ShearRetention.forward` (the first frame runs the frame part twice: once for its map)."""
 
     def reset(self) -> None:
         super().reset()
-        self._first = None
+        self._reference = None
         self._peak = np.zeros((1, self.sensors, self.model.cells), np.float32)
 
     def push_gray(self, gray: np.ndarray) -> float:
         frame = (gray.astype(np.float32) / np.float32(255.0))[None]
-        fresh = self._first is None
+        fresh = self._reference is None
         if fresh:
-            self._first = frame
-        shift = self._run("frame", self._first, frame)[0]
+            self._reference = self._run("frame", np.zeros_like(frame), frame)[1]
+        shift = self._run("frame", self._reference, frame)[0]
         logits, self._peak = self._run("step", shift, np.array([float(fresh)], np.float32), self._peak)
         return float(slip_probability(logits)[0])
