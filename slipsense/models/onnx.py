@@ -265,7 +265,12 @@ def _parts_key(model: nn.Module, geometry: Mapping[str, Any], dtype: str) -> dic
 
     from slipsense import __version__
 
+    import hashlib
+    import inspect
+
     config = model.config() if hasattr(model, "config") else {}
+    # the model's own code: parts exported before a change to it (their inputs, their maths) are stale
+    code = hashlib.sha256(Path(inspect.getfile(type(model))).read_bytes()).hexdigest()[:16]
     return json.loads(
         json.dumps(
             {
@@ -275,6 +280,7 @@ def _parts_key(model: nn.Module, geometry: Mapping[str, Any], dtype: str) -> dic
                 "dtype": dtype,
                 "slipsense": __version__,
                 "torch": torch.__version__,
+                "code": code,
             },
             default=str,
         )

@@ -60,8 +60,8 @@ def running_max(x: Tensor, dim: int) -> Tensor:
 class ShearRetention(GraspModel):
     """Slip as shear given up: see the module notes.
 
-    It streams on PyTorch by default: grid sampling made its ONNX Runtime parts slower (p50 8.0 against
-    6.3 ms per push of a 480 x 640 frame, one thread; ``python bench/bench_detector.py --threads 1``).
+    It streams on PyTorch by default: its ONNX Runtime parts were slower (p50 7.8 against 6.1 ms per
+    push of a 480 x 640 frame, one thread; ``python bench/bench_detector.py --threads 1``).
 
     Args:
         sensors: sensors per frame (2: both fingers; a slip on either is the grasp's).
