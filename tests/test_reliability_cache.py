@@ -232,3 +232,18 @@ def test_onnx_parts_cache_is_verified(tmp_path, monkeypatch):
         )
         is None
     )
+
+
+def test_cached_parts_of_a_model_whose_code_changed_are_exported_again(tmp_path, monkeypatch):
+    """Parts exported before a change to the model's own file (its parts' inputs, its maths) are stale."""
+    import inspect
+
+    from slipsense.models import build, window_geometry
+    from slipsense.models import onnx as export
+
+    model = build("temnet", frames=4, markers=5, d_model=8, heads=2, blocks=1, ff_dim=16, head_hidden=0).eval()
+    key = export._parts_key(model, window_geometry(model), "float32")
+    source = tmp_path / "edited.py"
+    source.write_text(Path(inspect.getfile(type(model))).read_text() + "\n# edited\n")
+    monkeypatch.setattr(inspect, "getfile", lambda obj: str(source))
+    assert export._parts_key(model, window_geometry(model), "float32") != key
