@@ -289,6 +289,9 @@ def register(app: typer.Typer) -> None:
             None, help="the shipped detector's own recordings: add the row trained from scratch on both sets"
         ),
         seed: int = typer.Option(0, help="seed of the grasp draws and the trainings"),
+        workers: Optional[int] = typer.Option(
+            None, min=1, help="processes training side by side (default: one per core; results do not depend on it)"
+        ),
         progress: bool = typer.Option(True),
     ):
         """Leave-objects-out on a new sensor: the shipped one-finger detector as is, recalibrated,
@@ -300,7 +303,9 @@ def register(app: typer.Typer) -> None:
         if not 1 <= epochs <= 1000:
             raise ConfigError(f"--epochs must be in 1..1000, got {epochs}")
         check_output_dir(out, "--out")
-        doc = adaptation_study(recordings, epochs=epochs, seed=check_seed(seed), progress=progress, also=also)
+        doc = adaptation_study(
+            recordings, epochs=epochs, seed=check_seed(seed), progress=progress, also=also, workers=workers
+        )
         doc["command"] = command_line()
         paths = write(doc, out)
         typer.echo(table(doc))

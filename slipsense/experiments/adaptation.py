@@ -86,12 +86,15 @@ def adaptation_study(
     repeats: int = 3,
     also: str | Path | None = None,
     also_epochs: int | None = None,
+    workers: int | None = 1,
 ) -> dict[str, Any]:
     """The rows of the module notes on ``recordings`` (one camera per grasp): ``{"rows": [...]}``.
     Rows trained on ``n`` of the grasps pool ``repeats`` draws of them (each draw a grasp judged once
     more: a single draw of 5 grasps is mostly luck). ``also``: the recordings the shipped detector was
     trained on (another sensor's), for the row trained from scratch on both sets (``also_epochs``:
-    other than the recipe's)."""
+    other than the recipe's). ``workers``: processes that train a detector and its inner folds side by
+    side (None: one per core; each training is seeded and single-threaded, so the numbers do not
+    depend on it)."""
     from slipsense.checkpoint import load_model
     from slipsense.evaluation.baselines import frame_scores
     from slipsense.progress import progress_bar
@@ -146,7 +149,9 @@ def adaptation_study(
                     model_name, {**settings, "startup": 0, "epochs": epochs, "inner_folds": inner, "seed": seed + k}
                 )
                 mine = objects == o
-                _, _, op, probs = train_with_operating_point(train + [r for r in grasps if r.object == o], [o], cfg)
+                _, _, op, probs = train_with_operating_point(
+                    train + [r for r in grasps if r.object == o], [o], cfg, workers=workers
+                )
                 scores[mine] = [outcome.peak_alarm_score(p, 1, 0) for p in probs]
                 alarmed[mine] = scores[mine] >= op["threshold"]
             parts.append((scores, alarmed))
