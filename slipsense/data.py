@@ -1,6 +1,6 @@
 """From a folder or file a user names to the Datasets training and evaluation take.
 
-Two kinds of data, matching what the models read (``SlipModel.reads``: frames or markers):
+Two kinds of data, read for the models by their ``clip_reader`` (:mod:`slipsense.readers`):
 
 * ``video``: a GelSight recordings folder (``<object>/exp_num_<N>/camera_*.avi``) -> labelled
   clips (cached) -> :class:`~slipsense.datasets.ClipDataset`;

@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 from slipsense.checkpoint import save_checkpoint
 from slipsense.cli import app
 from slipsense.errors import ConfigError
-from slipsense.evaluation.evaluate import evaluate_checkpoint
+from slipsense.evaluation.evaluate import evaluate_clip_checkpoint
 from slipsense.models import build, at_dtype
 
 runner = CliRunner()
@@ -33,8 +33,8 @@ def stnet_and_markers(tmp_path_factory):
 @pytest.mark.parametrize("dtype", ["int8", "bfloat16"])
 def test_reduced_precision_scores_close_to_float32(stnet_and_markers, dtype):
     ckpt, markers, root = stnet_and_markers
-    ref = evaluate_checkpoint(ckpt, markers=markers, json_out=root / "f32.json", progress=False)
-    low = evaluate_checkpoint(ckpt, markers=markers, json_out=root / f"{dtype}.json", progress=False, dtype=dtype)
+    ref = evaluate_clip_checkpoint(ckpt, markers=markers, json_out=root / "f32.json", progress=False)
+    low = evaluate_clip_checkpoint(ckpt, markers=markers, json_out=root / f"{dtype}.json", progress=False, dtype=dtype)
     assert ref["inference_dtype"] == "float32" and low["inference_dtype"] == dtype
     assert isinstance(low["precision"], float)  # the metric is not overwritten
     assert low["n_clips"] == ref["n_clips"] == 40

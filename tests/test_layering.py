@@ -2,7 +2,7 @@
 floors below, and no module reaches itself through its imports (function-local imports count too).
 
     base         errors, atomic, config, run_config, plots, resources, parallel, progress, alarm
-    data in      sensors, recordings, data, datasets, heatmaps
+    data in      sensors, recordings, data, datasets, readers, heatmaps
     models       models (the contract, one file per network, streams, runners, ONNX parts), checkpoint
     streaming    the live detector, sources, capture, export: what runs on the robot
     training / evaluation   the one training loop and its tasks; replay, per-grasp scores, folds
@@ -21,7 +21,7 @@ from pathlib import Path
 PACKAGE = Path(__file__).resolve().parents[1] / "slipsense"
 FLOORS = [
     ["errors", "atomic", "config", "run_config", "plots", "resources", "parallel", "progress", "alarm", ""],
-    ["sensors", "recordings", "data", "datasets", "heatmaps"],
+    ["sensors", "recordings", "data", "datasets", "readers", "heatmaps"],
     ["models", "checkpoint"],
     ["streaming"],
     ["training", "evaluation"],

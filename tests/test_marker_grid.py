@@ -121,7 +121,7 @@ def test_resuming_with_other_marker_copies_is_refused(tmp_path):
     import json
 
     from slipsense.errors import InputError
-    from slipsense.training.splits import check_same_split
+    from slipsense.readers import check_same_split
 
     info = {"kind": "markers", "markers": "m.npz", "test_indices": [1, 2], "marker_copies": 4}
     (tmp_path / "split.json").write_text(json.dumps(info))

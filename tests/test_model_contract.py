@@ -159,23 +159,14 @@ def test_register_refuses_a_class_outside_the_contract():
         register("test-not-a-model")(torch.nn.Linear)
 
 
-#: The places outside slipsense/models still asking what a model reads or how it trains: the clip
-#: trainer's data preparation and its evaluation (one reader per kind, handed out by the model, is
-#: the next step), three experiments' labels, and the recipe's table of trainers. None may be added.
-ASKS_HOW_IT_READS = {
-    "evaluation/evaluate.py": 2,
-    "training/clips.py": 2,
-    "experiments/all_models.py": 1,
-    "experiments/noise.py": 1,
-    "experiments/settings.py": 1,
-    "training/recipe.py": 1,
-}
+#: The one place outside slipsense/models that asks how a model trains: the recipe's tables of
+#: trainers, folds and evaluators, keyed by the model's ``training_task``. Data is read by the
+#: model's own ``clip_reader``.
+ASKS_HOW_IT_TRAINS = {"training/recipe.py": 1}
 
 
 def test_nothing_outside_models_asks_the_kind():
-    """Outside slipsense/models code never asks a model's kind or its name, and asks what it reads
-    or how it trains (``reads``, ``training_task``) only where it did when streaming, sources, the
-    CLI and the API stopped asking (:data:`ASKS_HOW_IT_READS`)."""
+    """Outside slipsense/models code never asks a model's kind or its name, and asks how it trains (``training_task``) only in the recipe's tables (:data:`ASKS_HOW_IT_TRAINS`)."""
     import ast
     from pathlib import Path
 
@@ -190,11 +181,11 @@ def test_nothing_outside_models_asks_the_kind():
         for node in ast.walk(ast.parse(path.read_text())):
             if isinstance(node, ast.Attribute) and node.attr == "input_kind":
                 found.append(f"{name}:{node.lineno} .input_kind")
-            if isinstance(node, ast.Attribute) and node.attr in ("reads", "training_task"):
+            if isinstance(node, ast.Attribute) and node.attr == "training_task":
                 asks[name] = asks.get(name, 0) + 1
             if isinstance(node, ast.Compare):  # a name may be printed or stored, not tested
                 for part in ast.walk(node):
                     if isinstance(part, ast.Attribute) and part.attr == "model_name":
                         found.append(f"{name}:{node.lineno} compares .model_name")
     assert not found, found
-    assert asks == ASKS_HOW_IT_READS
+    assert asks == ASKS_HOW_IT_TRAINS

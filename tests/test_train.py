@@ -148,7 +148,7 @@ def test_resume_split_check_reads_tuples_as_json_does(tmp_path):
     import json
 
     from slipsense.errors import InputError
-    from slipsense.training.splits import check_same_split
+    from slipsense.readers import check_same_split
 
     info = {"kind": "video", "split": "objects", "test_objects": ["cup"], "clip_spec": {"size": (48, 64)}}
     (tmp_path / "split.json").write_text(json.dumps(info))

@@ -192,7 +192,7 @@ def evaluate(
     premature, missed, false-positive grasps), a clip or marker model per clip (accuracy, precision,
     recall, F1 and a confusion matrix)."""
     from slipsense.atomic import check_output_file
-    from slipsense.evaluation.evaluate import evaluate_checkpoint
+    from slipsense.training.recipe import evaluate
 
     if checkpoint is None:
         from slipsense.evaluation.replay import shipped_for
@@ -203,7 +203,7 @@ def evaluate(
     check_nonnegative(noise_std, "--noise-std")
     check_output_file(json_out, "--json")
     check_output_file(png, "--png")
-    m = evaluate_checkpoint(
+    m = evaluate(
         checkpoint,
         recordings=recordings,
         split=split_file,

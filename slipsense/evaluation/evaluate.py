@@ -76,7 +76,7 @@ def evaluate_model(
     return m
 
 
-def evaluate_checkpoint(
+def evaluate_clip_checkpoint(
     checkpoint: str | Path,
     recordings=None,
     split=None,
@@ -90,7 +90,8 @@ def evaluate_checkpoint(
     dtype: str = "float32",
     per_grasp: bool = True,
 ) -> dict[str, Any]:
-    """Run the whole pipeline a checkpoint needs on one data source and score it.
+    """Score a clip or marker model's checkpoint per clip on one data source (the data it reads:
+    ``model.clip_reader``, :mod:`slipsense.readers`).
 
     Exactly one of ``recordings`` (every clip of that folder: zero-shot on unseen objects),
     ``split`` (a run's ``split.json``: its held-out part) or ``markers`` (an ``.npz``) is given.
@@ -98,108 +99,45 @@ def evaluate_checkpoint(
     "bfloat16", "int8"; see :func:`slipsense.models.at_dtype`) scores a reduced-precision
     inference copy of the model instead, to compare its F1 with float32's.
 
-    A grasp detector is judged per grasp (and per clip on the same traces); a video clip model per
-    clip and, with ``per_grasp``, also per grasp: the same runs (every run of ``recordings``, or the
+    A video clip model is also judged per grasp with ``per_grasp``: the same runs (every run of ``recordings``, or the
     held-out objects' runs of a split by objects) replayed through it as the live detector runs it,
     at the checkpoint's operating point (``"per_grasp"`` in the result).
     """
-    from slipsense.models import at_dtype
+    import math
 
     from slipsense.checkpoint import load_model
-    from slipsense.config import resolve_path
-    from slipsense.data import clip_spec_from, gelsight_clips, load_markers
-    from slipsense.datasets import ClipDataset, MarkerDataset
-
-    import math
+    from slipsense.config import portable_path
+    from slipsense.models import at_dtype
 
     if not isinstance(noise_std, (int, float)) or not math.isfinite(noise_std) or noise_std < 0:
         raise ConfigError(f"--noise-std must be a finite number >= 0, got {noise_std!r}")
-    model, info = load_model(checkpoint)
-    if model.training_task == "grasps":  # trained and judged on whole runs
-        return _evaluate_grasps(checkpoint, recordings, split, markers, json_out, overrides, progress, dtype)
     sources = [s for s in (recordings, split, markers) if s is not None]
     if len(sources) != 1:
         raise ConfigError("give exactly one of --recordings, --split-file or --markers")
+    model, info = load_model(checkpoint)
     model = at_dtype(model.eval(), dtype)
-    from slipsense.config import portable_path
-
+    found = model.clip_reader.evaluation_data(
+        checkpoint,
+        model,
+        info,
+        recordings=recordings,
+        split=split,
+        markers=markers,
+        noise_std=noise_std,
+        on_error=on_error,
+        overrides=overrides,
+        progress=progress,
+    )
     extra: dict[str, Any] = {
         "checkpoint": portable_path(checkpoint),
         "model": info["model"],
         "noise_std": noise_std,
         "inference_dtype": dtype,
+        **found.extra,
     }
-    if model.reads == "frames":
-        if markers is not None:
-            raise InputError(checkpoint, "this checkpoint holds a video model; use --recordings or --split-file")
-        from slipsense.sensors.spec import sensor_of
-
-        data_info = info.get("data", {})
-        sensor = sensor_of(info, checkpoint)  # the recordings layout of the sensor it was trained on
-        if split is not None:
-            split_info = _read_split(split, "video")
-            try:
-                spec = clip_spec_from(split_info)
-            except ConfigError as exc:
-                raise InputError(split, str(exc)) from None
-            clips, _ = gelsight_clips(
-                resolve_path(split_info["recordings"]),
-                spec,
-                on_error=split_info.get("on_error") or on_error,
-                overrides=_split_overrides(split_info.get("overrides")),
-                progress=progress,
-                sensor=sensor,
-            )
-            idx = split_info["test_indices"]
-            if max(idx) >= len(clips):
-                raise InputError(
-                    split,
-                    f"test index {max(idx)} is out of range: the clips rebuilt from its recordings are {len(clips)}",
-                )
-            clips = clips.subset(idx)
-            extra.update(split=portable_path(split), test_objects=split_info.get("test_objects"))
-            if per_grasp and dtype == "float32" and split_info.get("split") == "objects":
-                extra["per_grasp"] = _replayed(
-                    checkpoint,
-                    resolve_path(split_info["recordings"]),
-                    _split_overrides(split_info.get("overrides")),
-                    progress,
-                    split_info.get("test_objects"),
-                    split_info.get("on_error") or on_error,
-                )
-        else:
-            if "clip_spec" not in data_info:
-                raise InputError(checkpoint, "checkpoint has no clip settings (data.clip_spec)")
-            clips, _ = gelsight_clips(
-                recordings,
-                clip_spec_from(data_info),
-                on_error=on_error,
-                overrides=overrides,
-                progress=progress,
-                sensor=sensor,
-            )
-            extra.update(recordings=portable_path(recordings), objects=sorted(set(clips.objects)))
-            if per_grasp and dtype == "float32":
-                extra["per_grasp"] = _replayed(checkpoint, recordings, overrides, progress, None, on_error)
-        data = ClipDataset(clips, noise_std=noise_std, seed=0)
-    else:
-        if recordings is not None:
-            raise InputError(checkpoint, "this checkpoint holds a marker model; use --markers or --split-file")
-        if split is not None:
-            split_info = _read_split(split, "markers")
-            x, y, _ = load_markers(resolve_path(split_info["markers"]))
-            _check_marker_layout(resolve_path(split_info["markers"]), x, model, info, checkpoint)
-            idx = split_info["test_indices"]
-            if max(idx) >= len(y):
-                raise InputError(
-                    split, f"test index {max(idx)} is out of range: {split_info['markers']} holds {len(y)} samples"
-                )
-            x, y = x[idx], y[idx]
-        else:
-            x, y, _ = load_markers(markers)
-            _check_marker_layout(markers, x, model, info, checkpoint)
-            extra["markers"] = portable_path(markers)
-        data = MarkerDataset(x, y)
+    if found.replay is not None and per_grasp and dtype == "float32":
+        extra["per_grasp"] = _replayed(checkpoint, progress=progress, **found.replay)
+    data = found.data
     if len(data) == 0:
         raise InputError(split or recordings or markers, "holds nothing to evaluate")
     import torch
@@ -208,23 +146,7 @@ def evaluate_checkpoint(
         return evaluate_model(model, data, json_out, png, extra=extra, progress=progress)
 
 
-def _check_marker_layout(path, x, model, info, checkpoint) -> None:
-    """Refuse markers taken from videos otherwise than the checkpoint's (``marker_layout``: a 7 x 9
-    grid of every marker is not the 63 markers nearest the centre, though both hold 63)."""
-    from slipsense.models.base import window_geometry
-    from slipsense.training.splits import marker_file_layout
-
-    trained = window_geometry(model, info).get("marker_layout")
-    given = marker_file_layout(path, x)
-    if given != trained:
-
-        def said(layout):
-            return f"markers taken from videos as {layout!r}" if layout else "markers not tracked in videos"
-
-        raise InputError(path, f"holds {said(given)}; {checkpoint} was trained on {said(trained)}")
-
-
-def _replayed(checkpoint, recordings, overrides, progress, objects, on_error="raise") -> dict[str, Any]:
+def _replayed(checkpoint, *, recordings, overrides, progress, objects, on_error="raise") -> dict[str, Any]:
     """Per-grasp outcomes of a clip model's replay (:func:`slipsense.evaluation.replay.evaluate`) with its
     operating point. Data the replay cannot take (runs of different camera counts) leaves the clip
     metrics standing: ``{"skipped": why}`` and a warning instead."""
@@ -250,10 +172,25 @@ def _replayed(checkpoint, recordings, overrides, progress, objects, on_error="ra
     return {**ev.summary(), "threshold": ev.threshold, "debounce": ev.debounce, "horizon": ev.horizon}
 
 
-def _evaluate_grasps(checkpoint, recordings, split, markers, json_out, overrides, progress, dtype) -> dict[str, Any]:
+def evaluate_grasp_checkpoint(
+    checkpoint,
+    recordings=None,
+    split=None,
+    markers=None,
+    json_out=None,
+    png=None,
+    noise_std: float = 0.0,
+    on_error: str = "raise",
+    overrides=None,
+    progress: bool = True,
+    dtype: str = "float32",
+    per_grasp: bool = True,
+) -> dict[str, Any]:
     """A grasp detector is judged per grasp (:func:`slipsense.evaluation.replay.evaluate`: every run of the
     recordings folder replayed from its first frame, both sensors, at the checkpoint's operating
-    point); the JSON holds the summary and each run's outcome."""
+    point); the JSON holds the summary and each run's outcome. Takes the arguments of
+    :func:`evaluate_clip_checkpoint`; ``png``, ``noise_std``, ``on_error`` and ``per_grasp`` are for clip
+    models and not used."""
     from dataclasses import asdict
 
     from slipsense.evaluation.replay import evaluate as evaluate_grasps
@@ -293,65 +230,3 @@ def _evaluate_grasps(checkpoint, recordings, split, markers, json_out, overrides
 
         atomic.write_text(json_out, json.dumps(doc, indent=1, default=float))
     return doc
-
-
-#: Keys a split file (a run's ``split.json``) needs, by data kind.
-SPLIT_KEYS = {"video": ("recordings", "clip_spec", "test_indices"), "markers": ("markers", "test_indices")}
-
-
-def _read_split(path, kind: str | None = None) -> dict[str, Any]:
-    """A run's ``split.json``, checked: InputError naming the file for anything a split cannot be.
-
-    ``kind`` ("video" or "markers") is the kind of data the model's clips are; a split of the other kind, missing
-    keys, and test indices that are not a non-empty list of distinct integers >= 0 are refused
-    (indices beyond the data are checked once the data is loaded).
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(path, "split file not found")
-    try:
-        info = json.loads(path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(path, f"not a JSON split file ({exc})") from None
-    except OSError as exc:
-        raise InputError(path, f"split file cannot be read ({exc.strerror or exc})") from None
-    if not isinstance(info, dict):
-        raise InputError(path, f"a split file is a JSON object, got a {type(info).__name__}")
-    split_kind = info.get("kind", "markers" if "markers" in info else "video")
-    if split_kind not in SPLIT_KEYS:
-        raise InputError(path, f"kind must be 'video' or 'markers', got {split_kind!r}")
-    if kind is not None and split_kind != kind:
-        raise InputError(path, f"this split is of {split_kind} data but the checkpoint holds a {kind} model")
-    missing = [k for k in SPLIT_KEYS[split_kind] if k not in info]
-    if missing:
-        raise InputError(path, f"split file lacks {', '.join(missing)}")
-    for key in ("recordings", "markers", "overrides", "on_error"):
-        if key in info and info[key] is not None and not isinstance(info[key], str):
-            raise InputError(path, f"{key} must be a string, got {type(info[key]).__name__}")
-    if info.get("on_error") not in (None, "raise", "skip"):
-        raise InputError(path, f"on_error must be 'raise' or 'skip', got {info['on_error']!r}")
-    idx = info["test_indices"]
-    if not isinstance(idx, list) or not all(isinstance(i, int) and not isinstance(i, bool) for i in idx):
-        raise InputError(path, "test_indices must be a list of integers")
-    if not idx:
-        raise InputError(
-            path,
-            "the split holds no test items (test_indices is empty; a run trained with "
-            "--split all has no held-out part): nothing to evaluate",
-        )
-    if min(idx) < 0:
-        raise InputError(path, f"test_indices holds a negative index ({min(idx)})")
-    if len(set(idx)) != len(idx):
-        raise InputError(path, "test_indices repeats an index")
-    return info
-
-
-def _split_overrides(stored):
-    """The hand labels a split file's clips were cut with: ``"default"`` -> the shipped ones of the
-    shared recordings (None for data.label_runs), null (split files written before that default) ->
-    none (False), else the CSV's path."""
-    from slipsense.config import resolve_path
-
-    if stored == "default":
-        return None
-    return False if stored is None else resolve_path(stored)

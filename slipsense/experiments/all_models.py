@@ -121,7 +121,7 @@ def run_all_models(
         rows.append(
             {
                 "model": name,
-                "input": "video clip" if model_class(name).reads == "frames" else "marker sequence",
+                "input": model_class(name).clip_reader.describes,
                 "preset": pre or "paper",
                 "parameters": rep.models[name]["parameters"],
                 "epochs": len(history),

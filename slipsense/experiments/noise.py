@@ -33,7 +33,7 @@ def run_noise(
         from slipsense.data import clip_spec_from
 
         model, info = load_model(checkpoint)
-        if model.reads != "frames":
+        if not model.clip_reader.pictures:
             raise InputError(checkpoint, f"noise needs a video model, this checkpoint holds {info['model']!r}")
         data = info.get("data", {})
         spec = clip_spec_from(data) if "clip_spec" in data else clip_spec(settings)

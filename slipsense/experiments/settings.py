@@ -200,7 +200,7 @@ class Settings:
         from slipsense.models import settings_of
 
         parts = []
-        if any(model_class(m).reads == "frames" for m in models):
+        if any(model_class(m).clip_reader.pictures for m in models):
             h, w = self.video_size
             parts.append(f"clips {h}x{w}")
             if any("patch_size" in settings_of(model_class(m)) for m in models):

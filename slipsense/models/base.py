@@ -41,6 +41,7 @@ import torch
 from torch import Tensor, nn
 
 from slipsense.errors import ConfigError, InputError
+from slipsense.readers import MARKER_CLIPS, VIDEO_CLIPS, ClipReader
 
 _REGISTRY: dict[str, type] = {}
 
@@ -102,11 +103,11 @@ class SlipModel(nn.Module):
     #: set by :func:`register`
     model_name: str = ""
     #: "video", "markers" or "grasp": the model's own description of its input (code outside
-    #: slipsense/models asks :attr:`reads` and :attr:`training_task` instead)
+    #: slipsense/models hands out :attr:`clip_reader` and :attr:`training_task` instead)
     input_kind: str = ""
-    #: what it reads from a sensor: ``"frames"`` (camera pictures: recordings' videos, live cameras;
-    #: whole runs can be replayed through it) or ``"markers"`` (3D marker clouds)
-    reads: str = "frames"
+    #: the data its clips are read from, for training and evaluation (:mod:`slipsense.readers`):
+    #: clips of camera pictures cut from recordings, or windows of 3D marker clouds
+    clip_reader: ClipReader = VIDEO_CLIPS
     #: True when the frame part's output holds the frame's token at every window slot, ``(N, T, dim)``,
     #: so a window takes row ``k`` of its ``k``-th frame (ViViT's slot position embedding)
     slot_tokens: bool = False
@@ -226,7 +227,7 @@ class VideoModel(SlipModel):
 
 class MarkerModel(SlipModel):
     input_kind = "markers"
-    reads = "markers"
+    clip_reader = MARKER_CLIPS
 
     def inputs_from_videos(
         self, videos: Sequence[np.ndarray], paths: Sequence[Any], geometry: Mapping[str, Any] | None = None

@@ -7,7 +7,7 @@ checkpoints, metrics and curves, progress), trains every model; a model declares
 
 * ``"clips"`` — windows cut from recordings or marker sequences: :class:`slipsense.training.clips.ClipTask`,
   with the request-to-run plumbing of ``slipsense train`` in :mod:`slipsense.training.clips`, its data
-  split in :mod:`slipsense.training.splits` and ranks in :mod:`slipsense.training.distributed`;
+  read and split by the model's reader (:mod:`slipsense.readers`) and ranks in :mod:`slipsense.training.distributed`;
 * ``"grasps"`` — whole runs of every sensor, per-frame targets: :class:`slipsense.training.grasps.GraspTask`
   and :mod:`slipsense.training.grasp_detector` (the detector with its operating point chosen on inner
   folds, trainings side by side in :mod:`slipsense.parallel`).

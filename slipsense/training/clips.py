@@ -32,7 +32,7 @@ from slipsense.training.distributed import Dist, RankBatches, StepPlan, setup  #
 from slipsense.training.trainer import LoopSettings, Step, restore, rng_state, set_rng_state, train
 from slipsense.evaluation.evaluate import predict
 from slipsense.evaluation.metrics import metrics_from
-from slipsense.training.splits import SPLIT_IDENTITY, check_same_split, prepare_data  # noqa: F401
+from slipsense.readers import check_same_split
 
 
 @dataclass
@@ -180,7 +180,7 @@ class ClipTask:
 
 def settings_identity(cfg: TrainConfig) -> str:
     """The optimisation settings a resume must share (the data split is checked on its own:
-    splits.check_same_split); epochs may grow, progress and workers may change."""
+    readers.check_same_split); epochs may grow, progress and workers may change."""
     free = ("epochs", "progress", "num_workers", "device", "max_steps_per_epoch", "operating_point")
     return json.dumps({k: v for k, v in asdict(cfg).items() if k not in free}, sort_keys=True)
 
@@ -426,7 +426,7 @@ def run_training(req: TrainRequest, resume: bool = False) -> dict[str, Any]:
         **req.train_overrides,
     }
     cfg = TrainConfig.from_dict(settings)
-    train_data, test_data, split_info, data_config = prepare_data(req, cls.reads)
+    train_data, test_data, split_info, data_config = cls.clip_reader.training_data(req)
     sensor = data_config.pop("sensor")
     seed_everything(req.seed)
     model = build_model(req.model, req.preset, req.model_overrides, data_config)
@@ -465,7 +465,7 @@ def run_training(req: TrainRequest, resume: bool = False) -> dict[str, Any]:
     }
     history = fit(model, train_data, test_data, cfg, out, info=info, resume=resume, resume_state=state)
     # a model reading frames is replayed over its training objects' runs to choose where it alarms
-    replayable = cls.reads == "frames" and split_info.get("split") in ("objects", "all")
+    replayable = cls.clip_reader.replays(split_info)
     if d.main and cfg.operating_point and replayable:
         _store_operating_point(out, split_info, req)
     if not d.main:

@@ -75,6 +75,21 @@ def cross_validate(
     return FOLDS[task](tree, Path(out), folds, progress=progress, workers=workers, threads=threads, command=command)
 
 
+def evaluate(checkpoint: str | Path, **options: Any) -> dict[str, Any]:
+    """Judge a checkpoint the way its task is judged: a grasp detector per grasp
+    (:func:`slipsense.evaluation.evaluate.evaluate_grasp_checkpoint`), a clip or marker model per clip on
+    the data its reader takes (:func:`slipsense.evaluation.evaluate.evaluate_clip_checkpoint`, whose
+    keyword ``options`` both take)."""
+    from slipsense.checkpoint import read_info
+    from slipsense.errors import InputError
+
+    try:
+        task = _task({"model": {"name": read_info(checkpoint).get("model")}})
+    except ConfigError as exc:
+        raise InputError(checkpoint, f"checkpoint config cannot build its model: {exc}") from None
+    return EVALUATORS[task](checkpoint, **options)
+
+
 def _task(tree: dict[str, Any]) -> str:
     """The training task of the tree's model (its sections made present); ConfigError for an unknown model."""
     from slipsense.models import available, model_class
@@ -280,6 +295,21 @@ def prepare_grasps(tree, progress: bool = True, threads: int | None = None, out=
 #: ``training_task`` (a model class attribute) -> its trainer, and its cross-validation
 TRAINERS: dict[str, Callable[..., dict[str, Any]]] = {"clips": fit_clips, "grasps": fit_grasps}
 FOLDS: dict[str, Callable[..., dict[str, Any]]] = {"clips": _clip_folds, "grasps": _grasp_folds}
+
+
+def _evaluate_clips(checkpoint, **options: Any) -> dict[str, Any]:
+    from slipsense.evaluation.evaluate import evaluate_clip_checkpoint
+
+    return evaluate_clip_checkpoint(checkpoint, **options)
+
+
+def _evaluate_grasps(checkpoint, **options: Any) -> dict[str, Any]:
+    from slipsense.evaluation.evaluate import evaluate_grasp_checkpoint
+
+    return evaluate_grasp_checkpoint(checkpoint, **options)
+
+
+EVALUATORS: dict[str, Callable[..., dict[str, Any]]] = {"clips": _evaluate_clips, "grasps": _evaluate_grasps}
 
 
 def restate_promise(checkpoint, workers: int | None = 1, progress: bool = False) -> dict[str, Any]:
