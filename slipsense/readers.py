@@ -277,9 +277,9 @@ def marker_file_layout(path, x: np.ndarray) -> str | None:
 def _check_marker_layout(path, x, model, info, checkpoint) -> None:
     """Refuse markers taken from videos otherwise than the checkpoint's (``marker_layout``: a 7 x 9
     grid of every marker is not the 63 markers nearest the centre, though both hold 63)."""
-    from slipsense.models.base import window_geometry
-
-    trained = window_geometry(model, info).get("marker_layout")
+    data = info.get("data")
+    spec = (data.get("clip_spec") if isinstance(data, dict) else None) or {}
+    trained = model.window_geometry(spec).get("marker_layout")
     given = marker_file_layout(path, x)
     if given != trained:
 

@@ -162,7 +162,7 @@ def test_register_refuses_a_class_outside_the_contract():
 #: The one place outside slipsense/models that asks how a model trains: the recipe's tables of
 #: trainers, folds and evaluators, keyed by the model's ``training_task``. Data is read by the
 #: model's own ``clip_reader``.
-ASKS_HOW_IT_TRAINS = {"training/recipe.py": 1}
+ASKS_HOW_IT_TRAINS = {"training/recipe.py": 2}
 
 
 def test_nothing_outside_models_asks_the_kind():

@@ -80,14 +80,10 @@ def evaluate(checkpoint: str | Path, **options: Any) -> dict[str, Any]:
     (:func:`slipsense.evaluation.evaluate.evaluate_grasp_checkpoint`), a clip or marker model per clip on
     the data its reader takes (:func:`slipsense.evaluation.evaluate.evaluate_clip_checkpoint`, whose
     keyword ``options`` both take)."""
-    from slipsense.checkpoint import read_info
-    from slipsense.errors import InputError
+    from slipsense.checkpoint import load_model
 
-    try:
-        task = _task({"model": {"name": read_info(checkpoint).get("model")}})
-    except ConfigError as exc:
-        raise InputError(checkpoint, f"checkpoint config cannot build its model: {exc}") from None
-    return EVALUATORS[task](checkpoint, **options)
+    model, _ = load_model(checkpoint)  # a damaged checkpoint is refused before any data is read
+    return EVALUATORS[model.training_task](checkpoint, **options)
 
 
 def _task(tree: dict[str, Any]) -> str:
