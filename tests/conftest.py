@@ -86,3 +86,37 @@ def grasp_recordings(tmp_path_factory) -> Path:
             if slip:
                 (root / f"obj{i}" / f"exp_num_{exp}" / "slip.txt").write_text("")
     return root
+
+
+def _cli(args) -> None:
+    import sys
+
+    import torch
+
+    from slipsense.cli import main
+
+    torch.set_num_threads(1)
+    sys.argv = ["slipsense", *args]
+    main()
+
+
+def killed_once(state, args) -> int:
+    """Run ``slipsense ARGS`` in a forked process (torch already imported: seconds saved per model) and
+    SIGKILL it as soon as ``state`` (its resume state after the first epoch) exists; returns the
+    epochs it had saved."""
+    import multiprocessing
+    import os
+    import signal
+    import time
+
+    proc = multiprocessing.get_context("fork").Process(target=_cli, args=([str(a) for a in args],))
+    proc.start()
+    deadline = time.time() + 120
+    while not state.exists() and proc.is_alive() and time.time() < deadline:
+        time.sleep(0.002)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.join()
+    assert state.exists(), f"no resume state at {state}"
+    from slipsense.checkpoint import load_resume_state
+
+    return load_resume_state(state)["epoch"]

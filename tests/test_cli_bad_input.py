@@ -356,7 +356,7 @@ def _rewrite_config(src: Path, dst: Path, **changes) -> Path:
     [
         ({"d_model": 10**9}, "out of range"),
         ({"blocks": 10**7}, "out of range"),
-        ({"ff_dim": 4000, "blocks": 4000}, "missing"),
+        ({"ff_dim": 4000, "blocks": 400}, "missing"),  # in range; refused on the meta device
         ({"ff_dim": 16}, "has shape"),
         ({"model_config": [8, 2]}, "mapping"),
         ({"d_model": float("inf")}, "out of range"),

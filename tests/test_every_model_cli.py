@@ -32,40 +32,6 @@ def _markers(path, frames: int, markers: int):
     return path
 
 
-def _cli(args) -> None:
-    import sys
-
-    import torch
-
-    from slipsense.cli import main
-
-    torch.set_num_threads(1)
-    sys.argv = ["slipsense", *args]
-    main()
-
-
-def _killed_once(state, args) -> int:
-    """Run ``slipsense ARGS`` in a forked process (torch already imported: seconds saved per model) and
-    SIGKILL it as soon as ``state`` (its resume state after the first epoch) exists; returns the
-    epochs it had saved."""
-    import multiprocessing
-    import os
-    import signal
-    import time
-
-    proc = multiprocessing.get_context("fork").Process(target=_cli, args=([str(a) for a in args],))
-    proc.start()
-    deadline = time.time() + 120
-    while not state.exists() and proc.is_alive() and time.time() < deadline:
-        time.sleep(0.002)
-    os.kill(proc.pid, signal.SIGKILL)
-    proc.join()
-    assert state.exists(), f"no resume state at {state}"
-    from slipsense.checkpoint import load_resume_state
-
-    return load_resume_state(state)["epoch"]
-
-
 def _invoke(args):
     res = CliRunner().invoke(app, [str(a) for a in args])
     assert res.exit_code == 0, f"{args[0]}: {res.output}"
@@ -78,7 +44,7 @@ def test_every_model_trains_resumes_evaluates_exports_and_streams(name, tmp_path
     small = cls.small_config()
     sets = [x for k, v in small.items() for x in ("--set", f"model.{k}={json.dumps(v)}")]
     out = tmp_path / "run"
-    from conftest import REAL_RUN
+    from conftest import REAL_RUN, killed_once
 
     # watched: a real recording where the shared data is there (both cameras), else a made-up one
     run_folder = REAL_RUN if (REAL_RUN / "camera_0.avi").is_file() else grasp_recordings / "obj0" / "exp_num_1"
@@ -102,7 +68,7 @@ def test_every_model_trains_resumes_evaluates_exports_and_streams(name, tmp_path
     # (every run on one thread: float sums split over two threads round differently)
     cut = tmp_path / "cut"
     state = cut / ("resume/job0.state" if cls.training_task == "grasps" else "resume.pt")
-    assert _killed_once(state, [*train, "--out", cut]) < 12  # killed mid-training
+    assert killed_once(state, [*train, "--out", cut]) < 12  # killed mid-training
     _invoke([*train, "--out", cut, "--resume"])
     whole, resumed = load_file(str(ckpt)), load_file(str(cut / ckpt.name))
     assert whole.keys() == resumed.keys() and all(bool((whole[k] == resumed[k]).all()) for k in whole)

@@ -206,12 +206,6 @@ def test_train_model_motionnet_resumes_after_sigkill(tmp_path, grasps, monkeypat
     """`slipsense train --model motionnet` trains the default detector through the grasp task;
     SIGKILLed mid-training and started again with --resume it ends with the weights of an
     uninterrupted run."""
-    import os
-    import signal
-    import subprocess
-    import sys
-    import time
-
     monkeypatch.setenv("SLIPSENSE_CACHE", str(tmp_path / "cache"))
     args = [
         "train",
@@ -232,17 +226,11 @@ def test_train_model_motionnet_resumes_after_sigkill(tmp_path, grasps, monkeypat
     assert whole.exit_code == 0, whole.output
     assert "held-out objects (obj3)" in whole.output
 
+    from conftest import killed_once
+
     cut = tmp_path / "cut"
-    env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    code = "import sys; from slipsense.cli import main; sys.argv = ['slipsense'] + sys.argv[1:]; main()"
-    proc = subprocess.Popen([sys.executable, "-c", code, *args, "--out", str(cut)], env=env)
-    state = cut / "resume" / "job0.state"
-    deadline = time.time() + 120
-    while not state.exists() and proc.poll() is None and time.time() < deadline:
-        time.sleep(0.005)
-    proc.send_signal(signal.SIGKILL)
-    proc.wait()
-    assert state.exists() and not (cut / "detector.safetensors").exists()
+    assert killed_once(cut / "resume" / "job0.state", [*args, "--out", cut]) < 40
+    assert not (cut / "detector.safetensors").exists()
     resumed = CliRunner().invoke(app, [*args, "--out", str(cut), "--resume"])
     assert resumed.exit_code == 0, resumed.output
     a, b = _weights(tmp_path / "whole" / "detector.safetensors"), _weights(cut / "detector.safetensors")
@@ -302,8 +290,8 @@ def test_python_m_slipsense_cli_runs():
     import subprocess
     import sys
 
-    out = subprocess.run([sys.executable, "-m", "slipsense.cli", "models"], capture_output=True, text=True, timeout=120)
-    assert out.returncode == 0 and "motionnet" in out.stdout, out.stderr
+    out = subprocess.run([sys.executable, "-m", "slipsense.cli", "--help"], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0 and "evaluate" in out.stdout, out.stderr
 
 
 def test_a_fold_file_is_reused_only_under_the_key_of_todays_whole_settings(tmp_path):
