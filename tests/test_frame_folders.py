@@ -346,11 +346,15 @@ def test_folds_train_on_another_data_set_too_but_never_hold_it_out_or_judge_it(
     assert res.exit_code == 2 and "the training recordings themselves" in res.output, res.output
 
 
-def test_the_adaptation_study_gives_the_same_numbers_on_one_or_two_workers(tmp_path, cache, one_thread):
+def test_the_adaptation_study_gives_the_same_numbers_on_one_or_two_workers(
+    tmp_path, cache, one_thread, grasp_recordings
+):
     from slipsense.experiments.adaptation import adaptation_study
 
     root = _lift_data(tmp_path / "lift")
-    docs = [adaptation_study(root, sizes=(None,), epochs=1, draws=50, progress=False, workers=w) for w in (1, 2)]
+    kw = dict(sizes=(None,), epochs=1, draws=50, progress=False, also=grasp_recordings, also_epochs=1)
+    docs = [adaptation_study(root, workers=w, **kw) for w in (1, 2)]
+    assert any(r["row"].startswith("trained on both sets") for r in docs[0]["rows"])
     for a, b in zip(*(d["rows"] for d in docs)):
         assert a["row"] == b["row"] and a["roc_auc"] == b["roc_auc"] and a["held_alarming"] == b["held_alarming"]
         assert a.get("operating_point") == b.get("operating_point")

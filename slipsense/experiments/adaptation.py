@@ -69,6 +69,22 @@ def _peaks(model, runs: Sequence, startup: int) -> np.ndarray:
     return np.array([outcome.peak_alarm_score(p, 1, 0) for p in predict_runs(model, runs, startup)])
 
 
+def _both_sets_job(shared, job, tick=lambda units: None) -> tuple[np.ndarray, np.ndarray]:
+    """One held-out object of the both-sets row (:func:`slipsense.parallel.run_jobs`): the recipe
+    ``cfg`` with ``seed`` trained on ``pool[train]`` -> the peak scores of ``pool[own]`` (its threshold is
+    chosen on them) and of ``pool[held]``."""
+    from dataclasses import replace
+
+    from slipsense.training.grasps import fit_runs
+
+    pool, cfg = shared
+    seed, train, own, held = job
+    fitted, _ = fit_runs(
+        [pool[i] for i in train], replace(cfg, seed=seed), progress=False, on_epoch=lambda _: tick(len(train))
+    )
+    return _peaks(fitted, [pool[i] for i in own], 0), _peaks(fitted, [pool[i] for i in held], 0)
+
+
 def _row(name: str, scores, alarmed, slipped, objects, seconds: float, draws: int) -> dict[str, Any]:
     m = outcome.outcome_measure(scores, slipped, objects, alarmed, draws)
     held = ~np.asarray(slipped, bool)
@@ -92,15 +108,15 @@ def adaptation_study(
     Rows trained on ``n`` of the grasps pool ``repeats`` draws of them (each draw a grasp judged once
     more: a single draw of 5 grasps is mostly luck). ``also``: the recordings the shipped detector was
     trained on (another sensor's), for the row trained from scratch on both sets (``also_epochs``:
-    other than the recipe's). ``workers``: processes that train a detector and its inner folds side by
-    side (None: one per core; each training is seeded and single-threaded, so the numbers do not
+    other than the recipe's). ``workers``: processes that train a detector and its inner folds (and the
+    both-sets row's detectors) side by side (None: one per core; each training is seeded and single-threaded, so the numbers do not
     depend on it)."""
     from slipsense.checkpoint import load_model
     from slipsense.evaluation.baselines import frame_scores
     from slipsense.progress import progress_bar
     from slipsense.resources import ONE_SENSOR_MODEL, shipped_model
     from slipsense.training.grasp_detector import train_with_operating_point
-    from slipsense.training.grasps import fit_runs, load_grasp_data, make_config
+    from slipsense.training.grasps import load_grasp_data, make_config
 
     shipped = shipped_model(ONE_SENSOR_MODEL)
     model, info = load_model(shipped)
@@ -173,27 +189,30 @@ def adaptation_study(
         from slipsense.recordings.runs import per_sensor
 
         others = [r for r in per_sensor(others) if r.usable]
+        recipe = info["config"]  # the shipped detector's own tree: its model and training settings
+        cfg = make_config(
+            recipe["model"]["name"],
+            {
+                **{f"model.{key}": v for key, v in recipe["model"].items() if key != "name"},
+                **{key: v for key, v in recipe["train"].items() if key not in ("inner_folds", "seed")},
+                "inner_folds": 0,
+                **({"epochs": also_epochs} if also_epochs else {}),
+            },
+        )
+        pool, n = list(others) + list(runs), len(others)  # a fold trains on every other-sensor run too
+        jobs = []
+        for k, o in enumerate(names):
+            own, held = tuple(np.flatnonzero(objects != o) + n), tuple(np.flatnonzero(objects == o) + n)
+            jobs.append((seed + k, tuple(range(n)) + own, own, held))
+        from slipsense.parallel import run_jobs
+
+        weights = [len(j[1]) * cfg.epochs for j in jobs]
+        results = run_jobs(_both_sets_job, jobs, (pool, cfg), workers, weights, progress=progress, desc="both sets")
         scores, alarmed = np.zeros(len(runs)), np.zeros(len(runs), bool)
-        for k, o in enumerate(progress_bar(names, progress, "both sets")):
-            train = [r for r in runs if r.object != o]
-            recipe = info["config"]  # the shipped detector's own tree: its model and training settings
-            cfg = make_config(
-                recipe["model"]["name"],
-                {
-                    **{f"model.{key}": v for key, v in recipe["model"].items() if key != "name"},
-                    **{key: v for key, v in recipe["train"].items() if key not in ("inner_folds", "seed")},
-                    "inner_folds": 0,
-                    "seed": seed + k,
-                    **({"epochs": also_epochs} if also_epochs else {}),
-                },
-            )
-            fitted, _ = fit_runs(others + train, cfg, progress=False)
-            own = _peaks(fitted, train, 0)
-            train_slipped = np.array([r.slipped for r in train], bool)
-            th = calibrated_threshold(own[~train_slipped], own[train_slipped], BUDGET)
-            mine = objects == o
-            scores[mine] = _peaks(fitted, [r for r in runs if r.object == o], 0)
-            alarmed[mine] = scores[mine] >= th
+        for o, (own_peaks, held_peaks) in zip(names, results):
+            own_slipped, mine = slipped[objects != o], objects == o
+            th = calibrated_threshold(own_peaks[~own_slipped], own_peaks[own_slipped], BUDGET)
+            scores[mine], alarmed[mine] = held_peaks, held_peaks >= th
         name = f"trained on both sets ({len(others)} grasps of {Path(str(also)).name} too)"
         rows.append(_row(name, scores, alarmed, slipped, objects, time.perf_counter() - t0, draws))
     for name in ("mean_frame_difference", "difference_to_contact", "frame_difference"):
