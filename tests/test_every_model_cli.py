@@ -57,7 +57,7 @@ def test_every_model_trains_resumes_evaluates_exports_and_streams(name, tmp_path
         stream = run_folder
     else:
         data, stream = ["--recordings", grasp_recordings, "--set", "train.inner_folds=0"], run_folder
-    train = ["train", "--model", name, *sets, *data, "--epochs", 12, "--test-objects", "obj3", "--no-progress"]
+    train = ["train", "--model", name, *sets, *data, "--epochs", 6, "--test-objects", "obj3", "--no-progress"]
     _invoke([*train, "--out", out])
     ckpt = out / ("detector.safetensors" if cls.training_task == "grasps" else "last.safetensors")
     op = read_info(ckpt).get("operating_point")  # every detector on recordings alarms at a chosen point
@@ -68,7 +68,7 @@ def test_every_model_trains_resumes_evaluates_exports_and_streams(name, tmp_path
     # (every run on one thread: float sums split over two threads round differently)
     cut = tmp_path / "cut"
     state = cut / ("resume/job0.state" if cls.training_task == "grasps" else "resume.pt")
-    assert killed_once(state, [*train, "--out", cut]) < 12  # killed mid-training
+    assert killed_once(state, [*train, "--out", cut]) < 6  # killed mid-training
     _invoke([*train, "--out", cut, "--resume"])
     whole, resumed = load_file(str(ckpt)), load_file(str(cut / ckpt.name))
     assert whole.keys() == resumed.keys() and all(bool((whole[k] == resumed[k]).all()) for k in whole)
