@@ -109,8 +109,8 @@ def adaptation_study(
     more: a single draw of 5 grasps is mostly luck). ``also``: the recordings the shipped detector was
     trained on (another sensor's), for the row trained from scratch on both sets (``also_epochs``:
     other than the recipe's). ``workers``: processes that train a detector and its inner folds (and the
-    both-sets row's detectors) side by side (None: one per core; each training is seeded and single-threaded, so the numbers do not
-    depend on it)."""
+    both-sets row's detectors) side by side (None: one per core; each training is seeded and
+    single-threaded, so the numbers do not depend on it)."""
     from slipsense.checkpoint import load_model
     from slipsense.evaluation.baselines import frame_scores
     from slipsense.progress import progress_bar
