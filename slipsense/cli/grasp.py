@@ -207,6 +207,25 @@ def register(app: typer.Typer) -> None:
             f"{100 * ci.get('fp_high', float('nan')):.0f}%) -> {out}/README.md"
         )
 
+    @grasp_app.command("compare")
+    @friendly
+    def compare_cmd(
+        reports: List[Path] = typer.Argument(..., help="`slipsense grasp folds` report folders"),
+        label: List[str] = typer.Option([], "--label", help="a row's name, one per report in order (repeat)"),
+        out: Optional[Path] = typer.Option(None, help="Markdown file to write (default: print only)"),
+    ):
+        """Folds reports side by side: slips warned in time, premature, missed, false-positive grasps
+        with their intervals, one row per report (for a detector and its non-learned baseline)."""
+        from slipsense.atomic import check_output_file, write_text
+        from slipsense.evaluation.folds import compare_markdown
+
+        if out is not None:
+            check_output_file(out, "--out")
+        text = compare_markdown(reports, label, command=command_line())
+        if out is not None:
+            write_text(out, text)
+        typer.echo(text if out is None else f"{len(reports)} report(s) -> {out}")
+
     @grasp_app.command("precursors")
     @friendly
     def precursors_cmd(

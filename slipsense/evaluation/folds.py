@@ -335,3 +335,49 @@ def summary_markdown(report: dict[str, Any]) -> str:
         )
     lines += ["", "![trade-off](tradeoff.png)", ""]
     return "\n".join(lines)
+
+
+def compare_markdown(reports: Sequence[str | Path], labels: Sequence[str] = (), command: str = "") -> str:
+    """One row per ``slipsense grasp folds`` report (its pooled per-grasp outcome and clip F1 at 0.5),
+    so that detectors judged the same way sit side by side; ``labels`` name the rows (default: the
+    model, its operating-point rule and the report's folder)."""
+    from slipsense.errors import ConfigError, InputError
+    from slipsense.evaluation.pergrasp import wilson
+
+    if labels and len(labels) != len(reports):
+        raise ConfigError(f"{len(labels)} label(s) for {len(reports)} report(s): give one per report or none")
+    lines = [
+        "# Detectors side by side",
+        "",
+        *([f"Command: `{command}`", ""] if command else []),
+        "## Per grasp, leave-objects-out",
+        "",
+        "Pooled over folds, each fold at the operating point chosen on its training objects only; 95% Wilson"
+        " intervals over runs.",
+        "",
+        "| detector | rule | slips warned in time | premature | missed | false-positive grasps | median lead "
+        "| clip F1 at 0.5 | report |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---|",
+    ]
+    for k, folder in enumerate(map(Path, reports)):
+        try:
+            report = json.loads((folder / "folds.json").read_text(encoding="utf-8"))
+            g, cfg = report["pooled"]["per_grasp"], report["train_config"]
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise InputError(folder / "folds.json", f"is not a folds report ({exc})") from None
+
+        def count(n: int, of: int) -> str:
+            low, high = wilson(n, of)
+            return f"{n}/{of} ({_pct(low)}-{_pct(high)})"
+
+        one_finger = ", one finger" if report.get("sensors_per_grasp") == 1 else ""
+        label = labels[k] if labels else f"`{cfg['model']}`{one_finger}"
+        clips = (report["pooled"].get("clips_at_half") or {}).get("f1")
+        lead = g.get("median_lead_frames")
+        lines.append(
+            f"| {label} | {_rule(report)} ({cfg['inner_folds']} inner folds) "
+            f"| {count(g['warned'], g['slip_runs'])} | {g['premature']} | {g['missed']} "
+            f"| {count(g['false_positive_grasps'], g['held_runs'])} "
+            f"| {'-' if lead is None else f'{lead:g} frames'} | {_pct(clips)} | `{folder.as_posix()}` |"
+        )
+    return "\n".join(lines) + "\n"
