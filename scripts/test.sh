@@ -9,4 +9,6 @@ bash scripts/setup.sh
 # lint and format first (pyproject.toml [tool.ruff]; .pre-commit-config.yaml runs the same on commit)
 .venv/bin/ruff check --quiet .
 .venv/bin/ruff format --check --quiet .
-.venv/bin/python -m pytest -q "$@"
+# one test process per core (pytest-xdist), each torch on one thread: the tests are small models that
+# a second thread barely speeds up, and two threads per process on a shared core slow everything
+OMP_NUM_THREADS=1 .venv/bin/python -m pytest -q -n auto "$@"

@@ -257,9 +257,18 @@ def test_a_bag_is_learned_from_its_most_slip_like_frame():
     assert (g[0, :, 1] > 0).all()  # held frames are pushed away from slip
 
 
-def test_the_adaptation_study_runs_every_row(tmp_path, cache, one_thread, grasp_recordings):
+def _two_shear_candidates(monkeypatch):
+    """The shear row's recipe with 2 settings to choose among (16 ship): the same code, less time."""
+    from slipsense.models import model_class
+
+    shear = model_class("shear-retention")
+    monkeypatch.setattr(shear, "recipe", {**shear.recipe, "choose": {"gate": [0.5, 1.0], "letgo": [0.4]}})
+
+
+def test_the_adaptation_study_runs_every_row(tmp_path, cache, one_thread, grasp_recordings, monkeypatch):
     from slipsense.experiments.adaptation import adaptation_study, write
 
+    _two_shear_candidates(monkeypatch)
     root = _lift_data(tmp_path / "lift")
     doc = adaptation_study(root, sizes=(5,), epochs=1, draws=50, progress=False, also=grasp_recordings, also_epochs=1)
     names = [r["row"] for r in doc["rows"]]
@@ -347,10 +356,11 @@ def test_folds_train_on_another_data_set_too_but_never_hold_it_out_or_judge_it(
 
 
 def test_the_adaptation_study_gives_the_same_numbers_on_one_or_two_workers(
-    tmp_path, cache, one_thread, grasp_recordings
+    tmp_path, cache, one_thread, grasp_recordings, monkeypatch
 ):
     from slipsense.experiments.adaptation import adaptation_study
 
+    _two_shear_candidates(monkeypatch)
     root = _lift_data(tmp_path / "lift")
     kw = dict(sizes=(None,), epochs=1, draws=50, progress=False, also=grasp_recordings, also_epochs=1)
     docs = [adaptation_study(root, workers=w, **kw) for w in (1, 2)]
@@ -358,3 +368,29 @@ def test_the_adaptation_study_gives_the_same_numbers_on_one_or_two_workers(
     for a, b in zip(*(d["rows"] for d in docs)):
         assert a["row"] == b["row"] and a["roc_auc"] == b["roc_auc"] and a["held_alarming"] == b["held_alarming"]
         assert a.get("operating_point") == b.get("operating_point")
+
+
+def test_a_recipe_chooses_model_settings_on_the_training_grasps(tmp_path, cache, one_thread):
+    """`train.choose`: every combination of the listed model settings is judged as the detector is
+    (here without gradient training: epochs 0), the best by the rule's score on the training grasps
+    ships, and the checkpoint says which were tried; a grid too big, or one folds cannot run, is refused."""
+    from slipsense.checkpoint import read_info
+
+    root = _lift_data(tmp_path / "lift")
+    out = tmp_path / "shear"
+    choose = '{"gate": [0.3, 2.0], "letgo": [0.4]}'
+    res = runner.invoke(app, ["grasp", "train", "--recordings", str(root), "--model", "shear-retention",
+        "--set", "model.sensors=1", "--set", "model.image_size=[40,60]", "--set", "train.startup=0",
+        "--set", "train.epochs=0", "--set", "train.inner_folds=0", "--set", f"train.choose={choose}",
+        "--out", str(out), "--no-progress"])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    info = read_info(out / "detector.safetensors")
+    op = info["operating_point"]
+    tried = {t["settings"]["gate"]: t["score"] for t in op["tried"]}
+    assert sorted(tried) == [0.3, 2.0] and op["settings"]["letgo"] == 0.4
+    assert info["model_config"]["gate"] == op["settings"]["gate"]
+    assert tried[op["settings"]["gate"]] == max(tried.values()) == op["score_on_training_runs"]
+    big = '{"gate": [' + ",".join(["0.5"] * 65) + "]}"
+    res = runner.invoke(app, ["grasp", "train", "--recordings", str(root), "--model", "shear-retention",
+        "--set", f"train.choose={big}", "--out", str(tmp_path / "big"), "--no-progress"])  # fmt: skip
+    assert "65 combinations" in _error(res)

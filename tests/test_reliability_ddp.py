@@ -3,7 +3,8 @@ depend on the rank. Also a script, run by the tests once under torchrun and once
 
     python test_reliability_ddp.py OUT
 
-It trains four small jobs on 67 items (not a multiple of any batch here) into OUT/<job>/.
+It trains small clip jobs on 67 items (not a multiple of any batch here) into OUT/<job>/, and a grasp
+model on 7 made-up grasps into OUT/grasp/ (tests/support/tiny_grasp_train.py).
 """
 
 from __future__ import annotations
@@ -83,6 +84,11 @@ def main(out: str) -> None:
                 {k: v.contiguous() for k, v in model.state_dict().items()}, str(Path(out) / job / "final.safetensors")
             )
             (Path(out) / job / "history.json").write_text(json.dumps(history))
+    # a grasp model on 7 made-up grasps, steps of 2-3 runs (some split unevenly), under the same launch
+    sys.path.insert(0, str(Path(__file__).parent / "support"))
+    import tiny_grasp_train
+
+    tiny_grasp_train.main([str(Path(out) / "grasp"), "motion-energy", "1"])
 
 
 def _torchrun(out: Path) -> None:
@@ -131,6 +137,16 @@ def test_torchrun_equals_one_process_with_dropout_and_uneven_data(tmp_path, one_
             assert ra["val_accuracy"] == rb["val_accuracy"]
         rows = (tmp_path / "ddp" / job / "metrics.csv").read_text().strip().splitlines()
         assert len(rows) == 4  # header + 3 epochs, written once
+    # the grasp model (motion-energy: no batch norm, no dropout) ends with one process's weights
+    a, b = (load_file(str(tmp_path / run / "grasp" / "final.safetensors")) for run in ("single", "ddp"))
+    for k in a:
+        torch.testing.assert_close(a[k], b[k], atol=1e-5, rtol=0)
+    ha, hb = (json.loads((tmp_path / run / "grasp" / "history.json").read_text()) for run in ("single", "ddp"))
+    for ra, rb in zip(ha, hb):
+        assert (
+            abs(ra["train_loss"] - rb["train_loss"]) <= 1e-5 * abs(ra["train_loss"])
+            and ra["train_items"] == rb["train_items"]
+        )
 
 
 if __name__ == "__main__":

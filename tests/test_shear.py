@@ -73,3 +73,22 @@ def test_settings_outside_the_contract_are_refused():
         build("shear-retention", image_size=(65, 80), patch=10)
     with pytest.raises(ConfigError, match="iterations"):
         build("shear-retention", iterations=0)
+    with pytest.raises(ConfigError, match="softness"):
+        build("shear-retention", softness=-1)
+
+
+def test_sharp_steps_count_the_cells_exactly():
+    """softness 0 (numbers chosen, not learned): the score is the share of moved cells that let go,
+    over the moved cells plus one; the soft steps of training leak from cells that barely moved."""
+    sharp = build("shear-retention", sensors=1, image_size=(H, W), softness=0, gate=0.5, letgo=0.4, bias=0.0)
+    soft = build("shear-retention", sensors=1, image_size=(H, W), gate=0.5, letgo=0.4, bias=0.0)
+    cells = sharp.cells
+    peak = torch.zeros(1, 1, cells)
+    peak[..., :4] = 2.0  # four cells moved 2 px ...
+    shift = peak.clone()
+    shift[..., :3] = 0.5  # ... three of them gave up 75% of it
+    with torch.no_grad():
+        logit = sharp.logits_of(shift, peak)[0, 1]
+        leaky = soft.logits_of(shift + 0.01, peak + 0.3)[0, 1]  # untouched cells "moved" 0.3 px
+    assert float(logit) == pytest.approx(float(sharp.slope) * 3 / 5)
+    assert float(leaky) != pytest.approx(float(logit), rel=0.05)

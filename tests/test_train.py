@@ -155,25 +155,3 @@ def test_resume_split_check_reads_tuples_as_json_does(tmp_path):
     check_same_split(tmp_path / "split.json", info)  # nothing changed: no error
     with pytest.raises(InputError, match="clip_spec differ"):
         check_same_split(tmp_path / "split.json", {**info, "clip_spec": {"size": (60, 80)}})
-
-
-GRASP_SCRIPT = Path(__file__).parent / "support" / "tiny_grasp_train.py"
-
-
-def _grasp_run(out, model, accumulate, torchrun=False):
-    _run([out, model, accumulate], torchrun=torchrun, script=GRASP_SCRIPT)
-    from safetensors.torch import load_file
-
-    return load_file(str(Path(out) / "final.safetensors")), json.loads((Path(out) / "history.json").read_text())
-
-
-def test_grasp_ddp_two_processes_match_one_process(tmp_path):
-    """A grasp model under torchrun: each step's runs (7 made-up grasps, steps of 2-3 runs: some split
-    unevenly) go half to each rank; motion-energy (no batch norm, no dropout) ends with the weights of
-    one process. (motionnet, with dropout and batch norm, against one process with accumulate 2:
-    tests/test_grasp_cli.py, through the command line.)"""
-    single, h1 = _grasp_run(tmp_path / "one", "motion-energy", 1)
-    ddp, h2 = _grasp_run(tmp_path / "ddp", "motion-energy", 1, torchrun=True)
-    _assert_same(single, ddp, atol=1e-5)
-    for a, b in zip(h1, h2):
-        assert a["train_loss"] == pytest.approx(b["train_loss"], rel=1e-5) and a["train_items"] == b["train_items"]

@@ -69,6 +69,8 @@ def run_folds(
             "these grasps are labelled as a whole (no moment of slip): their leave-objects-out figures are "
             "`slipsense grasp adaptation --recordings DIR` (slipped against held, intervals over objects)"
         )
+    if cfg.choose:
+        raise ConfigError("train.choose is not run by grasp folds: give the model settings to compare one by one")
     split = object_split(usable, folds, cfg.folds_seed)
     key = _config_key(cfg, folds, usable)
     done: dict[int, dict[str, Any]] = {}

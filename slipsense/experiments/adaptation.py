@@ -13,9 +13,10 @@ in turn is held out and, from the other objects' grasps only:
 * ``this set alone``: the same recipe from random weights on all the other objects' grasps;
 * ``trained on both sets`` (with ``also``): the shipped detector's own recipe from random weights on
   the runs it was trained on and the other objects' grasps, the threshold chosen on those grasps;
-* ``shear retention``: physics with four learned numbers (:mod:`slipsense.models.shear`): how much of
-  the shear the lift put on the gel's markers has been given up, trained and its threshold chosen as
-  for ``this set alone``;
+* ``shear retention``: physics, no gradient training (:mod:`slipsense.models.shear`): how much of the
+  shear the lift put on the gel's markers has been given up; its ``gate`` and ``letgo`` chosen among
+  :attr:`~slipsense.models.shear.ShearRetention.recipe_choices` and its threshold set on the other
+  objects' grasps (``train.choose``, :func:`slipsense.training.grasp_detector.finish_training`);
 * the non-learned baselines (:mod:`slipsense.evaluation.baselines`) and the majority class, their
   thresholds chosen on the other objects.
 
@@ -42,7 +43,7 @@ from slipsense.evaluation.calibrate import calibrated_threshold
 #: Training grasps drawn for the fine-tuning rows (None: all of the other objects').
 SIZES = (5, 10, 20, None)
 BUDGET = 0.05
-SHEAR_ROW = "shear retention (4 numbers learned on the other objects)"
+SHEAR_ROW = "shear retention (gate and letgo chosen on the other objects)"
 #: Inner folds by object that choose the threshold of a detector trained on every other object's grasps
 #: (the shipped recipe's); one trained on a few grasps takes its threshold on those grasps.
 INNER_FOLDS = 2
@@ -143,11 +144,19 @@ def adaptation_study(
 
     from slipsense.models import model_class
 
-    shear_size = tuple(model_class("shear-retention")().image_size)
+    shear = model_class("shear-retention")
+    shear_size = tuple(shear().image_size)
     by_size = {tuple(model.image_size): runs}  # the grasps read at each model's frame size
     plans = [(f"fine-tuned, {n or 'all'} grasps", "motionnet", {"init": str(shipped)}, n) for n in sizes]
     plans.append(("this set alone", "motionnet", {"model.sensors": 1}, None))
-    plans.append((SHEAR_ROW, "shear-retention", {"model.sensors": 1, "model.image_size": list(shear_size)}, None))
+    plans.append(
+        (
+            SHEAR_ROW,
+            "shear-retention",
+            {"model.sensors": 1, "model.image_size": list(shear_size), **shear.recipe},
+            None,
+        )
+    )
     for name, model_name, settings, n in progress_bar(plans, progress, "adaptation rows"):
         t0 = time.perf_counter()
         size = tuple(settings.get("model.image_size") or model.image_size)
@@ -162,7 +171,7 @@ def adaptation_study(
                 train = _subset([r for r in grasps if r.object != o], n, rng)
                 inner = INNER_FOLDS if n is None else 0  # a few grasps: the threshold on those grasps
                 cfg = make_config(
-                    model_name, {**settings, "startup": 0, "epochs": epochs, "inner_folds": inner, "seed": seed + k}
+                    model_name, {"startup": 0, "epochs": epochs, "inner_folds": inner, "seed": seed + k, **settings}
                 )
                 mine = objects == o
                 _, _, op, probs = train_with_operating_point(

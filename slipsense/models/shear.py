@@ -72,9 +72,21 @@ class ShearRetention(GraspModel):
         gate: initial peak displacement, pixels, for a cell to count.
         letgo: initial share of its peak a cell must give up to count as let go.
         slope, bias: initial logit ``slope * (score - bias)``.
+        softness: width of the gate's and the let-go share's steps, as a multiple of theirs for
+            gradient training (1); 0: sharp steps, for a model whose numbers are chosen, not learned.
     """
 
     auto_backend = "torch"
+    #: How it is made for a new sensor (training settings, ``slipsense grasp train --set train.KEY``):
+    #: no gradient training; ``gate`` and ``letgo`` are chosen among these on the user's grasps, then
+    #: the threshold. Learning the four numbers by gradient on the 36 grasps of four objects ranked
+    #: the held-out objects' grasps worse (ROC AUC 0.954, docs/new-sensor.md).
+    recipe = {
+        "epochs": 0,
+        "inner_folds": 0,
+        "model.softness": 0.0,
+        "choose": {"gate": [0.3, 0.5, 1.0, 1.5], "letgo": [0.2, 0.3, 0.4, 0.6]},
+    }
 
     def __init__(
         self,
@@ -87,6 +99,7 @@ class ShearRetention(GraspModel):
         letgo: float = 0.4,
         slope: float = 20.0,
         bias: float = 0.15,
+        softness: float = 1.0,
     ):
         super().__init__()
         image_size = tuple(int(v) for v in image_size)
@@ -103,11 +116,13 @@ class ShearRetention(GraspModel):
                 f"shear-retention: sensors 1..8, iterations 1..20 and blur 0.3..8 pixels, "
                 f"got {sensors}, {iterations}, {blur}"
             )
-        numbers = {"blur": blur, "gate": gate, "letgo": letgo, "slope": slope, "bias": bias}
+        numbers = {"blur": blur, "gate": gate, "letgo": letgo, "slope": slope, "bias": bias, "softness": softness}
         if not all(np.isfinite(float(v)) for v in numbers.values()):
             raise ConfigError(f"shear-retention: {', '.join(numbers)} must be finite numbers, got {numbers}")
         self.sensors, self.image_size, self.patch = int(sensors), image_size, patch
-        self.blur, self.iterations = float(blur), iterations
+        if not 0 <= float(softness) <= 10:
+            raise ConfigError(f"shear-retention: softness must be in 0..10, got {softness}")
+        self.blur, self.iterations, self.softness = float(blur), iterations, float(softness)
         self.gate = nn.Parameter(torch.tensor(float(gate)))
         self.letgo = nn.Parameter(torch.tensor(float(letgo)))
         self.slope = nn.Parameter(torch.tensor(float(slope)))
@@ -132,6 +147,7 @@ class ShearRetention(GraspModel):
             "patch": self.patch,
             "blur": self.blur,
             "iterations": self.iterations,
+            "softness": self.softness,
             **self._init,
         }
 
@@ -183,12 +199,16 @@ class ShearRetention(GraspModel):
 
     def logits_of(self, shift: Tensor, peak: Tensor) -> Tensor:
         """Cell displacements and their peaks so far ``(..., S, C)`` -> logits ``(..., 2)``."""
-        moved = torch.sigmoid((peak - self.gate) / _GATE_SOFTNESS)
+        moved = self._step(peak - self.gate, _GATE_SOFTNESS)
         given_up = F.relu(peak - shift) / (peak + 0.05)
-        let_go = torch.sigmoid((given_up - self.letgo) / _LETGO_SOFTNESS)
+        let_go = self._step(given_up - self.letgo, _LETGO_SOFTNESS)
         score = (moved * let_go).sum(dim=-1) / (moved.sum(dim=-1) + 1.0)  # one cell's worth: no motion, no alarm
         logit = (self.slope * (score - self.bias)).amax(dim=-1)
         return torch.stack([torch.zeros_like(logit), logit], dim=-1)
+
+    def _step(self, x: Tensor, width: float) -> Tensor:
+        """0 below 0, 1 above: a sigmoid ``width * softness`` wide, or sharp (softness 0)."""
+        return torch.sigmoid(x / (width * self.softness)) if self.softness > 0 else (x > 0).to(x.dtype)
 
     def forward(self, gray: Tensor) -> Tensor:
         """``(B, S, N, h, w)`` grey frames in [0, 1] -> ``(B, N, 2)`` slip logits at every frame."""

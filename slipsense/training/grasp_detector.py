@@ -20,7 +20,7 @@ from slipsense.errors import ConfigError
 from slipsense.evaluation import pergrasp
 from slipsense.evaluation.grasp_scores import evaluate_held_out
 from slipsense.recordings.runs import GraspRun
-from slipsense.training.grasps import GraspTrainConfig, fit_runs, predict_runs
+from slipsense.training.grasps import GraspTrainConfig, candidates, fit_runs, predict_runs, with_settings
 
 
 def object_split(runs: Sequence[GraspRun], folds: int, seed: int = 0) -> list[list[str]]:
@@ -41,6 +41,7 @@ class FitJob:
     state_path: str | None = None  # where the training keeps its resume state (None: nowhere)
     out: str | None = None  # where it writes last/best checkpoints, metrics.csv and curves (None: nowhere)
     info: dict | None = None  # what those checkpoints carry besides the weights
+    settings: tuple = ()  # (key, value) model settings of this candidate (GraspTrainConfig.choose)
 
 
 def fit_job(shared: tuple[Sequence[GraspRun], GraspTrainConfig], job: FitJob, tick=lambda units: None):
@@ -48,6 +49,7 @@ def fit_job(shared: tuple[Sequence[GraspRun], GraspTrainConfig], job: FitJob, ti
     ``{"history", "probs" (per predicted run), "state" (weights, when kept)}``; ticks
     ``len(job.train)`` units per epoch."""
     runs, cfg = shared
+    cfg = with_settings(cfg, dict(job.settings))
     model, history = fit_runs(
         [runs[i] for i in job.train],
         cfg,
@@ -64,23 +66,27 @@ def fit_job(shared: tuple[Sequence[GraspRun], GraspTrainConfig], job: FitJob, ti
 
 def job_weight(job: FitJob, cfg: GraspTrainConfig) -> float:
     """Progress units :func:`fit_job` ticks in all."""
-    return float(len(job.train) * cfg.epochs)
+    return float(len(job.train) * max(cfg.epochs, 1))
 
 
 def plan_training(runs: Sequence[GraspRun], held: Sequence[str], cfg: GraspTrainConfig) -> list[FitJob]:
     """The trainings behind one detector: first the detector on every usable run whose object is not
     in ``held`` (replaying the held-out objects' runs), then one per inner fold of those training
-    objects (each replaying its own held-out runs), which choose the operating point. Indices are
-    into ``runs``."""
+    objects (each replaying its own held-out runs), which choose the operating point; all that once
+    per candidate of ``cfg.choose``. Indices are into ``runs``."""
     usable = [i for i, r in enumerate(runs) if r.usable]
     train = tuple(i for i in usable if runs[i].object not in set(held))
-    jobs = [FitJob(train, tuple(i for i in usable if runs[i].object in set(held)), keep_model=True)]
-    if cfg.inner_folds:
-        for inner in object_split([runs[i] for i in train], cfg.inner_folds, cfg.folds_seed):
+    inner = object_split([runs[i] for i in train], cfg.inner_folds, cfg.folds_seed) if cfg.inner_folds else []
+    jobs = []
+    for settings in candidates(cfg):
+        s = tuple(settings.items())
+        jobs.append(FitJob(train, tuple(i for i in usable if runs[i].object in set(held)), True, settings=s))
+        for objects in inner:
             jobs.append(
                 FitJob(
-                    tuple(i for i in train if runs[i].object not in inner),
-                    tuple(i for i in train if runs[i].object in inner),
+                    tuple(i for i in train if runs[i].object not in objects),
+                    tuple(i for i in train if runs[i].object in objects),
+                    settings=s,
                 )
             )
     return jobs
@@ -91,15 +97,41 @@ def finish_training(
 ):
     """From a finished :func:`plan_training`: ``(model in eval mode, history, operating point,
     P(slip) traces of the held-out runs)``. The operating point is chosen on the inner folds'
-    out-of-fold traces (or, with ``inner_folds=0``, on the model's own traces of its training runs)."""
+    out-of-fold traces (or, with ``inner_folds=0``, on the model's own traces of its training runs).
+    Of several candidates (``cfg.choose``) the one whose operating point scores best on those
+    traces is returned (ties: the better ROC AUC of the grasps' peaks); its operating point names
+    its ``settings`` and every candidate's score."""
     from slipsense.models import build
 
-    model = build(cfg.model, **cfg.model_config)  # the init checkpoint's settings where fine-tuned
-    model.load_state_dict(results[0]["state"])
-    model.eval()
-    judged = [runs[i] for i in judged_indices(runs, jobs)]
-    probs = inner_traces(runs, jobs, results) if cfg.inner_folds else predict_runs(model, judged, cfg.startup)
-    return model, results[0]["history"], _chosen_operating_point(probs, judged, cfg), results[0]["probs"]
+    per = max(1, len(jobs) // len(candidates(cfg)))  # the detector and its inner folds, per candidate
+    best, tried = None, []
+    for k in range(0, len(jobs), per):
+        js, rs, settings = jobs[k : k + per], results[k : k + per], dict(jobs[k].settings)
+        c = with_settings(cfg, settings)
+        model = build(c.model, **c.model_config)  # the init checkpoint's settings where fine-tuned
+        model.load_state_dict(rs[0]["state"])
+        model.eval()
+        judged = [runs[i] for i in judged_indices(runs, js)]
+        probs = inner_traces(runs, js, rs) if c.inner_folds else predict_runs(model, judged, c.startup)
+        op = _chosen_operating_point(probs, judged, c)
+        rank = (op.get("score_on_training_runs", 0.0), _peak_auc(probs, judged, c.startup))
+        tried.append({"settings": settings, "score": rank[0], "roc_auc": rank[1]})
+        if best is None or rank > best[0]:
+            best = (rank, model, rs[0], op, settings)
+    _, model, first, op, settings = best
+    if len(tried) > 1:
+        op = {**op, "settings": settings, "tried": tried}
+    return model, first["history"], op, first["probs"]
+
+
+def _peak_auc(probs: Sequence[np.ndarray], runs: Sequence[GraspRun], startup: int) -> float:
+    """ROC AUC of the grasps' peak P(slip), slipped against held (0 where one kind is missing)."""
+    from slipsense.evaluation.outcome import peak_alarm_score, roc_auc
+
+    slipped = np.array([r.slipped for r in runs], bool)
+    if slipped.all() or not slipped.any():
+        return 0.0
+    return float(roc_auc(np.array([peak_alarm_score(p, 1, startup) for p in probs]), slipped))
 
 
 def judged_indices(runs: Sequence[GraspRun], jobs: Sequence[FitJob]) -> list[int]:
@@ -140,7 +172,7 @@ def train_with_operating_point(
     if state_dir is not None:
         Path(state_dir).mkdir(parents=True, exist_ok=True)
         jobs = [dataclasses.replace(j, state_path=str(Path(state_dir) / f"job{k}.state")) for k, j in enumerate(jobs)]
-    if out is not None:
+    if out is not None and len(candidates(cfg)) == 1:  # of several, the one chosen is known only at the end
         jobs[0] = dataclasses.replace(jobs[0], out=str(out), info=info)
     if not jobs[0].train:
         raise ConfigError("no usable training runs (every run excluded, or slip runs without a moment)")
@@ -173,6 +205,8 @@ def inner_fold_traces(usable: Sequence[GraspRun], cfg: GraspTrainConfig, workers
     point is chosen on)."""
     from slipsense.parallel import run_jobs
 
+    if cfg.choose:
+        raise ConfigError("train.choose: give the chosen settings (GraspTrainConfig via with_settings)")
     jobs = plan_training(usable, (), cfg)[1:]
     results = run_jobs(fit_job, jobs, (usable, cfg), workers, [job_weight(j, cfg) for j in jobs], progress=progress)
     by_index = {i: p for job, res in zip(jobs, results) for i, p in zip(job.predict, res["probs"])}
@@ -206,8 +240,10 @@ def _chosen_operating_point(probs: Sequence[np.ndarray], runs: Sequence[GraspRun
         slipped = np.array([r.slipped for r in runs], bool)
         if slipped.all():
             raise ConfigError("no held grasp among the training runs: the alarm threshold needs some")
+        threshold = min(1.0, calibrated_threshold(peak[~slipped], peak[slipped], budget))
         op = {
-            "threshold": min(1.0, calibrated_threshold(peak[~slipped], peak[slipped], budget)),
+            "threshold": threshold,
+            "score_on_training_runs": float(((peak >= threshold) == slipped).mean()),  # per-grasp accuracy
             "debounce": 1,
             "horizon": cfg.horizon,
             "startup": cfg.startup,

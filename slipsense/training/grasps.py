@@ -61,10 +61,14 @@ class GraspTrainConfig:
     accumulate: int = 1  # micro-batches per process per step (a step's runs cut into world x accumulate groups)
     startup: int = pergrasp.STARTUP  # leading frames never trained on or scored (the camera's start-up; 0: none)
     init: str | None = None  # a checkpoint of cfg.model whose weights training starts from (fine-tuning)
+    # model settings to choose among on the training objects, e.g. {"gate": [0.3, 0.5]}: every
+    # combination is trained and judged as the detector is (its operating point on the inner folds);
+    # the best by the rule's score on the training runs is the detector (ties: the better ROC AUC)
+    choose: dict = field(default_factory=dict)
 
     def __post_init__(self):
         checks = {
-            "epochs": (1, 10_000),
+            "epochs": (0, 10_000),  # 0: no gradient training (a model of fixed settings: its operating point only)
             "batch_size": (1, 4096),
             "chunk": (1, 2048),
             "negatives": (0, 100),
@@ -90,6 +94,12 @@ class GraspTrainConfig:
                 raise ConfigError(f"{key} must be a finite number {'> 0' if positive else '>= 0'}, got {v!r}")
         if self.init is not None and not isinstance(self.init, str):
             raise ConfigError(f"init must be the path of a checkpoint, got {self.init!r}")
+        if not isinstance(self.choose, dict) or not all(
+            isinstance(k, str) and isinstance(v, list) and v for k, v in self.choose.items()
+        ):
+            raise ConfigError(f"choose must map model settings to lists of values to try, got {self.choose!r}")
+        if math.prod(len(v) for v in self.choose.values()) > 64:
+            raise ConfigError(f"choose: {math.prod(len(v) for v in self.choose.values())} combinations (at most 64)")
         if self.inner_folds == 1:
             raise ConfigError("inner_folds must be 0 or at least 2")
         k = self.max_held_alarm
@@ -347,6 +357,8 @@ def fit_runs(
 
     torch.manual_seed(cfg.seed)
     model = build(cfg.model, **cfg.model_config) if cfg.init is None else _initial_model(cfg)
+    if cfg.epochs == 0:
+        return model.eval(), []
     settings = LoopSettings(
         epochs=cfg.epochs, seed=cfg.seed, accumulate=cfg.accumulate, device="cpu", progress=progress, desc=cfg.model
     )
@@ -411,8 +423,24 @@ def make_config(model: str, settings: dict[str, Any], size: tuple[int, int] | No
     cfg = GraspTrainConfig(model=model, model_config=model_cfg, **typed(GraspTrainConfig, train, "grasp training"))
     from slipsense.models import build
 
-    build(cfg.model, **cfg.model_config)  # unknown or out-of-range model settings fail here, before any work
+    for settings in candidates(cfg):  # unknown or out-of-range model settings fail here, before any work
+        build(cfg.model, **{**cfg.model_config, **settings})
     return cfg
+
+
+def candidates(cfg: GraspTrainConfig) -> list[dict[str, Any]]:
+    """Every combination of ``cfg.choose``'s model settings (``[{}]`` when it chooses none)."""
+    import itertools
+
+    keys = sorted(cfg.choose)
+    return [dict(zip(keys, values)) for values in itertools.product(*(cfg.choose[k] for k in keys))]
+
+
+def with_settings(cfg: GraspTrainConfig, settings: dict[str, Any]) -> GraspTrainConfig:
+    """``cfg`` training the model with ``settings`` (one of :func:`candidates`) and choosing nothing more."""
+    import dataclasses
+
+    return dataclasses.replace(cfg, model_config={**cfg.model_config, **settings}, choose={})
 
 
 def load_grasp_data(

@@ -316,6 +316,7 @@ def restate_promise(checkpoint, workers: int | None = 1, progress: bool = False)
 
     from slipsense.checkpoint import read_info, update_info
     from slipsense.training.grasp_detector import held_alarm_of, inner_fold_traces
+    from slipsense.training.grasps import with_settings
 
     from slipsense.errors import InputError
 
@@ -331,6 +332,7 @@ def restate_promise(checkpoint, workers: int | None = 1, progress: bool = False)
     trained = set(info["data"]["objects"])
     usable = [r for r in runs if r.usable and r.object in trained]
     op = dict(info["operating_point"])
+    cfg = with_settings(cfg, op.get("settings", {}))  # the settings train.choose chose, if it chose
     judged = [r for r in usable if not r.extra]  # the traces inner_fold_traces returns
     op["held_alarm"] = held_alarm_of(inner_fold_traces(usable, cfg, workers, progress), judged, op, cfg)
     op["held_alarm"]["restated"] = f"{cfg.inner_folds} inner folds trained again by `slipsense grasp promise`"
