@@ -148,7 +148,7 @@ def test_grasp_folds_resume(tmp_path, grasps, monkeypatch):
 
 
 def test_grasp_bad_settings_one_line(tmp_path, grasps):
-    for extra in (["--set", "width=100000"], ["--set", "epochs=0"], ["--fold", "7"], ["--set", "nonsense=1"]):
+    for extra in (["--set", "width=100000"], ["--set", "epochs=-1"], ["--fold", "7"], ["--set", "nonsense=1"]):
         res = CliRunner().invoke(
             app, ["grasp", "train", "--out", str(tmp_path / "x"), "--recordings", str(grasps), "--no-progress", *extra]
         )
