@@ -15,7 +15,7 @@ in turn is held out and, from the other objects' grasps only:
   the runs it was trained on and the other objects' grasps, the threshold chosen on those grasps;
 * ``shear retention``: physics, no gradient training (:mod:`slipsense.models.shear`): how much of the
   shear the lift put on the gel's markers has been given up; its ``gate`` and ``letgo`` chosen among
-  :attr:`~slipsense.models.shear.ShearRetention.recipe_choices` and its threshold set on the other
+  :attr:`~slipsense.models.shear.ShearRetention.recipe` and its threshold set on the other
   objects' grasps (``train.choose``, :func:`slipsense.training.grasp_detector.finish_training`);
 * the non-learned baselines (:mod:`slipsense.evaluation.baselines`) and the majority class, their
   thresholds chosen on the other objects.
