@@ -358,8 +358,8 @@ def compare_markdown(reports: Sequence[str | Path], labels: Sequence[str] = (), 
         " intervals over runs.",
         "",
         "| detector | rule | slips warned in time | premature | missed | false-positive grasps | median lead "
-        "| clip F1 at 0.5 | report |",
-        "|---|---|---:|---:|---:|---:|---:|---:|---|",
+        "| runs alarming at rest | clip F1 at 0.5 | report |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|---|",
     ]
     for k, folder in enumerate(map(Path, reports)):
         try:
@@ -380,6 +380,7 @@ def compare_markdown(reports: Sequence[str | Path], labels: Sequence[str] = (), 
             f"| {label} | {_rule(report)} ({cfg['inner_folds']} inner folds) "
             f"| {count(g['warned'], g['slip_runs'])} | {g['premature']} | {g['missed']} "
             f"| {count(g['false_positive_grasps'], g['held_runs'])} "
-            f"| {'-' if lead is None else f'{lead:g} frames'} | {_pct(clips)} | `{folder.as_posix()}` |"
+            f"| {'-' if lead is None else f'{lead:g} frames'} | {g.get('runs_alarming_at_rest', '-')} | {_pct(clips)} "
+            f"| `{folder.as_posix()}` |"
         )
     return "\n".join(lines) + "\n"
