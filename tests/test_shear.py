@@ -92,3 +92,13 @@ def test_sharp_steps_count_the_cells_exactly():
         leaky = soft.logits_of(shift + 0.01, peak + 0.3)[0, 1]  # untouched cells "moved" 0.3 px
     assert float(logit) == pytest.approx(float(sharp.slope) * 3 / 5)
     assert float(leaky) != pytest.approx(float(logit), rel=0.05)
+
+
+def test_sharp_steps_export_to_onnx(tmp_path):
+    """The shipped gelsight-lift detector has sharp steps: its ONNX files answer as PyTorch does."""
+    pytest.importorskip("onnxruntime")
+    from slipsense.streaming.export import export_onnx
+
+    sharp = build("shear-retention", sensors=1, image_size=(H, W), softness=0).eval()
+    result = export_onnx(sharp, tmp_path / "sharp.onnx")
+    assert set(result.paths) == {"model", "frame", "step"} and max(result.max_abs_diff.values()) <= 1e-4
