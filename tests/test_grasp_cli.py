@@ -147,6 +147,30 @@ def test_grasp_folds_resume(tmp_path, grasps, monkeypatch):
     assert res.exit_code == 0 and (out / "fold0.json").stat().st_mtime_ns == before
 
 
+def test_grasp_folds_choose_settings_on_each_folds_training_objects(tmp_path, grasps, monkeypatch):
+    """`train.choose` under folds: each fold tries every setting on its own training objects (inner
+    folds), keeps one, and its fold file keeps the inner traces of the setting it kept."""
+    monkeypatch.setenv("SLIPSENSE_CACHE", str(tmp_path / "cache"))
+    out = tmp_path / "folds"
+    args = ["grasp", "folds", "--out", str(out), "--recordings", str(grasps), "--folds", "2", "--inner-folds", "2"]
+    res = CliRunner().invoke(app, [*args, *SMALL, "--epochs", "1", "--set", 'train.choose={"width": [2, 4]}'])
+    assert res.exit_code == 0, res.output
+    for k, fold in enumerate(json.loads((out / "folds.json").read_text())["per_fold"]):
+        op = fold["operating_point"]
+        assert [t["settings"]["width"] for t in op["tried"]] == [2, 4] and op["settings"]["width"] in (2, 4)
+        inner = json.loads((out / f"fold{k}.json").read_text())["inner"]
+        runs = [(r["object"], r["experiment"], tuple(r["cameras"])) for r in inner]
+        assert len(runs) == len(set(runs)) > 0  # one trace per training run (the kept setting's: chosen_part)
+    # the kept setting's inner traces: the same rule chosen again on them gives each fold's point back
+    res = CliRunner().invoke(
+        app, ["grasp", "rechoose", str(out), "--out", str(tmp_path / "again"), "--max-held-alarm", "-1"]
+    )
+    assert res.exit_code == 0, res.output
+    again = json.loads((tmp_path / "again" / "folds.json").read_text())["per_fold"]
+    folds = json.loads((out / "folds.json").read_text())["per_fold"]
+    assert [f["operating_point"]["threshold"] for f in again] == [f["operating_point"]["threshold"] for f in folds]
+
+
 def test_grasp_bad_settings_one_line(tmp_path, grasps):
     for extra in (["--set", "width=100000"], ["--set", "epochs=-1"], ["--fold", "7"], ["--set", "nonsense=1"]):
         res = CliRunner().invoke(
@@ -326,3 +350,13 @@ def test_grasp_promise_restates_what_training_stated(tmp_path, grasps, monkeypat
     again = read_info(ckpt)["operating_point"]["held_alarm"]
     assert again.pop("restated") and again == stated
     assert "on new objects at most" in res.output
+
+
+def test_the_kept_settings_part_is_its_detector_and_inner_folds():
+    from slipsense.training.grasp_detector import FitJob, chosen_part
+
+    jobs = [FitJob((0,), (1,), settings=(("width", w),)) for w in (2, 2, 4, 4)]
+    results = ["a", "b", "c", "d"]
+    assert chosen_part(jobs, results, {"settings": {"width": 2}}) == (jobs[:2], ["a", "b"])
+    assert chosen_part(jobs, results, {"settings": {"width": 4}}) == (jobs[2:], ["c", "d"])
+    assert chosen_part(jobs[:2], results[:2], {}) == (jobs[:2], ["a", "b"])  # nothing chosen: all

@@ -25,6 +25,7 @@ from slipsense import atomic
 from slipsense.errors import ConfigError
 from slipsense.evaluation.grasp_scores import fold_result, pool_folds, stored_trace
 from slipsense.training.grasp_detector import (
+    chosen_part,
     finish_training,
     fit_job,
     inner_traces,
@@ -69,8 +70,6 @@ def run_folds(
             "these grasps are labelled as a whole (no moment of slip): their leave-objects-out figures are "
             "`slipsense grasp adaptation --recordings DIR` (slipped against held, intervals over objects)"
         )
-    if cfg.choose:
-        raise ConfigError("train.choose is not run by grasp folds: give the model settings to compare one by one")
     split = object_split(usable, folds, cfg.folds_seed)
     key = _config_key(cfg, folds, usable)
     done: dict[int, dict[str, Any]] = {}
@@ -91,6 +90,7 @@ def run_folds(
             return
         ordered = [results[k][i] for i in sorted(results[k])]
         _, history, op, probs = finish_training(usable, plans[k], ordered, cfg)
+        jobs_kept, results_kept = chosen_part(plans[k], ordered, op)  # of the settings train.choose kept
         test = [usable[i] for i in plans[k][0].predict]
         done[k] = {
             "config_key": key,
@@ -98,7 +98,7 @@ def run_folds(
             **fold_result(test, probs, op, history, labels, split[k], cfg),
             # what chose the operating point, kept so another rule can be chosen on it later
             "inner": _traces(
-                [usable[i] for i in judged_indices(usable, plans[k])], inner_traces(usable, plans[k], ordered)
+                [usable[i] for i in judged_indices(usable, jobs_kept)], inner_traces(usable, jobs_kept, results_kept)
             )
             if cfg.inner_folds
             else [],

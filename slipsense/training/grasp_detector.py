@@ -124,6 +124,15 @@ def finish_training(
     return model, first["history"], op, first["probs"]
 
 
+def chosen_part(jobs: Sequence[FitJob], results: Sequence[Any], op: dict[str, Any]):
+    """The jobs and results of the candidate :func:`finish_training` kept (``op["settings"]``; all of
+    them when nothing was chosen): its detector and its inner folds."""
+    if "settings" not in op:
+        return list(jobs), list(results)
+    kept = [(j, r) for j, r in zip(jobs, results) if dict(j.settings) == op["settings"]]
+    return [j for j, _ in kept], [r for _, r in kept]
+
+
 def _peak_auc(probs: Sequence[np.ndarray], runs: Sequence[GraspRun], startup: int) -> float:
     """ROC AUC of the grasps' peak P(slip), slipped against held (0 where one kind is missing)."""
     from slipsense.evaluation.outcome import peak_alarm_score, roc_auc
