@@ -294,10 +294,14 @@ def calibrate(
 @friendly
 def models():
     """List the registered models and their parameter counts at default settings."""
+    import torch
+
     from slipsense.models import available, build, count_parameters
 
     for name in available():
-        typer.echo(f"{name:12s} {count_parameters(build(name)):>12,d} parameters")
+        with torch.device("meta"):  # counted without allocating (STNet at the paper's size: 127 M)
+            n = count_parameters(build(name))
+        typer.echo(f"{name:12s} {n:>12,d} parameters")
 
 
 def _register_extensions() -> None:
@@ -317,14 +321,23 @@ _register_extensions()
 
 
 def main() -> None:  # console-script entry point
-    from slipsense.training.distributed import finish
-
     try:
         app()
     except SystemExit as done:
-        finish(wait=done.code in (0, None))  # a rank that failed does not wait for the others
+        _leave_process_group(wait=done.code in (0, None))  # a rank that failed does not wait for the others
         raise
-    finish()
+    _leave_process_group()
+
+
+def _leave_process_group(wait: bool = True) -> None:
+    """:func:`slipsense.training.distributed.finish`, where a command imported torch.distributed (a
+    process group exists only there): `slipsense --help` does not start torch (4 s) to find none."""
+    import sys
+
+    if "torch.distributed" in sys.modules:
+        from slipsense.training.distributed import finish
+
+        finish(wait=wait)
 
 
 if __name__ == "__main__":
