@@ -360,3 +360,13 @@ def test_the_kept_settings_part_is_its_detector_and_inner_folds():
     assert chosen_part(jobs, results, {"settings": {"width": 2}}) == (jobs[:2], ["a", "b"])
     assert chosen_part(jobs, results, {"settings": {"width": 4}}) == (jobs[2:], ["c", "d"])
     assert chosen_part(jobs[:2], results[:2], {}) == (jobs[:2], ["a", "b"])  # nothing chosen: all
+
+
+def test_choosing_settings_of_a_fine_tuned_model_is_refused():
+    import pytest
+
+    from slipsense.errors import ConfigError
+    from slipsense.training.grasps import GraspTrainConfig
+
+    with pytest.raises(ConfigError, match="train.init"):
+        GraspTrainConfig(init="shipped.safetensors", choose={"width": [4, 8]})

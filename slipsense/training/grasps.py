@@ -98,6 +98,8 @@ class GraspTrainConfig:
             isinstance(k, str) and isinstance(v, list) and v for k, v in self.choose.items()
         ):
             raise ConfigError(f"choose must map model settings to lists of values to try, got {self.choose!r}")
+        if self.choose and self.init is not None:
+            raise ConfigError("choose: a fine-tuned model's settings are its train.init checkpoint's, not chosen")
         if math.prod(len(v) for v in self.choose.values()) > 64:
             raise ConfigError(f"choose: {math.prod(len(v) for v in self.choose.values())} combinations (at most 64)")
         if self.inner_folds == 1:
