@@ -339,12 +339,19 @@ def summary_markdown(report: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def _count(n: int, of: int) -> str:
+    """``n/of (low-high)``: a count with its 95% Wilson interval."""
+    from slipsense.evaluation.pergrasp import wilson
+
+    low, high = wilson(n, of)
+    return f"{n}/{of} ({_pct(low)}-{_pct(high)})"
+
+
 def compare_markdown(reports: Sequence[str | Path], labels: Sequence[str] = (), command: str = "") -> str:
     """One row per ``slipsense grasp folds`` report (its pooled per-grasp outcome and clip F1 at 0.5),
     so that detectors judged the same way sit side by side; ``labels`` name the rows (default: the
     model, its operating-point rule and the report's folder)."""
     from slipsense.errors import ConfigError, InputError
-    from slipsense.evaluation.pergrasp import wilson
 
     if labels and len(labels) != len(reports):
         raise ConfigError(f"{len(labels)} label(s) for {len(reports)} report(s): give one per report or none")
@@ -368,18 +375,14 @@ def compare_markdown(reports: Sequence[str | Path], labels: Sequence[str] = (), 
         except (OSError, ValueError, KeyError, TypeError) as exc:
             raise InputError(folder / "folds.json", f"is not a folds report ({exc})") from None
 
-        def count(n: int, of: int) -> str:
-            low, high = wilson(n, of)
-            return f"{n}/{of} ({_pct(low)}-{_pct(high)})"
-
         one_finger = ", one finger" if report.get("sensors_per_grasp") == 1 else ""
         label = labels[k] if labels else f"`{cfg['model']}`{one_finger}"
         clips = (report["pooled"].get("clips_at_half") or {}).get("f1")
         lead = g.get("median_lead_frames")
         lines.append(
             f"| {label} | {_rule(report)} ({cfg['inner_folds']} inner folds) "
-            f"| {count(g['warned'], g['slip_runs'])} | {g['premature']} | {g['missed']} "
-            f"| {count(g['false_positive_grasps'], g['held_runs'])} "
+            f"| {_count(g['warned'], g['slip_runs'])} | {g['premature']} | {g['missed']} "
+            f"| {_count(g['false_positive_grasps'], g['held_runs'])} "
             f"| {'-' if lead is None else f'{lead:g} frames'} | {g.get('runs_alarming_at_rest', '-')} | {_pct(clips)} "
             f"| `{folder.as_posix()}` |"
         )

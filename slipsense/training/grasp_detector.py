@@ -103,10 +103,8 @@ def finish_training(
     its ``settings`` and every candidate's score."""
     from slipsense.models import build
 
-    per = max(1, len(jobs) // len(candidates(cfg)))  # the detector and its inner folds, per candidate
     best, tried = None, []
-    for k in range(0, len(jobs), per):
-        js, rs, settings = jobs[k : k + per], results[k : k + per], dict(jobs[k].settings)
+    for settings, js, rs in _candidate_parts(jobs, results):
         c = with_settings(cfg, settings)
         model = build(c.model, **c.model_config)  # the init checkpoint's settings where fine-tuned
         model.load_state_dict(rs[0]["state"])
@@ -124,13 +122,23 @@ def finish_training(
     return model, first["history"], op, first["probs"]
 
 
+def _candidate_parts(jobs: Sequence[FitJob], results: Sequence[Any]) -> list[tuple[dict, list, list]]:
+    """``(settings, jobs, results)`` of each candidate of a plan, in plan order: its detector and its
+    inner folds, which :func:`plan_training` puts one after another (one part where nothing is chosen)."""
+    parts: list[tuple[tuple, list, list]] = []
+    for j, r in zip(jobs, results):
+        if not parts or parts[-1][0] != j.settings:  # settings may hold lists: compared, not hashed
+            parts.append((j.settings, [], []))
+        parts[-1][1].append(j)
+        parts[-1][2].append(r)
+    return [(dict(key), js, rs) for key, js, rs in parts]
+
+
 def chosen_part(jobs: Sequence[FitJob], results: Sequence[Any], op: dict[str, Any]):
     """The jobs and results of the candidate :func:`finish_training` kept (``op["settings"]``; all of
     them when nothing was chosen): its detector and its inner folds."""
-    if "settings" not in op:
-        return list(jobs), list(results)
-    kept = [(j, r) for j, r in zip(jobs, results) if dict(j.settings) == op["settings"]]
-    return [j for j, _ in kept], [r for _, r in kept]
+    parts = _candidate_parts(jobs, results)
+    return next((js, rs) for settings, js, rs in parts if "settings" not in op or settings == op["settings"])
 
 
 def _peak_auc(probs: Sequence[np.ndarray], runs: Sequence[GraspRun], startup: int) -> float:

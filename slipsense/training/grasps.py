@@ -100,8 +100,9 @@ class GraspTrainConfig:
             raise ConfigError(f"choose must map model settings to lists of values to try, got {self.choose!r}")
         if self.choose and self.init is not None:
             raise ConfigError("choose: a fine-tuned model's settings are its train.init checkpoint's, not chosen")
-        if math.prod(len(v) for v in self.choose.values()) > 64:
-            raise ConfigError(f"choose: {math.prod(len(v) for v in self.choose.values())} combinations (at most 64)")
+        combinations = math.prod(len(v) for v in self.choose.values())
+        if combinations > 64:
+            raise ConfigError(f"choose: {combinations} combinations (at most 64)")
         if self.inner_folds == 1:
             raise ConfigError("inner_folds must be 0 or at least 2")
         k = self.max_held_alarm
