@@ -477,3 +477,37 @@ def test_exclude_override_leaves_the_video_without_clips(tmp_path):
     out = L.apply_overrides({label.key: label}, ov)[label.key]
     assert out.slipped and out.moment_of_slip is None and out.source == "override"
     assert plan_windows(out, ClipSpec()) == []
+
+
+def test_drops_equal_the_per_frame_medians_they_stand_for():
+    """`_drops` takes its medians from running windows: the same drops as a median per frame,
+    at the edges (shorter windows) and on signals shorter than a window."""
+    from slipsense.recordings import contact as c
+
+    def per_frame(s, floor, begin):
+        n, found, group = len(s), [], []
+        for t in range(begin, n - 1):
+            pre = float(np.median(s[max(begin, t - c.LEVEL_BEFORE + 1) : t + 1]))
+            post = float(np.median(s[t + 2 : t + 2 + c.LEVEL_AFTER])) if t + 2 < n else float(s[n - 1])
+            ok = pre - floor >= c.MIN_CONTACT and post - floor <= c.LOSS_FRACTION * (pre - floor)
+            if ok:
+                group.append((t, pre, post))
+            if group and (not ok or t == n - 2):
+                before, after = max(g[1] for g in group), min(g[2] for g in group)
+                clear = after + max(c.MIN_CONTACT, 0.25 * (before - after))
+                high = [g[0] for g in group if s[g[0]] >= clear]
+                found.append((max(high) if high else group[0][0], before, after))
+                group = []
+        return found
+
+    rng = np.random.default_rng(0)
+    seen = 0
+    for n in (2, 3, 4, 6, 9, 40, 200):
+        for _ in range(20):
+            s = np.where(rng.random(n) < 0.5, 0.0, 4 * c.MIN_CONTACT) + rng.random(n).astype(np.float32)
+            s = s.astype(np.float32)
+            begin = int(rng.integers(0, max(1, n - 1)))
+            expected = per_frame(s, 0.0, begin)
+            assert c._drops(s, 0.0, begin) == expected
+            seen += len(expected)
+    assert seen > 50  # drops were found, not only empty lists compared

@@ -70,11 +70,15 @@ def _marker_clouds(path: Path, product: str) -> np.ndarray:
     return marker_clouds(track, product.split(":", 1)[1])
 
 
-def _compute(video: np.ndarray, product: str) -> np.ndarray:
+def _compute(video: np.ndarray, product: str, made: dict) -> np.ndarray:
+    """``product`` of a decoded video; ``made`` keeps what one decode's products share (the blocks
+    the contact signal is made of: computed once, a third of labelling's resizing)."""
     if product in ("blocks", "contact"):
         from .contact import signal_of_blocks, video_blocks
 
-        blocks = video_blocks(video)
+        if "blocks" not in made:
+            made["blocks"] = video_blocks(video)
+        blocks = made["blocks"]
         if product == "blocks":
             return blocks
         # one frame has no contact signal (it needs the gel at rest to compare with): none is read
@@ -142,8 +146,9 @@ def video_products(path: str | Path, products: Sequence[str], min_frames: int = 
     missing = [p for p in products if p not in out]
     if missing:
         video = read_video(path, expected_size=None, min_frames=min_frames)
+        made: dict = {}
         for p in missing:
-            out[p] = _compute(video, p)
+            out[p] = _compute(video, p, made)
             _store(_entry(path, p), identity, out[p])
     if len(next(iter(out.values()))) < min_frames:
         raise InputError(path, f"only {len(next(iter(out.values())))} frame(s), need at least {min_frames}")
