@@ -13,6 +13,8 @@ from hypothesis import strategies as st
 
 from slipsense import config
 from slipsense.errors import InputError
+from slipsense.recordings import contact as C
+from slipsense.recordings import label_csv as CSV
 from slipsense.recordings import labels as L
 from slipsense.recordings.types import Recording, VideoLabel
 
@@ -73,28 +75,28 @@ def synthetic_video(
 
 def test_signal_shape_rest_and_contact_levels():
     v = synthetic_video(120, (20, 79))
-    s = L.contact_signal(v)
+    s = C.contact_signal(v)
     assert s.shape == (120,) and s.dtype == np.float32
-    rest = np.r_[s[L.STARTUP_FRAMES : 20], s[80:]]
+    rest = np.r_[s[C.STARTUP_FRAMES : 20], s[80:]]
     assert rest.max() < 2.5  # the key-frame flicker stays near the floor
     assert s[20:80].min() > 8 * max(rest.max(), 0.5)
     # the start-up transient is not reported: frames 0..9 repeat frame 10
-    assert np.all(s[: L.STARTUP_FRAMES] == s[L.STARTUP_FRAMES])
+    assert np.all(s[: C.STARTUP_FRAMES] == s[C.STARTUP_FRAMES])
 
 
 def test_synthetic_moment_and_phase_exact():
     v = synthetic_video(120, (20, 79))
-    s = L.contact_signal(v)
-    assert L.contact_phase(s) == (20, 79)
-    assert L.find_moment_of_slip([s, s]) == 79
-    assert L.find_moment_of_slip([s], rule="both") == 79
+    s = C.contact_signal(v)
+    assert C.contact_phase(s) == (20, 79)
+    assert C.find_moment_of_slip([s, s]) == 79
+    assert C.find_moment_of_slip([s], rule="both") == 79
 
 
 def test_either_and_both_rules_pick_first_and_last_loss():
-    s0 = L.contact_signal(synthetic_video(120, (20, 79), seed=1))
-    s2 = L.contact_signal(synthetic_video(120, (22, 71), seed=2))
-    assert L.find_moment_of_slip([s0, s2]) == 71
-    assert L.find_moment_of_slip([s0, s2], rule="both") == 79
+    s0 = C.contact_signal(synthetic_video(120, (20, 79), seed=1))
+    s2 = C.contact_signal(synthetic_video(120, (22, 71), seed=2))
+    assert C.find_moment_of_slip([s0, s2]) == 71
+    assert C.find_moment_of_slip([s0, s2], rule="both") == 79
 
 
 def test_partial_drop_then_loss_is_the_final_loss():
@@ -102,8 +104,8 @@ def test_partial_drop_then_loss_is_the_final_loss():
     strength = np.zeros(120, np.float32)
     strength[20:60] = 1.0
     strength[60:68] = 0.45
-    s = L.contact_signal(synthetic_video(120, None, strength=strength, seed=3))
-    assert L.find_moment_of_slip([s]) == 67
+    s = C.contact_signal(synthetic_video(120, None, strength=strength, seed=3))
+    assert C.find_moment_of_slip([s]) == 67
 
 
 def test_static_residual_after_loss_is_not_contact():
@@ -111,37 +113,37 @@ def test_static_residual_after_loss_is_not_contact():
     strength = np.zeros(140, np.float32)
     strength[20:60] = 1.0
     strength[60:100] = 0.35
-    s = L.contact_signal(synthetic_video(140, None, strength=strength, seed=4))
-    assert L.find_moment_of_slip([s]) == 59
+    s = C.contact_signal(synthetic_video(140, None, strength=strength, seed=4))
+    assert C.find_moment_of_slip([s]) == 59
 
 
 def test_brief_dip_during_contact_is_not_a_loss():
     strength = np.zeros(120, np.float32)
     strength[20:90] = 1.0
     strength[50:53] = 0.1  # the object bounces off the gel for three frames while wiggled
-    s = L.contact_signal(synthetic_video(120, None, strength=strength, seed=5))
-    assert L.find_moment_of_slip([s]) == 89
+    s = C.contact_signal(synthetic_video(120, None, strength=strength, seed=5))
+    assert C.find_moment_of_slip([s]) == 89
 
 
 def test_no_contact_gives_none_and_an_empty_phase():
-    s = L.contact_signal(synthetic_video(90, None, seed=6))
-    assert L.find_moment_of_slip([s]) is None
-    assert L.contact_phase(s) == (L.STARTUP_FRAMES, L.STARTUP_FRAMES)
+    s = C.contact_signal(synthetic_video(90, None, seed=6))
+    assert C.find_moment_of_slip([s]) is None
+    assert C.contact_phase(s) == (C.STARTUP_FRAMES, C.STARTUP_FRAMES)
 
 
 def test_video_ending_in_contact_has_no_moment():
-    s = L.contact_signal(synthetic_video(100, (30, 99), seed=7), reference="head")
-    assert L.find_moment_of_slip([s]) is None
-    assert L.contact_phase(s) == (30, 99)
+    s = C.contact_signal(synthetic_video(100, (30, 99), seed=7), reference="head")
+    assert C.find_moment_of_slip([s]) is None
+    assert C.contact_phase(s) == (30, 99)
 
 
 def test_bad_arguments():
     with pytest.raises(ValueError):
-        L.contact_signal(np.zeros((1, 8, 8, 3), np.uint8))
+        C.contact_signal(np.zeros((1, 8, 8, 3), np.uint8))
     with pytest.raises(ValueError):
-        L.find_moment_of_slip([np.zeros(10), np.zeros(11)])
+        C.find_moment_of_slip([np.zeros(10), np.zeros(11)])
     with pytest.raises(ValueError):
-        L.find_moment_of_slip([np.zeros(10)], rule="any")
+        C.find_moment_of_slip([np.zeros(10)], rule="any")
 
 
 @settings(max_examples=60, deadline=None)
@@ -160,8 +162,8 @@ def test_moment_is_exact_on_noisy_step_signals(start, length, tail, level, seed)
     s = gop[np.arange(n) // KEYFRAME] + rng.normal(0, 0.05, n)
     s[start : start + length] += level * (1 + rng.normal(0, 0.03, length))
     end = start + length - 1
-    assert L.find_moment_of_slip([s]) == end
-    assert L.contact_phase(s) == (start, end)
+    assert C.find_moment_of_slip([s]) == end
+    assert C.contact_phase(s) == (start, end)
 
 
 # --------------------------------------------------------------------------------------------
@@ -301,14 +303,14 @@ def _label(obj="ball", exp=1, cam="camera_0", moment=40, slipped=True) -> VideoL
 def test_write_labels_csv_columns_and_round_trip(tmp_path):
     labels = {l.key: l for l in [_label(cam="camera_2"), _label(), _label("cup", 3, moment=None, slipped=False)]}
     path = tmp_path / "out" / "labels.csv"
-    L.write_labels_csv(labels, path)
+    CSV.write_labels_csv(labels, path)
     lines = path.read_text().splitlines()
     assert lines[0] == "object,experiment,camera,n_frames,slipped,moment_of_slip,contact_start,contact_end,source"
     assert lines[1] == "ball,1,camera_0,130,true,40,12,40,auto"
     assert lines[3] == "cup,3,camera_0,130,false,,12,100,auto"
-    assert L.read_labels_csv(path) == labels
+    assert CSV.read_labels_csv(path) == labels
     # An edited labels file is a valid overrides file.
-    assert L.read_overrides_csv(path) == {
+    assert CSV.read_overrides_csv(path) == {
         ("ball", 1, "camera_0"): 40,
         ("ball", 1, "camera_2"): 40,
         ("cup", 3, "camera_0"): None,
@@ -326,9 +328,9 @@ KNOWN = {("ball", 1): ["camera_0", "camera_2"], ("cup", 3): ["camera_0", "camera
 
 def test_read_overrides_csv_accepts_optional_camera_and_blank_moment(tmp_path):
     path = _csv(tmp_path, "object,experiment,moment_of_slip,note\nball,1,57,shifted\ncup,exp_num_3,,no slip\n\n")
-    assert L.read_overrides_csv(path, known=KNOWN) == {("ball", 1, None): 57, ("cup", 3, None): None}
+    assert CSV.read_overrides_csv(path, known=KNOWN) == {("ball", 1, None): 57, ("cup", 3, None): None}
     path = _csv(tmp_path, "object,experiment,camera,moment_of_slip\nball,1,camera_2,12\nball,1,camera_0,14\n")
-    assert L.read_overrides_csv(path, known=KNOWN) == {("ball", 1, "camera_2"): 12, ("ball", 1, "camera_0"): 14}
+    assert CSV.read_overrides_csv(path, known=KNOWN) == {("ball", 1, "camera_2"): 12, ("ball", 1, "camera_0"): 14}
 
 
 @pytest.mark.parametrize(
@@ -357,7 +359,7 @@ def test_read_overrides_csv_accepts_optional_camera_and_blank_moment(tmp_path):
 def test_read_overrides_csv_errors(tmp_path, text, message):
     path = _csv(tmp_path, text)
     with pytest.raises(InputError) as info:
-        L.read_overrides_csv(path, known=KNOWN)
+        CSV.read_overrides_csv(path, known=KNOWN)
     assert str(info.value).startswith(f"{path}: ")
     assert message in str(info.value)
     assert "\n" not in str(info.value)
@@ -365,7 +367,7 @@ def test_read_overrides_csv_errors(tmp_path, text, message):
 
 def test_read_overrides_csv_missing_file(tmp_path):
     with pytest.raises(InputError, match="does not exist"):
-        L.read_overrides_csv(tmp_path / "nope.csv")
+        CSV.read_overrides_csv(tmp_path / "nope.csv")
 
 
 def test_label_recordings_reads_overrides_from_a_path(synthetic_root, tmp_path, monkeypatch):
@@ -411,7 +413,7 @@ SLIP_HAND_LABELS = [
 ]
 # Runs that did not slip: contact phase (start, end) per camera.
 NO_SLIP_HAND_LABELS = [
-    ("artificial_strawberry", 1, (L.STARTUP_FRAMES, 332), (L.STARTUP_FRAMES, 332)),  # held from the start
+    ("artificial_strawberry", 1, (C.STARTUP_FRAMES, 332), (C.STARTUP_FRAMES, 332)),  # held from the start
     ("ball_white_thread", 2, (15, 201), (15, 200)),  # thread appears at 15, released at 201/200
     ("ball_white_thread", 1, (13, 196), (13, 196)),  # grasp at 13; recording stops still holding
 ]
@@ -433,7 +435,7 @@ def hand_label_signals() -> dict[tuple[str, int], list[np.ndarray]]:
     out = {}
     for obj, exp, *_ in SLIP_HAND_LABELS:
         run = root / obj / f"exp_num_{exp}"
-        out[(obj, exp)] = [L.contact_signal(read_video(run / f"{c}.avi")) for c in ("camera_0", "camera_2")]
+        out[(obj, exp)] = [C.contact_signal(read_video(run / f"{c}.avi")) for c in ("camera_0", "camera_2")]
     return out
 
 
@@ -442,7 +444,7 @@ def test_moment_of_slip_matches_hand_labels(hand_label_signals):
     for obj, exp, last0, last2 in SLIP_HAND_LABELS:
         signals = hand_label_signals[(obj, exp)]
         for rule, want in (("either", min(last0, last2)), ("both", max(last0, last2))):
-            got = L.find_moment_of_slip(signals, rule=rule)
+            got = C.find_moment_of_slip(signals, rule=rule)
             if got is None or abs(got - want) > TOLERANCE:
                 misses.append(f"{obj} {exp} {rule}: got {got}, hand label {want}")
     assert not misses, misses
@@ -471,10 +473,10 @@ def test_exclude_override_leaves_the_video_without_clips(tmp_path):
     from slipsense.recordings.types import VideoLabel
 
     path = _csv(tmp_path, "object,experiment,camera,moment_of_slip\nball,1,,exclude\n")
-    ov = L.read_overrides_csv(path, known=KNOWN)
-    assert ov == {("ball", 1, None): L.EXCLUDE}
+    ov = CSV.read_overrides_csv(path, known=KNOWN)
+    assert ov == {("ball", 1, None): CSV.EXCLUDE}
     label = VideoLabel("ball", 1, "camera_0", 100, True, 60, 20, 60)
-    out = L.apply_overrides({label.key: label}, ov)[label.key]
+    out = CSV.apply_overrides({label.key: label}, ov)[label.key]
     assert out.slipped and out.moment_of_slip is None and out.source == "override"
     assert plan_windows(out, ClipSpec()) == []
 

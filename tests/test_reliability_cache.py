@@ -13,6 +13,7 @@ import pytest
 
 import striped_video
 from slipsense.errors import CacheWarning
+from slipsense.recordings import label_cache
 from slipsense.recordings import labels as L
 from slipsense.recordings.clips import ClipSpec, load_or_build_clips
 from slipsense.recordings.folders import find_recordings
@@ -93,7 +94,7 @@ def test_edited_label_cache_entry_is_rebuilt(run, tmp_path):
 
 def test_label_check_refuses_impossible_labels(run):
     good = L.label_run(run)
-    L.check_run_labels(good, run)
+    label_cache.check_run_labels(good, run)
     bad = [
         [VideoLabel(**{**l.__dict__, "slipped": False}) for l in good],
         [VideoLabel(**{**l.__dict__, "contact_start": 30, "contact_end": 20}) for l in good],
@@ -102,7 +103,7 @@ def test_label_check_refuses_impossible_labels(run):
     ]
     for labels in bad:
         with pytest.raises(ValueError):
-            L.check_run_labels(labels, run)
+            label_cache.check_run_labels(labels, run)
 
 
 # ---------------------------------------------------------------------------------------- clips

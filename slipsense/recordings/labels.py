@@ -15,8 +15,7 @@ Pipeline (all frame indices are 0-based indices into the decoded video):
    :func:`read_overrides_csv`; :func:`write_labels_csv` writes them out.
 
 Labels are cached by :mod:`slipsense.recordings.label_cache`; CSV files and overrides are
-handled by :mod:`slipsense.recordings.label_csv`. This module re-exports the public names of
-both and of :mod:`slipsense.recordings.contact`.
+handled by :mod:`slipsense.recordings.label_csv`.
 """
 
 from __future__ import annotations
@@ -29,38 +28,18 @@ import numpy as np
 
 from ..errors import CacheWarning, InputError
 from .contact import (
-    ACTIVE_CHANGE,
-    ACTIVE_WINDOW,
-    BLOCK_PX,
-    LEVEL_AFTER,
-    LEVEL_BEFORE,
-    LOSS_FRACTION,
-    MIN_CONTACT,
     MIN_CONTACT_FRAMES,
-    PARTIAL_WINDOW,
-    REF_MAX_FRAMES,
-    REF_MIN_FRAMES,
-    REGAIN_WINDOW,
-    REST_TOLERANCE,
-    STARTUP_FRAMES,
-    TOP_FRACTION,
     Rule,
     _first_frame,
     _signal,
     contact_phase,
-    contact_signal,
     find_moment_of_slip,
 )
-from .label_cache import ALGORITHM_VERSION, CACHE_FORMAT, _cache_file, _load_cached, _write_cache, check_run_labels
+from .label_cache import _cache_file, _load_cached, _write_cache
 from .label_csv import (
-    EXCLUDE,
-    LABEL_COLUMNS,
     Key,
-    Overrides,
     apply_overrides,
-    read_labels_csv,
     read_overrides_csv,
-    write_labels_csv,
 )
 from .types import Recording, VideoLabel
 
@@ -68,43 +47,6 @@ from .types import Recording, VideoLabel
 #: signal, and from the same decode the contact signal and the grey frames the shipped grasp
 #: detector reads (30 x 40), so that training it after labelling decodes nothing again.
 LABEL_PRODUCTS = ("blocks", "contact", "gray:30x40")
-
-__all__ = [
-    "ACTIVE_CHANGE",
-    "ACTIVE_WINDOW",
-    "ALGORITHM_VERSION",
-    "BLOCK_PX",
-    "CACHE_FORMAT",
-    "EXCLUDE",
-    "GRASP_WINDOW",
-    "LABEL_COLUMNS",
-    "LEVEL_AFTER",
-    "LEVEL_BEFORE",
-    "LOSS_FRACTION",
-    "MIN_CONTACT",
-    "MIN_CONTACT_FRAMES",
-    "PARTIAL_WINDOW",
-    "REF_MAX_FRAMES",
-    "REF_MIN_FRAMES",
-    "REGAIN_WINDOW",
-    "REST_TOLERANCE",
-    "STARTUP_FRAMES",
-    "STILL_END_FRAMES",
-    "TOP_FRACTION",
-    "Key",
-    "Overrides",
-    "Rule",
-    "apply_overrides",
-    "check_run_labels",
-    "contact_phase",
-    "contact_signal",
-    "find_moment_of_slip",
-    "label_recordings",
-    "label_run",
-    "read_labels_csv",
-    "read_overrides_csv",
-    "write_labels_csv",
-]
 
 #: In runs that did not slip, a contact starting within this many frames after the transient
 #: is the grasp seen from the gel at rest (see :func:`label_run`).

@@ -4,7 +4,7 @@ Per-grasp training and evaluation replay runs from the first frame, the way a gr
 so they need whole recordings rather than clips. A 450-frame run of two 240 x 320 colour videos
 is 207 MB decoded; the models that learn from motion look at grey frames a few times smaller, so
 that is what is kept: ``gray`` uint8 ``(S, N, h, w)`` per run (S sensors, N frames), plus each
-camera's contact signal (:func:`slipsense.recordings.labels.contact_signal`, used only to score
+camera's contact signal (:func:`slipsense.recordings.contact.contact_signal`, used only to score
 "alarms while the gel is at rest", never as model input).
 
 :func:`~slipsense.recordings.video.gray_frames` is the one conversion used both here and by the live detector, so training
