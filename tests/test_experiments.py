@@ -11,7 +11,15 @@ import pytest
 from typer.testing import CliRunner
 
 from conftest import REAL_RUN
-from slipsense import experiments as E
+from slipsense.experiments.all_models import match_windows, run_all_models
+from slipsense.experiments.frames import run_frames
+from slipsense.experiments.horizon import run_horizon
+from slipsense.experiments.noise import run_noise
+from slipsense.experiments.params import run_params
+from slipsense.experiments.results import _data_line, collect_results
+from slipsense.experiments.settings import EXPERIMENTS, Settings, TITLES
+from slipsense.experiments.stnet import run_stnet
+from slipsense.experiments.video_compare import run_video_compare
 from slipsense.errors import ConfigError
 from slipsense.recordings.clips import ClipSet
 
@@ -116,7 +124,7 @@ TINY_MODELS = {
 SIM = {"markers_x": 4, "markers_y": 4, "seq_len": 13, "objects": ("pen", "tape")}
 
 
-def tiny(out: Path, **kw) -> E.Settings:
+def tiny(out: Path, **kw) -> Settings:
     values = dict(
         out=out,
         size=SIZE,
@@ -130,7 +138,7 @@ def tiny(out: Path, **kw) -> E.Settings:
         command="slipsense experiment test",
     )
     values.update(kw)
-    return E.Settings(**values)
+    return Settings(**values)
 
 
 def read_csv(path: Path) -> tuple[list[str], list[dict[str, str]]]:
@@ -172,7 +180,7 @@ def test_params_counts_table(tmp_path):
     from slipsense.models.stnet import PRESETS
     from slipsense.models.stnet_size import count_parameters_for
 
-    res = E.run_params(E.Settings(out=tmp_path, command="x"))
+    res = run_params(Settings(out=tmp_path, command="x"))
     cols, rows = read_csv(tmp_path / "params.csv")
     assert cols[:4] == ["model", "preset", "parameters", "paper_parameters"] and cols[-1] == "setting"
     by = {(r["model"], r["preset"]): r for r in rows}
@@ -208,7 +216,7 @@ def test_video_compare(tmp_path, source):
         "n_test_slip",
         "initialisation",
     ]
-    res = E.run_video_compare(tiny(tmp_path), source, inference_clips=3)
+    res = run_video_compare(tiny(tmp_path), source, inference_clips=3)
     cfg = check_outputs(tmp_path, "video-compare", cols, 2)
     assert [r["model"] for r in res["rows"]] == ["vivit", "resnet3d50"]
     assert all(r["inference_clips_per_s"] > 0 and r["epochs"] == 2 for r in res["rows"])
@@ -238,7 +246,7 @@ def test_frames_curves(tmp_path, source):
         "n_heldout",
         "train_seconds",
     ]
-    res = E.run_frames(tiny(tmp_path), source, frames_list=(3, 2))
+    res = run_frames(tiny(tmp_path), source, frames_list=(3, 2))
     check_outputs(tmp_path, "frames", cols, 2)
     ccols, curves = read_csv(tmp_path / "curves.csv")
     assert ccols[:6] == ["frames", "epoch", "train_loss", "train_accuracy", "test_loss", "test_accuracy"]
@@ -250,10 +258,10 @@ def test_frames_curves(tmp_path, source):
 
 def test_noise_trains_then_reuses_its_checkpoint(tmp_path, source):
     cols = ["noise_std", "accuracy", "precision", "recall", "f1", "loss", "n_clips"]
-    res = E.run_noise(tiny(tmp_path / "a"), source, stds=(0, 20, 50))
+    res = run_noise(tiny(tmp_path / "a"), source, stds=(0, 20, 50))
     check_outputs(tmp_path / "a", "noise", cols, 3)
     ck = tmp_path / "a" / "runs" / "vivit" / "last.safetensors"
-    again = E.run_noise(tiny(tmp_path / "b"), source, checkpoint=ck, stds=(0, 20))
+    again = run_noise(tiny(tmp_path / "b"), source, checkpoint=ck, stds=(0, 20))
     assert again["rows"][0]["accuracy"] == pytest.approx(res["rows"][0]["accuracy"])
     assert again["rows"][1]["loss"] == pytest.approx(res["rows"][1]["loss"], rel=1e-4)
     cfg = json.loads((tmp_path / "b" / "config.json").read_text())
@@ -263,7 +271,7 @@ def test_noise_trains_then_reuses_its_checkpoint(tmp_path, source):
         == json.loads((tmp_path / "a" / "config.json").read_text())["config"]["test_objects"]
     )
     with pytest.raises(ConfigError):
-        E.run_noise(tiny(tmp_path / "c"), source, checkpoint=ck, stds=(-1,))
+        run_noise(tiny(tmp_path / "c"), source, checkpoint=ck, stds=(-1,))
 
 
 def test_stnet_sim_and_real(tmp_path, source):
@@ -285,7 +293,7 @@ def test_stnet_sim_and_real(tmp_path, source):
     ]
     cols += ["relevance_in_contact", "markers_in_contact"]
     cols += ["grasp_threshold", "warned_in_time", "premature", "false_positive_grasps", "runs_alarming_at_rest"]
-    res = E.run_stnet(tiny(tmp_path), source, sim_sequences=1, sim_overrides=SIM, markers=5, frames=4)
+    res = run_stnet(tiny(tmp_path), source, sim_sequences=1, sim_overrides=SIM, markers=5, frames=4)
     check_outputs(tmp_path, "stnet", cols, 4)
     for r in res["rows"]:  # where it looks: measured on the simulator, which says where the contact is
         assert (r["data"] == "simulated") == ("relevance_in_contact" in r)
@@ -313,13 +321,13 @@ def test_stnet_sim_and_real(tmp_path, source):
     ckpt = tmp_path / "runs" / "real-temnet" / "last.safetensors"  # its checkpoint runs live as it was judged
     assert SlipDetector.from_checkpoint(ckpt, threshold=0.5, sensors=2).cache_product == "markers:5"
     with pytest.raises(ConfigError):
-        E.run_stnet(tiny(tmp_path / "x"), source, data=("sim",), preset="huge")
+        run_stnet(tiny(tmp_path / "x"), source, data=("sim",), preset="huge")
 
 
 def test_stnet_real_row_on_a_grid_makes_checkpoints_that_replay_on_it(tmp_path, source):
     from slipsense.streaming.detector import SlipDetector
 
-    res = E.run_stnet(tiny(tmp_path), source, data=("real",), markers="2x3", frames=4)
+    res = run_stnet(tiny(tmp_path), source, data=("real",), markers="2x3", frames=4)
     assert [r["model"] for r in res["rows"]] == ["stnet", "temnet"]
     assert json.loads((tmp_path / "config.json").read_text())["config"]["real"]["marker_layout"] == "2x3"
     from slipsense.recordings.frame_cache import video_products
@@ -359,7 +367,7 @@ def test_horizon(tmp_path, source):
         "heldout_objects",
         "train_seconds",
     ]
-    res = E.run_horizon(tiny(tmp_path), source, horizons=(0, 3))
+    res = run_horizon(tiny(tmp_path), source, horizons=(0, 3))
     check_outputs(tmp_path, "horizon", cols, 2)
     assert [r["horizon_ms"] for r in res["rows"]] == [0.0, 120.0]
     assert ("clips", 5, 3) in source.calls
@@ -370,7 +378,7 @@ def test_match_windows_pairs_same_window_and_drops_disagreements(source):
 
     clips = source.clips(ClipSpec(frames=5, size=SIZE))
     arrays = source.markers(5, 4)
-    ci, mi, dropped = E.match_windows(clips.meta, arrays, clips.y)
+    ci, mi, dropped = match_windows(clips.meta, arrays, clips.y)
     assert len(ci) == len(clips) and dropped == 0
     for i, j in zip(ci, mi):
         m = clips.meta[i]
@@ -382,7 +390,7 @@ def test_match_windows_pairs_same_window_and_drops_disagreements(source):
         )
     flipped = dict(arrays, y=1 - arrays["y"])
     flipped["y"][mi[0]] = clips.y[ci[0]]
-    ci2, _, dropped2 = E.match_windows(clips.meta, flipped, clips.y)
+    ci2, _, dropped2 = match_windows(clips.meta, flipped, clips.y)
     assert len(ci2) == 1 and dropped2 == len(clips) - 1
 
 
@@ -401,7 +409,7 @@ def test_all_models_same_windows(tmp_path, source):
         "n_test_slip",
         "train_seconds",
     ]
-    res = E.run_all_models(tiny(tmp_path), source, frames=4, n_markers=3)
+    res = run_all_models(tiny(tmp_path), source, frames=4, n_markers=3)
     cfg = check_outputs(tmp_path, "all-models", cols, 4)
     assert [r["model"] for r in res["rows"]] == ["vivit", "resnet3d50", "stnet", "temnet"]
     assert len({r["n_test"] for r in res["rows"]}) == 1  # every model scored on the same windows
@@ -410,20 +418,20 @@ def test_all_models_same_windows(tmp_path, source):
 
 
 def test_quick_setting_is_labelled(tmp_path):
-    s = E.Settings(out=tmp_path, quick=True)
+    s = Settings(out=tmp_path, quick=True)
     assert s.video_size == (120, 160) and s.vivit_patch == (20, 20)
     assert s.train_config("vivit").epochs == 20
     assert s.train_config("resnet3d50").epochs == 2
     assert s.setting == "quick" and "QUICK" in s.describe(["vivit"])
-    assert E.Settings(out=tmp_path).train_config("vivit").epochs == 75
-    custom = E.Settings(out=tmp_path, quick=True, epochs=3, size=(60, 80))
+    assert Settings(out=tmp_path).train_config("vivit").epochs == 75
+    custom = Settings(out=tmp_path, quick=True, epochs=3, size=(60, 80))
     assert custom.setting == "quick+custom" and custom.train_config("stnet").epochs == 3
     assert custom.vivit_patch == (10, 10)
     with pytest.raises(ConfigError):
-        E.Settings(out=tmp_path, size=(50, 70))
+        Settings(out=tmp_path, size=(50, 70))
     with pytest.raises(ConfigError):
-        E.Settings(out=tmp_path, train_overrides={"vivit": {"bogus": 1}})
-    E.run_params(E.Settings(out=tmp_path / "q", quick=True))
+        Settings(out=tmp_path, train_overrides={"vivit": {"bogus": 1}})
+    run_params(Settings(out=tmp_path / "q", quick=True))
     assert "QUICK setting" in (tmp_path / "q" / "params.md").read_text()
     assert json.loads((tmp_path / "q" / "config.json").read_text())["setting"] == "quick"
     assert {r["setting"] for r in read_csv(tmp_path / "q" / "params.csv")[1]} == {"quick"}
@@ -431,18 +439,18 @@ def test_quick_setting_is_labelled(tmp_path):
 
 def test_results_collects_latest_reports(tmp_path):
     reports = tmp_path / "reports"
-    E.run_params(E.Settings(out=reports / "params", command="slipsense experiment params --out reports/params"))
-    out = E.collect_results(reports, tmp_path / "docs" / "results.md")
+    run_params(Settings(out=reports / "params", command="slipsense experiment params --out reports/params"))
+    out = collect_results(reports, tmp_path / "docs" / "results.md")
     text = out.read_text()
     assert "slipsense experiment params --out reports/params" in text
     assert "![params](../reports/params/params.png)" in text
-    assert text.count("**Not yet run** —") == len(E.EXPERIMENTS) - 1
+    assert text.count("**Not yet run** —") == len(EXPERIMENTS) - 1
     assert "Machine: " in text and "torch" in text
-    for i, name in enumerate(E.EXPERIMENTS, 1):
-        assert f"## {i}. {E.TITLES[name]}" in text
+    for i, name in enumerate(EXPERIMENTS, 1):
+        assert f"## {i}. {TITLES[name]}" in text
     # a second condition of the same experiment gets its own subsection; both stay on the page
-    E.run_params(E.Settings(out=reports / "params-quick", quick=True))
-    text = E.collect_results(reports, tmp_path / "docs" / "results.md").read_text()
+    run_params(Settings(out=reports / "params-quick", quick=True))
+    text = collect_results(reports, tmp_path / "docs" / "results.md").read_text()
     assert "### `params-quick`" in text and "### `params`" in text
     assert text.index("### `params-quick`") < text.index("### `params`")  # newest first
     assert "![params](../reports/params-quick/params.png)" in text
@@ -450,7 +458,7 @@ def test_results_collects_latest_reports(tmp_path):
 
 def test_results_link_benchmarks_and_early_warning(tmp_path):
     reports, out = tmp_path / "reports", tmp_path / "docs" / "results.md"
-    assert "No early-warning replay or benchmark report yet" in E.collect_results(reports, out).read_text()
+    assert "No early-warning replay or benchmark report yet" in collect_results(reports, out).read_text()
     (reports / "bench" / "avx2").mkdir(parents=True)
     (reports / "bench" / "avx2" / "stream-1thread.md").write_text("# Streaming\n")
     warn = reports / "early-warning-fold0"
@@ -459,7 +467,7 @@ def test_results_link_benchmarks_and_early_warning(tmp_path):
         json.dumps({"checkpoint": "/somewhere/last.safetensors", "model": "vivit", "recordings": "/data/gelsight-slip"})
     )
     (warn / "early_warning.png").write_bytes(b"png")
-    text = E.collect_results(reports, out).read_text()
+    text = collect_results(reports, out).read_text()
     assert (
         "| [`bench/avx2/stream-1thread.md`](../reports/bench/avx2/stream-1thread.md) | `python bench/bench_stream.py` |"
         in text
@@ -469,7 +477,7 @@ def test_results_link_benchmarks_and_early_warning(tmp_path):
     assert "## Other measurements" not in text
     (reports / "stnet-precision").mkdir()
     (reports / "stnet-precision" / "README.md").write_text("# STNet at int8\n\nslipsense evaluate ...\n")
-    text = E.collect_results(reports, out).read_text()
+    text = collect_results(reports, out).read_text()
     assert "- [STNet at int8](../reports/stnet-precision/README.md) (`stnet-precision`)" in text
 
 
@@ -490,12 +498,12 @@ def test_cli_params_and_one_line_errors(tmp_path):
 
 
 def test_resume_reuses_finished_runs(tmp_path, source):
-    first = E.run_horizon(tiny(tmp_path), source, horizons=(0,))
-    again = E.run_horizon(tiny(tmp_path, resume=True), source, horizons=(0,))
+    first = run_horizon(tiny(tmp_path), source, horizons=(0,))
+    again = run_horizon(tiny(tmp_path, resume=True), source, horizons=(0,))
     assert again["rows"][0]["accuracy"] == first["rows"][0]["accuracy"]
     assert again["rows"][0]["train_seconds"] == first["rows"][0]["train_seconds"]  # nothing retrained
 
 
 def test_data_line_knows_the_default_recordings_in_portable_form(tmp_path):
-    assert "not the default" not in E._data_line({"recordings": "$SLIPSENSE_DATA/gelsight-slip"})
-    assert "not the default" in E._data_line({"recordings": str(tmp_path / "gelsight-slip")})
+    assert "not the default" not in _data_line({"recordings": "$SLIPSENSE_DATA/gelsight-slip"})
+    assert "not the default" in _data_line({"recordings": str(tmp_path / "gelsight-slip")})
