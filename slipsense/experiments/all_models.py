@@ -152,16 +152,5 @@ def run_all_models(
         ax.legend()
         return fig
 
-    cols = [
-        "model",
-        "input",
-        "preset",
-        "parameters",
-        "epochs",
-        *metric_cols(),
-        "n_test",
-        "n_test_slip",
-        "train_seconds",
-    ]
-    paths = rep.write(rows, cols, figure, models_in_setting=("vivit", "resnet3d50", "stnet", "temnet"))
+    paths = rep.write(rows, None, figure, models_in_setting=("vivit", "resnet3d50", "stnet", "temnet"))
     return {"rows": rows, "paths": paths}

@@ -110,32 +110,5 @@ def run_frames(
         axes[0].legend()
         return fig
 
-    cols = [
-        "frames",
-        "clip_ms",
-        "epochs",
-        "train_accuracy",
-        "test_accuracy",
-        "test_f1",
-        "heldout_accuracy",
-        "heldout_precision",
-        "heldout_recall",
-        "heldout_f1",
-        "n_train",
-        "n_test",
-        "n_heldout",
-        "train_seconds",
-    ]
-    curve_cols = [
-        "frames",
-        "epoch",
-        "train_loss",
-        "train_accuracy",
-        "test_loss",
-        "test_accuracy",
-        "heldout_loss",
-        "heldout_accuracy",
-        "heldout_f1",
-    ]
-    paths = rep.write(rows, cols, figure, extra_tables={"curves": (curves, curve_cols)}, models_in_setting=("vivit",))
+    paths = rep.write(rows, None, figure, extra_tables={"curves": (curves, None)}, models_in_setting=("vivit",))
     return {"rows": rows, "curves": curves, "paths": paths}

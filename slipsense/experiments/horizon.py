@@ -70,15 +70,5 @@ def run_horizon(settings: Settings, source=None, horizons: Sequence[int] = DEFAU
         ax.legend()
         return fig
 
-    cols = [
-        "horizon_frames",
-        "horizon_ms",
-        *metric_cols(),
-        "n_train",
-        "n_test",
-        "n_test_slip",
-        "heldout_objects",
-        "train_seconds",
-    ]
-    paths = rep.write(rows, cols, figure, models_in_setting=("vivit",))
+    paths = rep.write(rows, None, figure, models_in_setting=("vivit",))
     return {"rows": rows, "paths": paths}

@@ -255,5 +255,4 @@ def run_marker_baseline(settings, sim_sequences: int | None = None, sim_override
         axes[0].legend(fontsize=8)
         return fig
 
-    cols = ["features", "windows", "n", "slip", "precision", "recall", "f1", "accuracy", "called slip"]
-    return {"rows": rows, "paths": rep.write(rows, cols, figure)}
+    return {"rows": rows, "paths": rep.write(rows, None, figure)}

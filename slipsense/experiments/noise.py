@@ -98,10 +98,5 @@ def run_noise(
         ax.legend()
         return fig
 
-    paths = rep.write(
-        rows,
-        ["noise_std", *metric_cols(), "loss", "n_clips"],
-        figure,
-        models_in_setting=() if checkpoint else ("vivit",),
-    )
+    paths = rep.write(rows, None, figure, models_in_setting=() if checkpoint else ("vivit",))
     return {"rows": rows, "paths": paths}

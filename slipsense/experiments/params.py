@@ -149,15 +149,5 @@ def run_params(settings: Settings) -> dict[str, Any]:
         ax.legend(loc="lower right")
         return fig
 
-    cols = [
-        "model",
-        "preset",
-        "parameters",
-        "paper_parameters",
-        "difference",
-        "relative_difference",
-        "configuration",
-        "note",
-    ]
-    paths = rep.write(rows, cols, figure)
+    paths = rep.write(rows, None, figure)
     return {"rows": rows, "paths": paths}

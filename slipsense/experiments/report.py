@@ -191,18 +191,19 @@ class Report:
     def write(
         self,
         rows: list[dict[str, Any]],
-        columns: Sequence[str],
+        columns: Sequence[str] | None,
         figure: Callable[[Any], Any],
-        extra_tables: dict[str, tuple[list[dict[str, Any]], Sequence[str]]] | None = None,
+        extra_tables: dict[str, tuple[list[dict[str, Any]], Sequence[str] | None]] | None = None,
         models_in_setting: Iterable[str] = (),
     ) -> dict[str, Path]:
-        """Write ``<name>.csv``, ``<name>.png``, ``<name>.md`` and, last, ``config.json``."""
+        """Write ``<name>.csv``, ``<name>.png``, ``<name>.md`` and, last, ``config.json``. Columns
+        ``None``: every key of the rows, in the order they first appear."""
         from slipsense.plots import _plt, save_figure
 
         s = self.settings
         setting_line = s.describe(models_in_setting, self.config.get("preset"))
+        columns = [*(_keys(rows) if columns is None else columns), "setting"]
         rows = [{**r, "setting": s.setting} for r in rows]
-        columns = [*columns, "setting"]
         paths = {
             "csv": self.out / f"{self.name}.csv",
             "md": self.out / f"{self.name}.md",
@@ -213,7 +214,8 @@ class Report:
         extra_files = {}
         for stem, (erows, ecols) in (extra_tables or {}).items():
             p = self.out / f"{stem}.csv"
-            write_text(p, csv_text([{**r, "setting": s.setting} for r in erows], [*ecols, "setting"]))
+            cols = [*(_keys(erows) if ecols is None else ecols), "setting"]
+            write_text(p, csv_text([{**r, "setting": s.setting} for r in erows], cols))
             extra_files[stem] = p.name
         plt = _plt()
         fig = figure(plt)
@@ -252,3 +254,8 @@ class Report:
         }
         write_text(paths["config"], json.dumps(_jsonable(config), indent=2))
         return paths
+
+
+def _keys(rows: Sequence[dict[str, Any]]) -> list[str]:
+    """Every key of ``rows``, in the order they first appear."""
+    return list(dict.fromkeys(k for r in rows for k in r))

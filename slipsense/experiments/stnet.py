@@ -296,8 +296,7 @@ def run_stnet(
         "false_positive_grasps",
         "runs_alarming_at_rest",
     ]
-    curve_cols = ["data", "model", "epoch", "train_loss", "train_accuracy", "test_loss", "test_accuracy"]
     paths = rep.write(
-        rows, cols, figure, extra_tables={"curves": (curves, curve_cols)}, models_in_setting=("stnet", "temnet")
+        rows, cols, figure, extra_tables={"curves": (curves, None)}, models_in_setting=("stnet", "temnet")
     )
     return {"rows": rows, "curves": curves, "paths": paths}

@@ -119,18 +119,7 @@ def run_video_compare(
 
     curves = [{"model": n, **r} for n, h in histories.items() for r in h]
     curve_cols = ["model", "epoch", "lr", "train_loss", "train_accuracy", "seconds"]
-    cols = [
-        "model",
-        "parameters",
-        "epochs",
-        "train_seconds",
-        "inference_clips_per_s",
-        *metric_cols(),
-        "n_test",
-        "n_test_slip",
-        "initialisation",
-    ]
     paths = rep.write(
-        rows, cols, figure, extra_tables={"curves": (curves, curve_cols)}, models_in_setting=("vivit", "resnet3d50")
+        rows, None, figure, extra_tables={"curves": (curves, curve_cols)}, models_in_setting=("vivit", "resnet3d50")
     )
     return {"rows": rows, "paths": paths}
