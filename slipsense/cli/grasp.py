@@ -24,17 +24,6 @@ SET_HELP = (
 )
 
 
-def _prepare(
-    config, model, sets, size, epochs, seed, inner_folds, recordings, overrides, on_error, progress, threads, out=None
-):
-    """The configuration tree's training config, data and stored metadata
-    (:func:`slipsense.training.recipe.prepare_grasps`)."""
-    from slipsense.training.recipe import prepare_grasps
-
-    tree = _grasp_tree(config, model, sets, size, epochs, seed, inner_folds, recordings, overrides, on_error)
-    return prepare_grasps(tree, progress, threads, out)
-
-
 def _grasp_tree(config, model, sets, size, epochs, seed, inner_folds, recordings, overrides, on_error):
     """The configuration tree: defaults < --config < options < --set."""
     from slipsense.cli.common import parse_hw
@@ -141,33 +130,11 @@ def register(app: typer.Typer) -> None:
         ),
     ):
         """Leave objects out: one detector per fold, each replayed on its unseen objects, pooled."""
-        from slipsense.evaluation.folds import run_folds
+        from slipsense.training.recipe import cross_validate
 
-        cfg, runs, labels, data = _prepare(
-            config,
-            model,
-            sets,
-            size,
-            epochs,
-            seed,
-            inner_folds,
-            recordings,
-            overrides,
-            on_error,
-            progress,
-            threads,
-            out,
-        )
-        rep = run_folds(
-            runs,
-            labels,
-            cfg,
-            out,
-            folds,
-            meta={"command": command_line(), **data},
-            progress=progress,
-            echo=typer.echo,
-            workers=workers,
+        tree = _grasp_tree(config, model, sets, size, epochs, seed, inner_folds, recordings, overrides, on_error)
+        rep = cross_validate(
+            tree, out, folds, progress=progress, workers=workers, threads=threads, command=command_line()
         )
         g, c = rep["pooled"]["per_grasp"], rep["pooled"]["clips"]
         typer.echo(
