@@ -20,7 +20,8 @@ from slipsense.cli import app
 from slipsense.config import gelsight_recordings
 from slipsense.errors import ConfigError, InputError
 from slipsense.evaluation.early_warning import EARLY_WARNING_COLUMNS, RunTrace, early_warning_table
-from slipsense.streaming.detector import Reading, SlipDetector, slip_probability
+from slipsense.models.streams import slip_probability
+from slipsense.streaming.detector import Reading, SlipDetector
 from slipsense.models import build
 
 VIVIT_SMALL = dict(image_size=(48, 64), patch_size=(16, 16), frames=5, dim=8, heads=2, dim_head=16, mlp_dim=8)

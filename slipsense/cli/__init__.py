@@ -315,12 +315,8 @@ def _register_extensions() -> None:
     import importlib
 
     modules = ("live", "sensors", "experiments", "grasp", "bags", "record")
-    for mod in (f"slipsense.cli.{m}" for m in modules):
-        try:
-            importlib.import_module(mod).register(app)
-        except ModuleNotFoundError as exc:
-            if exc.name != mod:
-                raise
+    for mod in modules:
+        importlib.import_module(f"slipsense.cli.{mod}").register(app)
 
 
 _register_extensions()
@@ -344,7 +340,3 @@ def _leave_process_group(wait: bool = True) -> None:
         from slipsense.training.distributed import finish
 
         finish(wait=wait)
-
-
-if __name__ == "__main__":
-    main()

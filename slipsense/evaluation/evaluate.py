@@ -140,8 +140,6 @@ def evaluate_clip_checkpoint(
     data = found.data
     if len(data) == 0:
         raise InputError(split or recordings or markers, "holds nothing to evaluate")
-    import torch
-
     with torch.inference_mode():
         return evaluate_model(model, data, json_out, png, extra=extra, progress=progress)
 

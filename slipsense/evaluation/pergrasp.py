@@ -38,8 +38,6 @@ HORIZON = 50
 #: so the grid is dense near 1.
 THRESHOLDS = tuple(float(t) for t in np.round(np.linspace(0.05, 0.95, 19), 3)) + (0.97, 0.98, 0.99, 0.995, 0.998, 0.999)
 
-OUTCOMES = ("warned", "premature", "missed", "false_positive", "clean")
-
 
 def rest_mask(contact: np.ndarray, margin: float = REST_MARGIN) -> np.ndarray:
     """``(S, N)`` contact strength per sensor -> ``(N,)`` bool, True where no sensor is touched:

@@ -20,14 +20,9 @@ import torch.nn as nn
 from slipsense.errors import ConfigError
 
 from slipsense.models.base import (  # noqa: F401  (re-exported: the public face of the registry)
-    MAX_PARAMETERS,
-    MAX_SETTING,
-    GraspModel,
     MarkerModel,
     SlipModel,
-    VideoModel,
     build_registered,
-    check_video_values,
     register,
     registered,
     settings_of,
@@ -66,8 +61,9 @@ def model_class(name: str) -> type:
 
 def build(name: str, **config: Any) -> SlipModel:
     """Build model ``name`` with keyword ``config``; unknown names or keys, settings beyond
-    :data:`MAX_SETTING` and models beyond :data:`MAX_PARAMETERS` raise ConfigError (the size is
-    checked on the meta device, before any weight is allocated)."""
+    :data:`~slipsense.models.base.MAX_SETTING` and models beyond
+    :data:`~slipsense.models.base.MAX_PARAMETERS` raise ConfigError (the size is checked on the meta
+    device, before any weight is allocated)."""
     _load_all()
     return build_registered(name, **config)
 

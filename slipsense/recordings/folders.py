@@ -23,12 +23,8 @@ from .video import probe_video
 
 OnError = Literal["raise", "skip"]
 
-#: Experiment folders are named ``exp_num_<N>`` with N a non-negative integer.
-EXPERIMENT_RE = re.compile(GELSIGHT_MINI.experiment_pattern)
 #: Camera videos are named ``camera_<anything>.avi``; the stem becomes ``Recording.camera``.
 CAMERA_GLOB = GELSIGHT_MINI.camera_glob
-#: File whose presence in an experiment folder marks a run in which the object slipped.
-SLIP_MARKER = GELSIGHT_MINI.slip_marker
 
 
 class SkippedInputWarning(UserWarning):
@@ -220,9 +216,7 @@ def validate_recordings(
 
 __all__ = [
     "CAMERA_GLOB",
-    "EXPERIMENT_RE",
     "IncompleteRunWarning",
-    "SLIP_MARKER",
     "SkippedInputWarning",
     "check_on_error",
     "find_recordings",

@@ -17,8 +17,6 @@ from pathlib import Path
 DEFAULT_MODEL = "motionnet-gelsight"
 #: The default for one finger: the same recipe trained on each camera alone (configs/motionnet-1sensor.yaml).
 ONE_SENSOR_MODEL = "motionnet-gelsight-1"
-#: The paper-faithful ViViT, kept for reproduction.
-PAPER_MODEL = "vivit-gelsight"
 
 
 def _path(*parts: str) -> Path:
@@ -49,7 +47,6 @@ def shipped_overrides() -> Path:
 __all__ = [
     "DEFAULT_MODEL",
     "ONE_SENSOR_MODEL",
-    "PAPER_MODEL",
     "default_model_name",
     "shipped_model",
     "shipped_models",

@@ -55,24 +55,14 @@ from typing import Any, Iterable, Sequence
 import numpy as np
 
 from ..errors import InputError
-from .marker_cache import CACHE_VERSION, _cache_file, _load_cached_track, _save_cached_track, check_track
+from .marker_cache import _cache_file, _load_cached_track, _save_cached_track
 from .marker_detection import detect_markers, order_markers
 from .spec import GELSIGHT_MINI
-from .marker_tracking import (
-    DEFAULT_MM_PER_PX,
-    STARTUP_FRAMES,
-    MarkerTrack,
-    default_reference_index,
-    track_markers,
-)
+from .marker_tracking import DEFAULT_MM_PER_PX, MarkerTrack, track_markers
 
 __all__ = [
-    "CACHE_VERSION",
     "DEFAULT_MM_PER_PX",
-    "STARTUP_FRAMES",
     "MarkerTrack",
-    "check_track",
-    "default_reference_index",
     "detect_markers",
     "grid_sequences",
     "layout_name",

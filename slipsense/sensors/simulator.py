@@ -39,27 +39,16 @@ from pathlib import Path
 import numpy as np
 
 from slipsense.atomic import write_with
-from slipsense.sensors.marker_npz import (
-    MAX_ABS_MM,
-    NPZ_KEYS,
-    MarkerDataset,
-    load_marker_npy,
-    load_marker_npz,
-    save_dataset,
-    validate_marker_array,
-)
-from slipsense.sensors.sim_model import OBJECTS, PATTERNS, SLIP_PATTERN, Range, SimConfig, displacement_field, rest_grid
+from slipsense.sensors.marker_npz import MarkerDataset, load_marker_npy, load_marker_npz, save_dataset
+from slipsense.sensors.sim_model import OBJECTS, PATTERNS, SLIP_PATTERN, SimConfig, displacement_field, rest_grid
 from slipsense.sensors.sim_sequence import simulate_sequence
 
 __all__ = [
     "FIGURE_OBJECTS",
-    "MAX_ABS_MM",
-    "NPZ_KEYS",
     "OBJECTS",
     "PATTERNS",
     "SLIP_PATTERN",
     "MarkerDataset",
-    "Range",
     "SimConfig",
     "displacement_field",
     "load_marker_npy",
@@ -70,7 +59,6 @@ __all__ = [
     "rest_grid",
     "save_dataset",
     "simulate_sequence",
-    "validate_marker_array",
 ]
 
 

@@ -6,8 +6,6 @@ A new sensor is one :class:`SensorSpec` here (and, for a new recording layout, a
     >>> from slipsense.sensors.spec import GELSIGHT_MINI
     >>> GELSIGHT_MINI.image_size, GELSIGHT_MINI.fps
     ((240, 320), 25.0)
-    >>> GELSIGHT_MINI.frames_to_ms(5)
-    200.0
 """
 
 from __future__ import annotations
@@ -42,9 +40,6 @@ class SensorSpec:
     experiment_pattern: str | None = None
     slip_marker: str | None = None
     capture_format: str | None = None
-
-    def frames_to_ms(self, frames: float) -> float:
-        return 1000.0 * float(frames) / self.fps
 
     def to_dict(self) -> dict[str, Any]:
         """The spec as JSON-ready data (what checkpoints keep under ``"sensor"``)."""

@@ -30,7 +30,6 @@ from torch import nn
 from slipsense.alarm import debounce
 from slipsense.errors import ConfigError, InputError
 from slipsense.models.base import SlipModel, window_geometry
-from slipsense.models.streams import slip_probability
 from slipsense.resources import shipped_model
 from slipsense.models.runners import BACKENDS, DTYPES, onnx_cache_dir, resolve_backend
 from slipsense.sensors.spec import GELSIGHT_MINI
@@ -80,12 +79,6 @@ class Trace:
     def alarm(self) -> np.ndarray:
         """``(N,)`` bool: probability >= threshold for ``debounce`` frames in a row (NaN: no answer yet)."""
         return debounce(self.probability, self.threshold, self.debounce)
-
-
-def alarm_at(probability: np.ndarray, threshold: float) -> np.ndarray:
-    """``(N,)`` bool alarm state of a probability trace at ``threshold``; NaN counts as no alarm."""
-    p = np.asarray(probability, dtype=np.float64)
-    return np.nan_to_num(p, nan=-1.0) >= threshold
 
 
 def combine_probabilities(per_sensor: np.ndarray, combine: str) -> np.ndarray:
@@ -384,11 +377,9 @@ __all__ = [
     "Reading",
     "SlipDetector",
     "Trace",
-    "alarm_at",
     "combine_probabilities",
     "onnx_cache_dir",
     "shipped_name",
     "window_geometry",
-    "slip_probability",
     "stored_operating_point",
 ]
