@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from slipsense.errors import ConfigError, InputError
+from slipsense.progress import progress_bar
 
 
 def gelsight_clips(
@@ -86,11 +87,10 @@ def label_runs(recordings, overrides=None, on_error: str = "raise", progress: bo
     from slipsense.recordings.folders import SkippedInputWarning, check_on_error
     from slipsense.recordings.label_csv import Overrides, apply_overrides, read_overrides_csv
     from slipsense.recordings.labels import label_recordings
+    from slipsense.recordings.types import by_run
 
     check_on_error(on_error)
-    runs: dict[tuple[str, int], list] = {}
-    for r in recordings:
-        runs.setdefault((r.object, r.experiment), []).append(r)
+    runs = by_run(recordings)
     known = {key: [r.camera for r in recs] for key, recs in runs.items()}
     if overrides is None:
         overrides = shipped_overrides_for(recordings)
@@ -107,12 +107,7 @@ def label_runs(recordings, overrides=None, on_error: str = "raise", progress: bo
     prefetch([r.path for r in recordings], LABEL_PRODUCTS, progress=progress)  # decoding on every core
     labels: dict = {}
     skipped: set = set()
-    items = list(runs.items())
-    if progress:
-        from tqdm import tqdm
-
-        items = tqdm(items, desc="labelling runs", unit="run")
-    for key, recs in items:
+    for key, recs in progress_bar(list(runs.items()), progress, "labelling runs"):
         try:
             labels.update(label_recordings(recs, progress=False))
         except InputError as exc:

@@ -25,6 +25,7 @@ import numpy as np
 
 from slipsense.evaluation import pergrasp
 from slipsense.errors import InputError
+from slipsense.progress import progress_bar
 from slipsense.sensors.spec import GELSIGHT_MINI
 
 #: Columns of the early-warning CSV, in order.
@@ -96,23 +97,17 @@ def replay_recordings(
     """
     from slipsense.data import label_runs
     from slipsense.recordings.frame_cache import video_products
+    from slipsense.recordings.types import by_run
     from slipsense.recordings.video import read_video
 
     detector.model.check_video_replay(detector.geometry)
-    runs: dict[tuple[str, int], list[Any]] = {}
-    for r in recordings:
-        runs.setdefault((r.object, r.experiment), []).append(r)
-    keys = sorted(runs)[:limit] if limit is not None else sorted(runs)
+    runs = by_run(recordings)
+    keys = list(runs)[:limit] if limit is not None else list(runs)
     if labels is None:
         labels = label_runs([r for k in keys for r in runs[k]], overrides, progress=progress)
-    items: Iterable = keys
-    if progress:
-        from tqdm import tqdm
-
-        items = tqdm(keys, desc="replaying runs", unit="run")
     out = []
-    for key in items:
-        cams = sorted(runs[key], key=lambda r: r.camera)
+    for key in progress_bar(keys, progress, "replaying runs"):
+        cams = runs[key]
         if detector.sensors == 1 and len(cams) > 1:  # one finger: each camera is a grasp of its own
             groups = [[c] for c in cams]
         else:

@@ -31,14 +31,6 @@ def score(model, data, batch_size: int = 32) -> dict[str, Any]:
     return metrics_from(p, y)
 
 
-def _accepted(name: str, data_config: dict[str, Any]) -> dict[str, Any]:
-    """The data-implied sizes model ``name`` takes (3D ResNet-50 has no image_size: any size works)."""
-    from slipsense.models import model_class, settings_of
-
-    params = settings_of(model_class(name))
-    return {k: v for k, v in data_config.items() if k in params}
-
-
 def train_model(
     name: str,
     label: str,
@@ -57,7 +49,7 @@ def train_model(
 
     cfg = settings.train_config(name, preset)
     seed_everything(settings.seed)
-    model = build_model(name, preset, settings.model_config(name), _accepted(name, data_config))
+    model = build_model(name, preset, settings.model_config(name), data_config)
     if before_fit is not None:
         before_fit(model)
     run_dir = settings.out / "runs" / label

@@ -32,7 +32,7 @@ from tqdm.auto import tqdm
 
 from .. import config
 from ..sensors.spec import GELSIGHT_MINI
-from ..atomic import write_text, write_with
+from ..atomic import file_sha256, write_text, write_with
 from ..errors import ConfigError, InputError
 from .folders import SkippedInputWarning
 from .frames import source_stat
@@ -370,14 +370,6 @@ def cache_key(recordings: Iterable[Recording], labels: Mapping[Key, VideoLabel],
     return hashlib.sha256(payload.encode()).hexdigest()
 
 
-def _sha256_file(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        while chunk := fh.read(1 << 22):
-            h.update(chunk)
-    return h.hexdigest()
-
-
 def _save_npz(path: Path, clips: ClipSet) -> str:
     """Write the clips atomically; return the sha256 of the bytes written."""
     digest: list[str] = []
@@ -386,7 +378,7 @@ def _save_npz(path: Path, clips: ClipSet) -> str:
         # Uncompressed: loading ~500 MB of clips is disk-bound, compression would make it CPU-bound.
         with open(tmp, "wb") as fh:
             np.savez(fh, x=clips.x, y=clips.y, meta=np.array(json.dumps(clips.meta)))
-        digest.append(_sha256_file(tmp))
+        digest.append(file_sha256(tmp))
 
     write_with(path, writer)
     return digest[0]
@@ -411,7 +403,7 @@ def _load_npz(
         raise ValueError(f"cache version {info.get('version')!r}, expected {CACHE_VERSION}")
     if key is not None and info.get("key") != key:
         raise ValueError("made from other videos, labels or settings")
-    if _sha256_file(npz) != info.get("sha256"):
+    if file_sha256(npz) != info.get("sha256"):
         raise ValueError("checksum mismatch")
     with np.load(npz, allow_pickle=False) as data:
         if set(data.files) != {"x", "y", "meta"}:

@@ -41,7 +41,7 @@ from .label_csv import (
     apply_overrides,
     read_overrides_csv,
 )
-from .types import Recording, VideoLabel
+from .types import Recording, VideoLabel, by_run
 
 #: What labelling reads of each video through the frame cache: the 8 x 8 blocks of the contact
 #: signal, and from the same decode the contact signal and the grey frames the shipped grasp
@@ -167,13 +167,6 @@ def label_run(recordings_of_one_experiment: Sequence[Recording], rule: Rule = "e
     ]
 
 
-def _group_runs(recordings: Iterable[Recording]) -> dict[tuple[str, int], list[Recording]]:
-    runs: dict[tuple[str, int], list[Recording]] = {}
-    for r in recordings:
-        runs.setdefault((r.object, r.experiment), []).append(r)
-    return dict(sorted(runs.items()))
-
-
 def _label_one(rule: Rule, recs: list[Recording], tick) -> list[VideoLabel]:
     labels = label_run(recs, rule=rule)
     tick(1)
@@ -224,7 +217,7 @@ def label_recordings(
         InputError: a video cannot be decoded; an override names a run or camera not among
             ``recordings`` or a moment outside the video.
     """
-    runs = _group_runs(recordings)
+    runs = by_run(recordings)
     known = {key: [r.camera for r in recs] for key, recs in runs.items()}
     if isinstance(overrides, (str, Path)):
         overrides = read_overrides_csv(overrides, known=known)

@@ -20,7 +20,8 @@ from typing import Iterable, Mapping, Sequence
 import numpy as np
 
 from ..errors import InputError
-from .types import Recording, VideoLabel
+from ..progress import progress_bar
+from .types import Recording, VideoLabel, by_run
 
 
 @dataclass
@@ -88,18 +89,8 @@ def load_runs(
         size: ``(h, w)`` of the grey frames kept.
         sensors: cameras a run must have; a run with another number is refused, naming its folder.
     """
-    groups: dict[tuple[str, int], list[Recording]] = {}
-    for r in recordings:
-        groups.setdefault((r.object, r.experiment), []).append(r)
-    keys = sorted(groups)
-    items: Iterable = keys
-    if progress:
-        from tqdm import tqdm
-
-        items = tqdm(keys, desc="loading runs", unit="run")
     runs = []
-    for key in items:
-        recs = sorted(groups[key], key=lambda r: r.camera)
+    for (obj, experiment), recs in progress_bar(list(by_run(recordings).items()), progress, "loading runs"):
         if len(recs) != sensors:
             raise InputError(recs[0].path.parent, f"run has {len(recs)} camera video(s), expected {sensors}")
         if any(r.key not in labels for r in recs):
@@ -110,8 +101,8 @@ def load_runs(
         slipped = any(l.slipped for l in labs)
         runs.append(
             GraspRun(
-                key[0],
-                key[1],
+                obj,
+                experiment,
                 slipped,
                 moment if slipped else None,
                 arrays["gray"],

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Iterable
 
 
 @dataclass(frozen=True)
@@ -48,3 +49,11 @@ class VideoLabel:
     @property
     def key(self) -> tuple[str, int, str]:
         return (self.object, self.experiment, self.camera)
+
+
+def by_run(recordings: Iterable[Recording]) -> dict[tuple[str, int], list[Recording]]:
+    """The recordings grouped by run, ``(object, experiment)``: runs in key order, cameras by name."""
+    runs: dict[tuple[str, int], list[Recording]] = {}
+    for r in recordings:
+        runs.setdefault((r.object, r.experiment), []).append(r)
+    return {key: sorted(runs[key], key=lambda r: r.camera) for key in sorted(runs)}

@@ -39,6 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from slipsense.atomic import write_with
+from slipsense.progress import progress_bar
 from slipsense.sensors.marker_npz import MarkerDataset, load_marker_npy, load_marker_npz, save_dataset
 from slipsense.sensors.sim_model import OBJECTS, PATTERNS, SLIP_PATTERN, SimConfig, displacement_field, rest_grid
 from slipsense.sensors.sim_sequence import simulate_sequence
@@ -83,12 +84,7 @@ def make_dataset(cfg: SimConfig, progress: bool = True) -> MarkerDataset:
     """
     cfg.validate()
     jobs = [(o, p, k) for o in cfg.objects for p in cfg.patterns for k in range(cfg.n_sequences)]
-    try:
-        from tqdm import tqdm
-
-        it = tqdm(jobs, desc="simulate", disable=not progress)
-    except ImportError:  # pragma: no cover
-        it = jobs
+    it = progress_bar(jobs, progress, "simulate")
     xs, ys, gs, ps, os_ = [], [], [], [], []
     for seq_id, (o, p, k) in enumerate(it):
         rng = np.random.default_rng([cfg.seed, OBJECTS.index(o), PATTERNS.index(p), k])
