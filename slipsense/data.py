@@ -10,7 +10,6 @@ Two kinds of data, read for the models by their ``clip_reader`` (:mod:`slipsense
 
 from __future__ import annotations
 
-from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -137,10 +136,6 @@ def clip_spec_from(info: dict[str, Any]):
         return ClipSpec(**d)
     except TypeError as exc:
         raise ConfigError(f"clip_spec: {exc}") from None
-
-
-def spec_dict(spec) -> dict[str, Any]:
-    return asdict(spec)
 
 
 def load_markers(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -62,8 +62,10 @@ class VideoClips:
         """``(train, test, split_info, data_config)`` for a
         :class:`~slipsense.training.clips.TrainRequest`; ``data_config`` holds the sizes the model is
         built with and its ``sensor``."""
+        from dataclasses import asdict
+
         from slipsense.config import gelsight_recordings, portable_path
-        from slipsense.data import gelsight_clips, spec_dict
+        from slipsense.data import gelsight_clips
         from slipsense.datasets import ClipDataset
         from slipsense.recordings.augment import AugmentConfig
         from slipsense.recordings.clips import ClipSpec, object_folds, split_by_clip, split_by_object
@@ -107,7 +109,7 @@ class VideoClips:
         split_info = {
             "kind": self.kind,
             "recordings": portable_path(root),
-            "clip_spec": spec_dict(spec),
+            "clip_spec": asdict(spec),
             "split": req.split,
             "test_objects": test_objects,
             "test_indices": [int(i) for i in te],

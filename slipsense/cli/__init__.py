@@ -9,7 +9,7 @@ from typing import List, Optional
 
 import typer
 
-from slipsense.cli.common import default_recordings, check_nonnegative, check_seed, friendly, parse_hw
+from slipsense.cli.common import check_nonnegative, check_seed, friendly, parse_hw
 
 # PyTorch backs its large CPU tensors with huge pages where this is set before it starts (read once, at its
 # first allocation; forked workers inherit it): a training epoch ran 12% faster with the same weights,
@@ -41,9 +41,10 @@ def label(
     from slipsense.sensors.spec import GELSIGHT_MINI
 
     from slipsense.atomic import check_output_file
+    from slipsense.config import gelsight_recordings
 
     check_output_file(csv, "--csv")
-    root = recordings or default_recordings()
+    root = recordings or gelsight_recordings()
     sensor = data_sensor(root) or GELSIGHT_MINI  # frame folders state their own size
     recs = validate_recordings(find_recordings(root, on_error=on_error), on_error, sensor.image_size)
     if overrides:

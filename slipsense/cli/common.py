@@ -6,7 +6,6 @@ import functools
 import shlex
 import sys
 import warnings
-from pathlib import Path
 from typing import Optional
 
 import typer
@@ -57,12 +56,6 @@ def check_nonnegative(value: float, option: str) -> float:
     if not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
         raise ConfigError(f"{option} must be a finite number >= 0, got {value!r}")
     return value
-
-
-def default_recordings() -> Path:
-    from slipsense.config import gelsight_recordings
-
-    return gelsight_recordings()
 
 
 def command_line() -> str:

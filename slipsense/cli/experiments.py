@@ -7,13 +7,12 @@ Each command writes ``<name>.csv``, ``<name>.png``, ``<name>.md`` and ``config.j
 
 import functools
 import inspect
-import shlex
-import sys
 from pathlib import Path
 from typing import Any, List, Optional
 
 import typer
 
+from slipsense.cli.common import command_line, parse_hw
 from slipsense.errors import ConfigError
 
 HELP = (
@@ -89,12 +88,6 @@ TRAIN_OPTIONS = [
 ]
 
 
-def _parse_pair(text: Optional[str], option: str) -> Optional[tuple]:
-    from slipsense.cli.common import parse_hw
-
-    return parse_hw(text, option)
-
-
 def _parse_model_sets(items: Optional[List[str]], option: str) -> dict:
     """``MODEL.KEY=VALUE`` items -> ``{model: {key: value}}``; values parsed as JSON where possible."""
     import json
@@ -123,10 +116,6 @@ def _parse_list(text: str, kind, option: str) -> list:
     return values
 
 
-def _command_line() -> str:
-    return "slipsense " + shlex.join(sys.argv[1:])
-
-
 def _settings(name: str, kw: dict):
     from slipsense.experiments.settings import Settings
 
@@ -136,8 +125,8 @@ def _settings(name: str, kw: dict):
         data_seed=kw.get("data_seed", 0),
         quick=kw["quick"],
         epochs=kw.get("epochs"),
-        size=_parse_pair(kw["size"], "--size"),
-        patch=_parse_pair(kw["patch"], "--patch"),
+        size=parse_hw(kw["size"], "--size"),
+        patch=parse_hw(kw["patch"], "--patch"),
         batch_size=kw.get("batch_size"),
         lr=kw.get("lr"),
         device=kw.get("device", "auto"),
@@ -152,7 +141,7 @@ def _settings(name: str, kw: dict):
         train_overrides=_parse_model_sets(kw.get("train_set"), "--train-set"),
         resume=kw.get("resume", False),
         progress=kw["progress"],
-        command=_command_line(),
+        command=command_line(),
     )
 
 

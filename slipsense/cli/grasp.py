@@ -204,13 +204,12 @@ def register(app: typer.Typer) -> None:
     ):
         """Which slips show anything before contact is lost, against their own grasp and held grasps."""
         from slipsense.atomic import check_output_dir
-        from slipsense.cli.common import default_recordings
-        from slipsense.config import resolve_path
+        from slipsense.config import gelsight_recordings, resolve_path
         from slipsense.evaluation.precursors import aligned_means, precursor_table, summary, write_report
         from slipsense.training.grasps import load_grasp_data
 
         check_output_dir(out, "--out")
-        root = resolve_path(recordings or default_recordings())
+        root = resolve_path(recordings or gelsight_recordings())
         runs, _ = load_grasp_data(root, overrides, (30, 40), progress=progress)
         rows = precursor_table(runs, window)
         write_report(rows, aligned_means(runs), out, command=command_line(), window=window)

@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from slipsense.atomic import write_text
+from slipsense.config import gelsight_recordings, resolve_path
 from slipsense.experiments.report import machine_line
 from slipsense.experiments.settings import EXPERIMENTS, TITLES, quick_epochs_text
 from slipsense.experiments.stnet import QUICK_SIM_SEQUENCES
@@ -73,22 +74,10 @@ def _mtime_ns(path: Path) -> int:
 def _data_line(data: dict[str, Any]) -> str:
     rec = data.get("recordings")
     text = f"recordings `{Path(rec).name}`" if rec else "in-memory data"
-    if rec and _resolved(rec) != default_recordings().resolve():
+    if rec and Path(resolve_path(rec)).resolve() != gelsight_recordings().resolve():
         text += " (not the default recordings folder)"
     ov = data.get("overrides")
     return text + (f", hand labels `{Path(ov).name}`" if ov else ", automatic labels only")
-
-
-def _resolved(stored: str) -> Path:
-    from slipsense.config import resolve_path
-
-    return Path(resolve_path(stored)).resolve()
-
-
-def default_recordings() -> Path:
-    from slipsense.config import gelsight_recordings
-
-    return gelsight_recordings()
 
 
 def _report_section(

@@ -18,18 +18,6 @@ SIM_SEQUENCES = 24
 QUICK_SIM_SEQUENCES = 2
 
 
-def simulated_markers(
-    settings: Settings,
-    sequences: int | None = None,
-    overrides: dict[str, Any] | None = None,
-    test_fraction: float = 0.2,
-):
-    """Simulated marker windows and a split by sequence: ``(x, y, train indices, test indices, info)``
-    (:func:`simulated_dataset`)."""
-    ds, train, test, sim_info = simulated_dataset(settings, sequences, overrides, test_fraction)
-    return ds.x, ds.y, train, test, sim_info
-
-
 def simulated_dataset(
     settings: Settings,
     sequences: int | None = None,
@@ -133,7 +121,8 @@ def run_stnet(
     rows, curves = [], []
     for kind in data:
         if kind == "sim":
-            x, y, tr, te, sim_info = simulated_markers(settings, sim_sequences, sim_overrides)
+            ds, tr, te, sim_info = simulated_dataset(settings, sim_sequences, sim_overrides)
+            x, y = ds.x, ds.y
             rest = rest_grid(SimConfig(**(sim_overrides or {})))
             rep.config["simulation"] = sim_info
             split_note = (

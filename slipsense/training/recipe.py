@@ -81,9 +81,11 @@ def evaluate(checkpoint: str | Path, **options: Any) -> dict[str, Any]:
     the data its reader takes (:func:`slipsense.evaluation.evaluate.evaluate_clip_checkpoint`, whose
     keyword ``options`` both take)."""
     from slipsense.checkpoint import load_model
+    from slipsense.evaluation.evaluate import evaluate_clip_checkpoint, evaluate_grasp_checkpoint
 
     model, _ = load_model(checkpoint)  # a damaged checkpoint is refused before any data is read
-    return EVALUATORS[model.training_task](checkpoint, **options)
+    judge = {"clips": evaluate_clip_checkpoint, "grasps": evaluate_grasp_checkpoint}[model.training_task]
+    return judge(checkpoint, **options)
 
 
 def _task(tree: dict[str, Any]) -> str:
@@ -291,21 +293,6 @@ def prepare_grasps(tree, progress: bool = True, threads: int | None = None, out=
 #: ``training_task`` (a model class attribute) -> its trainer, and its cross-validation
 TRAINERS: dict[str, Callable[..., dict[str, Any]]] = {"clips": fit_clips, "grasps": fit_grasps}
 FOLDS: dict[str, Callable[..., dict[str, Any]]] = {"clips": _clip_folds, "grasps": _grasp_folds}
-
-
-def _evaluate_clips(checkpoint, **options: Any) -> dict[str, Any]:
-    from slipsense.evaluation.evaluate import evaluate_clip_checkpoint
-
-    return evaluate_clip_checkpoint(checkpoint, **options)
-
-
-def _evaluate_grasps(checkpoint, **options: Any) -> dict[str, Any]:
-    from slipsense.evaluation.evaluate import evaluate_grasp_checkpoint
-
-    return evaluate_grasp_checkpoint(checkpoint, **options)
-
-
-EVALUATORS: dict[str, Callable[..., dict[str, Any]]] = {"clips": _evaluate_clips, "grasps": _evaluate_grasps}
 
 
 def restate_promise(checkpoint, workers: int | None = 1, progress: bool = False) -> dict[str, Any]:
