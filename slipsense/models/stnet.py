@@ -253,22 +253,6 @@ class STNet(MarkerModel):
         d_in = markers * 3
         d_model = d_in if d_model is None else d_model
         head_hidden = d_model if head_hidden is None else head_hidden
-        _validate(
-            frames=frames,
-            markers=markers,
-            d_model=d_model,
-            heads=heads,
-            blocks=blocks,
-            ff_dim=ff_dim,
-            head_hidden=head_hidden,
-            dropout=dropout,
-            codec_channels=codec_channels,
-            codec_kernel=codec_kernel,
-            codec_layers=codec_layers,
-            pool=pool,
-            activation=activation,
-            num_classes=num_classes,
-        )
         self._config = dict(
             frames=frames,
             markers=markers,
@@ -286,6 +270,7 @@ class STNet(MarkerModel):
             num_classes=num_classes,
             use_codecs=use_codecs,
         )
+        _validate(self._config)
         if relative:  # only stored when set, so checkpoints of the paper's network keep their config
             self._config["relative"] = True
         if centred and relative:
@@ -479,19 +464,10 @@ class TemNet(STNet):
 # configurations
 
 
-def _validate(**c):
-    for key in (
-        "frames",
-        "markers",
-        "d_model",
-        "heads",
-        "blocks",
-        "ff_dim",
-        "codec_channels",
-        "codec_kernel",
-        "codec_layers",
-        "num_classes",
-    ):
+def _validate(c: dict) -> None:
+    for (
+        key
+    ) in "frames markers d_model heads blocks ff_dim codec_channels codec_kernel codec_layers num_classes".split():
         if not isinstance(c[key], int) or isinstance(c[key], bool) or c[key] < 1:
             raise ConfigError(f"{key} must be a positive integer, got {c[key]!r}")
     if not isinstance(c["head_hidden"], int) or isinstance(c["head_hidden"], bool) or c["head_hidden"] < 0:
