@@ -325,31 +325,22 @@ def bootstrap_curve(
     ``level`` of the resampled rates. Returns rows ``{"threshold", "warned_rate", "warned_low",
     "warned_high", "false_positive_rate", "fp_low", "fp_high"}``.
     """
-    rng = np.random.default_rng(seed)
-    slip = [i for i, m in enumerate(moments) if m is not None]
-    held = [i for i, m in enumerate(moments) if m is None]
-    pick_slip = rng.integers(0, len(slip), (samples, len(slip))) if slip else None
-    pick_held = rng.integers(0, len(held), (samples, len(held))) if held else None
-    lo, hi = 100 * (1 - level) / 2, 100 * (1 + level) / 2
     rows = []
     for th in thresholds:
         outs = [
-            grasp_outcome(debounce(probabilities[i], th, debounce_frames), moments[i], horizon, startup).outcome
-            for i in range(len(moments))
+            grasp_outcome(debounce(p, th, debounce_frames), m, horizon, startup).outcome
+            for p, m in zip(probabilities, moments)
         ]
-        warned = np.array([outs[i] == "warned" for i in slip], dtype=float)
-        fp = np.array([outs[i] == "false_positive" for i in held], dtype=float)
-        row = {"threshold": float(th)}
-        for name, hits, pick, low, high in (
-            ("warned_rate", warned, pick_slip, "warned_low", "warned_high"),
-            ("false_positive_rate", fp, pick_held, "fp_low", "fp_high"),
-        ):
-            if pick is None:
-                row.update({name: math.nan, low: math.nan, high: math.nan})
-                continue
-            means = hits[pick].mean(axis=1)
-            row.update(
-                {name: float(hits.mean()), low: float(np.percentile(means, lo)), high: float(np.percentile(means, hi))}
-            )
-        rows.append(row)
+        warned = [o == "warned" for o, m in zip(outs, moments) if m is not None]
+        fp = [o == "false_positive" for o, m in zip(outs, moments) if m is None]
+        ci = bootstrap_rates(outs, samples, seed, level)  # the same draws for every threshold
+        rows.append(
+            {
+                "threshold": float(th),
+                "warned_rate": float(np.mean(warned)) if warned else math.nan,
+                **{k: ci[k] for k in ("warned_low", "warned_high")},
+                "false_positive_rate": float(np.mean(fp)) if fp else math.nan,
+                **{k: ci[k] for k in ("fp_low", "fp_high")},
+            }
+        )
     return rows
