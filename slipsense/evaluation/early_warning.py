@@ -17,7 +17,7 @@ import csv
 import io
 import json
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
@@ -48,11 +48,9 @@ class RunTrace:
     def outcome(
         self, threshold: float, debounce: int = 1, horizon: int = pergrasp.HORIZON, startup: int = pergrasp.STARTUP
     ) -> pergrasp.GraspOutcome:
-        alarm = pergrasp.debounce(self.probability, threshold, debounce)
-        verdict = pergrasp.grasp_outcome(alarm, self.moment_of_slip, horizon, startup, self.rest)
-        if self.slipped and self.moment_of_slip is None:  # nothing to warn of in time: neither slip nor held
-            return replace(verdict, outcome="slip_without_moment")
-        return verdict
+        return pergrasp.trace_outcome(
+            self.probability, threshold, debounce, self.moment_of_slip, self.slipped, horizon, startup, self.rest
+        )
 
 
 def early_warning_table(

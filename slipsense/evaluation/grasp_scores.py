@@ -7,7 +7,6 @@ or a training's out-of-fold predictions gave.
 
 from __future__ import annotations
 
-import dataclasses
 
 import math
 from typing import Any, Sequence
@@ -162,14 +161,10 @@ def _outcomes(runs, probs, op: dict[str, Any], horizon: int, rests) -> list[perg
     """Each run's per-grasp verdict at the operating point ``op`` (from its ``startup``); a slip
     labelled as a whole (no moment to warn before) is ``slip_without_moment``, neither slip nor held."""
     startup = int(op.get("startup", pergrasp.STARTUP))
-    outs = []
-    for r, p, rest in zip(runs, probs, rests):
-        alarm = pergrasp.debounce(p, op["threshold"], op["debounce"])
-        o = pergrasp.grasp_outcome(alarm, r.moment_of_slip, horizon, startup, rest=rest)
-        outs.append(
-            dataclasses.replace(o, outcome="slip_without_moment") if r.slipped and r.moment_of_slip is None else o
-        )
-    return outs
+    return [
+        pergrasp.trace_outcome(p, op["threshold"], op["debounce"], r.moment_of_slip, r.slipped, horizon, startup, rest)
+        for r, p, rest in zip(runs, probs, rests)
+    ]
 
 
 def fold_at(fold: dict[str, Any], op: dict[str, Any], horizon: int) -> dict[str, Any]:
@@ -181,15 +176,10 @@ def fold_at(fold: dict[str, Any], op: dict[str, Any], horizon: int) -> dict[str,
         p = stored_trace(r)
         rest = np.zeros(len(p), dtype=bool)
         rest[r["rest"]] = True
-        o = pergrasp.grasp_outcome(
-            pergrasp.debounce(p, op["threshold"], op["debounce"]),
-            r["moment_of_slip"],
-            horizon,
-            int(op.get("startup", pergrasp.STARTUP)),
-            rest=rest,
+        startup = int(op.get("startup", pergrasp.STARTUP))
+        o = pergrasp.trace_outcome(
+            p, op["threshold"], op["debounce"], r["moment_of_slip"], bool(r.get("slipped")), horizon, startup, rest
         )
-        if r.get("slipped") and r["moment_of_slip"] is None:  # labelled as a whole
-            o = dataclasses.replace(o, outcome="slip_without_moment")
         outs.append(o)
         runs.append({**r, "outcome": o.outcome, "first_alarm": o.first_alarm, "lead": o.lead})
     p = np.asarray(fold["clip_probability"], dtype=np.float64)

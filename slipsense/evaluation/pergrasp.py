@@ -21,12 +21,12 @@ Everything here is numpy on alarm arrays: the models and the replay live elsewhe
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Sequence
 
 import numpy as np
 
-from slipsense.alarm import debounce  # noqa: F401  (the alarm rule every outcome is judged by)
+from slipsense.alarm import debounce  # the alarm rule every outcome is judged by
 from slipsense.recordings.contact import MIN_CONTACT as REST_MARGIN  # touching: this far above the rest floor
 from slipsense.recordings.contact import STARTUP_FRAMES as STARTUP  # camera start-up transient, never scored
 from slipsense.sensors.spec import GELSIGHT_MINI
@@ -96,6 +96,23 @@ def grasp_outcome(
     if first < moment - horizon:
         return GraspOutcome("premature", first, None, fraction, rest_alarms)
     return GraspOutcome("warned", first, moment - first, fraction, rest_alarms)
+
+
+def trace_outcome(
+    probability: np.ndarray,
+    threshold: float,
+    debounce_frames: int,
+    moment: int | None,
+    slipped: bool,
+    horizon: int = HORIZON,
+    startup: int = STARTUP,
+    rest: np.ndarray | None = None,
+) -> GraspOutcome:
+    """:func:`grasp_outcome` of a ``(N,)`` P(slip) trace alarming at ``threshold`` for ``debounce_frames``
+    frames; a slip labelled as a whole (``slipped``, no moment to warn before) is
+    ``slip_without_moment``, neither slip nor held."""
+    o = grasp_outcome(debounce(probability, threshold, debounce_frames), moment, horizon, startup, rest)
+    return replace(o, outcome="slip_without_moment") if slipped and moment is None else o
 
 
 #: Columns of the per-grasp table, in order.
