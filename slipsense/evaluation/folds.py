@@ -119,28 +119,33 @@ def run_folds(
         groups=[f"fold {k}" for k, _ in jobs],
     )
     results = [done[k] for k in range(len(split))]
-    pooled = pool_folds(results)
-    report = {
+    head = {
         **(meta or {}),  # the command and its whole configuration tree ("config")
         "train_config": cfg.to_dict(),
         "folds": folds,
         "data": runs_summary(runs),
         "machine": {"cpu": platform.processor() or platform.machine(), "python": platform.python_version()},
+    }
+    return _write_report(out, head, results, f"{cfg.model}: {folds} folds by object, pooled (labels: thresholds)")
+
+
+def _write_report(out: Path, head: dict[str, Any], folds: list[dict[str, Any]], title: str) -> dict[str, Any]:
+    """``head`` with the ``folds`` pooled, written into ``out`` as folds.json, README.md and
+    tradeoff.png; returns the report."""
+    from slipsense.evaluation.early_warning import plot_tradeoff
+
+    pooled = pool_folds(folds)
+    report = {
+        **head,
         "pooled": {k: v for k, v in pooled.items() if k != "curve"},
         "curve": pooled["curve"],
         "per_fold": [
-            {k: f[k] for k in ("fold", "objects", "operating_point", "per_grasp", "clips", "seconds")} for f in results
+            {k: f[k] for k in ("fold", "objects", "operating_point", "per_grasp", "clips", "seconds")} for f in folds
         ],
     }
     atomic.write_text(out / "folds.json", json.dumps(_json_safe(report), indent=1))
     atomic.write_text(out / "README.md", summary_markdown(report))
-    from slipsense.evaluation.early_warning import plot_tradeoff
-
-    plot_tradeoff(
-        pooled["curve"],
-        out / "tradeoff.png",
-        title=f"{cfg.model}: {folds} folds by object, pooled (labels: thresholds)",
-    )
+    plot_tradeoff(pooled["curve"], out / "tradeoff.png", title=title)
     return report
 
 
@@ -175,25 +180,14 @@ def rechoose(src, out, max_held_alarm: float | None, command: str = "", echo=pri
         op["chosen_on"] = f"{cfg['inner_folds']} inner folds of the training objects (kept traces)"
         folds.append(fold_at(fold, op, cfg["horizon"]))
         _echo_fold(echo, k, fold["objects"], folds[-1])
-    pooled = pool_folds(folds)
-    new = {
+    head = {
         **{k: v for k, v in report.items() if k not in ("pooled", "curve", "per_fold")},
         "command": command or report.get("command", ""),
         "rechosen_from": str(src),
         "train_config": cfg,
-        "pooled": {k: v for k, v in pooled.items() if k != "curve"},
-        "curve": pooled["curve"],
-        "per_fold": [
-            {k: f[k] for k in ("fold", "objects", "operating_point", "per_grasp", "clips", "seconds")} for f in folds
-        ],
     }
     out.mkdir(parents=True, exist_ok=True)
-    atomic.write_text(out / "folds.json", json.dumps(_json_safe(new), indent=1))
-    atomic.write_text(out / "README.md", summary_markdown(new))
-    from slipsense.evaluation.early_warning import plot_tradeoff
-
-    plot_tradeoff(pooled["curve"], out / "tradeoff.png", title=f"{cfg['model']}: folds pooled, {_rule(new)}")
-    return new
+    return _write_report(out, head, folds, f"{cfg['model']}: folds pooled, {_rule(head)}")
 
 
 def _read_fold(path: Path) -> dict[str, Any]:
