@@ -180,20 +180,6 @@ class MotionNet(GraspModel):
             feats = torch.cat([feats[:, :1].expand(-1, self.receptive_field - 1, -1), feats], dim=1)
         return self.classify(feats)
 
-    def last_logits(self, gray: Tensor, n_out: int) -> Tensor:
-        """Logits of the last ``n_out`` frames of ``(B, S, T, h, w)`` computed from the frames within
-        it alone: needs ``T >= n_out + receptive_field - 1 + max_lag``, and then equals
-        ``forward(whole run)`` at those frames."""
-        self.check_input(gray)
-        if 0 in self.lags:
-            raise ConfigError("motionnet with lag 0 (the grasp's first frame) needs the whole run: use chunk_logits")
-        need = n_out + self.receptive_field - 1
-        t = gray.shape[2]
-        if t < need + self.max_lag:
-            raise InputError(None, f"motionnet chunk of {t} frames is shorter than {need + self.max_lag}")
-        at = torch.arange(t - need, t, device=gray.device)
-        return self.classify(self.encode(self._lagged(gray, at, self._pasts(at), dim=2).movedim(5, 3)))
-
     def chunk_logits(self, runs: Sequence[tuple[Tensor, Sequence[int]]], n_out: int) -> Tensor:
         """Logits of chunks of whole runs, each frame encoded once however many chunks share it.
 

@@ -199,23 +199,6 @@ def train_with_operating_point(
     return finish_training(runs, jobs, results, cfg)
 
 
-def operating_point(
-    runs: Sequence[GraspRun], cfg: GraspTrainConfig, progress: bool = False, model=None, workers: int | None = 1
-) -> dict[str, Any]:
-    """The alarm threshold and debounce for a model trained on ``runs``, chosen on those runs only:
-    on out-of-fold predictions of ``cfg.inner_folds`` inner folds by object (each inner model trained
-    like the outer one), or, with ``inner_folds=0``, on ``model``'s own predictions of ``runs``."""
-    usable = [r for r in runs if r.usable]
-    judged = [r for r in usable if not r.extra]
-    if cfg.inner_folds == 0:
-        if model is None:
-            raise ConfigError("inner_folds=0 needs the trained model")
-        probs = predict_runs(model, judged, cfg.startup)
-    else:
-        probs = inner_fold_traces(usable, cfg, workers, progress)
-    return _chosen_operating_point(probs, judged, cfg)
-
-
 def inner_fold_traces(usable: Sequence[GraspRun], cfg: GraspTrainConfig, workers=1, progress=False) -> list[np.ndarray]:
     """P(slip) traces of ``usable`` runs but another data set's, each from the model of
     ``cfg.inner_folds`` inner folds by object that did not train on its object (what an operating
