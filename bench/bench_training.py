@@ -89,8 +89,16 @@ def _reference_logits(model, gray, n_out):
     return model.classify(model.encode(diffs * model.diff_scale))
 
 
+def _current_batches(data, chunks, cfg, rng):
+    """The training step's batches (:class:`~slipsense.training.grasps.GraspTask` without flips):
+    whole runs' chunks, about ``batch_size`` per batch, each run's frames once."""
+    for part, _ in G._groups(chunks, cfg.batch_size, False, rng):
+        x = [(torch.from_numpy(data.items[i][0]).float().div_(255.0), ends) for i, ends, _ in part]
+        yield x, torch.from_numpy(np.concatenate([c[2] for c in part]))
+
+
 def _step(model, opt, logits, y):
-    keep = y >= 0
+    keep = (y == 0) | (y == 1)  # not the ignored frames (-1) nor grasps labelled as a whole
     loss = F.cross_entropy(logits[keep], y[keep])
     opt.zero_grad(set_to_none=True)
     loss.backward()
@@ -117,7 +125,7 @@ def grasp_throughput(runs, cfg, seconds: float) -> dict:
                 batches = _reference_batches(data, cfg, np.random.default_rng(rng.integers(1 << 30)))
             else:
                 chunks = data.draw(np.random.default_rng(rng.integers(1 << 30)))
-                batches = G._batches(chunks, data.items, cfg.batch_size, False, rng)
+                batches = _current_batches(data, chunks, cfg, rng)
             for k, (x, y) in enumerate(batches):
                 t0 = time.perf_counter()
                 if name == "reference":
@@ -143,7 +151,7 @@ def grasp_profile(runs, cfg) -> list[dict]:
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr)
     data = G._Chunks(runs, cfg)
     rng = np.random.default_rng(1)
-    batches = list(G._batches(data.draw(rng), data.items, cfg.batch_size, False, rng))[:12]
+    batches = list(_current_batches(data, data.draw(rng), cfg, rng))[:12]
     for x, y in batches[:2]:
         _step(model, opt, model.chunk_logits(x, cfg.chunk), y)
     with profile(activities=[ProfilerActivity.CPU]) as prof:
