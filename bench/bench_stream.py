@@ -156,12 +156,7 @@ def main(argv=None) -> int:
 
     torch.set_num_threads(args.threads)
     torch.manual_seed(0)
-    import onnxruntime as ort
-    import slipsense.streaming.export as export
-
-    # every ONNX Runtime session the detector opens gets the same thread count as torch
-    plain_session = export.onnx_session
-    export.onnx_session = lambda path, threads=None: plain_session(path, threads=args.threads)
+    import onnxruntime as ort  # its sessions take torch's thread count (slipsense.models.onnx.onnx_session)
 
     load_before = os.getloadavg()
     rows = []
