@@ -248,3 +248,19 @@ def test_fit_without_random_negatives_trains():
     assert len(hist) == 3 and hist[0]["other_frames"] < hist[1]["other_frames"]
     with pytest.raises(ConfigError, match="positive_weight"):
         GraspTrainConfig(positive_weight=0)
+
+
+def test_the_training_benchmark_still_times_both_steps():
+    """bench/bench_training.py times the shipped training step beside the step before it; it once
+    called a helper that had been removed and failed at its first line of work."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parent.parent / "bench" / "bench_training.py"
+    spec = importlib.util.spec_from_file_location("bench_training", path)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    runs, cfg = _runs(), GraspTrainConfig(**TINY)
+    res = bench.grasp_throughput(runs, cfg, seconds=0.01)
+    assert res["current"]["frames"] > 0 and res["reference"]["frames"] > 0 and res["ratio"] > 0
+    assert {"operator", "self_percent", "calls"} <= set(bench.grasp_profile(runs, cfg)[0])
