@@ -42,11 +42,13 @@ class FitJob:
     out: str | None = None  # where it writes last/best checkpoints, metrics.csv and curves (None: nowhere)
     info: dict | None = None  # what those checkpoints carry besides the weights
     settings: tuple = ()  # (key, value) model settings of this candidate (GraspTrainConfig.choose)
+    judge: tuple[int, ...] = ()  # training runs replayed to choose its own operating point (inner_folds=0)
 
 
 def fit_job(shared: tuple[Sequence[GraspRun], GraspTrainConfig], job: FitJob, tick=lambda units: None):
     """Run one :class:`FitJob` (in this process or a worker, :func:`slipsense.parallel.run_jobs`):
-    ``{"history", "probs" (per predicted run), "state" (weights, when kept)}``; ticks
+    ``{"history", "probs" (per predicted run), "judged" (per judged run), "state" (weights, when
+    kept)}``; ticks
     ``len(job.train)`` units per epoch."""
     runs, cfg = shared
     cfg = with_settings(cfg, dict(job.settings))
@@ -60,8 +62,9 @@ def fit_job(shared: tuple[Sequence[GraspRun], GraspTrainConfig], job: FitJob, ti
         info=job.info,
     )
     probs = predict_runs(model, [runs[i] for i in job.predict], cfg.startup)
+    judged = predict_runs(model, [runs[i] for i in job.judge], cfg.startup)
     state = {k: v.detach().clone() for k, v in model.state_dict().items()} if job.keep_model else None
-    return {"history": history, "probs": probs, "state": state}
+    return {"history": history, "probs": probs, "judged": judged, "state": state}
 
 
 def job_weight(job: FitJob, cfg: GraspTrainConfig) -> float:
@@ -72,15 +75,18 @@ def job_weight(job: FitJob, cfg: GraspTrainConfig) -> float:
 def plan_training(runs: Sequence[GraspRun], held: Sequence[str], cfg: GraspTrainConfig) -> list[FitJob]:
     """The trainings behind one detector: first the detector on every usable run whose object is not
     in ``held`` (replaying the held-out objects' runs), then one per inner fold of those training
-    objects (each replaying its own held-out runs), which choose the operating point; all that once
-    per candidate of ``cfg.choose``. Indices are into ``runs``."""
+    objects (each replaying its own held-out runs), which choose the operating point (without inner
+    folds the detector replays its own training runs for it, in its job: candidates side by side);
+    all that once per candidate of ``cfg.choose``. Indices are into ``runs``."""
     usable = [i for i, r in enumerate(runs) if r.usable]
     train = tuple(i for i in usable if runs[i].object not in set(held))
     inner = object_split([runs[i] for i in train], cfg.inner_folds, cfg.folds_seed) if cfg.inner_folds else []
+    judge = () if cfg.inner_folds else tuple(i for i in train if not runs[i].extra)
     jobs = []
     for settings in candidates(cfg):
         s = tuple(settings.items())
-        jobs.append(FitJob(train, tuple(i for i in usable if runs[i].object in set(held)), True, settings=s))
+        held_runs = tuple(i for i in usable if runs[i].object in set(held))
+        jobs.append(FitJob(train, held_runs, True, settings=s, judge=judge))
         for objects in inner:
             jobs.append(
                 FitJob(
@@ -110,7 +116,7 @@ def finish_training(
         model.load_state_dict(rs[0]["state"])
         model.eval()
         judged = [runs[i] for i in judged_indices(runs, js)]
-        probs = inner_traces(runs, js, rs) if c.inner_folds else predict_runs(model, judged, c.startup)
+        probs = inner_traces(runs, js, rs) if c.inner_folds else rs[0]["judged"]
         op = _chosen_operating_point(probs, judged, c)
         rank = (op.get("score_on_training_runs", 0.0), _peak_auc(probs, judged, c.startup))
         tried.append({"settings": settings, "score": rank[0], "roc_auc": rank[1]})
