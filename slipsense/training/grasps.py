@@ -397,9 +397,9 @@ def predict_runs(model, runs: Sequence[GraspRun], startup: int = pergrasp.STARTU
     return [stream.replay_cached(r.gray)[:, 0] for r in runs]
 
 
-def make_config(model: str, settings: dict[str, Any], size: tuple[int, int] | None = None) -> GraspTrainConfig:
+def make_config(model: str, settings: dict[str, Any]) -> GraspTrainConfig:
     """A :class:`GraspTrainConfig` from ``--set`` pairs: training keys by name, anything else (or
-    ``model.KEY``) goes to the model's config; ``size`` sets the model's ``image_size``."""
+    ``model.KEY``) goes to the model's config."""
     train_keys = set(GraspTrainConfig.__dataclass_fields__) - {"model", "model_config"}
     train, model_cfg = {}, {}
     for key, value in settings.items():
@@ -409,8 +409,6 @@ def make_config(model: str, settings: dict[str, Any], size: tuple[int, int] | No
             train[key] = value
         else:
             model_cfg[key] = value
-    if size is not None:
-        model_cfg["image_size"] = list(size)
     if train.get("init") is not None:  # fine-tuning: the model is the checkpoint's, settings and all
         from slipsense.checkpoint import read_info
         from slipsense.config import portable_path, resolve_path
