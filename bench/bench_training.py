@@ -79,7 +79,7 @@ def _reference_batches(data, cfg, rng):
 
 
 def _reference_logits(model, gray, n_out):
-    """``last_logits`` as it was: planar differences, the input checked for finite values."""
+    """The forward of the last ``n_out`` frames as it was: planar differences, the input checked for finite values."""
     if not bool(torch.isfinite(gray).all()):
         raise ValueError("non-finite input")
     need = n_out + model.receptive_field - 1
