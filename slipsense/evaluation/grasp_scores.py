@@ -7,7 +7,6 @@ or a training's out-of-fold predictions gave.
 
 from __future__ import annotations
 
-
 import math
 from typing import Any, Sequence
 
