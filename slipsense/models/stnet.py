@@ -464,10 +464,12 @@ class TemNet(STNet):
 # configurations
 
 
+#: Settings that count something: positive integers.
+_COUNTS = "frames markers d_model heads blocks ff_dim codec_channels codec_kernel codec_layers num_classes".split()
+
+
 def _validate(c: dict) -> None:
-    for (
-        key
-    ) in "frames markers d_model heads blocks ff_dim codec_channels codec_kernel codec_layers num_classes".split():
+    for key in _COUNTS:
         if not isinstance(c[key], int) or isinstance(c[key], bool) or c[key] < 1:
             raise ConfigError(f"{key} must be a positive integer, got {c[key]!r}")
     if not isinstance(c["head_hidden"], int) or isinstance(c["head_hidden"], bool) or c["head_hidden"] < 0:
