@@ -62,7 +62,7 @@ def fit_job(shared: tuple[Sequence[GraspRun], GraspTrainConfig], job: FitJob, ti
         info=job.info,
     )
     probs = predict_runs(model, [runs[i] for i in job.predict], cfg.startup)
-    judged = predict_runs(model, [runs[i] for i in job.judge], cfg.startup)
+    judged = predict_runs(model, [runs[i] for i in job.judge], cfg.startup) if job.judge else []
     state = {k: v.detach().clone() for k, v in model.state_dict().items()} if job.keep_model else None
     return {"history": history, "probs": probs, "judged": judged, "state": state}
 
