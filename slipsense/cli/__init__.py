@@ -9,7 +9,7 @@ from typing import List, Optional
 
 import typer
 
-from slipsense.cli.common import check_nonnegative, check_seed, friendly, parse_hw
+from slipsense.cli.common import check_seed, friendly, parse_hw
 
 # PyTorch backs its large CPU tensors with huge pages where this is set before it starts (read once, at its
 # first allocation; forked workers inherit it): a training epoch ran 12% faster with the same weights,
@@ -177,86 +177,6 @@ def train(
 
 @app.command()
 @friendly
-def evaluate(
-    checkpoint: Optional[Path] = typer.Option(
-        None, help="a .safetensors checkpoint (default: the shipped detector, judged per grasp)"
-    ),
-    recordings: Optional[Path] = typer.Option(
-        None, help="evaluate on this recordings folder (every clip; every run per grasp for a grasp detector)"
-    ),
-    split_file: Optional[Path] = typer.Option(None, help="a run's split.json: evaluate on its held-out part"),
-    markers: Optional[Path] = typer.Option(None, help="marker-sequence .npz: evaluate on all of it"),
-    json_out: Path = typer.Option(Path("evaluation.json"), "--json", help="metrics JSON"),
-    png: Optional[Path] = typer.Option(None, help="confusion-matrix picture (default: beside the JSON)"),
-    noise_std: float = typer.Option(0.0, help="add Gaussian noise of this std (0..255 scale) to clips"),
-    on_error: str = typer.Option("raise"),
-    overrides: Optional[Path] = typer.Option(None, help="CSV of hand labels for --recordings"),
-    progress: bool = typer.Option(True),
-    dtype: str = typer.Option("float32", help="inference numerics: float32, bfloat16 (STNet/TemNet) or int8 weights"),
-    per_grasp: bool = typer.Option(True, help="video clip models: also replay the runs and judge them per grasp"),
-):
-    """Evaluate a checkpoint: a grasp detector per grasp (every run replayed: slips warned in time,
-    premature, missed, false-positive grasps), a clip or marker model per clip (accuracy, precision,
-    recall, F1 and a confusion matrix)."""
-    from slipsense.atomic import check_output_file
-    from slipsense.training.recipe import evaluate
-
-    if checkpoint is None:
-        from slipsense.evaluation.replay import shipped_for
-
-        checkpoint = shipped_for(recordings)
-        typer.echo(f"evaluating the shipped detector {checkpoint.stem}", err=True)
-
-    check_nonnegative(noise_std, "--noise-std")
-    check_output_file(json_out, "--json")
-    check_output_file(png, "--png")
-    m = evaluate(
-        checkpoint,
-        recordings=recordings,
-        split=split_file,
-        markers=markers,
-        json_out=json_out,
-        png=png,
-        noise_std=noise_std,
-        on_error=on_error,
-        overrides=overrides,
-        progress=progress,
-        dtype=dtype,
-        per_grasp=per_grasp,
-    )
-    if "clips" in m:  # a grasp detector: per grasp, and per clip on the same traces
-        from slipsense.evaluation.outcome import table_lines
-
-        g, c = m["per_grasp"], m["clips"]["operating_point"]
-        typer.echo("\n".join(table_lines(m["grasp_measure"])))
-        if g["slip_runs"] == 0 and m["grasp_measure"]["detector"]["slipped"]:
-            typer.echo(f"no moment of slip in these labels: the early-warning figures do not apply -> {json_out}")
-            return
-        typer.echo(json.dumps(g, default=float))
-        typer.echo(
-            f"per grasp: warned in time {g['warned']}/{g['slip_runs']}, premature {g['premature']}, missed "
-            f"{g['missed']}, false-positive grasps {g['false_positive_grasps']}/{g['held_runs']}; clips at the "
-            f"operating point: accuracy {c['accuracy']:.3f} (always-wiggle {c['always_wiggle_accuracy']:.3f}), "
-            f"balanced {c['balanced_accuracy']:.3f}, F1 {c['f1']:.3f} -> {json_out}"
-        )
-        return
-    typer.echo(
-        json.dumps({k: m[k] for k in ("accuracy", "precision", "recall", "f1", "n_clips", "n_slip", "n_wiggle")})
-    )
-    if "per_grasp" in m:  # a clip model replayed over the same runs
-        g = m["per_grasp"]
-        if "skipped" in g:
-            typer.echo(f"per grasp: not replayed ({g['skipped']})")
-            return
-        typer.echo(
-            f"per grasp at threshold {g['threshold']:g} x{g['debounce']}: warned in time {g['warned']}/"
-            f"{g['slip_runs']}, premature {g['premature']}, missed {g['missed']}, false-positive grasps "
-            f"{g['false_positive_grasps']}/{g['held_runs']}"
-        )
-
-
-@app.command()
-@friendly
 def calibrate(
     recordings: Path = typer.Option(..., help="your own grasps (held ones required; slipped ones where you have them)"),
     out: Optional[Path] = typer.Option(None, help="the calibrated checkpoint to write"),
@@ -266,6 +186,9 @@ def calibrate(
     checkpoint: Optional[Path] = typer.Option(None, help="default: the shipped detector for the data"),
     budget: float = typer.Option(0.05, help="fraction of the held grasps allowed to alarm"),
     overrides: Optional[Path] = typer.Option(None, help="CSV of hand labels for --recordings"),
+    on_error: str = typer.Option(
+        "raise", help="raise: stop at a video that cannot be read; skip: warn, leave its grasp out, use the rest"
+    ),
     progress: bool = typer.Option(True),
 ):
     """Calibrate a detector to your sensor: a new alarm threshold chosen on your grasps, so that at
@@ -280,7 +203,7 @@ def calibrate(
     if check is not None:
         check_output_file(check, "--check")
         doc = calibration.check_by_objects(
-            checkpoint, recordings, budget=budget, overrides=overrides, progress=progress
+            checkpoint, recordings, budget=budget, overrides=overrides, progress=progress, on_error=on_error
         )
         write_text(check, json.dumps(doc, indent=1))
         typer.echo("\n".join(calibration.check_lines(doc) + [f"-> {check}"]))
@@ -293,6 +216,7 @@ def calibrate(
         budget=budget,
         overrides=True if overrides is None else overrides,
         progress=progress,
+        on_error=on_error,
     )
     typer.echo("\n".join(result.lines()))
 
@@ -315,7 +239,7 @@ def _register_extensions() -> None:
     """Commands defined beside their subsystems (live detection, export, sensors, experiments)."""
     import importlib
 
-    modules = ("live", "sensors", "experiments", "grasp", "bags", "record")
+    modules = ("evaluate", "live", "sensors", "experiments", "grasp", "bags", "record")
     for mod in modules:
         importlib.import_module(f"slipsense.cli.{mod}").register(app)
 

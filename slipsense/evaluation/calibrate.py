@@ -77,6 +77,7 @@ def calibrate(
     overrides: str | Path | None | bool = True,
     objects: Sequence[str] | None = None,
     progress: bool = True,
+    on_error: str = "raise",
 ) -> Calibration:
     """Choose a detector's operating point on the user's grasps and write the calibrated copy.
 
@@ -88,6 +89,8 @@ def calibrate(
         budget: the fraction of held grasps allowed to alarm (on these grasps; the promise on new
             objects is the bound stated beside it).
         objects: only the grasps of these objects.
+        on_error: ``"raise"`` (default) stops at a video that cannot be read; ``"skip"`` leaves its
+            run out with a warning naming it.
     """
     from slipsense.checkpoint import read_info, update_info
     from slipsense.evaluation.replay import evaluate, recordings_folder, shipped_for
@@ -97,7 +100,7 @@ def calibrate(
         raise ConfigError(f"--budget must be a fraction in [0, 1), got {budget!r}")
     root = recordings_folder(recordings)
     source = Path(checkpoint) if checkpoint is not None else shipped_for(root)
-    ev = evaluate(source, root, overrides=overrides, progress=progress, objects=objects)
+    ev = evaluate(source, root, overrides=overrides, progress=progress, objects=objects, on_error=on_error)
     scores = ev.peak_scores()
     slipped = np.array([r.slipped for r in ev.runs], bool)
     if not (~slipped).any():
@@ -144,17 +147,18 @@ def check_by_objects(
     budget: float = 0.05,
     overrides: str | Path | None | bool = True,
     progress: bool = True,
+    on_error: str = "raise",
 ) -> dict[str, Any]:
     """Does calibration keep its promise on objects it was not calibrated on? Each object in turn is
     left out, the threshold chosen on the others' grasps (:func:`calibrated_threshold`), and the
     left-out object's grasps judged at it. Returns per-object rows and the pooled figures: held grasps
     alarming on the left-out objects against the largest bound the calibrations stated, slipped grasps
-    caught, accuracy."""
+    caught, accuracy. ``on_error`` as :func:`calibrate` takes it."""
     from slipsense.evaluation.replay import evaluate, recordings_folder, shipped_for
 
     root = recordings_folder(recordings)
     source = Path(checkpoint) if checkpoint is not None else shipped_for(root)
-    ev = evaluate(source, root, overrides=overrides, progress=progress)
+    ev = evaluate(source, root, overrides=overrides, progress=progress, on_error=on_error)
     scores = ev.peak_scores()
     slipped = np.array([r.slipped for r in ev.runs], bool)
     objects = np.array([r.object for r in ev.runs])

@@ -187,8 +187,9 @@ def evaluate_grasp_checkpoint(
     """A grasp detector is judged per grasp (:func:`slipsense.evaluation.replay.evaluate`: every run of the
     recordings folder replayed from its first frame, both sensors, at the checkpoint's operating
     point); the JSON holds the summary and each run's outcome. Takes the arguments of
-    :func:`evaluate_clip_checkpoint`; ``png``, ``noise_std``, ``on_error`` and ``per_grasp`` are for clip
-    models and not used."""
+    :func:`evaluate_clip_checkpoint` (``on_error="skip"`` leaves out the runs of videos that cannot be
+    read, each named in a warning); ``png``, ``noise_std`` and ``per_grasp`` are for clip models and
+    not used."""
     from dataclasses import asdict
 
     from slipsense.evaluation.replay import evaluate as evaluate_grasps
@@ -202,7 +203,13 @@ def evaluate_grasp_checkpoint(
         )
     if dtype != "float32":
         raise ConfigError(f"a grasp detector is evaluated in float32 (--dtype {dtype} is for clip and marker models)")
-    ev = evaluate_grasps(checkpoint, recordings, overrides=True if overrides is None else overrides, progress=progress)
+    ev = evaluate_grasps(
+        checkpoint,
+        recordings,
+        overrides=True if overrides is None else overrides,
+        progress=progress,
+        on_error=on_error,
+    )
     doc = {
         "checkpoint": portable_path(checkpoint),
         "recordings": None if recordings is None else portable_path(recordings),

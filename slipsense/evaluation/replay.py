@@ -39,15 +39,23 @@ def shipped_for(recordings: str | Path | None) -> Path:
     from slipsense.resources import shipped_model
     from slipsense.streaming.detector import shipped_name
 
+    from slipsense.errors import InputError
+
     root = recordings_folder(recordings)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the evaluation that follows reports them
         found = find_recordings(root, on_error="skip")
     sensor = data_sensor(root)
     size = sensor.image_size if sensor is not None else None
-    if size is None:
-        info = probe_video(found[0].path, expected_size=None)
+    for rec in found if size is None else ():  # the first video that reads (the evaluation reports the others)
+        try:
+            info = probe_video(rec.path, expected_size=None)
+        except InputError:
+            continue
         size = (info.height, info.width)
+        break
+    if size is None:
+        probe_video(found[0].path, expected_size=None)  # none reads: the first one's problem
     return shipped_model(shipped_name(1 if camera_counts(found) == [1] else 2, size))
 
 
@@ -95,8 +103,15 @@ class Evaluation:
         return {"detector": detector, "baselines": baselines, "not_beaten": outcome.beats(detector, baselines)}
 
     def summary(self) -> dict[str, Any]:
-        """Slips warned in time / premature / missed, false-positive grasps, alarms at rest, lead times."""
-        return pergrasp.summarise(self.outcomes())
+        """Slips warned in time / premature / missed, false-positive grasps, alarms at rest, lead times
+        (:func:`~slipsense.evaluation.pergrasp.summarise`), and ``slips_without_moment``: the slipped
+        runs whose moment of slip was not found, counted in neither ``slip_runs`` nor ``held_runs``
+        (``slip_runs + slips_without_moment`` is every run that slipped)."""
+        outcomes = self.outcomes()
+        return {
+            **pergrasp.summarise(outcomes),
+            "slips_without_moment": sum(o.outcome == "slip_without_moment" for o in outcomes),
+        }
 
     def clips(self, frames: int = 5) -> dict[str, Any]:
         """The papers' protocol on the same traces: every ``frames``-frame clip the project cuts from
@@ -118,6 +133,28 @@ class Evaluation:
         }
         write_text(path, json.dumps(doc, indent=1, default=float))
         return Path(path)
+
+
+def _whole_runs(found: Sequence[Any], kept: Sequence[Any]) -> list[Any]:
+    """``kept`` without the runs that lost a camera video among ``found`` (skipped with
+    ``on_error="skip"``), each named in a :class:`~slipsense.recordings.folders.SkippedInputWarning`:
+    a detector on both fingers cannot judge a grasp from one."""
+    import warnings
+
+    from slipsense.recordings.folders import SkippedInputWarning
+
+    have = {r.key for r in kept}
+    broken = {}
+    for r in found:
+        if r.key not in have:
+            broken.setdefault((r.object, r.experiment), (r.path.parent, r.path.name))
+    for folder, name in broken.values():
+        warnings.warn(
+            f"{folder}: run left out, its video {name} was skipped and the detector needs every camera of a run",
+            SkippedInputWarning,
+            stacklevel=3,
+        )
+    return [r for r in kept if (r.object, r.experiment) not in broken]
 
 
 def evaluate(
@@ -166,9 +203,13 @@ def evaluate(
     trained_on = {o.rsplit("/", 1)[-1] for o in ((info.get("data") or {}).get("objects")) or ()} | set(calibrated)
     found = find_recordings(root, on_error=on_error, sensor=sensor_of(info, path))
     recs = validate_recordings(found, on_error=on_error, expected_size=None)
+    sensors = info["model_config"].get("sensors")
+    if sensors != 1:  # a run replayed with all its cameras is left out whole where one was skipped
+        recs = _whole_runs(found, recs)
     if objects is not None:
         recs = [r for r in recs if r.object in set(objects)]
-    sensors = info["model_config"].get("sensors")
+    if not recs:
+        raise InputError(root, "no recording left to judge (every one was skipped)")
     if not sensors:  # a clip model: every camera of a run at once
         counts = camera_counts(recs)
         if len(counts) != 1:

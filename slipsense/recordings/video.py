@@ -218,15 +218,39 @@ def read_video(
     finally:
         cap.release()
 
-    n = frames.shape[0]
-    if n == 0:
-        raise InputError(path, "no decodable frames")
-    if count is not None and n < count - TRUNCATION_TOLERANCE:
-        raise InputError(path, f"truncated: the container states {count} frames but only {n} could be decoded")
-    if n < min_frames:
-        raise InputError(path, f"only {n} frame{'s' if n != 1 else ''}, need at least {min_frames}")
+    check_frame_count(path, count, frames.shape[0], min_frames)
     _check_size(path, frames.shape[1], frames.shape[2], expected_size)
     return frames
+
+
+def check_frame_count(path: str | Path, stated: int | None, decoded: int, min_frames: int = 1) -> int:
+    """The one check of a video's frame count, for every reader: ``decoded`` frames against the
+    ``stated`` count of its container (None: it states none). :func:`read_video` and
+    :func:`probe_video` (so every command: label, train, evaluate, calibrate, watch) refuse a video
+    here, so a truncated file is reported with the same count whichever command reads it.
+
+    Returns ``decoded``; raises InputError naming ``path`` when no frame decodes, when fewer than
+    the stated count decode (beyond :data:`TRUNCATION_TOLERANCE`: truncated) or fewer than ``min_frames``.
+    """
+    if decoded == 0:
+        raise InputError(path, "no decodable frames")
+    if stated is not None and decoded < stated - TRUNCATION_TOLERANCE:
+        raise InputError(path, f"truncated: the container states {stated} frames but only {decoded} could be decoded")
+    if decoded < min_frames:
+        raise InputError(path, f"only {decoded} frame{'s' if decoded != 1 else ''}, need at least {min_frames}")
+    return decoded
+
+
+def decoded_frame_count(path: str | Path) -> int:
+    """How many frames of ``path`` decode, read one after the other from the start exactly as
+    :func:`read_video` reads them (0 where none does). Decodes the whole video: :func:`probe_video`
+    calls it only where its cheap check of the last frame failed."""
+    path = Path(path)
+    cap, count, height, width, _fps, _tag = _open_checked(path)
+    try:
+        return int(_decode_all(cap, path, count, height, width).shape[0])
+    finally:
+        cap.release()
 
 
 def _decode_all(cap: cv2.VideoCapture, path: Path, count: int | None, height: int, width: int) -> np.ndarray:
@@ -366,9 +390,11 @@ def probe_video(
                 if ok:
                     break
             if not ok:
-                raise InputError(
-                    path, f"truncated: the container states {count} frames but frame {last} cannot be decoded"
-                )
+                # the frames that do decode are counted as read_video counts them, and judged by the
+                # same check: every command reports a truncated file with the same numbers
+                cap.release()
+                count = check_frame_count(path, count, decoded_frame_count(path), min_frames)
+                frame = first  # seeking failed where decoding in order did not: the frames were checked
             if frame.shape != first.shape:
                 raise InputError(
                     path,
@@ -382,7 +408,15 @@ def probe_video(
     return VideoInfo(n_frames=int(count), height=int(height), width=int(width), fps=fps, fourcc=fourcc)
 
 
-__all__ = ["TRUNCATION_TOLERANCE", "VideoInfo", "frame_count", "probe_video", "read_video"]
+__all__ = [
+    "TRUNCATION_TOLERANCE",
+    "VideoInfo",
+    "check_frame_count",
+    "decoded_frame_count",
+    "frame_count",
+    "probe_video",
+    "read_video",
+]
 
 
 def gray_frames(frames: np.ndarray, size: tuple[int, int]) -> np.ndarray:
