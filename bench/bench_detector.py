@@ -103,7 +103,7 @@ def main(argv=None) -> int:
                 "max_ms": float(ms.max()),
             }
         )
-    from slipsense.experiments.report import cpu_description
+    from studies.experiments.report import cpu_description
 
     lines = [
         f"# Live detector latency, two sensors, {args.threads} thread(s)",

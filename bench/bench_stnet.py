@@ -51,7 +51,7 @@ import torch.nn as nn  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from slipsense.models import count_parameters  # noqa: E402
-from slipsense.experiments.report import cpu_description  # noqa: E402
+from studies.experiments.report import cpu_description  # noqa: E402
 from slipsense.models.stnet import PRESETS, build_preset  # noqa: E402
 from slipsense.models.stnet_size import flops_per_sample  # noqa: E402
 from slipsense.models.stnet_fast import onednn_packing_available, optimize_for_inference, quantize_dynamic_int8  # noqa: E402

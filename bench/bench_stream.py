@@ -44,7 +44,7 @@ TARGET_P99_MS = {"vivit": 2.0, "vivit factorised": 2.0, "stnet paper": 30.0}
 
 
 def cpu_name() -> str:
-    from slipsense.experiments.report import cpu_description
+    from studies.experiments.report import cpu_description
 
     return cpu_description()
 

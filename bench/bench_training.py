@@ -298,7 +298,7 @@ def main(argv=None) -> int:
     parser.add_argument("--out", type=Path, help="also write the Markdown report here (and .json beside it)")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
-    from slipsense.experiments.report import cpu_description
+    from studies.experiments.report import cpu_description
 
     cfg = G.make_config("motionnet", {})  # the shipped recipe's model and training settings
     size = tuple(cfg.model_config.get("image_size") or (30, 40))

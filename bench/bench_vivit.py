@@ -69,7 +69,7 @@ def load_reference_class():
 
 
 def cpu_name() -> str:
-    from slipsense.experiments.report import cpu_description
+    from studies.experiments.report import cpu_description
 
     return cpu_description()
 

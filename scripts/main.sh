@@ -2,7 +2,8 @@
 # The main job on the shared recordings: set up, label every video, train the slip detector with the
 # objects of fold 0 of 5 held out (its alarm threshold chosen on the training objects only), and judge
 # it on those unseen objects per grasp (every run replayed from its first frame, both sensors) and per
-# clip (the paper's protocol). Outputs: reports/main/. Extra arguments go to `slipsense grasp train`.
+# clip (the paper's protocol), beside the non-learned baselines. Outputs: reports/main/. Extra arguments go to
+# `slipsense train`.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 # Python keeps the bytecode of what it imports where the machine says not to: otherwise every process
@@ -13,7 +14,7 @@ out=reports/main
 mkdir -p "$out"
 overrides=configs/gelsight-label-overrides.csv
 .venv/bin/slipsense label --csv "$out/labels.csv" --overrides "$overrides" --no-progress
-.venv/bin/slipsense grasp train --config configs/motionnet.yaml --fold 0 --folds 5 \
+.venv/bin/slipsense train --config configs/motionnet.yaml --fold 0 --folds 5 \
     --out "$out/motionnet-fold0" --no-progress "$@"
 # the same detector as a gripper would run it, on the held-out objects' recordings only
 held=$(.venv/bin/python -c "import json,sys; print(' '.join(json.load(open(sys.argv[1]))['objects']))" \
@@ -21,6 +22,6 @@ held=$(.venv/bin/python -c "import json,sys; print(' '.join(json.load(open(sys.a
 rm -rf "$out/held-out-recordings" && mkdir -p "$out/held-out-recordings"
 data=$(.venv/bin/python -c "from slipsense.config import gelsight_recordings; print(gelsight_recordings())")
 for o in $held; do ln -s "$data/$o" "$out/held-out-recordings/$o"; done
-.venv/bin/slipsense early-warning --checkpoint "$out/motionnet-fold0/detector.safetensors" \
-    --recordings "$out/held-out-recordings" --labels "$out/labels.csv" --out "$out/early-warning" --no-progress
-echo "reports in $out: labels.csv, motionnet-fold0/ (detector, metrics.csv, curves.png, held_out.json), early-warning/"
+.venv/bin/slipsense evaluate --checkpoint "$out/motionnet-fold0/detector.safetensors" \
+    --recordings "$out/held-out-recordings" --overrides "$overrides" --json "$out/held-out-evaluation.json" --no-progress
+echo "reports in $out: labels.csv, motionnet-fold0/ (detector, metrics.csv, curves.png, held_out.json), held-out-evaluation.json"

@@ -312,11 +312,17 @@ def test_evaluate_json_and_train_out_that_cannot_be_written(tmp_path, run_dir, u
 
 def test_simulate_out_that_cannot_be_written(tmp_path, unwritable):
     (tmp_path / "sim.npz").mkdir()
-    result = runner.invoke(app, ["simulate", "--out", str(tmp_path / "sim.npz"), "--sequences", "1", "--no-progress"])
+    result = runner.invoke(
+        app, ["markers", "simulate", "--out", str(tmp_path / "sim.npz"), "--sequences", "1", "--no-progress"]
+    )
     _one_error(result, "sim.npz", "folder")
-    result = runner.invoke(app, ["simulate", "--out", str(unwritable / "sim.npz"), "--sequences", "1", "--no-progress"])
+    result = runner.invoke(
+        app, ["markers", "simulate", "--out", str(unwritable / "sim.npz"), "--sequences", "1", "--no-progress"]
+    )
     _one_error(result, "sim.npz", "cannot be written")
-    result = runner.invoke(app, ["simulate", "--out", str(tmp_path / "sim.txt"), "--sequences", "1", "--no-progress"])
+    result = runner.invoke(
+        app, ["markers", "simulate", "--out", str(tmp_path / "sim.txt"), "--sequences", "1", "--no-progress"]
+    )
     _one_error(result, "sim.txt", ".npz")
 
 
@@ -477,7 +483,7 @@ def test_bad_seeds(tmp_path, cmd, seed):
     _markers_npz(tmp_path / "m.npz")
     args = {
         "train": ["train", *TINY_TRAIN_ARGS, "--markers", str(tmp_path / "m.npz"), "--out", str(tmp_path / "r")],
-        "simulate": ["simulate", "--out", str(tmp_path / "s.npz"), "--no-progress"],
+        "simulate": ["markers", "simulate", "--out", str(tmp_path / "s.npz"), "--no-progress"],
     }[cmd]
     result = runner.invoke(app, [*args, "--seed", seed])
     _one_error(result, "--seed")

@@ -12,6 +12,7 @@ import pytest
 from typer.testing import CliRunner
 
 from slipsense.cli import app
+from studies.__main__ import app as studies_app
 from slipsense.recordings.folders import find_recordings
 from slipsense.recordings.video import read_video
 
@@ -220,7 +221,7 @@ def test_grasps_labelled_as_a_whole_fine_tune_the_shipped_detector(tmp_path, cac
     root = _lift_data(tmp_path / "lift")
     out = tmp_path / "tuned"
     init = str(shipped_model(ONE_SENSOR_MODEL))
-    args = ["grasp", "train", "--recordings", str(root), "--set", f"train.init={init}", "--set", "train.startup=0"]
+    args = ["train", "--recordings", str(root), "--set", f"train.init={init}", "--set", "train.startup=0"]
     res = runner.invoke(app, [*args, "--epochs", "2", "--inner-folds", "0", "--out", str(out), "--no-progress"])
     assert res.exit_code == 0, res.output
     info = read_info(out / "detector.safetensors")
@@ -266,7 +267,7 @@ def _two_shear_candidates(monkeypatch):
 
 
 def test_the_adaptation_study_runs_every_row(tmp_path, cache, one_thread, grasp_recordings, monkeypatch):
-    from slipsense.experiments.adaptation import adaptation_study, write
+    from studies.grasp.adaptation import adaptation_study, write
 
     _two_shear_candidates(monkeypatch)
     root = _lift_data(tmp_path / "lift")
@@ -285,7 +286,8 @@ def test_the_adaptation_study_runs_every_row(tmp_path, cache, one_thread, grasp_
 def test_review_cases_of_frame_folders_are_refused_in_one_line(tmp_path, cache):
     root = _lift_data(tmp_path / "lift")
     res = runner.invoke(
-        app, ["early-warning", "--recordings", str(root), "--out", str(tmp_path / "ew"), "--no-progress"]
+        studies_app,
+        ["grasp", "early-warning", "--recordings", str(root), "--out", str(tmp_path / "ew"), "--no-progress"],
     )
     assert "slipsense evaluate" in _error(res)  # no moment to warn before
     stray = root / "object001" / "061_10_mm" / "preview.jpg"
@@ -308,7 +310,7 @@ def test_held_out_grasps_labelled_as_a_whole_are_not_counted_as_held(tmp_path, c
     root = _lift_data(tmp_path / "lift")
     out = tmp_path / "tuned"
     init = str(shipped_model(ONE_SENSOR_MODEL))
-    args = ["grasp", "train", "--recordings", str(root), "--set", f"train.init={init}", "--set", "train.startup=0"]
+    args = ["train", "--recordings", str(root), "--set", f"train.init={init}", "--set", "train.startup=0"]
     res = runner.invoke(
         app, [*args, "--epochs", "1", "--fold", "0", "--folds", "3", "--out", str(out), "--no-progress"]
     )
@@ -316,7 +318,7 @@ def test_held_out_grasps_labelled_as_a_whole_are_not_counted_as_held(tmp_path, c
     held_out = json.loads((out / "held_out.json").read_text())
     assert held_out["per_grasp"]["held_runs"] == 2 and held_out["per_grasp"]["slip_runs"] == 0
     # the run's own configuration trains again (its model settings are the init checkpoint's)
-    res = runner.invoke(app, ["grasp", "train", "--config", str(out / "config.yaml"), "--out", str(tmp_path / "again"),
+    res = runner.invoke(app, ["train", "--config", str(out / "config.yaml"), "--out", str(tmp_path / "again"),
                               "--epochs", "1", "--no-progress"])  # fmt: skip
     assert res.exit_code == 0, res.output
 
@@ -339,7 +341,7 @@ def test_folds_train_on_another_data_set_too_but_never_hold_it_out_or_judge_it(
     folds and their verdicts stay on the first set's objects, and the operating point is chosen on them."""
     lift = _lift_data(tmp_path / "lift")
     out = tmp_path / "folds"
-    args = ["grasp", "folds", "--out", str(out), "--recordings", str(grasp_recordings), "--folds", "2",
+    args = ["train", "--cross-validate", "--out", str(out), "--recordings", str(grasp_recordings), "--folds", "2",
             "--inner-folds", "0", "--epochs", "1", "--set", f"data.also={lift}", "--no-progress"]  # fmt: skip
     res = runner.invoke(app, args)  # both fingers at once: the lift grasps have one camera
     assert res.exit_code == 2 and "data.also" in res.output and "1 camera" in res.output, res.output
@@ -358,7 +360,7 @@ def test_folds_train_on_another_data_set_too_but_never_hold_it_out_or_judge_it(
 def test_the_adaptation_study_gives_the_same_numbers_on_one_or_two_workers(
     tmp_path, cache, one_thread, grasp_recordings, monkeypatch
 ):
-    from slipsense.experiments.adaptation import adaptation_study
+    from studies.grasp.adaptation import adaptation_study
 
     _two_shear_candidates(monkeypatch)
     root = _lift_data(tmp_path / "lift")
@@ -379,7 +381,7 @@ def test_a_recipe_chooses_model_settings_on_the_training_grasps(tmp_path, cache,
     root = _lift_data(tmp_path / "lift")
     out = tmp_path / "shear"
     choose = '{"gate": [0.3, 2.0], "letgo": [0.4]}'
-    res = runner.invoke(app, ["grasp", "train", "--recordings", str(root), "--model", "shear-retention",
+    res = runner.invoke(app, ["train", "--recordings", str(root), "--model", "shear-retention",
         "--set", "model.sensors=1", "--set", "model.image_size=[40,60]", "--set", "train.startup=0",
         "--set", "train.epochs=0", "--set", "train.inner_folds=0", "--set", f"train.choose={choose}",
         "--out", str(out), "--no-progress"])  # fmt: skip
@@ -391,6 +393,6 @@ def test_a_recipe_chooses_model_settings_on_the_training_grasps(tmp_path, cache,
     assert info["model_config"]["gate"] == op["settings"]["gate"]
     assert tried[op["settings"]["gate"]] == max(tried.values()) == op["score_on_training_runs"]
     big = '{"gate": [' + ",".join(["0.5"] * 65) + "]}"
-    res = runner.invoke(app, ["grasp", "train", "--recordings", str(root), "--model", "shear-retention",
+    res = runner.invoke(app, ["train", "--recordings", str(root), "--model", "shear-retention",
         "--set", f"train.choose={big}", "--out", str(tmp_path / "big"), "--no-progress"])  # fmt: skip
     assert "65 combinations" in _error(res)

@@ -6,6 +6,7 @@ import pytest
 from typer.testing import CliRunner
 
 from slipsense.cli import app
+from studies.__main__ import app as studies_app
 
 SMALL = [
     "--set",
@@ -45,7 +46,6 @@ def test_grasp_train_then_early_warning(tmp_path, grasps, monkeypatch):
     res = CliRunner().invoke(
         app,
         [
-            "grasp",
             "train",
             "--out",
             str(out),
@@ -61,7 +61,7 @@ def test_grasp_train_then_early_warning(tmp_path, grasps, monkeypatch):
         ],
     )
     assert res.exit_code == 0, res.output
-    assert "held-out objects" in res.output and "always-wiggle" in res.output
+    assert "held-out objects" in res.output and "slips warned in time" in res.output
     from slipsense.checkpoint import read_info
 
     info = read_info(out / "detector.safetensors")
@@ -72,8 +72,9 @@ def test_grasp_train_then_early_warning(tmp_path, grasps, monkeypatch):
     assert held["per_grasp"]["slip_runs"] + held["per_grasp"]["held_runs"] == 4
     ew = tmp_path / "ew"
     res = CliRunner().invoke(
-        app,
+        studies_app,
         [
+            "grasp",
             "early-warning",
             "--checkpoint",
             str(out / "detector.safetensors"),
@@ -124,8 +125,8 @@ def test_grasp_folds_resume(tmp_path, grasps, monkeypatch):
     monkeypatch.setenv("SLIPSENSE_CACHE", str(tmp_path / "cache"))
     out = tmp_path / "folds"
     args = [
-        "grasp",
-        "folds",
+        "train",
+        "--cross-validate",
         "--out",
         str(out),
         "--recordings",
@@ -152,7 +153,18 @@ def test_grasp_folds_choose_settings_on_each_folds_training_objects(tmp_path, gr
     folds), keeps one, and its fold file keeps the inner traces of the setting it kept."""
     monkeypatch.setenv("SLIPSENSE_CACHE", str(tmp_path / "cache"))
     out = tmp_path / "folds"
-    args = ["grasp", "folds", "--out", str(out), "--recordings", str(grasps), "--folds", "2", "--inner-folds", "2"]
+    args = [
+        "train",
+        "--cross-validate",
+        "--out",
+        str(out),
+        "--recordings",
+        str(grasps),
+        "--folds",
+        "2",
+        "--inner-folds",
+        "2",
+    ]
     res = CliRunner().invoke(app, [*args, *SMALL, "--epochs", "1", "--set", 'train.choose={"width": [2, 4]}'])
     assert res.exit_code == 0, res.output
     for k, fold in enumerate(json.loads((out / "folds.json").read_text())["per_fold"]):
@@ -163,7 +175,7 @@ def test_grasp_folds_choose_settings_on_each_folds_training_objects(tmp_path, gr
         assert len(runs) == len(set(runs)) > 0  # one trace per training run (the kept setting's: chosen_part)
     # the kept setting's inner traces: the same rule chosen again on them gives each fold's point back
     res = CliRunner().invoke(
-        app, ["grasp", "rechoose", str(out), "--out", str(tmp_path / "again"), "--max-held-alarm", "-1"]
+        studies_app, ["grasp", "rechoose", str(out), "--out", str(tmp_path / "again"), "--max-held-alarm", "-1"]
     )
     assert res.exit_code == 0, res.output
     again = json.loads((tmp_path / "again" / "folds.json").read_text())["per_fold"]
@@ -174,7 +186,7 @@ def test_grasp_folds_choose_settings_on_each_folds_training_objects(tmp_path, gr
 def test_grasp_bad_settings_one_line(tmp_path, grasps):
     for extra in (["--set", "width=100000"], ["--set", "epochs=-1"], ["--fold", "7"], ["--set", "nonsense=1"]):
         res = CliRunner().invoke(
-            app, ["grasp", "train", "--out", str(tmp_path / "x"), "--recordings", str(grasps), "--no-progress", *extra]
+            app, ["train", "--out", str(tmp_path / "x"), "--recordings", str(grasps), "--no-progress", *extra]
         )
         assert res.exit_code == 2, (extra, res.output)
         assert res.output.strip().startswith("error:") and "Traceback" not in res.output
@@ -186,7 +198,7 @@ def test_grasp_folds_same_results_on_one_or_two_workers(tmp_path, grasps, monkey
     docs = []
     for workers in ("1", "2"):
         out = tmp_path / f"folds-{workers}"
-        args = ["grasp", "folds", "--out", str(out), "--recordings", str(grasps), "--folds", "2"]
+        args = ["train", "--cross-validate", "--out", str(out), "--recordings", str(grasps), "--folds", "2"]
         res = CliRunner().invoke(app, [*args, "--inner-folds", "2", "--workers", workers, *SMALL])
         assert res.exit_code == 0, res.output
         docs.append([json.loads((out / f"fold{k}.json").read_text()) for k in (0, 1)])
@@ -201,7 +213,7 @@ def test_grasp_folds_same_results_on_one_or_two_workers(tmp_path, grasps, monkey
     # another operating-point rule chosen on the kept inner traces, without training
     rep = tmp_path / "strict"
     res = CliRunner().invoke(
-        app, ["grasp", "rechoose", str(tmp_path / "folds-1"), "--out", str(rep), "--max-held-alarm", "0"]
+        studies_app, ["grasp", "rechoose", str(tmp_path / "folds-1"), "--out", str(rep), "--max-held-alarm", "0"]
     )
     assert res.exit_code == 0, res.output
     doc = json.loads((rep / "folds.json").read_text())
@@ -211,12 +223,16 @@ def test_grasp_folds_same_results_on_one_or_two_workers(tmp_path, grasps, monkey
     assert "warned_low" in doc["curve"][0] and (rep / "tradeoff.png").is_file()
     other = tmp_path / "folds-2" / "fold1.json"  # a fold a later run with other settings wrote
     other.write_text(json.dumps({**json.loads(other.read_text()), "config_key": "another"}))
-    res = CliRunner().invoke(app, ["grasp", "rechoose", str(tmp_path / "folds-2"), "--out", str(tmp_path / "y")])
+    res = CliRunner().invoke(
+        studies_app, ["grasp", "rechoose", str(tmp_path / "folds-2"), "--out", str(tmp_path / "y")]
+    )
     assert res.exit_code == 2 and "fold1.json" in res.output and "other settings" in res.output
     old = tmp_path / "folds-1" / "fold0.json"  # a fold file written before inner traces were kept
     fold = json.loads(old.read_text())
     old.write_text(json.dumps({**fold, "inner": []}))
-    res = CliRunner().invoke(app, ["grasp", "rechoose", str(tmp_path / "folds-1"), "--out", str(tmp_path / "x")])
+    res = CliRunner().invoke(
+        studies_app, ["grasp", "rechoose", str(tmp_path / "folds-1"), "--out", str(tmp_path / "x")]
+    )
     assert res.exit_code == 2 and "fold0.json" in res.output and "inner-fold traces" in res.output
 
 
@@ -304,7 +320,7 @@ def test_train_model_motionnet_under_torchrun_equals_one_process(tmp_path, grasp
 
     monkeypatch.setenv("WORLD_SIZE", "2")
     res = CliRunner().invoke(
-        app, ["grasp", "train", "--recordings", str(grasps), "--workers", "2", "--out", str(tmp_path / "w")]
+        app, ["train", "--recordings", str(grasps), "--workers", "2", "--out", str(tmp_path / "w")]
     )
     assert res.exit_code == 2 and "leave --workers out" in res.output
 
@@ -338,14 +354,14 @@ def test_grasp_promise_restates_what_training_stated(tmp_path, grasps, monkeypat
 
     monkeypatch.setenv("SLIPSENSE_CACHE", str(tmp_path / "cache"))
     out = tmp_path / "det"
-    args = ["grasp", "train", "--recordings", str(grasps), "--out", str(out), "--inner-folds", "2", *SMALL]
+    args = ["train", "--recordings", str(grasps), "--out", str(out), "--inner-folds", "2", *SMALL]
     assert CliRunner().invoke(app, args).exit_code == 0
     ckpt = out / "detector.safetensors"
     op = read_info(ckpt)["operating_point"]
     stated = op.pop("held_alarm")
     assert stated["held_objects"] == 4 and stated["held_grasps"] == 4
     update_info(ckpt, {"operating_point": op})  # as checkpoints were written before
-    res = CliRunner().invoke(app, ["grasp", "promise", str(ckpt), "--workers", "1", "--no-progress"])
+    res = CliRunner().invoke(studies_app, ["grasp", "promise", str(ckpt), "--workers", "1", "--no-progress"])
     assert res.exit_code == 0, res.output
     again = read_info(ckpt)["operating_point"]["held_alarm"]
     assert again.pop("restated") and again == stated

@@ -1,12 +1,19 @@
-"""The package's layering, stated once and held: each floor imports only from its own floor and the
-floors below, and no module reaches itself through its imports (function-local imports count too).
+"""The repository's two trees and the library's floors, stated once and held.
+
+Two trees: ``slipsense/`` is the installable library (what ``pip install slipsense`` gives a robot
+builder); ``studies/`` beside it holds the papers' experiments and the grasp analyses that earn the
+project's figures (run as ``python -m studies``). The studies import the library; no module of the
+library imports the studies.
+
+Inside the library each floor imports only from its own floor and the floors below, and no module
+reaches itself through its imports (function-local imports count too).
 
     base         errors, atomic, config, run_config, plots, resources, parallel, progress, alarm
-    data in      sensors, recordings, data, datasets, readers, heatmaps
+    data in      sensors, recordings, data, datasets, readers
     models       models (the contract, one file per network, streams, runners, ONNX parts), checkpoint
     streaming    the live detector, sources, capture, export: what runs on the robot
     training / evaluation   the one training loop and its tasks; replay, per-grasp scores, folds
-    top          api, experiments
+    top          api, watch (a source watched through a detector: what ``slipsense watch`` runs)
     cli          the ``slipsense`` command
 
 The live detector sits below evaluation on purpose: a detector is judged by replaying recordings
@@ -18,14 +25,16 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
-PACKAGE = Path(__file__).resolve().parents[1] / "slipsense"
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGE = ROOT / "slipsense"
+STUDIES = ROOT / "studies"
 FLOORS = [
     ["errors", "atomic", "config", "run_config", "plots", "resources", "parallel", "progress", "alarm", ""],
-    ["sensors", "recordings", "data", "datasets", "readers", "heatmaps"],
+    ["sensors", "recordings", "data", "datasets", "readers"],
     ["models", "checkpoint"],
     ["streaming"],
     ["training", "evaluation"],
-    ["api", "experiments"],
+    ["api", "watch"],
     ["cli"],
 ]
 MAX_LINES = 600
@@ -134,3 +143,28 @@ def test_no_module_over_600_lines():
         name: n for name, p in _modules().items() if (n := len(p.read_text(encoding="utf-8").splitlines())) > MAX_LINES
     }
     assert not long, long
+
+
+def _imported_names(path: Path) -> set[str]:
+    names: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Import):
+            names.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module and not node.level:
+            names.add(node.module)
+    return names
+
+
+def test_the_library_never_imports_the_studies():
+    leaks = [
+        f"{p.relative_to(ROOT)} imports {name}"
+        for p in sorted(PACKAGE.rglob("*.py"))
+        for name in sorted(_imported_names(p))
+        if name == "studies" or name.startswith("studies.")
+    ]
+    assert not leaks, "\n".join(leaks)
+
+
+def test_the_studies_are_a_tree_of_their_own_with_an_entry_point():
+    assert (STUDIES / "__main__.py").is_file() and (STUDIES / "README.md").is_file()
+    assert not (PACKAGE / "experiments").exists()

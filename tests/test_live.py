@@ -17,6 +17,7 @@ from typer.testing import CliRunner
 
 from slipsense.checkpoint import save_checkpoint
 from slipsense.cli import app
+from studies.__main__ import app as studies_app
 from slipsense.config import gelsight_recordings
 from slipsense.errors import ConfigError, InputError
 from slipsense.evaluation.early_warning import EARLY_WARNING_COLUMNS, RunTrace, early_warning_table
@@ -367,8 +368,9 @@ def test_early_warning_on_synthetic_recordings(tmp_path, vivit_ckpt, recordings,
     monkeypatch.setenv("SLIPSENSE_CACHE", str(tmp_path / "cache"))
     out = tmp_path / "ew"
     res = CliRunner().invoke(
-        app,
+        studies_app,
         [
+            "grasp",
             "early-warning",
             "--checkpoint",
             str(vivit_ckpt),

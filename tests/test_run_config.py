@@ -158,7 +158,6 @@ def test_grasp_train_from_config_stores_the_tree(tmp_path, grasp_recordings, cac
     res = runner.invoke(
         app,
         [
-            "grasp",
             "train",
             "--config",
             str(cfg),

@@ -5,7 +5,6 @@ from __future__ import annotations
 import functools
 import shlex
 import sys
-import warnings
 from typing import Optional
 
 import typer
@@ -14,12 +13,10 @@ from slipsense.errors import ConfigError, SlipsenseError
 from slipsense.run_config import MAX_SEED, check_seed  # noqa: F401  (the commands' seed check)
 
 
-def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> str:
+def one_line_warning(message, category, filename, lineno, file=None, line=None) -> str:
+    """Skipped videos and cache rebuilds reach users as one line each, not with source lines: the
+    command line's ``warnings.formatwarning`` (set by :func:`slipsense.cli.main`, not on import)."""
     return f"warning: {message}\n"
-
-
-# Skipped videos and cache rebuilds are reported to users as one line each, not with source lines.
-warnings.formatwarning = _one_line_warning
 
 
 def friendly(fn):

@@ -1,4 +1,5 @@
-"""Commands for the marker path: simulate a binocular sensor, turn real recordings into marker sequences."""
+"""``slipsense markers``: the marker path of the binocular sensor (STNet's input): simulate the sensor,
+or track the gel markers of real recordings into labelled marker sequences."""
 
 from __future__ import annotations
 
@@ -11,7 +12,15 @@ import typer
 def register(app: typer.Typer) -> None:
     from slipsense.cli.common import friendly
 
-    @app.command()
+    group = typer.Typer(
+        add_completion=False,
+        no_args_is_help=True,
+        pretty_exceptions_enable=False,
+        help="Marker sequences (STNet's input): simulate the binocular sensor, or track real recordings' markers.",
+    )
+    app.add_typer(group, name="markers")
+
+    @group.command()
     @friendly
     def simulate(
         out: Path = typer.Option(..., help="output .npz (x (N,12,552,3) mm, y, groups = sequence id)"),
@@ -42,9 +51,9 @@ def register(app: typer.Typer) -> None:
             for p in plot_patterns(cfg, figures):
                 typer.echo(f"figure {p}")
 
-    @app.command("markers")
+    @group.command("track")
     @friendly
-    def markers_cmd(
+    def track(
         out: Path = typer.Option(..., help="output .npz (x (N,T,M,3), y, groups = object)"),
         recordings: Optional[Path] = typer.Option(None, help="recordings folder (default: the shared recordings)"),
         frames: int = typer.Option(12),

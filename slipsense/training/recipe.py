@@ -18,6 +18,9 @@ from typing import Any, Callable
 
 from slipsense.errors import ConfigError
 
+#: The model trained where none is named: the slip detector over whole grasps.
+DEFAULT_MODEL = "motionnet"
+
 #: Data settings that only cut clips from runs (a grasp model trains on whole runs).
 CLIP_DATA_KEYS = (
     "markers",
@@ -293,35 +296,3 @@ def prepare_grasps(tree, progress: bool = True, threads: int | None = None, out=
 #: ``training_task`` (a model class attribute) -> its trainer, and its cross-validation
 TRAINERS: dict[str, Callable[..., dict[str, Any]]] = {"clips": fit_clips, "grasps": fit_grasps}
 FOLDS: dict[str, Callable[..., dict[str, Any]]] = {"clips": _clip_folds, "grasps": _grasp_folds}
-
-
-def restate_promise(checkpoint, workers: int | None = 1, progress: bool = False) -> dict[str, Any]:
-    """The held-alarm promise of a grasp detector trained before checkpoints stated one: its recipe's
-    inner folds trained again on its training objects (its own configuration tree and seed), judged at
-    its stored operating point, and written into the checkpoint (weights untouched). Returns it."""
-    import json
-
-    from slipsense.checkpoint import read_info, update_info
-    from slipsense.training.grasp_detector import held_alarm_of, inner_fold_traces
-    from slipsense.training.grasps import with_settings
-
-    from slipsense.errors import InputError
-
-    info = read_info(checkpoint)
-    if not isinstance(info.get("config"), dict) or not (info.get("train_config") or {}).get("inner_folds"):
-        raise InputError(checkpoint, "not a grasp detector whose operating point came from inner folds")
-    tree = json.loads(json.dumps(info["config"]))
-    tree["data"] = {**tree.get("data", {}), "recordings": info["data"]["recordings"]}
-    if info["data"].get("also"):
-        tree["data"]["also"] = info["data"]["also"]
-    tree.setdefault("train", {})
-    cfg, runs, _, _ = prepare_grasps(tree, progress=progress)
-    trained = set(info["data"]["objects"])
-    usable = [r for r in runs if r.usable and r.object in trained]
-    op = dict(info["operating_point"])
-    cfg = with_settings(cfg, op.get("settings", {}))  # the settings train.choose chose, if it chose
-    judged = [r for r in usable if not r.extra]  # the traces inner_fold_traces returns
-    op["held_alarm"] = held_alarm_of(inner_fold_traces(usable, cfg, workers, progress), judged, op, cfg)
-    op["held_alarm"]["restated"] = f"{cfg.inner_folds} inner folds trained again by `slipsense grasp promise`"
-    update_info(checkpoint, {"operating_point": op})
-    return op["held_alarm"]

@@ -6,10 +6,10 @@ from __future__ import annotations
 from dataclasses import asdict
 from typing import Any, Sequence
 
-from slipsense.experiments.report import Report
-from slipsense.experiments.settings import Settings
-from slipsense.experiments.source import FPS, DataSource, clip_spec, held_out_objects, object_split
-from slipsense.experiments.training import clip_datasets, epoch_axis, train_model, train_seconds, video_info
+from studies.experiments.report import Report
+from studies.experiments.settings import Settings
+from studies.experiments.source import FPS, DataSource, clip_spec, held_out_objects, object_split
+from studies.experiments.training import clip_datasets, epoch_axis, train_model, train_seconds, video_info
 
 DEFAULT_FRAMES_LIST = (5, 4, 3, 2)
 

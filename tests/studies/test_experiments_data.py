@@ -1,4 +1,4 @@
-"""The experiments' data door (slipsense.experiments.source.DataSource) on made-up recordings: labels come
+"""The experiments' data door (studies.experiments.source.DataSource) on made-up recordings: labels come
 through slipsense.data.label_runs, the path ``slipsense train`` uses (hand labels, --on-error skip)."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import pytest
 import striped_video
 
 from slipsense.errors import InputError
-from slipsense.experiments.source import DataSource, default_overrides
+from studies.experiments.source import DataSource, default_overrides
 from slipsense.recordings.folders import SkippedInputWarning
 
 N_FRAMES = 60

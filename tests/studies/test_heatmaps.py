@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from slipsense.errors import InputError
-from slipsense.heatmaps import marker_saliency_figure, video_attention_figure
+from studies.experiments.heatmaps import marker_saliency_figure, video_attention_figure
 from slipsense.models import build
 
 
@@ -46,7 +46,7 @@ def test_a_centred_model_attributes_a_standing_displacement_from_rest_not_from_t
 
 
 def test_relevance_in_contact_measures_where_the_model_looks():
-    from slipsense.heatmaps import relevance_in_contact
+    from studies.experiments.heatmaps import relevance_in_contact
 
     class Looks(torch.nn.Module):  # relevance 3 on marker 0, 1 on marker 1, 0 elsewhere
         def __init__(self):

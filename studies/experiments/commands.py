@@ -1,4 +1,4 @@
-"""``slipsense experiment <name>``: the experiments of :mod:`slipsense.experiments` (registered by slipsense.cli).
+"""``slipsense experiment <name>``: the experiments of :mod:`studies.experiments` (registered by slipsense.cli).
 
 Each command writes ``<name>.csv``, ``<name>.png``, ``<name>.md`` and ``config.json`` into ``--out``
 (default ``reports/<name>``); ``--quick`` is the documented smaller setting (120x160 clips, patch
@@ -117,7 +117,7 @@ def _parse_list(text: str, kind, option: str) -> list:
 
 
 def _settings(name: str, kw: dict):
-    from slipsense.experiments.settings import Settings
+    from studies.experiments.settings import Settings
 
     return Settings(
         out=kw["out"] or Path("reports") / name,
@@ -146,7 +146,7 @@ def _settings(name: str, kw: dict):
 
 
 def _source(kw: dict):
-    from slipsense.experiments.source import DataSource
+    from studies.experiments.source import DataSource
 
     overrides: Any = None if kw["no_overrides"] else (kw["overrides"] or "default")
     return DataSource(kw["recordings"], overrides=overrides, on_error=kw["on_error"], progress=kw["progress"])
@@ -193,7 +193,7 @@ def _command(name: str, train: bool, fn):
 @_experiment("params", train=False)
 def params_cmd(settings, kw):
     """Parameter count of each model at the papers' settings, against the counts the papers state."""
-    from slipsense.experiments.params import run_params
+    from studies.experiments.params import run_params
 
     return run_params(settings)["paths"]
 
@@ -208,7 +208,7 @@ def video_compare_cmd(
     inference_clips: int = typer.Option(50, help="held-out clips timed at batch 1"),
 ):
     """ViViT vs 3D ResNet-50 (ViViT paper III-B): parameters, training time, inference rate, held-out scores."""
-    from slipsense.experiments.video_compare import run_video_compare
+    from studies.experiments.video_compare import run_video_compare
 
     return run_video_compare(settings, _source(kw), resnet_weights=resnet_weights, inference_clips=inference_clips)[
         "paths"
@@ -223,7 +223,7 @@ def frames_cmd(
     test_fraction: float = typer.Option(0.1, help="random clip-level test share of the training objects"),
 ):
     """ViViT with 5, 4, 3, 2 frames (ViViT paper Fig. 7): train / test / held-out accuracy per epoch."""
-    from slipsense.experiments.frames import run_frames
+    from studies.experiments.frames import run_frames
 
     return run_frames(
         settings, _source(kw), frames_list=_parse_list(frames, int, "--frames"), test_fraction=test_fraction
@@ -238,7 +238,7 @@ def noise_cmd(
     stds: str = typer.Option("0,5,10,15,20,30,50", help="noise standard deviations (0..255 scale)"),
 ):
     """ViViT accuracy on held-out objects vs Gaussian noise std (ViViT paper Fig. 8)."""
-    from slipsense.experiments.noise import run_noise
+    from studies.experiments.noise import run_noise
 
     return run_noise(settings, _source(kw), checkpoint=checkpoint, stds=_parse_list(stds, float, "--stds"))["paths"]
 
@@ -259,7 +259,7 @@ def stnet_cmd(
     frames: int = typer.Option(12, help="frames per real marker window"),
 ):
     """STNet vs TemNet (STNet paper Table II, Fig. 7) on simulated and real marker sequences."""
-    from slipsense.experiments.stnet import run_stnet
+    from studies.experiments.stnet import run_stnet
 
     kinds = [d.strip() for d in data.split(",") if d.strip()]
     return run_stnet(
@@ -283,7 +283,7 @@ def marker_baseline_cmd(
 ):
     """Is slip learnable in the simulated marker windows? Gradient boosting on displacement-field
     features, on experiment stnet's windows and split (no network)."""
-    from slipsense.experiments.marker_baseline import run_marker_baseline
+    from studies.experiments.marker_baseline import run_marker_baseline
 
     return run_marker_baseline(settings, sim_sequences=sim_sequences)["paths"]
 
@@ -295,7 +295,7 @@ def horizon_cmd(
     horizons: str = typer.Option("0,2,5,10", help="frames between a slip clip's end and the moment of slip"),
 ):
     """ViViT on held-out objects with clips ending 0, 2, 5, 10 frames before the slip (beyond the papers)."""
-    from slipsense.experiments.horizon import run_horizon
+    from studies.experiments.horizon import run_horizon
 
     values = _parse_list(horizons, int, "--horizons")
     return run_horizon(settings, _source(kw), horizons=values)["paths"]
@@ -310,7 +310,7 @@ def all_models_cmd(
     preset: str = typer.Option("compact", help="STNet/TemNet size: compact, paper, paper-ff4096"),
 ):
     """ViViT, 3D ResNet-50, STNet, TemNet on the same held-out windows (beyond the papers)."""
-    from slipsense.experiments.all_models import run_all_models
+    from studies.experiments.all_models import run_all_models
 
     return run_all_models(settings, _source(kw), frames=frames, n_markers=markers, preset=preset)["paths"]
 
@@ -321,7 +321,7 @@ def _results_cmd(
 ):
     """Gather every report folder under --reports into one Markdown page, one section per experiment."""
     from slipsense.atomic import check_output_file
-    from slipsense.experiments.results import collect_results, find_reports
+    from studies.experiments.results import collect_results, find_reports
 
     check_output_file(out, "--out")
     path = collect_results(reports, out)
@@ -335,7 +335,7 @@ def _tables_cmd(
 ):
     """Copy each report's table into README.md and docs/ where a page marks it
     (`<!-- from reports/... -->` ... `<!-- end -->`), so the pages cannot disagree with the reports."""
-    from slipsense.experiments.tables import sync
+    from studies.experiments.tables import sync
 
     changed = sync(root, check)
     for page in changed:

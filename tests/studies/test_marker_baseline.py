@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from slipsense.cli import app
+from studies.__main__ import app
 from slipsense.errors import ConfigError
-from slipsense.experiments.marker_baseline import FEATURES, REST_FEATURES, fit_and_score, window_features
+from studies.experiments.marker_baseline import FEATURES, REST_FEATURES, fit_and_score, window_features
 
 
 def _grid(rows=4, cols=5):

@@ -12,9 +12,9 @@ from typing import Any
 
 from slipsense.atomic import write_text
 from slipsense.config import gelsight_recordings, resolve_path
-from slipsense.experiments.report import machine_line
-from slipsense.experiments.settings import EXPERIMENTS, TITLES, quick_epochs_text
-from slipsense.experiments.stnet import QUICK_SIM_SEQUENCES
+from studies.experiments.report import machine_line
+from studies.experiments.settings import EXPERIMENTS, TITLES, quick_epochs_text
+from studies.experiments.stnet import QUICK_SIM_SEQUENCES
 
 
 def command_lines(name: str) -> tuple[str, str]:

@@ -9,10 +9,10 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from slipsense.errors import ConfigError, InputError
-from slipsense.experiments.report import Report
-from slipsense.experiments.settings import Settings
-from slipsense.experiments.source import DataSource, clip_spec, held_out_objects, object_split
-from slipsense.experiments.training import clip_datasets, metric_cols, score, train_model, video_info
+from studies.experiments.report import Report
+from studies.experiments.settings import Settings
+from studies.experiments.source import DataSource, clip_spec, held_out_objects, object_split
+from studies.experiments.training import clip_datasets, metric_cols, score, train_model, video_info
 
 DEFAULT_NOISE_STDS = (0.0, 5.0, 10.0, 15.0, 20.0, 30.0, 50.0)
 

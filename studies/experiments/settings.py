@@ -9,7 +9,7 @@ per-model ``train_overrides``/``model_overrides``) override either; any override
 "full+custom" or "quick+custom" in the outputs, with the overrides listed.
 
 ``seed`` seeds model initialisation, batch order and augmentation; ``data_seed`` the object folds,
-the wiggle windows and the random clip split (see :mod:`slipsense.experiments.source`).
+the wiggle windows and the random clip split (see :mod:`studies.experiments.source`).
 """
 
 from __future__ import annotations

@@ -193,8 +193,8 @@ def run_marker_baseline(settings, sim_sequences: int | None = None, sim_override
     motion pattern), twice: on the windows' own motion (what a model given each window relative to its
     first frame sees) and with the gel's standing shear against its rest positions added. A row for
     all held-out windows and one per motion pattern, for each."""
-    from slipsense.experiments.report import Report
-    from slipsense.experiments.stnet import simulated_dataset
+    from studies.experiments.report import Report
+    from studies.experiments.stnet import simulated_dataset
     from slipsense.sensors.sim_model import rest_grid
     from slipsense.sensors.simulator import PATTERNS, SimConfig
 

@@ -9,8 +9,8 @@ import time
 from dataclasses import asdict
 from typing import Any, Callable, Sequence
 
-from slipsense.experiments.report import Report
-from slipsense.experiments.settings import Settings
+from studies.experiments.report import Report
+from studies.experiments.settings import Settings
 
 
 def _device_of(model):

@@ -10,10 +10,10 @@ from typing import Any
 import numpy as np
 
 from slipsense.errors import InputError
-from slipsense.experiments.report import Report
-from slipsense.experiments.settings import Settings
-from slipsense.experiments.source import DataSource, clip_spec, held_out_objects, object_split
-from slipsense.experiments.training import (
+from studies.experiments.report import Report
+from studies.experiments.settings import Settings
+from studies.experiments.source import DataSource, clip_spec, held_out_objects, object_split
+from studies.experiments.training import (
     clip_datasets,
     inference_rate,
     metric_cols,

@@ -11,10 +11,10 @@ import numpy as np
 
 from slipsense.models import model_class
 from slipsense.errors import ConfigError
-from slipsense.experiments.report import Report
-from slipsense.experiments.settings import Settings
-from slipsense.experiments.source import DataSource, clip_spec, held_out_objects, object_split
-from slipsense.experiments.training import clip_datasets, metric_cols, score, train_model, train_seconds, video_info
+from studies.experiments.report import Report
+from studies.experiments.settings import Settings
+from studies.experiments.source import DataSource, clip_spec, held_out_objects, object_split
+from studies.experiments.training import clip_datasets, metric_cols, score, train_model, train_seconds, video_info
 
 
 def match_windows(

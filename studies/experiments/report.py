@@ -1,7 +1,7 @@
 """Where and how a result was measured, and the files every experiment writes (:class:`Report`).
 
 Every experiment writes into its folder ``OUT``: ``<name>.csv``, ``<name>.md``, ``<name>.png`` and,
-last, ``config.json`` (see :mod:`slipsense.experiments`); :func:`machine_info` is the machine part
+last, ``config.json`` (see :mod:`studies.experiments`); :func:`machine_info` is the machine part
 of ``config.json``, :func:`cpu_description` names the CPU in benchmark reports.
 """
 
@@ -24,7 +24,7 @@ import numpy as np
 
 from slipsense.atomic import write_text
 from slipsense.errors import ConfigError
-from slipsense.experiments.settings import EXPERIMENTS, TITLES, Settings
+from studies.experiments.settings import EXPERIMENTS, TITLES, Settings
 
 
 # =============================================================================== machine

@@ -8,10 +8,10 @@ from typing import Any, Sequence
 import numpy as np
 
 from slipsense.errors import ConfigError
-from slipsense.experiments.report import Report
-from slipsense.experiments.settings import Settings
-from slipsense.experiments.source import DataSource, held_out_objects
-from slipsense.experiments.training import epoch_axis, score, train_model, train_seconds
+from studies.experiments.report import Report
+from studies.experiments.settings import Settings
+from studies.experiments.source import DataSource, held_out_objects
+from studies.experiments.training import epoch_axis, score, train_model, train_seconds
 
 #: Simulated sequences per (object, pattern): full and quick.
 SIM_SEQUENCES = 24
@@ -56,7 +56,7 @@ def _where_it_looks(model, x, y, te, rest, rep, label: str, n: int = 256) -> dic
     markers sit at rest): the share of the slip class's
     marker relevance on the markers in contact, over up to ``n`` held-out slip windows, against the
     share of markers in contact; and the heat map of one of them (``saliency-<label>.png``)."""
-    from slipsense.heatmaps import marker_saliency_figure, relevance_in_contact
+    from studies.experiments.heatmaps import marker_saliency_figure, relevance_in_contact
 
     slips = te[y[te] == 1]
     if len(slips) == 0:

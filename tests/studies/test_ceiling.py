@@ -8,8 +8,8 @@ import json
 import numpy as np
 from typer.testing import CliRunner
 
-from slipsense.cli import app
-from slipsense.evaluation.ceiling import held_out_traces, one_threshold, per_fold
+from studies.__main__ import app
+from studies.grasp.ceiling import held_out_traces, one_threshold, per_fold
 
 N, HORIZON = 120, 20
 

@@ -1,4 +1,4 @@
-"""The pages' copied tables (slipsense.experiments.tables): what a page shows is its report's text."""
+"""The pages' copied tables (studies.experiments.tables): what a page shows is its report's text."""
 
 from __future__ import annotations
 
@@ -7,10 +7,10 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from slipsense.cli import app
-from slipsense.experiments.tables import sync
+from studies.__main__ import app
+from studies.experiments.tables import sync
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_the_repositorys_pages_show_their_reports_tables():

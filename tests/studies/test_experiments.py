@@ -1,4 +1,4 @@
-"""Experiment commands (slipsense.experiments, slipsense.cli.experiments) on tiny in-memory data."""
+"""Experiment commands (studies.experiments, studies.experiments.commands) on tiny in-memory data."""
 
 from __future__ import annotations
 
@@ -11,15 +11,15 @@ import pytest
 from typer.testing import CliRunner
 
 from conftest import REAL_RUN
-from slipsense.experiments.all_models import match_windows, run_all_models
-from slipsense.experiments.frames import run_frames
-from slipsense.experiments.horizon import run_horizon
-from slipsense.experiments.noise import run_noise
-from slipsense.experiments.params import run_params
-from slipsense.experiments.results import _data_line, collect_results
-from slipsense.experiments.settings import EXPERIMENTS, Settings, TITLES
-from slipsense.experiments.stnet import run_stnet
-from slipsense.experiments.video_compare import run_video_compare
+from studies.experiments.all_models import match_windows, run_all_models
+from studies.experiments.frames import run_frames
+from studies.experiments.horizon import run_horizon
+from studies.experiments.noise import run_noise
+from studies.experiments.params import run_params
+from studies.experiments.results import _data_line, collect_results
+from studies.experiments.settings import EXPERIMENTS, Settings, TITLES
+from studies.experiments.stnet import run_stnet
+from studies.experiments.video_compare import run_video_compare
 from slipsense.errors import ConfigError
 from slipsense.recordings.clips import ClipSet
 
@@ -482,7 +482,7 @@ def test_results_link_benchmarks_and_early_warning(tmp_path):
 
 
 def test_cli_params_and_one_line_errors(tmp_path):
-    from slipsense.cli import app
+    from studies.__main__ import app
 
     runner = CliRunner()
     r = runner.invoke(app, ["experiment", "params", "--out", str(tmp_path / "p"), "--no-progress"])

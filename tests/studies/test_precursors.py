@@ -8,8 +8,8 @@ import json
 import numpy as np
 from typer.testing import CliRunner
 
-from slipsense.cli import app
-from slipsense.evaluation.precursors import precursor_table, summary
+from studies.__main__ import app
+from studies.grasp.precursors import precursor_table, summary
 from slipsense.recordings.runs import GraspRun
 
 

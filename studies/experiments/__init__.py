@@ -11,11 +11,11 @@ Every experiment writes into its folder ``OUT``:
 * ``runs/<label>/`` the training runs behind it (``metrics.csv``, ``curves.png``, checkpoints);
   ``--resume`` continues them after an interruption.
 
-Modules: :mod:`~slipsense.experiments.settings` (:class:`Settings`: full, quick and overrides),
-:mod:`~slipsense.experiments.source` (:class:`DataSource`, held-out objects),
-:mod:`~slipsense.experiments.report` (:class:`Report`, machine information),
-:mod:`~slipsense.experiments.training` (train, score, time); one module per experiment
+Modules: :mod:`~studies.experiments.settings` (:class:`Settings`: full, quick and overrides),
+:mod:`~studies.experiments.source` (:class:`DataSource`, held-out objects),
+:mod:`~studies.experiments.report` (:class:`Report`, machine information),
+:mod:`~studies.experiments.training` (train, score, time); one module per experiment
 (``params``, ``video_compare``, ``frames``, ``noise``, ``stnet``, ``horizon``, ``all_models``); and
-:mod:`~slipsense.experiments.results` (docs/results.md). The commands are in
-:mod:`slipsense.cli.experiments`.
+:mod:`~studies.experiments.results` (docs/results.md). The commands are in
+:mod:`studies.experiments.commands`.
 """

@@ -22,7 +22,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from slipsense.errors import ConfigError, InputError
-from slipsense.experiments.settings import Settings
+from studies.experiments.settings import Settings
 from slipsense.sensors.spec import GELSIGHT_MINI
 
 FPS = GELSIGHT_MINI.fps

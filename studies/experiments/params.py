@@ -5,8 +5,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from slipsense.experiments.report import Report
-from slipsense.experiments.settings import Settings
+from studies.experiments.report import Report
+from studies.experiments.settings import Settings
 
 
 def run_params(settings: Settings) -> dict[str, Any]:

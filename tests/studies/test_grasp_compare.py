@@ -6,7 +6,7 @@ import json
 
 from typer.testing import CliRunner
 
-from slipsense.cli import app
+from studies.__main__ import app
 
 
 def _report(folder, warned, fp, rule=0.05, sensors=2):

@@ -1,0 +1,189 @@
+"""``slipsense train``: any registered model, the default detector unless ``--model`` says otherwise;
+one fold held out, or every fold in turn (``--cross-validate``) for the leave-objects-out report."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import List, Optional
+
+import typer
+
+from slipsense.atomic import check_output_dir
+from slipsense.cli.common import check_seed, command_line, friendly, parse_hw
+from slipsense.models import model_class
+from slipsense.run_config import empty_tree, given, load_tree, merge, parse_sets
+from slipsense.training.grasps import GraspTrainConfig
+from slipsense.training import recipe
+from slipsense.training.recipe import DEFAULT_MODEL, fit
+
+SET_HELP = (
+    "section.key=value, section model, data or train, e.g. train.lr=0.001, model.width=16, data.sensor=gelsight-mini; "
+    "a bare key=value is a training setting where it names one (grasp detectors), else a model setting; repeatable"
+)
+
+
+def _tree(config: Optional[Path], options: dict, sets: Optional[List[str]]) -> dict:
+    """The configuration tree: defaults < --config < options < --set (model name resolved first, so a
+    bare --set key lands in the section of the model's own trainer)."""
+    layer = parse_sets(sets, bare="bare")
+    tree = merge(load_tree(config) if config else empty_tree(), given(options))
+    tree["model"]["name"] = layer.get("model", {}).get("name") or tree["model"].get("name") or DEFAULT_MODEL
+    cls = model_class(tree["model"]["name"]) if tree["model"]["name"] else None
+    train_keys = set(GraspTrainConfig.__dataclass_fields__) - {"model", "model_config"}
+    grasps = cls is not None and cls.training_task == "grasps"
+    for key, value in layer.pop("bare", {}).items():
+        layer.setdefault("train" if grasps and key in train_keys else "model", {})[key] = value
+    return merge(tree, layer)
+
+
+def report_training(res: dict, echo=typer.echo) -> None:
+    """What a training prints after it: the detector and its operating point where one was chosen,
+    and the held-out objects' per-grasp outcomes when some were held out."""
+    op = res.get("operating_point")
+    if op:
+        echo(
+            f"detector -> {res['checkpoint']} (alarm when P(slip) >= {op['threshold']:g} for {op['debounce']} "
+            f"frame(s) in a row, chosen on {op.get('chosen_on', 'the training objects')})"
+        )
+    if res.get("held_out") and res.get("per_grasp"):
+        g = res["per_grasp"]
+        echo(
+            f"on the held-out objects ({', '.join(res['held_out'])}): {g['warned']} of {g['slip_runs']} slips warned "
+            f"in time, {g['premature']} warned too early, {g['missed']} missed; {g['false_positive_grasps']} of "
+            f"{g['held_runs']} grasps that held alarmed"
+        )
+
+
+def report_folds(rep: dict, out: Path, echo=typer.echo) -> None:
+    """The pooled leave-objects-out figures in words: per grasp for a detector, per clip for a clip model."""
+    pooled = rep["pooled"]
+    g = pooled.get("per_grasp")
+    if g:
+        lead = g.get("median_lead_frames")
+        echo(
+            f"unseen objects, pooled over the folds: {g['warned']} of {g['slip_runs']} slips warned in time"
+            + (f" (median {lead:g} frames ahead)" if lead is not None else "")
+            + f", {g['premature']} too early, {g['missed']} missed; {g['false_positive_grasps']} of {g['held_runs']} "
+            f"grasps that held alarmed -> {out}/README.md"
+        )
+        return
+    echo(
+        f"unseen objects, pooled over the folds: {pooled['n_clips']} clips, accuracy {pooled['accuracy']:.3f}, "
+        f"precision {pooled['precision']:.3f}, recall {pooled['recall']:.3f}, F1 {pooled['f1']:.3f} -> {out}"
+    )
+
+
+def register(app: typer.Typer) -> None:
+    @app.command()
+    @friendly
+    def train(
+        out: Path = typer.Option(Path("runs/latest"), help="output folder (checkpoint, config.yaml, metrics.csv)"),
+        config: Optional[Path] = typer.Option(
+            None, help="a configuration tree (YAML: model/data/train), e.g. configs/motionnet.yaml"
+        ),
+        model: Optional[str] = typer.Option(
+            None, help=f"a registered model (default {DEFAULT_MODEL}, the slip detector; `slipsense models` lists all)"
+        ),
+        recordings: Optional[Path] = typer.Option(
+            None, help="recordings folder (default: $SLIPSENSE_DATA/gelsight-slip)"
+        ),
+        markers: Optional[Path] = typer.Option(None, help="marker-sequence .npz, for STNet and TemNet"),
+        sets: Optional[List[str]] = typer.Option(None, "--set", help=SET_HELP),
+        preset: Optional[str] = typer.Option(None, help="a named model configuration (e.g. paper, compact)"),
+        fold: Optional[int] = typer.Option(None, help="hold out fold k of --folds folds of objects and judge on it"),
+        folds: Optional[int] = typer.Option(None, help="folds by object (default 5), with --fold or --cross-validate"),
+        cross_validate: bool = typer.Option(
+            False,
+            "--cross-validate",
+            help="train one model per fold, each judged on the objects it never saw, pooled into OUT/README.md",
+        ),
+        test_objects: Optional[str] = typer.Option(None, help="comma-separated objects to hold out and judge on"),
+        epochs: Optional[int] = typer.Option(None, help="training epochs (default: the model's recipe)"),
+        batch_size: Optional[int] = typer.Option(None, help="batch size per process"),
+        lr: Optional[float] = typer.Option(None, help="learning rate"),
+        seed: Optional[int] = typer.Option(None, help="seed of everything random (default 0)"),
+        size: Optional[str] = typer.Option(None, help="frame size HxW the model sees (default: the model's)"),
+        inner_folds: Optional[int] = typer.Option(
+            None, help="grasp detectors: inner folds that choose the alarm threshold (0: the training runs)"
+        ),
+        frames: Optional[int] = typer.Option(None, help="clip models: frames per clip (2..12; default 5)"),
+        horizon: Optional[int] = typer.Option(
+            None, help="clip models: slip clips end this many frames before the moment of slip"
+        ),
+        split: Optional[str] = typer.Option(
+            None, help="clip models: objects (default, leave objects out), clips (random 90/10) or all"
+        ),
+        augment: Optional[bool] = typer.Option(
+            None, help="clip models: append the paper's transformed copies to the training set (default on)"
+        ),
+        workers: Optional[int] = typer.Option(
+            None,
+            min=0,
+            help="grasp detectors: trainings side by side (default one per core; results do not depend on it); "
+            "clip models: data-loading processes",
+        ),
+        threads: Optional[int] = typer.Option(None, help="torch threads of each training process"),
+        device: Optional[str] = typer.Option(None, help="clip models: auto (default), cpu, cuda, cuda:1, ..."),
+        resume: bool = typer.Option(False, help="continue a killed training from OUT (same weights as unkilled)"),
+        overrides: Optional[Path] = typer.Option(None, help="CSV of hand labels replacing automatic moments of slip"),
+        on_error: Optional[str] = typer.Option(
+            None, help="raise (default): stop at a bad recording; skip: warn, name it and leave it out"
+        ),
+        progress: bool = typer.Option(True, help="progress bars and per-epoch lines"),
+    ):
+        """Train a model on recordings or marker sequences: the slip detector (motionnet) unless --model
+        says otherwise. With --fold or --test-objects, judge it on objects it never saw; with
+        --cross-validate, every fold in turn, pooled (leave objects out). Works under torchrun (DDP).
+
+        Settings come from the model's defaults, then --config, then these options, then --set; the
+        resolved tree is kept in every checkpoint and written to OUT/config.yaml."""
+        check_output_dir(out, "--out")
+        clips = model_class_task(model, config) == "clips"
+        clip_only = {"num_workers": workers} if clips else {}
+        hw = list(parse_hw(size)) if size else None  # clips are cut at this size; a grasp model sees frames so
+        options = {
+            "model": {"name": model, "preset": preset, "image_size": None if clips else hw},
+            "data": dict(
+                size=hw if clips else None,
+                recordings=recordings,
+                markers=markers,
+                frames=frames,
+                horizon=horizon,
+                split=split,
+                test_objects=test_objects,
+                fold=fold,
+                folds=folds,
+                augment=augment,
+                on_error=on_error,
+                overrides=overrides,
+            ),
+            "train": dict(
+                epochs=epochs, batch_size=batch_size, lr=lr, device=device, seed=seed, inner_folds=inner_folds
+            ),
+        }
+        options["train"].update(clip_only)
+        tree = _tree(config, options, sets)
+        check_seed(tree["train"].get("seed", 0))
+        grasp_workers = None if clip_only else workers
+        if cross_validate:
+            n = tree["data"].pop("folds", None) or 5
+            rep = recipe.cross_validate(
+                tree, out, n, progress=progress, workers=grasp_workers, threads=threads, command=command_line()
+            )
+            report_folds(rep, out)
+            return
+        if tree["data"].get("fold") is not None:
+            tree["data"].setdefault("folds", 5)
+        res = fit(
+            tree, out, progress=progress, resume=resume, workers=grasp_workers, threads=threads, command=command_line()
+        )
+        report_training(res)
+
+
+def model_class_task(model: Optional[str], config: Optional[Path]) -> str | None:
+    """The training task of the model named by --model or the --config file (None when unknown: the
+    recipe names the problem)."""
+    from slipsense.models import available
+
+    name = model or (load_tree(config)["model"].get("name") if config else None) or DEFAULT_MODEL
+    return model_class(name).training_task if name in available() else None

@@ -1,0 +1,270 @@
+"""Watch a source through a slip detector: open it at the sensor's rate, push every frame, write
+the readings (JSON lines, a bag), an annotated picture and a summary. What ``slipsense watch`` runs."""
+
+from __future__ import annotations
+
+import itertools
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Any, Optional, Sequence
+
+from slipsense.atomic import check_output_file
+from slipsense.checkpoint import load_model
+from slipsense.errors import ConfigError, InputError
+from slipsense.evaluation.pergrasp import promise_text
+from slipsense.models.base import window_geometry
+from slipsense.models.runners import resolve_backend
+from slipsense.recordings.video import probe_video
+from slipsense.resources import default_model_name, shipped_model
+from slipsense.sensors.spec import GELSIGHT_MINI, sensor_of
+from slipsense.streaming.annotate import AnnotatedWriter, Annotator
+from slipsense.streaming.capture import CaptureThread, PacedReader
+from slipsense.streaming.detector import (
+    SlipDetector,
+    check_settings,
+    onnx_cache_dir,
+    shipped_name,
+    stored_operating_point,
+)
+from slipsense.streaming.readings import BagWriter, JsonlWriter, reading_record
+from slipsense.streaming.sources import Source, capture_source, open_source
+
+
+def echo(message: str, err: bool = False) -> None:
+    """A line to standard output (or standard error), flushed: the readings of a live run."""
+    print(message, file=sys.stderr if err else sys.stdout, flush=True)
+
+
+def checkpoint_or_shipped(path: Optional[Path], sensors: int | None = None) -> Path:
+    """The checkpoint given, else the shipped detector for ``sensors`` (one finger or both)."""
+
+    path = path or shipped_model(default_model_name(sensors))
+    if not Path(path).is_file():
+        raise InputError(path, "checkpoint not found (pass --checkpoint CKPT)")
+    return Path(path)
+
+
+def _shipped_for_source(source: str, sensors: int) -> Path:
+    """The shipped detector for what ``source`` holds: by its frame size where it is a video or a
+    frame folder (a 480 x 640 GelSight gets the one calibrated to it), else by its sensor count."""
+
+    size = None
+    path = Path(source)
+    if path.is_file() and path.suffix.lower() != ".npy" or path.is_dir() and not any(path.glob("camera_*")):
+        try:
+            info = probe_video(path, expected_size=None, min_frames=1)
+            size = (info.height, info.width)
+        except InputError:
+            size = None  # opening the source reports what is wrong with it
+    return checkpoint_or_shipped(shipped_model(shipped_name(sensors, size)))
+
+
+# ---------------------------------------------------------------------------------------------
+# commands
+# ---------------------------------------------------------------------------------------------
+
+
+def watch_source(
+    source: str,
+    checkpoint: Optional[Path],
+    threshold: Optional[float] = None,
+    out: Optional[Path] = None,
+    combine: str = "max",
+    backend: str = "auto",
+    max_frames: Optional[int] = None,
+    heatmap: bool = True,
+    echo=echo,
+    quiet: bool = False,
+    dtype: str = "float32",
+    topics: Sequence[str] = (),
+    tolerance: Optional[float] = None,
+    jsonl: Optional[str] = None,
+    bag_out: Optional[Path] = None,
+    realtime: bool = False,
+) -> dict[str, Any]:
+    """Stream ``source`` through the detector; print a line per frame; optionally write an annotated
+    GIF/video, the readings as JSON lines (``jsonl``, ``"-"`` for standard output) and into a new bag
+    (``bag_out``). ``topics``: a bag's image topics, one per sensor; ``realtime``: play a file at the
+    sensor's rate through the live capture path. Returns ``{"frames", "alarm_onsets", "first_alarm",
+    "out", "source"}`` (``source``: what the source reports of its delivery)."""
+    if max_frames is not None and max_frames < 0:
+        raise ConfigError(f"--max-frames must be 0 or more, got {max_frames}")
+    if out is not None:
+        check_output_file(out, "--out")
+        AnnotatedWriter(out)  # refuse a wrong suffix before any work
+    if bag_out is not None and Path(bag_out).exists():
+        raise InputError(bag_out, "exists; --bag-out writes a new bag folder")
+    # the user's own settings are checked before any source is opened or checkpoint blamed
+    check_settings(0.5 if threshold is None else threshold, 1, combine, backend, dtype)
+    if checkpoint is None:  # the shipped detectors read videos: one for one finger, one for both
+        sensor = GELSIGHT_MINI
+        src = _open(source, None, sensor, topics, tolerance, realtime)  # the shipped detectors take pictures
+        try:
+            ckpt = _shipped_for_source(source, src.sensors)
+            model, info = load_model(ckpt)
+        except BaseException:
+            src.close()
+            raise
+        if sensor_of(info, ckpt).fps != sensor.fps:  # picked for another sensor: its rate stamps the frames
+            src.close()
+            sensor = sensor_of(info, ckpt)
+            src = _open(source, None, sensor, topics, tolerance, realtime)
+    else:
+        ckpt = checkpoint_or_shipped(checkpoint)
+        model, info = load_model(ckpt)
+        sensor = sensor_of(info, ckpt)  # a malformed sensor spec is named with its file
+        src = _open(source, model, sensor, topics, tolerance, realtime, window_geometry(model, info))
+    own_point = threshold is None
+    threshold, debounce = stored_operating_point(ckpt, info, threshold, None)
+    backend = resolve_backend(backend, model)
+    try:
+        det = SlipDetector(
+            model,
+            threshold=threshold,
+            sensors=src.sensors,
+            combine=combine,
+            backend=backend,
+            info=info,
+            onnx_dir=onnx_cache_dir(ckpt) if backend == "onnx" else None,
+            dtype=dtype,
+            debounce=debounce,
+        )
+    except ConfigError as exc:  # e.g. one camera given to a two-finger model: name the checkpoint
+        src.close()
+        raise InputError(ckpt, str(exc)) from None
+    if not quiet:
+        runs_on = "ONNX Runtime" if det.backend == "onnx" else "PyTorch"
+        echo(f"{Path(ckpt).stem} on {runs_on}, {det.sensors} sensor(s), alarm at {det.threshold:g}", err=jsonl == "-")
+        if own_point:  # the checkpoint's own operating point: what it promises
+            echo(promise_text(info.get("operating_point")), err=jsonl == "-")
+    annot = Annotator(det.threshold, det.sensors, fps=det.sensor.fps) if out is not None else None
+    writer = AnnotatedWriter(out, fps=det.sensor.fps) if out is not None else None
+    sinks = _sinks(jsonl, bag_out, src, det)
+    onsets: list[int] = []
+    previous = False
+    n = 0
+    try:
+        for step in itertools.islice(src.frames(), max_frames):  # takes no frame beyond the last pushed
+            display, inputs = step.display, step.inputs
+            t0 = time.perf_counter()
+            r = det.push(*inputs)
+            latency_ms = (time.perf_counter() - t0) * 1e3
+            n += 1
+            if sinks:
+                record = reading_record(r, step.stamp, latency_ms)
+                for sink in sinks:
+                    sink.write(record)
+            if r.alarm and not previous:
+                onsets.append(r.index)
+            previous = r.alarm
+            if jsonl != "-" and (not quiet or (r.alarm and onsets and onsets[-1] == r.index)):
+                echo(reading_line(r))
+            if writer is not None:
+                heat = [det.heatmap(s) for s in range(det.sensors)] if heatmap else []
+                clouds = list(inputs) if src.converted else []
+                writer.add(annot.draw(display, r, heat, clouds))
+    except KeyboardInterrupt:  # a live camera is stopped with Ctrl-C: still write what was seen
+        pass
+    except BrokenPipeError:  # `--jsonl - | head`: the reader has gone; stop as if stopped by hand
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no error at exit's flush
+    except BaseException:
+        if writer is not None:
+            writer.abort()
+        raise
+    finally:
+        src.close()
+        det.close()
+        for sink in sinks:
+            sink.close()
+    written = writer.close() if writer is not None else None
+    summary = {
+        "frames": n,
+        "alarm_onsets": onsets,
+        "first_alarm": onsets[0] if onsets else None,
+        "backend": det.backend,
+        "out": None if written is None else str(written),
+        "source": src.stats(),
+    }
+    echo(
+        f"{n} frames, {len(onsets)} alarm onset(s)"
+        + (f", first at frame {onsets[0]}" if onsets else "")
+        + (f" -> {written}" if written else ""),
+        err=jsonl == "-",  # standard output carries the readings then
+    )
+    for cam in summary["source"].get("cameras", []):
+        echo(
+            f"{cam['camera']}: {cam['fps']:.2f} frames/s captured, {cam['delivered']} of {cam['grabbed']} "
+            f"pushed, {cam['dropped']} dropped, {cam['repeated']} repeated",
+            err=jsonl == "-",
+        )
+    return summary
+
+
+def _open(source, model, sensor, topics, tolerance, realtime, geometry=None):
+    """The source, with the sensor's rate, camera files and capture settings."""
+    size = tuple(sensor.image_size) if sensor.image_size else None
+    src = open_source(
+        source,
+        model,
+        sensor.camera_glob,
+        geometry,
+        topics=topics,
+        fps=sensor.fps,
+        tolerance_s=tolerance,
+        capture_format=sensor.capture_format,
+        frame_size=size,
+    )
+    if not realtime:
+        return src
+    if src.converted or src.stats().get("cameras"):
+        src.close()
+        raise ConfigError(
+            "--realtime plays recorded frames (a video, a recordings folder or a bag) at the sensor's rate"
+        )
+    steps = list(src.frames())
+    src.close()
+    live: list = []
+
+    def play():  # the clock starts at the first frame asked for, once the detector is ready
+        threads = [
+            CaptureThread(PacedReader([s.inputs[k] for s in steps], sensor.fps).read, f"{src.name}[{k}]")
+            for k in range(src.sensors)
+        ]
+        live.append(capture_source(f"{src.name} in real time", threads, sensor.fps, tolerance))
+        yield from live[0].frames()
+
+    return Source(
+        f"{src.name} in real time",
+        src.sensors,
+        play(),
+        closer=lambda: [s.close() for s in live],
+        stats=lambda: live[0].stats() if live else {},
+    )
+
+
+def _sinks(jsonl, bag_out, src, det) -> list:
+    sinks = []
+    try:
+        if jsonl is not None:
+            sinks.append(JsonlWriter(jsonl))
+        if bag_out is not None:
+            sinks.append(BagWriter(bag_out))
+    except BaseException:
+        for sink in sinks:
+            sink.close()
+        src.close()
+        det.close()
+        raise
+    return sinks
+
+
+def reading_line(r) -> str:
+    if r.probability is None:
+        return f"frame {r.index:5d}  p=  -    (filling window)"
+    sensors = " ".join(f"{p:.3f}" for p in r.per_sensor)
+    return f"frame {r.index:5d}  p={r.probability:.3f}  [{sensors}]" + ("  ALARM" if r.alarm else "")
+
+
+__all__ = ["checkpoint_or_shipped", "echo", "reading_line", "watch_source"]

@@ -1,0 +1,29 @@
+"""``python -m studies``: the studies' own entry point, run from the checkout (see studies/README.md).
+
+python -m studies experiment params --quick      the papers' experiments, one report folder each
+python -m studies grasp ceiling reports/...      the grasp analyses behind the findings
+"""
+
+from __future__ import annotations
+
+import typer
+
+from studies.experiments.commands import register as register_experiments
+from studies.grasp.commands import group as grasp_group
+
+app = typer.Typer(
+    add_completion=False,
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    help="The studies behind slipsense's figures: the papers' experiments and the grasp analyses.",
+)
+register_experiments(app)
+app.add_typer(grasp_group, name="grasp")
+
+
+def main() -> None:
+    app()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,223 @@
+"""``python -m studies grasp ...``: the grasp analyses behind the project's findings (bounds,
+precursors, other operating-point rules, reports side by side, restated promises, the adaptation
+study and the early-warning sweep). Each writes a report folder; none is needed to use a detector."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import List, Optional
+
+import typer
+
+from slipsense.atomic import check_output_dir, check_output_file, write_text
+from slipsense.checkpoint import read_info
+from slipsense.cli.common import check_seed, command_line, friendly
+from slipsense.cli.live import THREADS_HELP, set_threads
+from slipsense.config import gelsight_recordings, resolve_path
+from slipsense.errors import ConfigError
+from slipsense.evaluation.pergrasp import promise_text
+from slipsense.training.grasps import load_grasp_data
+from studies.grasp.adaptation import adaptation_study, table, write
+from studies.grasp.ceiling import held_out_traces, one_threshold, per_fold, phases
+from studies.grasp.early_warning import DEFAULT_THRESHOLDS, run_early_warning
+from studies.grasp.precursors import aligned_means, precursor_table, summary, write_report
+from studies.grasp.promise import restate_promise
+from studies.grasp.rechoose import compare_markdown, rechoose
+
+group = typer.Typer(
+    add_completion=False,
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    help="Grasp analyses: bounds, precursors, operating-point rules, comparisons, adaptation, early warning.",
+)
+
+
+@group.command("early-warning")
+@friendly
+def early_warning(
+    checkpoint: Optional[Path] = typer.Option(None, help="video-model checkpoint (default: the shipped detector)"),
+    recordings: Optional[Path] = typer.Option(None, help="recordings folder (default: $SLIPSENSE_DATA/gelsight-slip)"),
+    out: Path = typer.Option(..., help="output folder for CSV, JSON and PNGs"),
+    thresholds: str = typer.Option(
+        DEFAULT_THRESHOLDS,
+        help="comma-separated alarm thresholds (the checkpoint's own operating point is always added)",
+    ),
+    horizon: int = typer.Option(50, help="frames before the moment of slip in which a first alarm is in time"),
+    debounce: Optional[int] = typer.Option(
+        None, help="frames in a row above the threshold before an alarm (default: the checkpoint's)"
+    ),
+    overrides: Optional[Path] = typer.Option(None, help="label overrides CSV (object,experiment,camera,moment)"),
+    labels: Optional[Path] = typer.Option(None, help="labels CSV (slipsense label) instead of automatic labels"),
+    combine: str = typer.Option("max", help="max or mean of the two cameras' probabilities"),
+    backend: str = typer.Option("torch", help="torch or onnx"),
+    dtype: str = typer.Option("float32", help="float32, or int8 with --backend onnx"),
+    limit: Optional[int] = typer.Option(None, help="replay only the first N runs"),
+    fps: Optional[float] = typer.Option(
+        None, help="frame rate, for lead times in ms (default: the checkpoint's sensor's)"
+    ),
+    on_error: str = typer.Option("raise", help="raise or skip bad recordings folders"),
+    progress: bool = typer.Option(True),
+    threads: Optional[int] = typer.Option(None, help=THREADS_HELP),
+):
+    """Per-grasp early warning: slips warned in time, premature, missed; grasps that held yet alarmed."""
+    set_threads(threads)
+    summary = run_early_warning(
+        checkpoint,
+        recordings,
+        out,
+        thresholds,
+        labels,
+        combine,
+        backend,
+        limit,
+        fps,
+        on_error,
+        progress,
+        dtype,
+        horizon=horizon,
+        debounce=debounce,
+        overrides=overrides,
+    )
+    typer.echo(summary)
+
+
+@group.command("rechoose")
+@friendly
+def rechoose_cmd(
+    src: Path = typer.Argument(
+        ..., help="a `slipsense train --cross-validate` report folder (its fold files keep inner traces)"
+    ),
+    out: Path = typer.Option(..., help="report folder to write: README.md, folds.json, tradeoff.png"),
+    max_held_alarm: Optional[float] = typer.Option(
+        0.05, help="at most this fraction of held grasps may alarm (0.05: 5%); a negative value: best score"
+    ),
+):
+    """Choose every fold's operating point again by another rule, on its training objects' inner
+    traces, and pool: no training (seconds)."""
+
+    check_output_dir(out, "--out")
+    k = None if max_held_alarm is not None and max_held_alarm < 0 else max_held_alarm
+    rep = rechoose(src, out, k, command=command_line(), echo=typer.echo)
+    g = rep["pooled"]["per_grasp"]
+    ci = g.get("intervals", {})
+    typer.echo(
+        f"pooled: warned in time {g['warned']}/{g['slip_runs']} (95% {100 * ci.get('warned_low', float('nan')):.0f}-"
+        f"{100 * ci.get('warned_high', float('nan')):.0f}%), premature {g['premature']}; false-positive grasps "
+        f"{g['false_positive_grasps']}/{g['held_runs']} (95% {100 * ci.get('fp_low', float('nan')):.0f}-"
+        f"{100 * ci.get('fp_high', float('nan')):.0f}%) -> {out}/README.md"
+    )
+
+
+@group.command("compare")
+@friendly
+def compare_cmd(
+    reports: List[Path] = typer.Argument(..., help="`slipsense train --cross-validate` report folders"),
+    label: List[str] = typer.Option([], "--label", help="a row's name, one per report in order (repeat)"),
+    out: Optional[Path] = typer.Option(None, help="Markdown file to write (default: print only)"),
+):
+    """Folds reports side by side: slips warned in time, premature, missed, false-positive grasps
+    with their intervals, one row per report (for a detector and its non-learned baseline)."""
+
+    if out is not None:
+        check_output_file(out, "--out")
+    text = compare_markdown(reports, label, command=command_line())
+    if out is not None:
+        write_text(out, text)
+    typer.echo(text if out is None else f"{len(reports)} report(s) -> {out}")
+
+
+@group.command("precursors")
+@friendly
+def precursors_cmd(
+    out: Path = typer.Option(..., help="report folder: README.md, precursors.csv/.json/.png"),
+    recordings: Optional[Path] = typer.Option(None, help="recordings folder (default: the shared recordings)"),
+    overrides: Optional[Path] = typer.Option(None, help="label overrides CSV"),
+    window: int = typer.Option(10, min=2, max=100, help="frames before the moment of slip that are measured"),
+    progress: bool = typer.Option(True),
+):
+    """Which slips show anything before contact is lost, against their own grasp and held grasps."""
+
+    check_output_dir(out, "--out")
+    root = resolve_path(recordings or gelsight_recordings())
+    runs, _ = load_grasp_data(root, overrides, (30, 40), progress=progress)
+    rows = precursor_table(runs, window)
+    write_report(rows, aligned_means(runs), out, command=command_line(), window=window)
+    s = summary(rows)
+    typer.echo(
+        f"{s['any']} of {s['slip_runs']} slips stand out on some signal before contact is lost (motion "
+        f"{s['motion']}, change over 1 s {s['change_1s']}, contact fading {s['contact_fading']}) -> {out}/README.md"
+    )
+
+
+@group.command("ceiling")
+@friendly
+def ceiling_cmd(
+    reports: List[Path] = typer.Argument(
+        ..., help="folds reports (slipsense train --cross-validate --out) with their fold files"
+    ),
+    fp: List[int] = typer.Option([0, 4, 8, 13], "--fp", help="false-positive grasps allowed (repeat)"),
+    show_phases: bool = typer.Option(False, "--phases", help="where held grasps peak and slips are lost"),
+):
+    """Bounds, not results: the most slips any operating point tuned on the held-out runs could warn of."""
+
+    if any(k < 0 for k in fp):
+        raise ConfigError(f"--fp must be 0 or more, got {fp}")
+    for report in reports:
+        traces = held_out_traces(report)
+        cells = []
+        for k in fp:
+            one = one_threshold(traces, k)
+            warned, premature = per_fold(traces, k)
+            cells.append(f"<= {k} FP: one threshold {one[1]} ({one[2]} premature), per fold {warned} ({premature})")
+        slips = sum(m is not None for m in traces[1])
+        typer.echo(f"{report} (slips {slips}): " + " | ".join(cells))
+        if show_phases:
+            ph = phases(traces)
+            typer.echo(
+                f"  held grasps' 10 highest peaks at frames {ph['held_peaks']}; slips lost at frames < 60: "
+                f"{ph['lost_before_60']}, 60-150: {ph['lost_60_150']}, > 150: {ph['lost_after_150']}"
+            )
+
+
+@group.command("promise")
+@friendly
+def promise_cmd(
+    checkpoint: Path = typer.Argument(..., help="a grasp detector whose operating point came from inner folds"),
+    workers: Optional[int] = typer.Option(None, help="training processes (default: one per core)"),
+    progress: bool = typer.Option(True),
+):
+    """State what a detector trained before checkpoints carried it promises on new objects: its
+    inner folds trained again, judged at its threshold (held-alarm rate, bound counting objects)."""
+
+    restate_promise(checkpoint, workers=workers, progress=progress)
+    typer.echo(f"{checkpoint}: {promise_text(read_info(checkpoint)['operating_point'])}")
+
+
+@group.command("adaptation")
+@friendly
+def adaptation_cmd(
+    recordings: Path = typer.Option(..., help="grasps of another sensor, one camera each, labelled per grasp"),
+    out: Path = typer.Option(Path("reports/adaptation"), help="report folder"),
+    epochs: int = typer.Option(10, help="epochs of every training"),
+    also: Optional[Path] = typer.Option(
+        None, help="the shipped detector's own recordings: add the row trained from scratch on both sets"
+    ),
+    seed: int = typer.Option(0, help="seed of the grasp draws and the trainings"),
+    workers: Optional[int] = typer.Option(
+        None, min=1, help="processes training side by side (default: one per core; results do not depend on it)"
+    ),
+    progress: bool = typer.Option(True),
+):
+    """Leave-objects-out on a new sensor: the shipped one-finger detector as is, recalibrated,
+    fine-tuned on 5, 10, 20 and all grasps, trained on the set alone, beside the baselines."""
+
+    if not 1 <= epochs <= 1000:
+        raise ConfigError(f"--epochs must be in 1..1000, got {epochs}")
+    check_output_dir(out, "--out")
+    doc = adaptation_study(
+        recordings, epochs=epochs, seed=check_seed(seed), progress=progress, also=also, workers=workers
+    )
+    doc["command"] = command_line()
+    paths = write(doc, out)
+    typer.echo(table(doc))
+    typer.echo(f"-> {', '.join(str(p) for p in paths)}")

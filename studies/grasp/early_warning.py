@@ -1,0 +1,116 @@
+"""The early-warning sweep: every run replayed through a detector and judged per grasp at a row of
+alarm thresholds (slips warned in time, premature, missed; held grasps that alarmed), with the
+trade-off plot. ``python -m studies grasp early-warning``."""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+from typing import Optional, Sequence
+
+from slipsense.atomic import check_output_dir
+from slipsense.checkpoint import read_info
+from slipsense.config import gelsight_recordings
+from slipsense.errors import ConfigError, InputError
+from slipsense.evaluation.early_warning import early_warning_table, replay_recordings, write_early_warning
+from slipsense.evaluation.replay import shipped_for
+from slipsense.recordings.folders import camera_counts, find_recordings
+from slipsense.recordings.label_csv import read_labels_csv
+from slipsense.sensors.spec import sensor_of
+from slipsense.streaming.detector import SlipDetector
+from slipsense.watch import checkpoint_or_shipped
+
+#: Default alarm thresholds of ``early-warning``.
+DEFAULT_THRESHOLDS = "0.1,0.2,0.3,0.4,0.5,0.6,0.7,0.8,0.9"
+
+
+def parse_thresholds(text: str) -> list[float]:
+    """``"0.1,0.5,0.9"`` -> ``[0.1, 0.5, 0.9]``; each in [0, 1], sorted, duplicates removed."""
+    try:
+        values = sorted({float(v) for v in text.split(",") if v.strip()})
+    except ValueError:
+        raise ConfigError(f"--thresholds must be comma-separated numbers in [0, 1], got {text!r}") from None
+    if not values or any(not 0.0 <= v <= 1.0 for v in values):
+        raise ConfigError(f"--thresholds must be comma-separated numbers in [0, 1], got {text!r}")
+    return values
+
+
+def run_early_warning(
+    checkpoint: Optional[Path],
+    recordings: Optional[Path],
+    out: Path,
+    thresholds: str | Sequence[float] = DEFAULT_THRESHOLDS,
+    labels: Optional[Path] = None,
+    combine: str = "max",
+    backend: str = "torch",
+    limit: Optional[int] = None,
+    fps: float | None = None,
+    on_error: str = "raise",
+    progress: bool = True,
+    dtype: str = "float32",
+    horizon: int = 50,
+    debounce: Optional[int] = None,
+    overrides: Optional[Path] = None,
+) -> str:
+    """The ``early-warning`` command as a function; returns the summary text it prints."""
+    ths = parse_thresholds(thresholds) if isinstance(thresholds, str) else [float(t) for t in thresholds]
+    if limit is not None and limit < 1:
+        raise ConfigError(f"--limit must be a positive integer, got {limit}")
+    if fps is not None and not fps > 0:
+        raise ConfigError(f"--fps must be positive, got {fps}")
+    if isinstance(horizon, bool) or not isinstance(horizon, int) or not 1 <= horizon <= 100_000:
+        raise ConfigError(f"--horizon must be a whole number of frames >= 1, got {horizon!r}")
+    check_output_dir(out, "--out")
+    root = Path(recordings) if recordings else gelsight_recordings()
+    if checkpoint is None:
+        checkpoint = shipped_for(root)  # one camera per grasp: the one-finger detector
+    ckpt = checkpoint_or_shipped(checkpoint)
+    info = read_info(ckpt)
+    recs = find_recordings(root, on_error=on_error, sensor=sensor_of(info, ckpt))
+    if all(r.per_grasp for r in recs):
+        raise InputError(
+            root, "grasps labelled as a whole have no moment of slip to warn before: judge them with slipsense evaluate"
+        )
+    counts = camera_counts(recs)
+    if len(counts) != 1:
+        raise InputError(root, f"runs hold different numbers of camera videos ({counts}); early warning needs the same")
+    lab = read_labels_csv(labels) if labels is not None else None
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # a checkpoint without a threshold: the table covers thresholds anyway
+        fixed = info["model_config"].get("sensors")  # a model trained on so many fingers
+        det = SlipDetector.from_checkpoint(
+            ckpt, sensors=fixed or counts[0], combine=combine, backend=backend, dtype=dtype, debounce=debounce
+        )
+    if det.threshold not in ths:
+        ths = sorted(ths + [det.threshold])
+    try:
+        runs = replay_recordings(det, recs, lab, progress=progress, limit=limit, overrides=overrides)
+    finally:
+        det.close()
+    meta = {
+        "checkpoint": str(ckpt),
+        "model": det.model_name,
+        "recordings": str(root),
+        "combine": combine,
+        "backend": backend,
+        "dtype": dtype,
+        "sensors": det.sensors,
+        "operating_point": {"threshold": det.threshold, "debounce": det.debounce},
+    }
+    fps = fps or det.sensor.fps
+    paths = write_early_warning(runs, ths, out, debounce=det.debounce, horizon=horizon, fps=fps, meta=meta)
+    rows = early_warning_table(runs, ths, det.debounce, horizon, fps)
+    slips = sum(r.slipped for r in runs)
+    lines = [
+        f"{slips} slip runs, {len(runs) - slips} runs that held; horizon {horizon} frames, debounce {det.debounce}",
+        "threshold  warned in time  premature  missed  median lead (ms)  false-positive grasps  alarm at rest",
+    ]
+    for row in rows:
+        mark = "  <- checkpoint's operating point" if row["threshold"] == det.threshold else ""
+        lines.append(
+            f"{row['threshold']:9.3g}  {row['warned']:>6d}/{row['slip_runs']:<7d} {row['premature']:>9d}  "
+            f"{row['missed']:>6d}  {row['median_lead_ms']:16.0f}  {row['false_positive_grasps']:>11d}/"
+            f"{row['held_runs']:<9d} {row['runs_alarming_at_rest']:>13d}{mark}"
+        )
+    lines.append("-> " + ", ".join(str(p) for p in paths.values()))
+    return "\n".join(lines)

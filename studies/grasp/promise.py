@@ -1,0 +1,36 @@
+"""``promise``: state what a detector trained before checkpoints carried it promises on new objects."""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+from slipsense.checkpoint import read_info, update_info
+from slipsense.errors import InputError
+from slipsense.training.grasp_detector import held_alarm_of, inner_fold_traces
+from slipsense.training.grasps import with_settings
+from slipsense.training.recipe import prepare_grasps
+
+
+def restate_promise(checkpoint, workers: int | None = 1, progress: bool = False) -> dict[str, Any]:
+    """The held-alarm promise of a grasp detector trained before checkpoints stated one: its recipe's
+    inner folds trained again on its training objects (its own configuration tree and seed), judged at
+    its stored operating point, and written into the checkpoint (weights untouched). Returns it."""
+    info = read_info(checkpoint)
+    if not isinstance(info.get("config"), dict) or not (info.get("train_config") or {}).get("inner_folds"):
+        raise InputError(checkpoint, "not a grasp detector whose operating point came from inner folds")
+    tree = json.loads(json.dumps(info["config"]))
+    tree["data"] = {**tree.get("data", {}), "recordings": info["data"]["recordings"]}
+    if info["data"].get("also"):
+        tree["data"]["also"] = info["data"]["also"]
+    tree.setdefault("train", {})
+    cfg, runs, _, _ = prepare_grasps(tree, progress=progress)
+    trained = set(info["data"]["objects"])
+    usable = [r for r in runs if r.usable and r.object in trained]
+    op = dict(info["operating_point"])
+    cfg = with_settings(cfg, op.get("settings", {}))  # the settings train.choose chose, if it chose
+    judged = [r for r in usable if not r.extra]  # the traces inner_fold_traces returns
+    op["held_alarm"] = held_alarm_of(inner_fold_traces(usable, cfg, workers, progress), judged, op, cfg)
+    op["held_alarm"]["restated"] = f"{cfg.inner_folds} inner folds trained again by `python -m studies grasp promise`"
+    update_info(checkpoint, {"operating_point": op})
+    return op["held_alarm"]

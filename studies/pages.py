@@ -1,0 +1,347 @@
+"""``python -m studies.pages``: the measured figures of README.md and docs/*.md, written from the reports.
+
+A page marks each generated block::
+
+    <!-- figures:NAME -->
+    ...written by this module from the report files named in FIGURES[NAME]...
+    <!-- /figures:NAME -->
+
+``python -m studies.pages`` rewrites every block from its reports; ``python -m studies.pages --check``
+changes nothing and exits 1 listing each page and figure whose text disagrees with its reports (or
+names a figure this module does not know, or whose report is missing). ``tests/test_pages.py`` runs
+the check, so a page cannot drift from its report unnoticed.
+
+Standard library only: the reports are JSON (``folds.json``, ``adaptation.json``, ``precursors.json``)
+and CSV (the experiments' tables); nothing here imports slipsense, so the check runs anywhere.
+Paths are relative to the project root (the folder holding README.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import re
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+ROOT = Path(__file__).resolve().parent.parent
+
+_BLOCK = re.compile(r"<!-- figures:(?P<name>[\w.-]+) -->\n(?P<body>.*?)<!-- /figures:(?P=name) -->", re.S)
+_OPEN = re.compile(r"<!-- figures:([\w.-]+) -->")
+
+
+# ---------------------------------------------------------------------------------------- reading
+
+
+def _json(root: Path, path: str) -> dict:
+    return json.loads((root / path).read_text(encoding="utf-8"))
+
+
+def _csv(root: Path, path: str) -> list[dict]:
+    with open(root / path, newline="", encoding="utf-8") as f:
+        return list(csv.DictReader(f))
+
+
+def wilson(k: int, n: int, z: float = 1.959964) -> tuple[float, float]:
+    """95% Wilson score interval of k successes in n trials."""
+    if n == 0:
+        return 0.0, 1.0
+    p = k / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def _pct(x: float) -> str:
+    return f"{100 * x:.1f}%"
+
+
+def _count(k: int, n: int) -> str:
+    low, high = wilson(k, n)
+    return f"{k}/{n} ({_pct(low)}-{_pct(high)})"
+
+
+def _table(header: list[str], rows: list[list[str]], align: list[str]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join(a for a in align) + "|"]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(lines) + "\n"
+
+
+# ---------------------------------------------------------------------------------------- figures
+
+
+@dataclass(frozen=True)
+class Figure:
+    """One generated block: the report files it reads and the function writing its Markdown."""
+
+    reports: tuple[str, ...]
+    write: Callable[[Path], str]
+
+
+_GRASP_ROWS = (
+    ("`motionnet` (shipped), both fingers", "reports/grasp-motionnet-k5"),
+    ("`motionnet-gelsight-1` recipe, one finger (each camera a grasp)", "reports/grasp-motionnet-1sensor-k5"),
+    ("`motion-energy` (non-learned baseline)", "reports/grasp-motion-energy"),
+)
+
+_SEED_ROWS = (
+    ("seed 0", "reports/grasp-motionnet-fast"),
+    ("seed 1", "reports/grasp-motionnet-seeds/seed1"),
+    ("seed 2", "reports/grasp-motionnet-seeds/seed2"),
+)
+
+
+def _pooled(root: Path, report: str) -> dict:
+    data = _json(root, f"{report}/folds.json")
+    pooled = data["pooled"]
+    return {
+        "grasp": pooled["per_grasp"],
+        # reports written before the rule was recorded chose by the best score, the only rule then
+        "rule": pooled["operating_points"][0].get("rule", "best score"),
+        "inner": data["train_config"].get("inner_folds"),
+        "f1": pooled["clips_at_half"]["f1"],
+        "folds": data.get("folds"),
+    }
+
+
+def _rule(p: dict) -> str:
+    rule = "best score" if p["rule"].startswith("best") else p["rule"]
+    return f"{rule} ({p['inner']} inner folds)"
+
+
+def _lead(g: dict) -> str:
+    return "-" if g.get("median_lead_ms") is None else f"{g['median_lead_ms']:.0f} ms"
+
+
+def per_grasp(root: Path) -> str:
+    rows = []
+    for label, report in _GRASP_ROWS:
+        p = _pooled(root, report)
+        g = p["grasp"]
+        rows.append([
+            label, _rule(p), _count(g["warned"], g["slip_runs"]), str(g["premature"]), str(g["missed"]),
+            _count(g["false_positive_grasps"], g["held_runs"]), _lead(g), _pct(p["f1"]), f"`{report}`",
+        ])
+    header = ["detector", "alarm rule", "slips warned in time", "premature", "missed",
+              "false-positive grasps", "median lead", "clip F1 at 0.5", "report"]
+    note = ("Leave-objects-out, 5 folds by object, pooled; every run replayed from its first frame; each "
+            "fold's alarm point chosen on its training objects only; 95% Wilson intervals over runs.\n\n")
+    return note + _table(header, rows, ["---", "---", "---:", "---:", "---:", "---:", "---:", "---:", "---"])
+
+
+def seed_spread(root: Path) -> str:
+    rows = []
+    for label, report in _SEED_ROWS:
+        g = _pooled(root, report)["grasp"]
+        rows.append([label, _count(g["warned"], g["slip_runs"]), str(g["premature"]),
+                     _count(g["false_positive_grasps"], g["held_runs"]), f"`{report}`"])
+    header = ["training seed", "slips warned in time", "premature", "false-positive grasps", "report"]
+    return _table(header, rows, ["---", "---:", "---:", "---:", "---"])
+
+
+def precursors(root: Path) -> str:
+    s = _json(root, "reports/precursors/precursors.json")["summary"]
+    rows = [
+        ["any of the three signals", f"{s['any']} of {s['slip_runs']}"],
+        ["motion (frame to frame)", f"{s['motion']} of {s['slip_runs']}"],
+        ["change over 1 s", f"{s['change_1s']} of {s['slip_runs']}"],
+        ["contact fading", f"{s['contact_fading']} of {s['slip_runs']}"],
+        ["against held grasps and the run's own wiggle", f"{s['any_with_own_grasp']} of {s['with_own_grasp']}"],
+    ]
+    return _table(["slips that stand out in the 10 frames before contact is lost, on", "runs"], rows,
+                  ["---", "---:"])
+
+
+_ADAPTATION_ROWS = (
+    ("shipped one-finger detector, as is", "as is"),
+    ("the same, recalibrated on the other objects (`slipsense calibrate`)", "recalibrated"),
+    ("the same, fine-tuned on all the other objects' grasps", "fine-tuned, all grasps"),
+    ("shear retention (`shear-retention-gelsight-lift`)", "shear retention"),
+    ("best non-learned baseline (difference to the first frame in contact)", "baseline: difference_to_contact"),
+)
+
+
+def _interval(v: dict, percent: bool = True) -> str:
+    low, high = v["interval"]
+    if percent:
+        return f"{_pct(v['value'])} [{_pct(low)}-{_pct(high)}]"
+    return f"{v['value']:.3f} [{low:.2f}-{high:.2f}]"
+
+
+def adaptation(root: Path) -> str:
+    data = _json(root, "reports/adaptation/adaptation.json")
+    by_name = {r["row"]: r for r in data["rows"]}
+    rows = []
+    for label, prefix in _ADAPTATION_ROWS:
+        r = next(v for k, v in by_name.items() if k.startswith(prefix))
+        held = r["held_alarming"]
+        rows.append([label, _interval(r["operating_point"]["accuracy"]), _interval(r["roc_auc"], percent=False),
+                     f"{held} of {r['grasps'] - r['slipped']}"])
+    note = (f"`gelsight-lift`: {data['grasps']} grasps of {len(data['objects'])} objects, each object held out "
+            "in turn; 95% intervals over objects; report `reports/adaptation`.\n\n")
+    return note + _table(["detector", "accuracy", "ROC AUC", "held grasps alarming"], rows,
+                         ["---", "---:", "---:", "---:"])
+
+
+_STNET_SIM = (
+    ("seed 0", "reports/stnet-sim-24seq"),
+    ("seed 1", "reports/stnet-sim-24seq-seed1"),
+    ("seed 2", "reports/stnet-sim-24seq-seed2"),
+)
+
+
+def stnet_sim(root: Path) -> str:
+    rows = []
+    for label, report in _STNET_SIM:
+        for r in _csv(root, f"{report}/stnet.csv"):
+            rows.append([label, r["model"], _pct(float(r["precision"])), _pct(float(r["recall"])),
+                         _pct(float(r["f1"])), f"`{report}`"])
+    return _table(["seeds", "model", "precision", "recall", "F1", "report"], rows,
+                  ["---", "---", "---:", "---:", "---:", "---"])
+
+
+def _frac(text: str) -> tuple[int, int]:
+    k, n = text.split("/")
+    return int(k), int(n)
+
+
+def stnet_real(root: Path) -> str:
+    totals: dict[str, list[int]] = {}
+    for k in range(5):
+        for r in _csv(root, f"reports/stnet-real-grid/fold{k}/stnet.csv"):
+            w, ws = _frac(r["warned_in_time"])
+            f, fs = _frac(r["false_positive_grasps"])
+            t = totals.setdefault(r["model"], [0, 0, 0, 0, 0])
+            for i, v in enumerate((w, ws, int(r["premature"]), f, fs)):
+                t[i] += v
+    rows = [[m, _count(t[0], t[1]), str(t[2]), _count(t[3], t[4])] for m, t in totals.items()]
+    note = "Every tracked marker on a 7 x 9 grid, 5 folds by object, per grasp; report `reports/stnet-real-grid`.\n\n"
+    return note + _table(["model", "slips warned in time", "premature", "false-positive grasps"], rows,
+                         ["---", "---:", "---:", "---:"])
+
+
+def readme(root: Path) -> str:
+    """README's one table: a line per question a user asks, each from its report."""
+    k5 = _pooled(root, "reports/grasp-motionnet-k5")["grasp"]
+    one = _pooled(root, "reports/grasp-motionnet-1sensor-k5")["grasp"]
+    base = _pooled(root, "reports/grasp-motion-energy")["grasp"]
+    lift = {r["row"]: r for r in _json(root, "reports/adaptation/adaptation.json")["rows"]}
+    shear = next(v for k, v in lift.items() if k.startswith("shear retention"))
+    sim = {r["model"]: r for r in _csv(root, "reports/stnet-sim-24seq/stnet.csv")}
+    rows = [
+        ["GelSight Mini, both fingers, unseen objects", "`motionnet` (shipped)",
+         f"warns of {_count(k5['warned'], k5['slip_runs'])} slips in time (median lead {_lead(k5)}), "
+         f"{k5['premature']} too early; {_count(k5['false_positive_grasps'], k5['held_runs'])} held grasps alarm",
+         "`reports/grasp-motionnet-k5`"],
+        ["GelSight Mini, one finger, unseen objects", "`motionnet-gelsight-1` (shipped)",
+         f"{_count(one['warned'], one['slip_runs'])} camera-slips in time, {one['premature']} too early; "
+         f"{_count(one['false_positive_grasps'], one['held_runs'])} held camera-grasps alarm",
+         "`reports/grasp-motionnet-1sensor-k5`"],
+        ["the same, non-learned baseline", "`motion-energy`",
+         f"{_count(base['warned'], base['slip_runs'])} in time, {base['premature']} too early; "
+         f"{_count(base['false_positive_grasps'], base['held_runs'])} held grasps alarm",
+         "`reports/grasp-motion-energy`"],
+        ["another lab's GelSight (`gelsight-lift`), unseen objects", "`shear-retention-gelsight-lift` (shipped)",
+         f"right on {_interval(shear['operating_point']['accuracy'])} of grasps, ROC AUC "
+         f"{_interval(shear['roc_auc'], percent=False)}; {shear['held_alarming']} of {shear['grasps'] - shear['slipped']} "
+         "held grasps alarm", "`reports/adaptation`"],
+        ["simulated binocular marker sensor, held-out sequences", "`stnet` (compact)",
+         f"precision {_pct(float(sim['stnet']['precision']))}, recall {_pct(float(sim['stnet']['recall']))}, "
+         f"F1 {_pct(float(sim['stnet']['f1']))}", "`reports/stnet-sim-24seq`"],
+    ]
+    return _table(["sensor and test", "detector", "result (95% intervals)", "report"], rows,
+                  ["---", "---", "---", "---"])
+
+
+FIGURES: dict[str, Figure] = {
+    "readme": Figure(("reports/grasp-motionnet-k5", "reports/grasp-motionnet-1sensor-k5",
+                      "reports/grasp-motion-energy", "reports/adaptation", "reports/stnet-sim-24seq"), readme),
+    "per-grasp": Figure(tuple(r for _, r in _GRASP_ROWS), per_grasp),
+    "seed-spread": Figure(tuple(r for _, r in _SEED_ROWS), seed_spread),
+    "precursors": Figure(("reports/precursors",), precursors),
+    "adaptation": Figure(("reports/adaptation",), adaptation),
+    "stnet-sim": Figure(tuple(r for _, r in _STNET_SIM), stnet_sim),
+    "stnet-real": Figure(("reports/stnet-real-grid",), stnet_real),
+}
+
+
+# ---------------------------------------------------------------------------------------- pages
+
+
+def pages(root: Path) -> list[Path]:
+    """The pages that carry figures: README.md and docs/*.md."""
+    return [p for p in [root / "README.md", *sorted((root / "docs").glob("*.md"))] if p.is_file()]
+
+
+def _render(page: Path, root: Path, problems: list[str]) -> str:
+    text = page.read_text(encoding="utf-8")
+    rel = page.relative_to(root).as_posix()
+    opened = _OPEN.findall(text)
+    closed = [m.group("name") for m in _BLOCK.finditer(text)]
+    for name in opened:
+        if opened.count(name) != closed.count(name):
+            problems.append(f"{rel}: figures:{name} has no matching <!-- /figures:{name} -->")
+
+    def body(m: re.Match) -> str:
+        name = m.group("name")
+        figure = FIGURES.get(name)
+        if figure is None:
+            problems.append(f"{rel}: figures:{name} is not a known figure (studies/pages.py FIGURES)")
+            return m.group(0)
+        try:
+            new = figure.write(root)
+        except (OSError, KeyError, ValueError, StopIteration) as e:
+            problems.append(f"{rel}: figures:{name}: its report cannot be read ({type(e).__name__}: {e})")
+            return m.group(0)
+        if new != m.group("body"):
+            problems.append(f"{rel}: figures:{name} disagrees with {', '.join(figure.reports)}")
+        return f"<!-- figures:{name} -->\n{new}<!-- /figures:{name} -->"
+
+    return _BLOCK.sub(body, text)
+
+
+def check(root: str | Path = ROOT) -> list[str]:
+    """Every page and figure whose text disagrees with its reports (empty: all agree). Writes nothing."""
+    root = Path(root)
+    problems: list[str] = []
+    for page in pages(root):
+        _render(page, root, problems)
+    return problems
+
+
+def write(root: str | Path = ROOT) -> list[Path]:
+    """Rewrite every figure block from its reports; returns the pages that changed. A block whose
+    report cannot be read, or an unknown figure, is left as it is (``check`` names it)."""
+    root = Path(root)
+    changed = []
+    for page in pages(root):
+        new = _render(page, root, [])
+        if new != page.read_text(encoding="utf-8"):
+            page.write_text(new, encoding="utf-8")
+            changed.append(page)
+    return changed
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m studies.pages", description=__doc__.splitlines()[0])
+    parser.add_argument("--check", action="store_true", help="change nothing; exit 1 if a page disagrees")
+    parser.add_argument("--root", default=str(ROOT), help="the project folder (default: this checkout)")
+    args = parser.parse_args(argv)
+    if args.check:
+        problems = check(args.root)
+        for line in problems:
+            print(line)
+        if problems:
+            print("run `python -m studies.pages` to write the figures from the reports", file=sys.stderr)
+        return 1 if problems else 0
+    for page in write(args.root):
+        print(f"wrote {page}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

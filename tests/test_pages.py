@@ -1,0 +1,82 @@
+"""The figures on README.md and docs/*.md are the reports' (studies/pages.py), and the check notices
+when a page or a report changes without the other."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+from studies import pages
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _blocks(text: str) -> list[str]:
+    return [m.group("name") for m in pages._BLOCK.finditer(text)]
+
+
+def test_every_page_agrees_with_its_reports():
+    problems = pages.check(ROOT)
+    assert problems == [], "\n".join(problems) + "\nrun: python -m studies.pages"
+
+
+def test_the_readme_carries_its_one_table_of_figures():
+    assert _blocks((ROOT / "README.md").read_text(encoding="utf-8")) == ["readme"]
+
+
+def test_every_figure_is_on_some_page():
+    used = {name for page in pages.pages(ROOT) for name in _blocks(page.read_text(encoding="utf-8"))}
+    assert used == set(pages.FIGURES)
+
+
+@pytest.fixture
+def copy(tmp_path: Path) -> Path:
+    """README, docs and the reports the figures read, copied to a temporary project."""
+    shutil.copy(ROOT / "README.md", tmp_path / "README.md")
+    shutil.copytree(ROOT / "docs", tmp_path / "docs")
+    for figure in pages.FIGURES.values():
+        for report in figure.reports:
+            shutil.copytree(ROOT / report, tmp_path / report, dirs_exist_ok=True)
+    assert pages.check(tmp_path) == []
+    return tmp_path
+
+
+def test_a_number_changed_on_a_page_is_found(copy: Path):
+    readme = copy / "README.md"
+    text = readme.read_text(encoding="utf-8")
+    start = text.index("<!-- figures:readme -->")
+    at = text.index("11/51", start)
+    readme.write_text(text[:at] + "12/51" + text[at + 5 :], encoding="utf-8")
+    problems = pages.check(copy)
+    assert len(problems) == 1 and problems[0].startswith("README.md: figures:readme disagrees with")
+
+
+def test_a_report_changed_under_a_page_is_found_and_written_back(copy: Path):
+    folds = copy / "reports/grasp-motionnet-k5/folds.json"
+    data = json.loads(folds.read_text(encoding="utf-8"))
+    data["pooled"]["per_grasp"]["warned"] += 1
+    folds.write_text(json.dumps(data), encoding="utf-8")
+    problems = pages.check(copy)
+    assert any(p.startswith("README.md: figures:readme") for p in problems)
+    assert any("figures:per-grasp" in p for p in problems)
+    assert pages.main(["--check", "--root", str(copy)]) == 1
+
+    pages.write(copy)
+    assert pages.check(copy) == []
+    assert "12/51" in (copy / "README.md").read_text(encoding="utf-8")
+
+
+def test_unknown_unclosed_and_unreadable_blocks_are_named(copy: Path):
+    page = copy / "docs" / "planted.md"
+    page.write_text(
+        "<!-- figures:nothing -->\nx\n<!-- /figures:nothing -->\n<!-- figures:precursors -->\nopen\n",
+        encoding="utf-8",
+    )
+    shutil.rmtree(copy / "reports/precursors")
+    problems = pages.check(copy)
+    assert "docs/planted.md: figures:nothing is not a known figure (studies/pages.py FIGURES)" in problems
+    assert any(p.startswith("docs/planted.md: figures:precursors has no matching") for p in problems)
+    assert any("figures:precursors: its report cannot be read" in p for p in problems)
