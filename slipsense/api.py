@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from slipsense.evaluation.replay import Evaluation, evaluate, label_overrides, recordings_folder
+from slipsense.training.recipe import DEFAULT_MODEL
 
 
 @dataclass
@@ -49,7 +50,7 @@ def fit(
     recordings: str | Path | None = None,
     out: str | Path = "runs/detector",
     *,
-    model: str = "motionnet",
+    model: str = DEFAULT_MODEL,
     held_out: Sequence[str] = (),
     overrides: str | Path | None | bool = True,
     seed: int = 0,

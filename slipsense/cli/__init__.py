@@ -27,7 +27,7 @@ def label(
     csv: Path = typer.Option(..., help="output CSV, one row per video"),
     overrides: Optional[Path] = typer.Option(None, help="CSV of hand labels that replace automatic ones"),
     on_error: str = typer.Option("raise", help="raise: stop at a bad video; skip: warn and leave it out"),
-    progress: bool = typer.Option(True),
+    progress: bool = typer.Option(True, help="progress bars on long work (--no-progress: none)"),
 ):
     """Find the moment of slip in every video and write it as CSV."""
     from slipsense.data import label_runs
@@ -67,7 +67,7 @@ def calibrate(
     on_error: str = typer.Option(
         "raise", help="raise: stop at a video that cannot be read; skip: warn, leave its grasp out, use the rest"
     ),
-    progress: bool = typer.Option(True),
+    progress: bool = typer.Option(True, help="progress bars on long work (--no-progress: none)"),
 ):
     """Calibrate a detector to your sensor: a new alarm threshold chosen on your grasps, so that at
     most --budget of the held ones alarm, stated with its bound on new objects (weights unchanged)."""

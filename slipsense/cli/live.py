@@ -8,7 +8,6 @@ from typing import Optional
 import typer
 
 from slipsense.errors import ConfigError
-from slipsense.watch import checkpoint_or_shipped, watch_source
 
 
 THREADS_HELP = (
@@ -71,6 +70,8 @@ def register(app: typer.Typer) -> None:
         ),
     ):
         """Stream a video, an experiment folder, a ROS 2 bag or cameras through a slip detector."""
+        from slipsense.watch import watch_source  # torch and OpenCV: when the command runs, not for --help
+
         set_threads(threads)
         watch_source(
             source,
@@ -101,6 +102,7 @@ def register(app: typer.Typer) -> None:
     ):
         """Export a checkpoint to ONNX (and the live detector's streaming parts)."""
         from slipsense.streaming.export import export_onnx
+        from slipsense.watch import checkpoint_or_shipped
 
         result = export_onnx(checkpoint_or_shipped(checkpoint), out, batch=batch, streaming=streaming, verify=verify)
         for key, path in result.paths.items():

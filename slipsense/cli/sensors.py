@@ -28,9 +28,9 @@ def register(app: typer.Typer) -> None:
             24,
             help="sequences per (object, motion pattern); 24 (about 16,800 windows, 1.3 GB) is what the compact STNet needs (docs/simulator.md)",
         ),
-        seed: int = typer.Option(0),
+        seed: int = typer.Option(0, help="seed of everything random"),
         figures: Optional[Path] = typer.Option(None, help="also draw each motion pattern's displacement field here"),
-        progress: bool = typer.Option(True),
+        progress: bool = typer.Option(True, help="progress bars on long work (--no-progress: none)"),
     ):
         """Simulate the binocular marker sensor: 6 objects x 4 motion patterns, 12-frame windows."""
         from slipsense.atomic import check_output_dir, check_output_file
@@ -56,17 +56,17 @@ def register(app: typer.Typer) -> None:
     def track(
         out: Path = typer.Option(..., help="output .npz (x (N,T,M,3), y, groups = object)"),
         recordings: Optional[Path] = typer.Option(None, help="recordings folder (default: the shared recordings)"),
-        frames: int = typer.Option(12),
+        frames: int = typer.Option(12, help="frames per marker sequence"),
         n_markers: str = typer.Option(
             "7x9",
             help="ROWSxCOLS: every tracked marker resampled onto that grid (gel pads differ in marker count); "
             "or N: the N markers nearest the centre",
         ),
-        horizon: int = typer.Option(0),
-        wiggle_per_video: int = typer.Option(2),
-        seed: int = typer.Option(0),
-        on_error: str = typer.Option("raise"),
-        progress: bool = typer.Option(True),
+        horizon: int = typer.Option(0, help="slip sequences end this many frames before the moment of slip"),
+        wiggle_per_video: int = typer.Option(2, help="sequences drawn from each video that did not slip"),
+        seed: int = typer.Option(0, help="seed of everything random"),
+        on_error: str = typer.Option("raise", help="raise: stop at a bad video; skip: warn, name it and leave it out"),
+        progress: bool = typer.Option(True, help="progress bars on long work (--no-progress: none)"),
         overrides: Optional[Path] = typer.Option(
             None, help="label overrides CSV (e.g. configs/gelsight-label-overrides.csv)"
         ),

@@ -10,11 +10,11 @@ import typer
 
 from slipsense.atomic import check_output_dir
 from slipsense.cli.common import check_seed, command_line, friendly, parse_hw
-from slipsense.models import model_class
 from slipsense.run_config import empty_tree, given, load_tree, merge, parse_sets
-from slipsense.training.grasps import GraspTrainConfig
-from slipsense.training import recipe
-from slipsense.training.recipe import DEFAULT_MODEL, fit
+
+#: The model trained where none is named (:data:`slipsense.training.recipe.DEFAULT_MODEL`, which a
+#: test holds equal): named here so that ``slipsense --help`` does not start torch (4 s) to show it.
+DEFAULT_MODEL = "motionnet"
 
 SET_HELP = (
     "section.key=value, section model, data or train, e.g. train.lr=0.001, model.width=16, data.sensor=gelsight-mini; "
@@ -25,6 +25,9 @@ SET_HELP = (
 def _tree(config: Optional[Path], options: dict, sets: Optional[List[str]]) -> dict:
     """The configuration tree: defaults < --config < options < --set (model name resolved first, so a
     bare --set key lands in the section of the model's own trainer)."""
+    from slipsense.models import model_class  # torch: imported when a command runs, not for --help
+    from slipsense.training.grasps import GraspTrainConfig
+
     layer = parse_sets(sets, bare="bare")
     tree = merge(load_tree(config) if config else empty_tree(), given(options))
     tree["model"]["name"] = layer.get("model", {}).get("name") or tree["model"].get("name") or DEFAULT_MODEL
@@ -137,6 +140,8 @@ def register(app: typer.Typer) -> None:
 
         Settings come from the model's defaults, then --config, then these options, then --set; the
         resolved tree is kept in every checkpoint and written to OUT/config.yaml."""
+        from slipsense.training import recipe
+
         check_output_dir(out, "--out")
         clips = model_class_task(model, config) == "clips"
         clip_only = {"num_workers": workers} if clips else {}
@@ -174,7 +179,7 @@ def register(app: typer.Typer) -> None:
             return
         if tree["data"].get("fold") is not None:
             tree["data"].setdefault("folds", 5)
-        res = fit(
+        res = recipe.fit(
             tree, out, progress=progress, resume=resume, workers=grasp_workers, threads=threads, command=command_line()
         )
         report_training(res)
@@ -183,7 +188,7 @@ def register(app: typer.Typer) -> None:
 def model_class_task(model: Optional[str], config: Optional[Path]) -> str | None:
     """The training task of the model named by --model or the --config file (None when unknown: the
     recipe names the problem)."""
-    from slipsense.models import available
+    from slipsense.models import available, model_class
 
     name = model or (load_tree(config)["model"].get("name") if config else None) or DEFAULT_MODEL
     return model_class(name).training_task if name in available() else None
