@@ -10,6 +10,7 @@ import typer
 
 from studies.experiments.commands import register as register_experiments
 from studies.grasp.commands import group as grasp_group
+from studies.stnet.commands import group as stnet_group
 
 app = typer.Typer(
     add_completion=False,
@@ -19,6 +20,7 @@ app = typer.Typer(
 )
 register_experiments(app)
 app.add_typer(grasp_group, name="grasp")
+app.add_typer(stnet_group, name="stnet")
 
 
 def main() -> None:

@@ -122,14 +122,34 @@ def per_grasp(root: Path) -> str:
     for label, report in _GRASP_ROWS:
         p = _pooled(root, report)
         g = p["grasp"]
-        rows.append([
-            label, _rule(p), _count(g["warned"], g["slip_runs"]), str(g["premature"]), str(g["missed"]),
-            _count(g["false_positive_grasps"], g["held_runs"]), _lead(g), _pct(p["f1"]), f"`{report}`",
-        ])
-    header = ["detector", "alarm rule", "slips warned in time", "premature", "missed",
-              "false-positive grasps", "median lead", "clip F1 at 0.5", "report"]
-    note = ("Leave-objects-out, 5 folds by object, pooled; every run replayed from its first frame; each "
-            "fold's alarm point chosen on its training objects only; 95% Wilson intervals over runs.\n\n")
+        rows.append(
+            [
+                label,
+                _rule(p),
+                _count(g["warned"], g["slip_runs"]),
+                str(g["premature"]),
+                str(g["missed"]),
+                _count(g["false_positive_grasps"], g["held_runs"]),
+                _lead(g),
+                _pct(p["f1"]),
+                f"`{report}`",
+            ]
+        )
+    header = [
+        "detector",
+        "alarm rule",
+        "slips warned in time",
+        "premature",
+        "missed",
+        "false-positive grasps",
+        "median lead",
+        "clip F1 at 0.5",
+        "report",
+    ]
+    note = (
+        "Leave-objects-out, 5 folds by object, pooled; every run replayed from its first frame; each "
+        "fold's alarm point chosen on its training objects only; 95% Wilson intervals over runs.\n\n"
+    )
     return note + _table(header, rows, ["---", "---", "---:", "---:", "---:", "---:", "---:", "---:", "---"])
 
 
@@ -137,8 +157,15 @@ def seed_spread(root: Path) -> str:
     rows = []
     for label, report in _SEED_ROWS:
         g = _pooled(root, report)["grasp"]
-        rows.append([label, _count(g["warned"], g["slip_runs"]), str(g["premature"]),
-                     _count(g["false_positive_grasps"], g["held_runs"]), f"`{report}`"])
+        rows.append(
+            [
+                label,
+                _count(g["warned"], g["slip_runs"]),
+                str(g["premature"]),
+                _count(g["false_positive_grasps"], g["held_runs"]),
+                f"`{report}`",
+            ]
+        )
     header = ["training seed", "slips warned in time", "premature", "false-positive grasps", "report"]
     return _table(header, rows, ["---", "---:", "---:", "---:", "---"])
 
@@ -152,8 +179,7 @@ def precursors(root: Path) -> str:
         ["contact fading", f"{s['contact_fading']} of {s['slip_runs']}"],
         ["against held grasps and the run's own wiggle", f"{s['any_with_own_grasp']} of {s['with_own_grasp']}"],
     ]
-    return _table(["slips that stand out in the 10 frames before contact is lost, on", "runs"], rows,
-                  ["---", "---:"])
+    return _table(["slips that stand out in the 10 frames before contact is lost, on", "runs"], rows, ["---", "---:"])
 
 
 _ADAPTATION_ROWS = (
@@ -179,12 +205,21 @@ def adaptation(root: Path) -> str:
     for label, prefix in _ADAPTATION_ROWS:
         r = next(v for k, v in by_name.items() if k.startswith(prefix))
         held = r["held_alarming"]
-        rows.append([label, _interval(r["operating_point"]["accuracy"]), _interval(r["roc_auc"], percent=False),
-                     f"{held} of {r['grasps'] - r['slipped']}"])
-    note = (f"`gelsight-lift`: {data['grasps']} grasps of {len(data['objects'])} objects, each object held out "
-            "in turn; 95% intervals over objects; report `reports/adaptation`.\n\n")
-    return note + _table(["detector", "accuracy", "ROC AUC", "held grasps alarming"], rows,
-                         ["---", "---:", "---:", "---:"])
+        rows.append(
+            [
+                label,
+                _interval(r["operating_point"]["accuracy"]),
+                _interval(r["roc_auc"], percent=False),
+                f"{held} of {r['grasps'] - r['slipped']}",
+            ]
+        )
+    note = (
+        f"`gelsight-lift`: {data['grasps']} grasps of {len(data['objects'])} objects, each object held out "
+        "in turn; 95% intervals over objects; report `reports/adaptation`.\n\n"
+    )
+    return note + _table(
+        ["detector", "accuracy", "ROC AUC", "held grasps alarming"], rows, ["---", "---:", "---:", "---:"]
+    )
 
 
 _STNET_SIM = (
@@ -198,10 +233,19 @@ def stnet_sim(root: Path) -> str:
     rows = []
     for label, report in _STNET_SIM:
         for r in _csv(root, f"{report}/stnet.csv"):
-            rows.append([label, r["model"], _pct(float(r["precision"])), _pct(float(r["recall"])),
-                         _pct(float(r["f1"])), f"`{report}`"])
-    return _table(["seeds", "model", "precision", "recall", "F1", "report"], rows,
-                  ["---", "---", "---:", "---:", "---:", "---"])
+            rows.append(
+                [
+                    label,
+                    r["model"],
+                    _pct(float(r["precision"])),
+                    _pct(float(r["recall"])),
+                    _pct(float(r["f1"])),
+                    f"`{report}`",
+                ]
+            )
+    return _table(
+        ["seeds", "model", "precision", "recall", "F1", "report"], rows, ["---", "---", "---:", "---:", "---:", "---"]
+    )
 
 
 def _frac(text: str) -> tuple[int, int]:
@@ -220,8 +264,9 @@ def stnet_real(root: Path) -> str:
                 t[i] += v
     rows = [[m, _count(t[0], t[1]), str(t[2]), _count(t[3], t[4])] for m, t in totals.items()]
     note = "Every tracked marker on a 7 x 9 grid, 5 folds by object, per grasp; report `reports/stnet-real-grid`.\n\n"
-    return note + _table(["model", "slips warned in time", "premature", "false-positive grasps"], rows,
-                         ["---", "---:", "---:", "---:"])
+    return note + _table(
+        ["model", "slips warned in time", "premature", "false-positive grasps"], rows, ["---", "---:", "---:", "---:"]
+    )
 
 
 def readme(root: Path) -> str:
@@ -233,33 +278,59 @@ def readme(root: Path) -> str:
     shear = next(v for k, v in lift.items() if k.startswith("shear retention"))
     sim = {r["model"]: r for r in _csv(root, "reports/stnet-sim-24seq/stnet.csv")}
     rows = [
-        ["GelSight Mini, both fingers, unseen objects", "`motionnet` (shipped)",
-         f"warns of {_count(k5['warned'], k5['slip_runs'])} slips in time (median lead {_lead(k5)}), "
-         f"{k5['premature']} too early; {_count(k5['false_positive_grasps'], k5['held_runs'])} held grasps alarm",
-         "`reports/grasp-motionnet-k5`"],
-        ["GelSight Mini, one finger, unseen objects", "`motionnet-gelsight-1` (shipped)",
-         f"{_count(one['warned'], one['slip_runs'])} camera-slips in time, {one['premature']} too early; "
-         f"{_count(one['false_positive_grasps'], one['held_runs'])} held camera-grasps alarm",
-         "`reports/grasp-motionnet-1sensor-k5`"],
-        ["the same, non-learned baseline", "`motion-energy`",
-         f"{_count(base['warned'], base['slip_runs'])} in time, {base['premature']} too early; "
-         f"{_count(base['false_positive_grasps'], base['held_runs'])} held grasps alarm",
-         "`reports/grasp-motion-energy`"],
-        ["another lab's GelSight (`gelsight-lift`), unseen objects", "`shear-retention-gelsight-lift` (shipped)",
-         f"right on {_interval(shear['operating_point']['accuracy'])} of grasps, ROC AUC "
-         f"{_interval(shear['roc_auc'], percent=False)}; {shear['held_alarming']} of {shear['grasps'] - shear['slipped']} "
-         "held grasps alarm", "`reports/adaptation`"],
-        ["simulated binocular marker sensor, held-out sequences", "`stnet` (compact)",
-         f"precision {_pct(float(sim['stnet']['precision']))}, recall {_pct(float(sim['stnet']['recall']))}, "
-         f"F1 {_pct(float(sim['stnet']['f1']))}", "`reports/stnet-sim-24seq`"],
+        [
+            "GelSight Mini, both fingers, unseen objects",
+            "`motionnet` (shipped)",
+            f"warns of {_count(k5['warned'], k5['slip_runs'])} slips in time (median lead {_lead(k5)}), "
+            f"{k5['premature']} too early; {_count(k5['false_positive_grasps'], k5['held_runs'])} held grasps alarm",
+            "`reports/grasp-motionnet-k5`",
+        ],
+        [
+            "GelSight Mini, one finger, unseen objects",
+            "`motionnet-gelsight-1` (shipped)",
+            f"{_count(one['warned'], one['slip_runs'])} camera-slips in time, {one['premature']} too early; "
+            f"{_count(one['false_positive_grasps'], one['held_runs'])} held camera-grasps alarm",
+            "`reports/grasp-motionnet-1sensor-k5`",
+        ],
+        [
+            "the same, non-learned baseline",
+            "`motion-energy`",
+            f"{_count(base['warned'], base['slip_runs'])} in time, {base['premature']} too early; "
+            f"{_count(base['false_positive_grasps'], base['held_runs'])} held grasps alarm",
+            "`reports/grasp-motion-energy`",
+        ],
+        [
+            "another lab's GelSight (`gelsight-lift`), unseen objects",
+            "`shear-retention-gelsight-lift` (shipped)",
+            f"right on {_interval(shear['operating_point']['accuracy'])} of grasps, ROC AUC "
+            f"{_interval(shear['roc_auc'], percent=False)}; {shear['held_alarming']} of {shear['grasps'] - shear['slipped']} "
+            "held grasps alarm",
+            "`reports/adaptation`",
+        ],
+        [
+            "simulated binocular marker sensor, held-out sequences",
+            "`stnet` (compact)",
+            f"precision {_pct(float(sim['stnet']['precision']))}, recall {_pct(float(sim['stnet']['recall']))}, "
+            f"F1 {_pct(float(sim['stnet']['f1']))}",
+            "`reports/stnet-sim-24seq`",
+        ],
     ]
-    return _table(["sensor and test", "detector", "result (95% intervals)", "report"], rows,
-                  ["---", "---", "---", "---"])
+    return _table(
+        ["sensor and test", "detector", "result (95% intervals)", "report"], rows, ["---", "---", "---", "---"]
+    )
 
 
 FIGURES: dict[str, Figure] = {
-    "readme": Figure(("reports/grasp-motionnet-k5", "reports/grasp-motionnet-1sensor-k5",
-                      "reports/grasp-motion-energy", "reports/adaptation", "reports/stnet-sim-24seq"), readme),
+    "readme": Figure(
+        (
+            "reports/grasp-motionnet-k5",
+            "reports/grasp-motionnet-1sensor-k5",
+            "reports/grasp-motion-energy",
+            "reports/adaptation",
+            "reports/stnet-sim-24seq",
+        ),
+        readme,
+    ),
     "per-grasp": Figure(tuple(r for _, r in _GRASP_ROWS), per_grasp),
     "seed-spread": Figure(tuple(r for _, r in _SEED_ROWS), seed_spread),
     "precursors": Figure(("reports/precursors",), precursors),

@@ -20,6 +20,7 @@ from typer.testing import CliRunner
 
 from conftest import TINY_TRAIN_ARGS
 from slipsense.cli import app
+from studies.__main__ import app as studies_app
 
 runner = CliRunner()
 
@@ -313,15 +314,15 @@ def test_evaluate_json_and_train_out_that_cannot_be_written(tmp_path, run_dir, u
 def test_simulate_out_that_cannot_be_written(tmp_path, unwritable):
     (tmp_path / "sim.npz").mkdir()
     result = runner.invoke(
-        app, ["markers", "simulate", "--out", str(tmp_path / "sim.npz"), "--sequences", "1", "--no-progress"]
+        studies_app, ["stnet", "simulate", "--out", str(tmp_path / "sim.npz"), "--sequences", "1", "--no-progress"]
     )
     _one_error(result, "sim.npz", "folder")
     result = runner.invoke(
-        app, ["markers", "simulate", "--out", str(unwritable / "sim.npz"), "--sequences", "1", "--no-progress"]
+        studies_app, ["stnet", "simulate", "--out", str(unwritable / "sim.npz"), "--sequences", "1", "--no-progress"]
     )
     _one_error(result, "sim.npz", "cannot be written")
     result = runner.invoke(
-        app, ["markers", "simulate", "--out", str(tmp_path / "sim.txt"), "--sequences", "1", "--no-progress"]
+        studies_app, ["stnet", "simulate", "--out", str(tmp_path / "sim.txt"), "--sequences", "1", "--no-progress"]
     )
     _one_error(result, "sim.txt", ".npz")
 
@@ -468,7 +469,7 @@ def test_marker_values_out_of_range_are_refused(tmp_path):
 
 
 def test_marker_npz_reads_only_the_keys_it_uses(tmp_path):
-    from slipsense.sensors.simulator import load_marker_npz
+    from slipsense.sensors.marker_npz import load_marker_npz
 
     # an unused object array (it would need unpickling) and an unused big one are never read
     path = _markers_npz(tmp_path / "extra.npz", notes=np.array([{"a": 1}], dtype=object))
@@ -483,9 +484,9 @@ def test_bad_seeds(tmp_path, cmd, seed):
     _markers_npz(tmp_path / "m.npz")
     args = {
         "train": ["train", *TINY_TRAIN_ARGS, "--markers", str(tmp_path / "m.npz"), "--out", str(tmp_path / "r")],
-        "simulate": ["markers", "simulate", "--out", str(tmp_path / "s.npz"), "--no-progress"],
+        "simulate": ["stnet", "simulate", "--out", str(tmp_path / "s.npz"), "--no-progress"],
     }[cmd]
-    result = runner.invoke(app, [*args, "--seed", seed])
+    result = runner.invoke(studies_app if cmd == "simulate" else app, [*args, "--seed", seed])
     _one_error(result, "--seed")
     assert not (tmp_path / "r").exists() and not (tmp_path / "s.npz").exists()
 

@@ -16,8 +16,8 @@ def lattice(rows=5, cols=6, pitch=1.0):
 
 
 def test_the_grid_of_the_simulated_sensor_is_found_and_scattered_markers_have_none():
-    from slipsense.sensors.sim_model import rest_grid
-    from slipsense.sensors.simulator import SimConfig
+    from studies.stnet.sim_model import rest_grid
+    from studies.stnet.simulator import SimConfig
 
     rest = rest_grid(SimConfig())
     assert grid_layout(rest) == (23, 24)

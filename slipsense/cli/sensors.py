@@ -1,5 +1,5 @@
-"""``slipsense markers``: the marker path of the binocular sensor (STNet's input): simulate the sensor,
-or track the gel markers of real recordings into labelled marker sequences."""
+"""``slipsense markers``: track the gel markers of real recordings into labelled marker sequences,
+the input of the marker models (STNet, TemNet)."""
 
 from __future__ import annotations
 
@@ -12,48 +12,9 @@ import typer
 def register(app: typer.Typer) -> None:
     from slipsense.cli.common import friendly
 
-    group = typer.Typer(
-        add_completion=False,
-        no_args_is_help=True,
-        pretty_exceptions_enable=False,
-        help="Marker sequences (STNet's input): simulate the binocular sensor, or track real recordings' markers.",
-    )
-    app.add_typer(group, name="markers")
-
-    @group.command()
+    @app.command()
     @friendly
-    def simulate(
-        out: Path = typer.Option(..., help="output .npz (x (N,12,552,3) mm, y, groups = sequence id)"),
-        sequences: int = typer.Option(
-            24,
-            help="sequences per (object, motion pattern); 24 (about 16,800 windows, 1.3 GB) is what the compact STNet needs (docs/simulator.md)",
-        ),
-        seed: int = typer.Option(0, help="seed of everything random"),
-        figures: Optional[Path] = typer.Option(None, help="also draw each motion pattern's displacement field here"),
-        progress: bool = typer.Option(True, help="progress bars on long work (--no-progress: none)"),
-    ):
-        """Simulate the binocular marker sensor: 6 objects x 4 motion patterns, 12-frame windows."""
-        from slipsense.atomic import check_output_dir, check_output_file
-        from slipsense.cli.common import check_seed
-        from slipsense.errors import InputError
-        from slipsense.sensors.simulator import SimConfig, make_dataset, plot_patterns, save_dataset
-
-        check_seed(seed)
-        if out.suffix != ".npz":
-            raise InputError(out, "marker datasets are saved as .npz; give a path ending in .npz")
-        check_output_file(out, "--out")
-        check_output_dir(figures, "--figures")
-        cfg = SimConfig(seed=seed, n_sequences=sequences)
-        ds = make_dataset(cfg, progress=progress)
-        save_dataset(ds, out)
-        typer.echo(f"{len(ds)} windows ({int(ds.y.sum())} slip) from {len(set(ds.groups.tolist()))} sequences -> {out}")
-        if figures is not None:
-            for p in plot_patterns(cfg, figures):
-                typer.echo(f"figure {p}")
-
-    @group.command("track")
-    @friendly
-    def track(
+    def markers(
         out: Path = typer.Option(..., help="output .npz (x (N,T,M,3), y, groups = object)"),
         recordings: Optional[Path] = typer.Option(None, help="recordings folder (default: the shared recordings)"),
         frames: int = typer.Option(12, help="frames per marker sequence"),

@@ -14,7 +14,10 @@ import numpy as np
 
 from slipsense.atomic import write_with
 from slipsense.errors import InputError
-from slipsense.sensors.sim_model import OBJECTS, PATTERNS
+
+#: The binocular sensor's objects and motion patterns (the STNet study's; a file may name others).
+OBJECTS: tuple[str, ...] = ("cherry_tomato", "earphone", "screw", "tape", "pen", "bottle")
+PATTERNS: tuple[str, ...] = ("stationary", "pressing", "rolling", "slipping")
 
 
 @dataclass

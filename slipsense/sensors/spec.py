@@ -100,7 +100,7 @@ GELSIGHT_MINI = SensorSpec(
 )
 
 #: The STNet study's binocular visuo-tactile sensor: 24 x 23 markers reconstructed in 3D, 20 Hz
-#: (no recordings are public; :mod:`slipsense.sensors.simulator` simulates it).
+#: (no recordings are public; the STNet study's simulator, ``studies/stnet``, stands in).
 BINOCULAR_MARKERS = SensorSpec(name="binocular-markers", output="markers", fps=20.0, markers=24 * 23)
 
 #: The GelSight of Li, Dong and Adelson (ICRA 2018; the shared ``gelsight-lift`` data): 640 x 480,

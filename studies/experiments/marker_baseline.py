@@ -195,8 +195,8 @@ def run_marker_baseline(settings, sim_sequences: int | None = None, sim_override
     all held-out windows and one per motion pattern, for each."""
     from studies.experiments.report import Report
     from studies.experiments.stnet import simulated_dataset
-    from slipsense.sensors.sim_model import rest_grid
-    from slipsense.sensors.simulator import PATTERNS, SimConfig
+    from studies.stnet.sim_model import rest_grid
+    from studies.stnet.simulator import PATTERNS, SimConfig
 
     rep = Report("marker-baseline", settings)
     ds, tr, te, sim_info = simulated_dataset(settings, sim_sequences, sim_overrides)

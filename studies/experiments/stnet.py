@@ -27,7 +27,7 @@ def simulated_dataset(
     """The simulated :class:`~slipsense.sensors.marker_npz.MarkerDataset` and a split by sequence:
     ``test_fraction`` of the sequences of each motion pattern are held out (all windows of a sequence
     on one side; every pattern on both). Returns ``(dataset, train indices, test indices, info)``."""
-    from slipsense.sensors.simulator import SimConfig, make_dataset
+    from studies.stnet.simulator import SimConfig, make_dataset
 
     n = sequences if sequences is not None else (QUICK_SIM_SEQUENCES if settings.quick else SIM_SEQUENCES)
     cfg = SimConfig(seed=settings.data_seed, n_sequences=n, **(overrides or {}))
@@ -104,8 +104,8 @@ def run_stnet(
     from slipsense.datasets import MarkerDataset
     from slipsense.models import stnet as stnet_mod
     from slipsense.sensors.markers import layout_name, marker_layout
-    from slipsense.sensors.sim_model import rest_grid
-    from slipsense.sensors.simulator import SimConfig
+    from studies.stnet.sim_model import rest_grid
+    from studies.stnet.simulator import SimConfig
 
     if preset not in stnet_mod.PRESETS:
         raise ConfigError(f"unknown preset {preset!r}; known: {sorted(stnet_mod.PRESETS)}")

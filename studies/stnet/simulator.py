@@ -12,7 +12,7 @@ Positions are in the *gel frame*, in mm: origin on the rest contact surface at t
 ``x`` along the 22 mm side, ``y`` along the 21 mm side, ``z`` along the surface normal pointing
 away from the cameras, towards the object. At rest every marker has ``z = 0``; **pressing moves
 markers towards the cameras, so indentation is negative z.** (The camera frame of
-:mod:`slipsense.sensors.stereo` has the same axes, shifted by ``h_v``.) Markers are ordered row
+:mod:`studies.stnet.stereo` has the same axes, shifted by ``h_v``.) Markers are ordered row
 by row: index ``iy * markers_x + ix``, ``x`` fastest.
 
 Labels: the paper labels by motion pattern, so with ``label_rule="pattern"`` every window of a
@@ -23,8 +23,8 @@ reaches the gross-slip frame.
 
 Modules
 -------
-:mod:`slipsense.sensors.sim_model` holds :class:`SimConfig`, the marker grid, the elastomer's
-response kernels and the objects; :mod:`slipsense.sensors.sim_sequence` moves the objects and
+:mod:`studies.stnet.sim_model` holds :class:`SimConfig`, the marker grid, the elastomer's
+response kernels and the objects; :mod:`studies.stnet.sim_sequence` moves the objects and
 computes each frame (:func:`simulate_sequence`; its docstring describes the deformation model);
 :mod:`slipsense.sensors.marker_npz` holds :class:`MarkerDataset` and the ``.npz`` format. This
 module re-exports their public names and holds :func:`make_dataset`, which cuts and labels the
@@ -41,8 +41,8 @@ import numpy as np
 from slipsense.atomic import write_with
 from slipsense.progress import progress_bar
 from slipsense.sensors.marker_npz import MarkerDataset, load_marker_npy, load_marker_npz, save_dataset
-from slipsense.sensors.sim_model import OBJECTS, PATTERNS, SLIP_PATTERN, SimConfig, displacement_field, rest_grid
-from slipsense.sensors.sim_sequence import simulate_sequence
+from studies.stnet.sim_model import OBJECTS, PATTERNS, SLIP_PATTERN, SimConfig, displacement_field, rest_grid
+from studies.stnet.sim_sequence import simulate_sequence
 
 __all__ = [
     "FIGURE_OBJECTS",
@@ -236,7 +236,7 @@ def plot_patterns(cfg: SimConfig, out_dir: str | Path, frames: int = 4, arrow_sc
 
 
 def main(argv: list[str] | None = None) -> None:
-    """``python -m slipsense.sensors.simulator --figures docs/img [--seed N]`` regenerates the figures."""
+    """``python -m studies.stnet.simulator --figures docs/img [--seed N]`` regenerates the figures."""
     import argparse
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])

@@ -28,7 +28,7 @@ Deformation model (per frame, on the rest marker positions ``X``; details in doc
 * Vibration noise: AR(1) in time (``noise_corr``) of a spatially smooth field (low-order cosine
   modes) plus per-marker jitter, standard deviation ``noise_mm`` per axis; multiplied by
   ``motion_noise_gain`` when something moves. With ``pixel_noise_px > 0`` every frame is then
-  projected into both cameras with the refraction model (:mod:`slipsense.sensors.stereo`), pixel
+  projected into both cameras with the refraction model (:mod:`studies.stnet.stereo`), pixel
   noise is added and the markers are reconstructed again: the depth-dominated error of a real
   binocular sensor.
 """
@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 
 from slipsense.errors import ConfigError
-from slipsense.sensors.sim_model import (
+from studies.stnet.sim_model import (
     OBJECTS,
     PATTERNS,
     SimConfig,
@@ -54,7 +54,7 @@ from slipsense.sensors.sim_model import (
     _u,
     rest_grid,
 )
-from slipsense.sensors.stereo import camera_to_gel, gel_to_camera, project, reconstruct
+from studies.stnet.stereo import camera_to_gel, gel_to_camera, project, reconstruct
 
 
 def _unit_angle(theta: float) -> np.ndarray:

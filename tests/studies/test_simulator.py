@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from slipsense.errors import ConfigError, InputError
-from slipsense.sensors.simulator import (
+from studies.stnet.simulator import (
     OBJECTS,
     PATTERNS,
     SimConfig,

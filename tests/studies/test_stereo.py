@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from slipsense.errors import ConfigError, InputError
-from slipsense.sensors.stereo import (
+from studies.stnet.stereo import (
     SensorGeometry,
     camera_to_gel,
     gel_to_camera,

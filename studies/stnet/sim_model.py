@@ -2,7 +2,7 @@
 
 :class:`SimConfig`, the rest marker grid (:func:`rest_grid`), the elastomer's response kernels
 and the objects' shapes and penetration into the gel. The model is described in
-:mod:`slipsense.sensors.sim_sequence`, which moves the objects and computes the marker
+:mod:`studies.stnet.sim_sequence`, which moves the objects and computes the marker
 displacements, and in docs/simulator.md.
 """
 
@@ -18,10 +18,9 @@ from typing import Any
 import numpy as np
 
 from slipsense.errors import ConfigError, InputError
-from slipsense.sensors.stereo import SensorGeometry
+from slipsense.sensors.marker_npz import OBJECTS, PATTERNS
+from studies.stnet.stereo import SensorGeometry
 
-OBJECTS: tuple[str, ...] = ("cherry_tomato", "earphone", "screw", "tape", "pen", "bottle")
-PATTERNS: tuple[str, ...] = ("stationary", "pressing", "rolling", "slipping")
 SLIP_PATTERN = "slipping"
 _SUPERSAMPLE = 4  # sub-samples per marker cell side for the cell-averaged penetration
 
