@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import typer
 
+from slipsense.cli import common
+
 from studies.experiments.commands import register as register_experiments
 from studies.grasp.commands import group as grasp_group
 from studies.stnet.commands import group as stnet_group
@@ -24,6 +26,7 @@ app.add_typer(stnet_group, name="stnet")
 
 
 def main() -> None:
+    common.PROG = "python -m studies"  # reports name the command that made them
     app()
 
 

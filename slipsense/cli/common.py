@@ -55,6 +55,10 @@ def check_nonnegative(value: float, option: str) -> float:
     return value
 
 
+#: How the running program is called in :func:`command_line` (``python -m studies`` sets its own).
+PROG = "slipsense"
+
+
 def command_line() -> str:
     """The command as it was typed (stored beside what it wrote, so a report names how it was made)."""
-    return "slipsense " + " ".join(shlex.quote(a) for a in sys.argv[1:])
+    return " ".join([PROG, *(shlex.quote(a) for a in sys.argv[1:])])

@@ -1,6 +1,6 @@
 """Leave-objects-out, judged per grasp: the headline measure of a slip detector.
 
-``slipsense grasp folds`` splits the objects into folds, and for each fold trains a detector on the
+``slipsense train --cross-validate`` splits the objects into folds, and for each fold trains a detector on the
 other folds' objects, chooses its operating point on those training objects only (inner folds),
 and replays every run of the fold's objects from the first frame. The per-grasp outcomes and the
 paper's clip decisions are pooled over the folds (each fold at its own operating point), with the
@@ -68,7 +68,7 @@ def run_folds(
     if any(r.whole and not r.extra for r in usable):
         raise ConfigError(
             "these grasps are labelled as a whole (no moment of slip): their leave-objects-out figures are "
-            "`slipsense grasp adaptation --recordings DIR` (slipped against held, intervals over objects)"
+            "`python -m studies grasp adaptation --recordings DIR` (slipped against held, intervals over objects)"
         )
     split = object_split(usable, folds, cfg.folds_seed)
     key = _config_key(cfg, folds, usable)
@@ -223,7 +223,7 @@ def summary_markdown(report: dict[str, Any]) -> str:
     lines = [
         f"# {cfg['model']}: leave-objects-out, {report['folds']} folds, judged per grasp",
         "",
-        f"Command: `{report.get('command', 'slipsense grasp folds')}`",
+        f"Command: `{report.get('command', 'slipsense train --cross-validate')}`",
         "",
         f"Runs: {d['runs']}: {d['slip_with_moment']} slips with a moment of slip, {d['slip_without_moment']} slips "
         f"without one (left out; for the shared recordings reports/labels says why), {d['held']} that held. Horizon {cfg['horizon']} frames (2 s at 25 frames/s); operating point "

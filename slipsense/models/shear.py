@@ -79,7 +79,7 @@ class ShearRetention(GraspModel):
     """
 
     auto_backend = "torch"
-    #: How it is made for a new sensor (training settings, ``slipsense grasp train --set train.KEY``):
+    #: How it is made for a new sensor (training settings, ``slipsense train --set train.KEY``):
     #: no gradient training; ``gate`` and ``letgo`` are chosen among these on the user's grasps, then
     #: the threshold. Learning the four numbers by gradient on the 36 grasps of four objects ranked
     #: the held-out objects' grasps worse (ROC AUC 0.954, docs/new-sensor.md).

@@ -225,7 +225,7 @@ class STNet(MarkerModel):
     quick_epochs = 30
     paper_training = dict(epochs=100, batch_size=64, lr=1e-5, weight_decay=0.0, step_size=1000, gamma=1.0)
     #: the compact network learns at ten times the paper's rate, and in few epochs over the moved
-    #: copies of its windows (docs/simulator.md)
+    #: copies of its windows (studies/docs/simulator.md)
     preset_training = {"compact": dict(epochs=5, batch_size=32, lr=1e-4)}
     presets = PRESETS
 
@@ -396,7 +396,7 @@ class STNet(MarkerModel):
     def prepare(self, train_data) -> None:
         """With ``centred``: the reference is the gel at rest estimated from the training windows'
         first frames (up to 2048 of them; :func:`~slipsense.sensors.marker_grid.rest_estimate`). The standing shear of a steadily
-        sliding contact then shows as an offset from it (docs/simulator.md: the within-window motion
+        sliding contact then shows as an offset from it (studies/docs/simulator.md: the within-window motion
         alone stops when sliding is steady)."""
         from slipsense.sensors.marker_grid import rest_estimate
 

@@ -1,5 +1,5 @@
 """Training: every registered model through one entry, :func:`slipsense.training.recipe.fit` (what
-``slipsense train``, ``slipsense grasp train`` and :func:`slipsense.fit` call with a configuration tree).
+``slipsense train`` and :func:`slipsense.fit` call with a configuration tree).
 
 One loop, :mod:`slipsense.training.trainer` (torchrun DDP, seeds, resume after a kill, best/last
 checkpoints, metrics and curves, progress), trains every model; a model declares its task

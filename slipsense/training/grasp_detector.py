@@ -2,9 +2,9 @@
 that choose its operating point), run side by side (:mod:`slipsense.parallel`), and written
 as one checkpoint with its operating point, metrics and curves.
 
-:func:`train_detector` is what ``slipsense train --model motionnet`` and ``slipsense grasp train``
+:func:`train_detector` is what ``slipsense train``
 run; :func:`plan_training` / :func:`fit_job` / :func:`finish_training` are its parts, which
-``slipsense grasp folds`` runs for every fold in one pool (:mod:`slipsense.evaluation.folds`).
+``slipsense train --cross-validate`` runs for every fold in one pool (:mod:`slipsense.evaluation.folds`).
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """One way in to training, whatever the model: :func:`fit` takes a configuration tree (``model``,
 ``data`` and ``train`` sections, as ``configs/*.yaml`` and ``--set`` write it) and an output folder.
 
-``slipsense train``, ``slipsense grasp train`` and :func:`slipsense.fit` all build a tree and call
+``slipsense train`` and :func:`slipsense.fit` all build a tree and call
 :func:`fit`, so what it applies (the sensor spec, the one-sensor split of a one-finger detector, the
 held-out objects, resume) applies the same way from each. The model's ``training_task`` names the
 trainer in :data:`TRAINERS`: a plug-in table, so nothing here asks which kind of model it is.
@@ -196,7 +196,7 @@ def grasp_split(tree) -> tuple[list[str], int | None, int]:
     if clip_only:
         raise ConfigError(
             f"{tree['model']['name']} trains on whole grasps: {', '.join(clip_only)} only apply to clip models "
-            f"(grasp settings: slipsense grasp train --help)"
+            f"(grasp settings: slipsense train --help)"
         )
     tree["model"].pop("preset", None)
     for key in CLIP_DATA_KEYS:

@@ -16,6 +16,6 @@ Modules: :mod:`~studies.experiments.settings` (:class:`Settings`: full, quick an
 :mod:`~studies.experiments.report` (:class:`Report`, machine information),
 :mod:`~studies.experiments.training` (train, score, time); one module per experiment
 (``params``, ``video_compare``, ``frames``, ``noise``, ``stnet``, ``horizon``, ``all_models``); and
-:mod:`~studies.experiments.results` (docs/results.md). The commands are in
+:mod:`~studies.experiments.results` (studies/docs/results.md). The commands are in
 :mod:`studies.experiments.commands`.
 """

@@ -1,4 +1,4 @@
-"""``slipsense experiment <name>``: the experiments of :mod:`studies.experiments` (registered by slipsense.cli).
+"""``python -m studies experiment <name>``: the experiments of :mod:`studies.experiments` (registered by studies/__main__.py).
 
 Each command writes ``<name>.csv``, ``<name>.png``, ``<name>.md`` and ``config.json`` into ``--out``
 (default ``reports/<name>``); ``--quick`` is the documented smaller setting (120x160 clips, patch
@@ -17,7 +17,7 @@ from slipsense.errors import ConfigError
 
 HELP = (
     "Run the papers' experiments (and two beyond them) into report folders; "
-    "`results` gathers them into docs/results.md."
+    "`results` gathers them into studies/docs/results.md."
 )
 P = inspect.Parameter
 _DEFINITIONS: list = []  # (name, train, fn), turned into commands by register()
@@ -153,7 +153,7 @@ def _source(kw: dict):
 
 
 def _experiment(name: str, train: bool = True):
-    """Mark ``fn(settings, kw, **own_options)`` as ``slipsense experiment <name>`` (with the common options)."""
+    """Mark ``fn(settings, kw, **own_options)`` as ``python -m studies experiment <name>`` (with the common options)."""
 
     def deco(fn):
         _DEFINITIONS.append((name, train, fn))
@@ -317,7 +317,7 @@ def all_models_cmd(
 
 def _results_cmd(
     reports: Path = typer.Option(Path("reports"), help="folder holding the report folders"),
-    out: Path = typer.Option(Path("docs/results.md"), help="Markdown file to write"),
+    out: Path = typer.Option(Path("studies/docs/results.md"), help="Markdown file to write"),
 ):
     """Gather every report folder under --reports into one Markdown page, one section per experiment."""
     from slipsense.atomic import check_output_file
@@ -329,28 +329,12 @@ def _results_cmd(
     typer.echo(f"{sum(map(len, found.values()))} report(s) of {len(found)} experiment(s) -> {path}")
 
 
-def _tables_cmd(
-    root: Path = typer.Option(Path("."), help="project folder (holding README.md and docs/)"),
-    check: bool = typer.Option(False, help="change nothing; exit 1 when a page is out of date"),
-):
-    """Copy each report's table into README.md and docs/ where a page marks it
-    (`<!-- from reports/... -->` ... `<!-- end -->`), so the pages cannot disagree with the reports."""
-    from studies.experiments.tables import sync
-
-    changed = sync(root, check)
-    for page in changed:
-        typer.echo(f"{page}: {'out of date' if check else 'updated'}")
-    if check and changed:
-        raise typer.Exit(1)
-
-
 def register(app: typer.Typer) -> None:
-    """Add ``slipsense experiment <name>`` for every experiment, ``results`` and ``tables``."""
+    """Add ``python -m studies experiment <name>`` for every experiment and ``results``."""
     from slipsense.cli.common import friendly
 
     group = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False, help=HELP)
     for name, train, fn in _DEFINITIONS:
         group.command(name, help=fn.__doc__)(_command(name, train, fn))
     group.command("results")(friendly(_results_cmd))
-    group.command("tables")(friendly(_tables_cmd))
     app.add_typer(group, name="experiment")

@@ -24,7 +24,7 @@ Every row is judged on the held-out objects' grasps: ROC AUC of the per-grasp pe
 the folds' detectors), accuracy and balanced accuracy at each fold's own threshold, accuracy with each
 object's threshold chosen on the other objects' held-out scores, and the held grasps that alarm; rows
 trained on a few grasps pool three draws of them; 95% intervals from a bootstrap over objects
-(:mod:`slipsense.evaluation.outcome`). ``slipsense grasp adaptation`` writes ``adaptation.json``,
+(:mod:`slipsense.evaluation.outcome`). ``python -m studies grasp adaptation`` writes ``adaptation.json``,
 ``adaptation.md`` and ``adaptation.png``.
 """
 

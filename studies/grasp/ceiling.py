@@ -1,5 +1,5 @@
 """The most slips a folds report's detectors could warn of at a given number of false-positive grasps,
-with the operating point tuned on the held-out runs themselves (``slipsense grasp ceiling REPORT``).
+with the operating point tuned on the held-out runs themselves (``python -m studies grasp ceiling REPORT``).
 
 Tuning on the test objects is what no user can do, so these are bounds on what any choice of the
 operating point could give these traces, not results:

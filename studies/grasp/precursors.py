@@ -1,4 +1,4 @@
-"""Which slips leave a trace before contact is lost: the precursor report (``slipsense grasp precursors``).
+"""Which slips leave a trace before contact is lost: the precursor report (``python -m studies grasp precursors``).
 
 A detector can only warn of a slip that shows in the frames before it. For every slip run with a
 moment of slip ``m`` this measures simple signals of the gels (no model) in the ``window`` frames up

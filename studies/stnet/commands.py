@@ -29,7 +29,7 @@ def simulate(
     out: Path = typer.Option(..., help="output .npz (x (N,12,552,3) mm, y, groups = sequence id)"),
     sequences: int = typer.Option(
         24,
-        help="sequences per (object, motion pattern); 24 (about 16,800 windows, 1.3 GB) is what the compact STNet needs (docs/simulator.md)",
+        help="sequences per (object, motion pattern); 24 (about 16,800 windows, 1.3 GB) is what the compact STNet needs (studies/docs/simulator.md)",
     ),
     seed: int = typer.Option(0, help="seed of everything random"),
     figures: Optional[Path] = typer.Option(None, help="also draw each motion pattern's displacement field here"),

@@ -3,7 +3,7 @@
 :class:`SimConfig`, the rest marker grid (:func:`rest_grid`), the elastomer's response kernels
 and the objects' shapes and penetration into the gel. The model is described in
 :mod:`studies.stnet.sim_sequence`, which moves the objects and computes the marker
-displacements, and in docs/simulator.md.
+displacements, and in studies/docs/simulator.md.
 """
 
 # SimConfig.validate recognises range fields by their annotation string "Range", so annotations

@@ -1,7 +1,7 @@
 """One simulated marker sequence: object motion per pattern, the gel's response, noise
 (:func:`simulate_sequence`).
 
-Deformation model (per frame, on the rest marker positions ``X``; details in docs/simulator.md)
+Deformation model (per frame, on the rest marker positions ``X``; details in studies/docs/simulator.md)
 --------------------------------------------------------------------------------------------
 * The object is a height profile ``h(local xy) >= 0`` (0 at its lowest point) pressed ``delta``
   into the gel at contact centre ``c``: the penetration is ``p = max(0, delta - h(X - c))``,

@@ -3,7 +3,7 @@
 Reproduces the setting of the STNet paper (section III.A): a 22 x 21 mm elastomer with 23 x 24
 markers (552 markers, 1656 values per frame) filmed at 20 Hz while one of six objects (cherry
 tomato, earphone, screw, tape, pen, bottle) is stationary, pressed, rolled or slipped on it.
-Samples are windows of 12 consecutive frames, stride 1. See ``docs/simulator.md`` for the model
+Samples are windows of 12 consecutive frames, stride 1. See ``studies/docs/simulator.md`` for the model
 and pictures.
 
 Frames and units
