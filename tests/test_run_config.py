@@ -198,3 +198,25 @@ def test_set_null_clears_and_yaml_spellings_are_typed(monkeypatch, tmp_path):
     assert TrainConfig.from_dict({"lr": "3e-4"}).lr == 3e-4  # YAML reads 3e-4 as a string
     with pytest.raises(ConfigError, match="epochs must be a whole number"):
         TrainConfig.from_dict({"epochs": "10"})
+
+
+def test_fit_leaves_the_tree_it_is_given_as_it_was(tmp_path):
+    import copy
+
+    from slipsense.errors import SlipsenseError
+    from slipsense.training.recipe import cross_validate, fit
+
+    tree = {
+        "model": {"name": "motionnet", "width": 4},
+        "data": {"recordings": str(tmp_path / "none"), "test_objects": "mug", "size": [12, 16]},
+        "train": {"epochs": 1, "inner_folds": 0},
+    }
+    before = copy.deepcopy(tree)
+    with pytest.raises(SlipsenseError):  # no recordings there: after the trainer has read the settings
+        fit(tree, tmp_path / "out", progress=False)
+    assert tree == before
+    del tree["data"]["test_objects"]
+    before = copy.deepcopy(tree)
+    with pytest.raises(SlipsenseError):
+        cross_validate(tree, tmp_path / "folds", 2, progress=False)
+    assert tree == before

@@ -12,6 +12,7 @@ trainer in :data:`TRAINERS`: a plug-in table, so nothing here asks which kind of
 
 from __future__ import annotations
 
+import copy
 import os
 from pathlib import Path
 from typing import Any, Callable
@@ -50,7 +51,8 @@ def fit(
     torchrun, ``{}`` on the others) what its trainer reports: for a grasp detector ``checkpoint``, ``operating_point``, ``history`` and, with held-out
     objects (``data.test_objects``, or ``data.fold`` of ``data.folds``), ``per_grasp`` and ``clips``;
     for a clip model the held-out part's clip metrics. ``command`` is kept with the checkpoint (how it
-    was made); ``tree`` is consumed (copy it to keep it)."""
+    was made). ``tree`` is left as it was given: the trainers work on a copy."""
+    tree = copy.deepcopy(dict(tree))
     trainer = TRAINERS[_task(tree)]
     return trainer(tree, Path(out), progress=progress, resume=resume, workers=workers, threads=threads, command=command)
 
@@ -70,7 +72,8 @@ def cross_validate(
     :func:`slipsense.evaluation.folds.run_folds` (per grasp, its report); a clip or marker model is
     :func:`fit` once per fold into ``out/fold<k>`` (a fold already judged is kept; a killed one
     resumes) and the held-out clips pooled into ``out/folds.json``
-    (:func:`slipsense.evaluation.clip_folds.pool`). Returns the pooled report."""
+    (:func:`slipsense.evaluation.clip_folds.pool`). Returns the pooled report; ``tree`` is left as given."""
+    tree = copy.deepcopy(dict(tree))
     task = _task(tree)
     if tree["data"].get("fold") is not None or tree["data"].get("test_objects"):
         raise ConfigError("cross-validation holds out every fold in turn: leave --fold and --test-objects out")
@@ -112,7 +115,6 @@ def _grasp_folds(tree, out: Path, folds: int, *, progress, workers, threads, com
 
 
 def _clip_folds(tree, out: Path, folds: int, *, progress, workers, threads, command) -> dict[str, Any]:
-    import copy
     import json
 
     from slipsense.atomic import write_text
