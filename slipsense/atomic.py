@@ -7,11 +7,16 @@ file it had written before intact.
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import os
 import re
 import tempfile
 from pathlib import Path
 from typing import Callable, Iterator
+
+from safetensors import SafetensorError
+
+from slipsense.errors import OutputError
 
 
 def _why(exc: BaseException) -> str:
@@ -29,16 +34,6 @@ def _why(exc: BaseException) -> str:
     return text
 
 
-def _serialiser_errors() -> tuple[type[BaseException], ...]:
-    """Errors that writers raise for a failed write which are not OSErrors: safetensors raises its
-    own SafetensorError when the disk is full."""
-    try:
-        from safetensors import SafetensorError
-    except ImportError:  # pragma: no cover - a dependency; without it nothing writes safetensors
-        return ()
-    return (SafetensorError,)
-
-
 @contextlib.contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; on success it is fsynced and renamed onto ``path``.
@@ -49,8 +44,6 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     :class:`~slipsense.errors.OutputError` naming ``path`` (an OSError too), whether the write
     failed with an OSError or with a writer's own error (safetensors' SafetensorError).
     """
-    from slipsense.errors import OutputError
-
     path = Path(path)
     if path.is_dir():
         raise OutputError(path, "is a folder; expected a file path")
@@ -68,7 +61,7 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
             if exc.filename is None or str(exc.filename) == str(tmp_path):
                 raise OutputError(path, f"cannot be written ({_why(exc)})") from None
             raise
-        except _serialiser_errors() as exc:  # a full disk while safetensors writes the temporary file
+        except SafetensorError as exc:  # a full disk while safetensors writes the temporary file
             raise OutputError(path, f"cannot be written ({_why(exc)})") from None
         try:
             with open(tmp_path, "rb+") as fh:
@@ -108,8 +101,6 @@ def _can_create_in(folder: Path) -> bool:
 def check_output_file(path: str | Path | None, option: str = "output") -> None:
     """Before any work: OutputError unless ``path`` can be written as a file (not a folder, inside
     a folder that exists or can be made, and that takes new files)."""
-    from slipsense.errors import OutputError
-
     if path is None:
         return
     path = Path(path)
@@ -124,8 +115,6 @@ def check_output_file(path: str | Path | None, option: str = "output") -> None:
 
 def check_output_dir(path: str | Path | None, option: str = "output folder") -> None:
     """Before any work: OutputError unless ``path`` is, or can be made, a folder that takes files."""
-    from slipsense.errors import OutputError
-
     if path is None:
         return
     path = Path(path)
@@ -140,8 +129,6 @@ def check_output_dir(path: str | Path | None, option: str = "output folder") -> 
 
 def file_sha256(path: str | Path) -> str:
     """The sha256 of a file's bytes (hex), read in 1 MB blocks: what cache sidecars and manifests keep."""
-    import hashlib
-
     h = hashlib.sha256()
     with open(path, "rb") as fh:
         for block in iter(lambda: fh.read(1 << 20), b""):

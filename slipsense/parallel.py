@@ -16,11 +16,17 @@ elsewhere (the data is then sent to each worker once).
 from __future__ import annotations
 
 import contextlib
+import gc
+import multiprocessing
 import os
 import queue as queue_mod
+import sys
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from typing import Any, Callable, Sequence
+
+import cv2
+from tqdm import tqdm
 
 _SHARED: Any = None
 _TICKS: Any = None
@@ -43,9 +49,6 @@ def _context():
     """Forked workers on Linux: they start at once with ``shared`` already in memory (nothing is
     pickled), and a user's script that calls :func:`slipsense.fit` needs no ``if __name__ ==
     "__main__"`` guard (a spawned worker imports the main script again). Elsewhere, spawned."""
-    import multiprocessing
-    import sys
-
     method = "fork" if sys.platform == "linux" and "fork" in multiprocessing.get_all_start_methods() else "spawn"
     return multiprocessing.get_context(method)
 
@@ -61,8 +64,6 @@ def _heap_frozen_for_fork():
     """Collect this process's garbage, then freeze what is left, while workers are forked: a forked
     worker that collected a cycle holding an ONNX Runtime session (a live detector's, garbage by then)
     would wait forever in its destructor for threads that do not exist after a fork."""
-    import gc
-
     gc.collect()
     gc.freeze()  # objects from before the fork: never collected in a worker (nor copied on write)
     try:
@@ -76,8 +77,6 @@ def _opencv_without_pool():
     """OpenCV on one thread here while workers are forked: a forked child that finds OpenCV's
     thread pool (whose threads stay behind in the parent) hangs in it; with no pool there is
     nothing to find. The parent's setting is restored afterwards."""
-    import cv2
-
     before = cv2.getNumThreads()
     cv2.setNumThreads(1)
     try:
@@ -87,8 +86,6 @@ def _opencv_without_pool():
 
 
 def _in_worker(fn: Callable, index: int, job: Any) -> Any:
-    import sys
-
     if "torch" in sys.modules:  # imported with fn's module: one thread, whatever it read at import
         sys.modules["torch"].set_num_threads(1)
     return fn(_SHARED, job, lambda n: _TICKS.put((index, n)))
@@ -104,8 +101,6 @@ class _Progress:
         self.t0 = time.perf_counter()
         self.bar = None
         if show:
-            from tqdm import tqdm
-
             self.bar = tqdm(total=sum(self.weights), desc=desc, unit="u")
 
     def tick(self, job: int, units: float) -> None:

@@ -11,7 +11,7 @@ from slipsense.atomic import write_with
 
 
 def _plt():
-    import matplotlib
+    import matplotlib  # here, not at the top: ~0.5 s to import, and only the plots need it
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
