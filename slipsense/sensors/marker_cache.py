@@ -11,13 +11,17 @@ from __future__ import annotations
 import hashlib
 import json
 import re
+import warnings
+import zipfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..atomic import file_sha256
+from ..atomic import file_sha256, write_text, write_with
+from ..errors import CacheWarning
 from ..recordings.frames import source_stat
+from ..recordings.video import TRUNCATION_TOLERANCE, frame_count
 from .marker_tracking import MarkerTrack
 
 #: Bump when detection, tracking or the cache layout changes, so stale cache files are ignored.
@@ -50,11 +54,6 @@ def _identity(path: Path, params: dict[str, Any]) -> str:
 
 def _save_cached_track(cfile: Path, path: Path, params: dict[str, Any], track: "MarkerTrack") -> None:
     """Write the track and, last, a sidecar with its sha256 and inputs (a write failure only warns)."""
-    import warnings
-
-    from ..atomic import write_text, write_with
-    from ..errors import CacheWarning
-
     arrays = track.to_arrays()
     digest: list[str] = []
 
@@ -103,12 +102,6 @@ def _load_cached_track(
 ) -> "MarkerTrack | None":
     """A cached track that passes its checksum, records these inputs and is consistent; None when
     absent, otherwise warned about (:class:`~slipsense.errors.CacheWarning`) and None."""
-    import warnings
-    import zipfile
-
-    from ..errors import CacheWarning
-    from ..recordings.video import TRUNCATION_TOLERANCE, frame_count
-
     sidecar = cfile.with_suffix(".json")
     if not cfile.is_file() and not sidecar.is_file():
         return None

@@ -53,12 +53,15 @@ from pathlib import Path
 from typing import Any, Iterable, Sequence
 
 import numpy as np
+from tqdm.auto import tqdm
 
-from ..errors import InputError
+from ..config import cache_root
+from ..errors import ConfigError, InputError
+from ..recordings.video import read_video
 from .marker_cache import _cache_file, _load_cached_track, _save_cached_track
 from .marker_detection import detect_markers, order_markers
-from .spec import GELSIGHT_MINI
 from .marker_tracking import DEFAULT_MM_PER_PX, MarkerTrack, track_markers
+from .spec import GELSIGHT_MINI
 
 __all__ = [
     "DEFAULT_MM_PER_PX",
@@ -134,8 +137,6 @@ def marker_layout(layout: str | int) -> tuple[int, tuple[int, int] | None]:
     """A layout of markers for models: ``"ROWSxCOLS"`` (every tracked marker resampled onto that grid,
     :func:`grid_sequences`) or a count ``N`` (the N markers nearest the image centre,
     :func:`marker_sequences`) -> ``(markers per frame, grid or None)``. ConfigError otherwise."""
-    from ..errors import ConfigError
-
     text = str(layout).strip().lower()
     try:
         if "x" in text:
@@ -224,8 +225,6 @@ def track_recording(
     ``track_kwargs`` go to :func:`track_markers`. Raises InputError naming ``path`` for unreadable
     videos and for reference frames without markers.
     """
-    from ..recordings.video import read_video
-
     frames = read_video(path, expected_size=expected_size, min_frames=2)
     return track_markers(frames, reference_index, source=path, **track_kwargs)
 
@@ -257,10 +256,6 @@ def track_recordings(
     Returns:
         one :class:`MarkerTrack` per recording, in order.
     """
-    from tqdm.auto import tqdm
-
-    from ..config import cache_root
-
     items: Sequence[Any] = list(recordings)
     folder = Path(cache_dir) if cache_dir is not None else cache_root() / "markers"
     params = {"reference_index": reference_index, "expected_size": expected_size, **track_kwargs}
@@ -312,7 +307,7 @@ def plot_displacement(
     Returns:
         the matplotlib axes.
     """
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # here, not at the top: ~0.5 s to import, only this plot needs it
 
     if ax is None:
         _, ax = plt.subplots(figsize=(6.4, 4.8))

@@ -14,7 +14,11 @@ from pathlib import Path
 import numpy as np
 
 from slipsense.atomic import write_with
+from slipsense.data import label_runs
 from slipsense.errors import InputError
+from slipsense.recordings.clips import ClipSpec, plan_windows
+from slipsense.recordings.folders import find_recordings, validate_recordings
+from slipsense.sensors.markers import layout_name, marker_clouds, track_recordings
 
 
 def real_marker_dataset(
@@ -39,11 +43,6 @@ def real_marker_dataset(
     markers nearest the image centre, or ``"ROWSxCOLS"``, every tracked marker resampled onto that
     grid of virtual markers (:func:`slipsense.sensors.markers.grid_sequences`).
     """
-    from slipsense.recordings.clips import ClipSpec, plan_windows
-    from slipsense.recordings.folders import find_recordings, validate_recordings
-    from slipsense.data import label_runs
-    from slipsense.sensors.markers import layout_name, marker_clouds, track_recordings
-
     layout = layout_name(n_markers)
     spec = ClipSpec(frames=frames, horizon=horizon, wiggle_per_video=wiggle_per_video, seed=seed)
     recs = validate_recordings(find_recordings(recordings_dir, on_error=on_error), on_error=on_error)

@@ -13,6 +13,8 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, fields
 from typing import Any, Mapping
 
+from slipsense.errors import ConfigError, InputError
+
 
 @dataclass(frozen=True)
 class SensorSpec:
@@ -123,8 +125,6 @@ def register_sensor(spec: SensorSpec) -> SensorSpec:
 def sensor_named(name: str) -> SensorSpec:
     """The registered sensor ``name``; ConfigError listing the known ones otherwise."""
     if name not in SENSORS:
-        from slipsense.errors import ConfigError
-
         raise ConfigError(f"unknown sensor {name!r}; known: {', '.join(sorted(SENSORS))}")
     return SENSORS[name]
 
@@ -141,8 +141,6 @@ def sensor_of(info: Mapping[str, Any] | None, path: Any = None) -> SensorSpec:
     try:
         return SensorSpec.from_dict(spec)
     except ValueError as exc:
-        from slipsense.errors import InputError
-
         raise InputError(path, f"checkpoint sensor spec is malformed ({exc})") from None
 
 
