@@ -20,14 +20,19 @@ topic of the bag is a sensor, in topic order, converted once into the cache (:fu
 
 from __future__ import annotations
 
+import hashlib
+import math
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator, Sequence
 
+import cv2
 import numpy as np
 
-from slipsense.errors import InputError
+from slipsense.atomic import atomic_path, write_text
+from slipsense.config import cache_root
+from slipsense.errors import ConfigError, InputError
 
 IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED = "sensor_msgs/msg/CompressedImage"
@@ -46,10 +51,6 @@ class UnpairedFramesWarning(UserWarning):
 
 def check_timing(fps: float, tolerance_s: float | None = None) -> None:
     """ConfigError unless ``fps`` is a finite number > 0 and ``tolerance_s`` (if given) finite and >= 0."""
-    import math
-
-    from slipsense.errors import ConfigError
-
     if isinstance(fps, bool) or not isinstance(fps, (int, float)) or not math.isfinite(fps) or fps <= 0:
         raise ConfigError(f"--fps must be a number > 0 (frames per second), got {fps!r}")
     if tolerance_s is not None and (
@@ -88,6 +89,7 @@ class BagFrames:
 
 
 def open_reader(path: Path):
+    # here, not at the top: rosbags takes ~0.3 s to import and only bags need it
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
@@ -115,8 +117,6 @@ def image_topics(path: str | Path) -> dict[str, str]:
 
 def decode_image(msg, msgtype: str, where: str) -> np.ndarray:
     """A ``sensor_msgs`` Image or CompressedImage -> BGR uint8 ``(H, W, 3)``; InputError naming ``where``."""
-    import cv2
-
     if msgtype == COMPRESSED:
         img = cv2.imdecode(np.frombuffer(bytes(msg.data), np.uint8), cv2.IMREAD_COLOR)
         if img is None:
@@ -263,10 +263,6 @@ def write_recording(bag: BagFrames, folder: str | Path, camera_names: Sequence[s
     """Write ``bag`` as one experiment of the recordings layout: ``folder/<camera name>.avi`` per
     topic (FFV1, lossless: decoding gives the bag's frames back exactly) and an empty ``slip.txt``
     when ``slipped``. Files are written beside and renamed into place."""
-    import cv2
-
-    from slipsense.atomic import atomic_path, write_text
-
     check_timing(fps)
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
@@ -297,10 +293,6 @@ def bag_cameras(bag: Path, fps: float) -> list[Path]:
     """The camera videos of a bag used as an experiment folder: every image topic, in topic order,
     paired by time and written once into the cache (``$SLIPSENSE_CACHE/bags``, keyed by the bag's
     files, sizes and times) as ``camera_<k>.avi``."""
-    import hashlib
-
-    from slipsense.config import cache_root
-
     topics = sorted(t for t, kind in image_topics(bag).items() if kind in (IMAGE, COMPRESSED))
     if not topics:
         raise InputError(bag, "bag holds no sensor_msgs Image or CompressedImage topic")

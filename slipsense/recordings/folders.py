@@ -17,6 +17,7 @@ from typing import Iterable, Literal
 
 from ..errors import ConfigError, InputError
 from ..sensors.spec import GELSIGHT_MINI, SensorSpec
+from .bags import bag_cameras
 from .frame_folders import find_frame_recordings, is_frame_layout
 from .types import Recording
 from .video import probe_video
@@ -148,8 +149,6 @@ def _object_recordings(obj_dir: Path, on_error: str, sensor: SensorSpec = GELSIG
             report(exp_dir, "experiment folder is not readable (permission denied)", on_error)
             continue
         if not cameras and (exp_dir / "metadata.yaml").is_file():  # a ROS 2 bag as the experiment
-            from slipsense.recordings.bags import bag_cameras
-
             try:
                 cameras = bag_cameras(exp_dir, sensor.fps)
             except InputError as exc:

@@ -39,7 +39,11 @@ import numpy as np
 
 from .. import atomic, config
 from ..errors import CacheWarning, InputError
+from ..parallel import run_jobs
+from ..sensors.markers import marker_clouds, track_recordings
+from .contact import signal_of_blocks, video_blocks
 from .frames import source_stat
+from .video import gray_frames
 
 #: Bump when what a product holds could change (the block or grey conversion).
 FRAMES_VERSION = "frames-1"
@@ -64,8 +68,6 @@ def _check_product(product: str) -> None:
 
 
 def _marker_clouds(path: Path, product: str) -> np.ndarray:
-    from slipsense.sensors.markers import marker_clouds, track_recordings
-
     track = track_recordings([path], progress=False)[0]  # decodes the video itself when not cached
     return marker_clouds(track, product.split(":", 1)[1])
 
@@ -74,8 +76,6 @@ def _compute(video: np.ndarray, product: str, made: dict) -> np.ndarray:
     """``product`` of a decoded video; ``made`` keeps what one decode's products share (the blocks
     the contact signal is made of: computed once, a third of labelling's resizing)."""
     if product in ("blocks", "contact"):
-        from .contact import signal_of_blocks, video_blocks
-
         if "blocks" not in made:
             made["blocks"] = video_blocks(video)
         blocks = made["blocks"]
@@ -83,7 +83,6 @@ def _compute(video: np.ndarray, product: str, made: dict) -> np.ndarray:
             return blocks
         # one frame has no contact signal (it needs the gel at rest to compare with): none is read
         return signal_of_blocks(blocks).astype(np.float32) if len(blocks) > 1 else np.zeros(len(blocks), np.float32)
-    from .video import gray_frames
 
     h, w = (int(v) for v in _GRAY.match(product).groups())
     return gray_frames(video, (h, w))
@@ -123,7 +122,7 @@ def video_products(path: str | Path, products: Sequence[str], min_frames: int = 
     Raises :class:`~slipsense.errors.InputError` naming ``path`` when it must be decoded and cannot
     be (:func:`slipsense.recordings.video.read_video`), or has fewer than ``min_frames`` frames.
     """
-    from .video import read_video
+    from .video import read_video  # looked up per call: tests/test_frame_cache.py counts decodes through it
 
     path = Path(path)
     if not products:
@@ -179,8 +178,6 @@ def prefetch(
     processes (default one per core; :mod:`slipsense.parallel`), so that what reads them next finds
     them cached. Videos that cannot be decoded are left for that reader to report. Returns how many
     were decoded."""
-    from slipsense.parallel import run_jobs
-
     missing = [Path(p) for p in paths if not _is_cached(Path(p), products)]
     if len(missing) >= 4:  # fewer: starting workers costs more than decoding here
         run_jobs(_prefetch_one, missing, list(products), workers, progress=progress, desc="decoding videos")

@@ -14,9 +14,11 @@ counts frames would read the time wrong). Anything else is an
 
 from __future__ import annotations
 
+import hashlib
 import re
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from ..errors import InputError
@@ -61,7 +63,6 @@ def source_stat(path: str | Path) -> tuple[int, int]:
     st = path.stat()
     if not path.is_dir():
         return int(st.st_size), int(st.st_mtime_ns)
-    import hashlib
 
     files = frame_files(path)
     stats = [p.stat() for p in files]
@@ -93,8 +94,6 @@ def _checked_files(folder: Path, min_frames: int) -> list[Path]:
 
 
 def _read_image(path: Path) -> np.ndarray:
-    import cv2
-
     try:
         frame = cv2.imread(str(path), cv2.IMREAD_COLOR)
     except cv2.error:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import warnings
 from dataclasses import asdict
 from pathlib import Path
 from typing import Sequence
@@ -16,6 +17,7 @@ from ..errors import CacheWarning, InputError
 from .contact import Rule
 from .frames import source_stat
 from .types import Recording, VideoLabel
+from .video import TRUNCATION_TOLERANCE, frame_count
 
 #: Bump whenever the automatic labels (contact.py, labels.py) could change; it keys the label cache.
 ALGORITHM_VERSION = "labels-1"
@@ -71,8 +73,6 @@ def check_run_labels(labels: Sequence[VideoLabel], recs: Sequence[Recording]) ->
     """Raise ValueError unless ``labels`` are possible automatic labels of the run ``recs``:
     one per video, the same frame count for every camera (and the one its container states),
     ``slipped`` as slip.txt says, a moment of slip and contact phase inside the video."""
-    from .video import TRUNCATION_TOLERANCE, frame_count
-
     if sorted(l.key for l in labels) != sorted(r.key for r in recs):
         raise ValueError("labels are not those of the run's videos")
     by_key = {r.key: r for r in recs}
@@ -128,7 +128,5 @@ def _load_cached(path: Path, recs: Sequence[Recording], rule: Rule = "either") -
 
 
 def _unusable(path: Path, why: str) -> None:
-    import warnings
-
     warnings.warn(f"{path}: label cache entry unusable ({why}); relabelling", CacheWarning, stacklevel=3)
     return None

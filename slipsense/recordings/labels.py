@@ -20,6 +20,7 @@ handled by :mod:`slipsense.recordings.label_csv`.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import replace
 from pathlib import Path
 from typing import Iterable, Mapping, Sequence
@@ -27,6 +28,7 @@ from typing import Iterable, Mapping, Sequence
 import numpy as np
 
 from ..errors import CacheWarning, InputError
+from ..parallel import run_jobs
 from .contact import (
     MIN_CONTACT_FRAMES,
     Rule,
@@ -35,6 +37,7 @@ from .contact import (
     contact_phase,
     find_moment_of_slip,
 )
+from .frame_cache import video_products
 from .label_cache import _cache_file, _load_cached, _write_cache
 from .label_csv import (
     Key,
@@ -133,8 +136,6 @@ def label_run(recordings_of_one_experiment: Sequence[Recording], rule: Rule = "e
     Raises:
         InputError: a video cannot be decoded, or the cameras of the run differ in frame count.
     """
-    from .frame_cache import video_products  # imported here so this module imports without the decoder
-
     recs = sorted(recordings_of_one_experiment, key=lambda r: r.camera)
     if not recs:
         raise ValueError("label_run needs at least one recording")
@@ -178,7 +179,6 @@ def _label_runs(runs: list[list[Recording]], rule: Rule, progress: bool, workers
     several runs (decoding and the contact signals are most of a fresh labelling's time)."""
     if len(runs) < 4 or workers == 1:  # fewer runs: starting workers would cost more than it saves
         return [label_run(recs, rule=rule) for recs in runs]
-    from slipsense.parallel import run_jobs
 
     return run_jobs(_label_one, runs, rule, workers, progress=progress, desc="labelling runs")
 
@@ -235,8 +235,6 @@ def label_recordings(
             try:
                 _write_cache(cached_path, recs, rule, run_labels)
             except OSError as exc:
-                import warnings
-
                 warnings.warn(
                     f"{cached_path}: cannot write the label cache ({exc}); continuing without it",
                     CacheWarning,

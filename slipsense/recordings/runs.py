@@ -21,6 +21,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..progress import progress_bar
+from .frame_cache import video_products
 from .types import Recording, VideoLabel, by_run
 
 
@@ -58,8 +59,6 @@ class GraspRun:
 
 
 def _decode_run(recs: Sequence[Recording], size: tuple[int, int]) -> dict[str, np.ndarray]:
-    from .frame_cache import video_products
-
     grays, contacts = [], []
     gray = f"gray:{size[0]}x{size[1]}"
     for r in recs:
