@@ -10,13 +10,24 @@ Two kinds of data, read for the models by their ``clip_reader`` (:mod:`slipsense
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from slipsense.config import gelsight_recordings
 from slipsense.errors import ConfigError, InputError
 from slipsense.progress import progress_bar
+from slipsense.recordings.clips import ClipSpec, load_or_build_clips
+from slipsense.recordings.folders import SkippedInputWarning, check_on_error, find_recordings, validate_recordings
+from slipsense.recordings.frame_cache import prefetch
+from slipsense.recordings.label_csv import Overrides, apply_overrides, read_overrides_csv
+from slipsense.recordings.labels import LABEL_PRODUCTS, label_recordings
+from slipsense.recordings.types import by_run
+from slipsense.resources import shipped_overrides
+from slipsense.sensors.marker_npz import load_marker_npz
+from slipsense.sensors.spec import GELSIGHT_MINI
 
 
 def gelsight_clips(
@@ -32,10 +43,6 @@ def gelsight_clips(
     Returns ``(clipset, labels)``; ``spec`` is a :class:`~slipsense.recordings.clips.ClipSpec`;
     ``sensor`` (default the GelSight Mini) names the folder layout.
     """
-    from slipsense.recordings.clips import load_or_build_clips
-    from slipsense.recordings.folders import find_recordings, validate_recordings
-    from slipsense.sensors.spec import GELSIGHT_MINI
-
     recordings = find_recordings(recordings_dir, on_error=on_error, sensor=sensor or GELSIGHT_MINI)
     # any frame size: clips are resized to the spec's size, as grasps and the live detector resize
     recordings = validate_recordings(recordings, on_error=on_error, expected_size=None)
@@ -54,10 +61,6 @@ def gelsight_clips(
 def shipped_overrides_for(recordings):
     """The shipped hand labels (:func:`slipsense.resources.shipped_overrides`) of those ``recordings``
     that are the shared GelSight recordings (``$SLIPSENSE_DATA/gelsight-slip``), or None."""
-    from slipsense.config import gelsight_recordings
-    from slipsense.recordings.label_csv import Overrides, read_overrides_csv
-    from slipsense.resources import shipped_overrides
-
     shared = gelsight_recordings().resolve()
     present: dict[tuple[str, int], set] = {}
     for r in recordings:
@@ -81,13 +84,6 @@ def label_runs(recordings, overrides=None, on_error: str = "raise", progress: bo
     :class:`~slipsense.recordings.folders.SkippedInputWarning`, together with its override rows;
     with ``"raise"`` its InputError stops everything. Returns ``{key: VideoLabel}``.
     """
-    import warnings
-
-    from slipsense.recordings.folders import SkippedInputWarning, check_on_error
-    from slipsense.recordings.label_csv import Overrides, apply_overrides, read_overrides_csv
-    from slipsense.recordings.labels import label_recordings
-    from slipsense.recordings.types import by_run
-
     check_on_error(on_error)
     runs = by_run(recordings)
     known = {key: [r.camera for r in recs] for key, recs in runs.items()}
@@ -96,8 +92,6 @@ def label_runs(recordings, overrides=None, on_error: str = "raise", progress: bo
     elif overrides is False:
         overrides = None
     ov = read_overrides_csv(overrides, known=known) if isinstance(overrides, (str, Path)) else overrides
-    from slipsense.recordings.frame_cache import prefetch
-    from slipsense.recordings.labels import LABEL_PRODUCTS
 
     if on_error == "raise":  # runs not labelled yet are labelled on every core, decoding as they go
         labels = label_recordings(recordings, overrides=ov, progress=progress)
@@ -124,8 +118,6 @@ def label_runs(recordings, overrides=None, on_error: str = "raise", progress: bo
 
 def clip_spec_from(info: dict[str, Any]):
     """The ClipSpec stored in a checkpoint's or split's ``data`` section."""
-    from slipsense.recordings.clips import ClipSpec
-
     raw = info.get("clip_spec") if isinstance(info, dict) else None
     if not isinstance(raw, dict):
         raise ConfigError(f"clip_spec must be a mapping of clip settings, got {type(raw).__name__}")
@@ -140,8 +132,6 @@ def clip_spec_from(info: dict[str, Any]):
 
 def load_markers(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(x (N,T,M,3) float32, y (N,) int64, groups (N,))`` from a marker ``.npz`` (validated)."""
-    from slipsense.sensors.marker_npz import load_marker_npz
-
     ds = load_marker_npz(path)
     groups = getattr(ds, "groups", None)
     if groups is None:

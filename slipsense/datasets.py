@@ -6,9 +6,15 @@ Both yield ``(x, y)`` with ``x`` float32 in the layout the models take and ``y``
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import torch
 from torch.utils.data import Dataset
+
+from slipsense.errors import ConfigError
+from slipsense.recordings.augment import add_noise, transform_clip
+from slipsense.sensors.marker_grid import GridMove, grid_layout, rest_estimate
 
 
 def clip_to_tensor(clip: np.ndarray) -> torch.Tensor:
@@ -25,10 +31,6 @@ class ClipDataset(Dataset):
     """
 
     def __init__(self, clips, augment=None, seed: int = 0, noise_std: float = 0.0):
-        import math
-
-        from slipsense.errors import ConfigError
-
         if not isinstance(noise_std, (int, float)) or not math.isfinite(noise_std) or noise_std < 0:
             raise ConfigError(f"noise_std must be a finite number >= 0, got {noise_std!r}")
         self.clips = clips
@@ -44,8 +46,6 @@ class ClipDataset(Dataset):
         return int(self.clips.y[index % len(self.clips)])
 
     def __getitem__(self, index: int):
-        from slipsense.recordings.augment import add_noise, transform_clip
-
         n = len(self.clips)
         clip = self.clips.x[index % n]
         if index >= n:
@@ -58,8 +58,6 @@ class ClipDataset(Dataset):
 def check_marker_copies(value, option: str = "marker copies") -> int:
     """``value`` as a count of times each marker window is seen (itself and its moved copies);
     ConfigError naming ``option`` unless an integer >= 1."""
-    from slipsense.errors import ConfigError
-
     if isinstance(value, bool) or not isinstance(value, int) or value < 1:
         raise ConfigError(f"{option} must be an integer >= 1, got {value!r}")
     return value
@@ -83,8 +81,6 @@ class MarkerDataset(Dataset):
         self.copies, self.seed, self.max_shift = 1, seed, max_shift
         self.grid = None
         if copies > 1 and len(self.y):
-            from slipsense.sensors.marker_grid import grid_layout, rest_estimate
-
             self.rest = rest_estimate(self.x[:, 0].numpy())
             self.grid = grid_layout(self.rest)
             self.copies = copies if self.grid is not None else 1
@@ -103,8 +99,6 @@ class MarkerDataset(Dataset):
         n = len(self.y)
         x = self.x[index % n]
         if index >= n:
-            from slipsense.sensors.marker_grid import GridMove
-
             move = GridMove.draw(np.random.default_rng([self.seed, index]), self.max_shift)
             x = torch.from_numpy(move.apply(x.numpy(), self.rest, self.grid))
         return x, self.y[index % n]

@@ -15,13 +15,20 @@ same clips (``slipsense evaluate --split-file``); a resumed run must find the sa
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
 
+from slipsense.config import gelsight_recordings, portable_path, resolve_path
+from slipsense.data import clip_spec_from, gelsight_clips, load_markers, split_groups
+from slipsense.datasets import ClipDataset, MarkerDataset
 from slipsense.errors import ConfigError, InputError
+from slipsense.recordings.augment import AugmentConfig
+from slipsense.recordings.clips import ClipSpec, object_folds, split_by_clip, split_by_object
+from slipsense.sensors.markers import layout_name, marker_layout
+from slipsense.sensors.spec import BINOCULAR_MARKERS, GELSIGHT_MINI, sensor_named, sensor_of
 
 
 @dataclass
@@ -62,15 +69,6 @@ class VideoClips:
         """``(train, test, split_info, data_config)`` for a
         :class:`~slipsense.training.clips.TrainRequest`; ``data_config`` holds the sizes the model is
         built with and its ``sensor``."""
-        from dataclasses import asdict
-
-        from slipsense.config import gelsight_recordings, portable_path
-        from slipsense.data import gelsight_clips
-        from slipsense.datasets import ClipDataset
-        from slipsense.recordings.augment import AugmentConfig
-        from slipsense.recordings.clips import ClipSpec, object_folds, split_by_clip, split_by_object
-        from slipsense.sensors.spec import GELSIGHT_MINI, sensor_named
-
         if req.markers is not None:
             raise ConfigError(f"model {req.model!r} takes video clips: use --recordings, not --markers")
         root = Path(req.recordings) if req.recordings else gelsight_recordings()
@@ -132,11 +130,6 @@ class VideoClips:
     ) -> EvaluationData:
         """The clips to score ``checkpoint`` on: a split file's held-out part (rebuilt with its clip
         settings) or every clip of ``recordings`` (with the checkpoint's clip settings)."""
-        from slipsense.config import portable_path, resolve_path
-        from slipsense.data import clip_spec_from, gelsight_clips
-        from slipsense.datasets import ClipDataset
-        from slipsense.sensors.spec import sensor_of
-
         if markers is not None:
             raise InputError(checkpoint, "this checkpoint holds a video model; use --recordings or --split-file")
         data_info = info.get("data", {})
@@ -188,10 +181,6 @@ class MarkerClips:
 
     def training_data(self, req) -> tuple[Any, Any, dict[str, Any], dict[str, Any]]:
         """As :meth:`VideoClips.training_data`, for ``req.markers``."""
-        from slipsense.config import portable_path
-        from slipsense.data import load_markers, split_groups
-        from slipsense.datasets import MarkerDataset
-
         if req.markers is None:
             raise ConfigError(f"model {req.model!r} takes marker sequences: give --markers FILE.npz")
         x, y, groups = load_markers(req.markers)
@@ -228,10 +217,6 @@ class MarkerClips:
     ) -> EvaluationData:
         """A split file's held-out windows, or every window of ``markers``; markers taken from videos
         otherwise than the checkpoint's are refused."""
-        from slipsense.config import portable_path, resolve_path
-        from slipsense.data import load_markers
-        from slipsense.datasets import MarkerDataset
-
         if recordings is not None:
             raise InputError(checkpoint, "this checkpoint holds a marker model; use --markers or --split-file")
         extra: dict[str, Any] = {}
@@ -261,8 +246,6 @@ def marker_file_layout(path, x: np.ndarray) -> str | None:
     """How a marker file's markers were taken from videos (its ``marker_layout``, written by
     ``slipsense markers``: ``"7x9"``, ``"32"``; :func:`slipsense.sensors.markers.marker_layout`), or
     None for markers that were not tracked in videos (simulated, a user's own)."""
-    from slipsense.sensors.markers import layout_name, marker_layout
-
     try:
         with np.load(path, allow_pickle=False) as z:
             if "marker_layout" not in z.files:
@@ -295,10 +278,6 @@ def _marker_sensor(path, x: np.ndarray, layout: str | None) -> dict[str, Any]:
     """The sensor of a marker file: the GelSight Mini for markers tracked in its videos (``layout``,
     :func:`marker_file_layout`), else its frame rate (the file's ``fps``, else the binocular
     sensor's) and marker count."""
-    from dataclasses import replace
-
-    from slipsense.sensors.spec import BINOCULAR_MARKERS, GELSIGHT_MINI
-
     if layout is not None:  # tracked in GelSight videos: their frame rate
         return replace(GELSIGHT_MINI, output="markers", markers=int(x.shape[2])).to_dict()
     fps = BINOCULAR_MARKERS.fps
@@ -392,8 +371,6 @@ def split_overrides(stored):
     """The hand labels a split file's clips were cut with: ``"default"`` -> the shipped ones of the
     shared recordings (None for data.label_runs), null (split files written before that default) ->
     none (False), else the CSV's path."""
-    from slipsense.config import resolve_path
-
     if stored == "default":
         return None
     return False if stored is None else resolve_path(stored)
