@@ -15,10 +15,13 @@ from typing import Any
 import numpy as np
 import torch
 import torch.nn as nn
+from safetensors import safe_open
+from safetensors.torch import load_file
 
 from slipsense import __version__
 from slipsense.atomic import atomic_path
 from slipsense.errors import ConfigError, InputError
+from slipsense.models import build
 
 META_KEY = "slipsense"
 
@@ -28,7 +31,7 @@ def save_checkpoint(path: str | Path, model: nn.Module, info: dict[str, Any]) ->
 
     ``info`` is stored as JSON in the safetensors metadata, together with the slipsense version.
     """
-    from safetensors.torch import save_file
+    from safetensors.torch import save_file  # looked up per call: tests/test_disk_full.py replaces it
 
     model = getattr(model, "module", model)  # unwrap DistributedDataParallel
     info = {**info, "model": model.model_name, "model_config": model.config(), "slipsense_version": __version__}
@@ -41,15 +44,13 @@ def save_checkpoint(path: str | Path, model: nn.Module, info: dict[str, Any]) ->
 
 def update_info(path: str | Path, updates: dict[str, Any]) -> Path:
     """Rewrite a checkpoint's config with ``updates`` merged in (weights unchanged; atomic)."""
-    from safetensors import safe_open
-
     path = Path(path)
     with safe_open(str(path), framework="pt") as fh:
         meta = dict(fh.metadata() or {})
         tensors = {k: fh.get_tensor(k) for k in fh.keys()}
     info = {**json.loads(meta[META_KEY]), **updates}
     meta[META_KEY] = json.dumps(info)
-    from safetensors.torch import save_file
+    from safetensors.torch import save_file  # looked up per call: tests/test_disk_full.py replaces it
 
     with atomic_path(path) as tmp:
         save_file(tensors, str(tmp), metadata=meta)
@@ -58,8 +59,6 @@ def update_info(path: str | Path, updates: dict[str, Any]) -> Path:
 
 def read_info(path: str | Path) -> dict[str, Any]:
     """The config stored in a checkpoint, without loading its weights."""
-    from safetensors import safe_open
-
     path = Path(path)
     if not path.is_file():
         raise InputError(path, "checkpoint not found")
@@ -94,8 +93,6 @@ CONFIG_FLOOR = 4096
 
 def _header_shapes(path: Path) -> dict[str, tuple[int, ...]]:
     """Tensor shapes a safetensors file states, read from its header (no tensor is loaded)."""
-    from safetensors import safe_open
-
     try:
         with safe_open(str(path), framework="pt") as fh:
             return {k: tuple(fh.get_slice(k).get_shape()) for k in fh.keys()}
@@ -142,8 +139,6 @@ def _check_config_bounds(path: Path, config: dict[str, Any], shapes: dict[str, t
 
 def _check_shapes_on_meta(path: Path, name: str, config: dict[str, Any], shapes: dict[str, tuple[int, ...]]) -> None:
     """Build the model on the meta device (no memory) and refuse weights that do not fit it."""
-    from slipsense.models import build
-
     try:
         with torch.device("meta"):
             ref = {k: tuple(v.shape) for k, v in build(name, **config).state_dict().items()}
@@ -165,10 +160,6 @@ def load_model(path: str | Path, expect_model: str | None = None) -> tuple[nn.Mo
     The model is in eval mode on the CPU. ``expect_model`` (e.g. ``"vivit"``) rejects a checkpoint
     of another network with a clear error.
     """
-    from safetensors.torch import load_file
-
-    from slipsense.models import build
-
     path = Path(path)
     info = read_info(path)
     if expect_model is not None and info["model"] != expect_model:
@@ -302,7 +293,7 @@ def save_resume_state(path: str | Path, state: dict[str, Any]) -> None:
     The file is a safetensors file (whatever its name): the tensors (weights, optimizer moments,
     RNG state) as tensors, everything else as JSON in its metadata. Nothing in it is executable.
     """
-    from safetensors.torch import save_file
+    from safetensors.torch import save_file  # looked up per call: tests/test_disk_full.py replaces it
 
     tensors: dict[str, torch.Tensor] = {}
     tree = _encode(state, tensors)
@@ -332,8 +323,6 @@ def load_resume_state(path: str | Path) -> dict[str, Any]:
     Never unpickles: a ``resume.pt`` in torch's pickle format (written by an older slipsense, or put
     there by someone else) is refused, since loading it could run arbitrary code.
     """
-    from safetensors import safe_open
-
     path = Path(path)
     try:
         with open(path, "rb") as fh:

@@ -33,6 +33,7 @@ Optional hooks, with defaults that suit a plain network: :meth:`SlipModel.stream
 from __future__ import annotations
 
 import copy
+import inspect
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping, Protocol, Sequence
 
@@ -41,7 +42,10 @@ import torch
 from torch import Tensor, nn
 
 from slipsense.errors import ConfigError, InputError
+from slipsense.models.streams import WindowStream
 from slipsense.readers import MARKER_CLIPS, VIDEO_CLIPS, ClipReader
+from slipsense.sensors.markers import layout_name, marker_clouds, marker_layout, marker_sequences, track_markers
+from slipsense.sensors.spec import GELSIGHT_MINI
 
 _REGISTRY: dict[str, type] = {}
 
@@ -165,8 +169,6 @@ class SlipModel(nn.Module):
         """A fresh :class:`Stream` of this model over ``sensors`` sensors (default: a sliding window
         over the frame-part outputs, :class:`slipsense.models.streams.WindowStream`). ``info``: the
         checkpoint's config; ``backend``/``dtype``/``onnx_dir`` as :class:`slipsense.streaming.detector.SlipDetector`."""
-        from slipsense.models.streams import WindowStream
-
         geometry = window_geometry(self, info)
         return WindowStream(self, geometry, sensors=sensors, backend=backend, dtype=dtype, onnx_dir=onnx_dir)
 
@@ -218,8 +220,6 @@ class VideoModel(SlipModel):
     input_kind = "video"
 
     def window_geometry(self, spec: Mapping[str, Any]) -> dict[str, Any]:
-        from slipsense.sensors.spec import GELSIGHT_MINI
-
         frames = getattr(self, "frames", None) or spec.get("frames") or DEFAULT_FRAMES
         size = getattr(self, "image_size", None) or spec.get("size") or GELSIGHT_MINI.image_size
         return {"kind": "video", "frames": int(frames), "image_size": (int(size[0]), int(size[1]))}
@@ -235,8 +235,6 @@ class MarkerModel(SlipModel):
         """Markers tracked through each whole video (:mod:`slipsense.sensors.markers`), ``(N, M, 3)``:
         in the checkpoint's ``marker_layout`` (mm, as it was trained and as replays read them), or,
         for a model trained on markers not tracked in videos, the markers nearest the centre."""
-        from slipsense.sensors.markers import marker_clouds, marker_sequences, track_markers
-
         layout = (geometry or {}).get("marker_layout")
         tracks = [track_markers(v, source=p) for v, p in zip(videos, paths)]
         if layout is None:
@@ -267,8 +265,6 @@ class MarkerModel(SlipModel):
         frames = getattr(self, "frames", None) or spec.get("frames") or DEFAULT_FRAMES
         out = {"kind": "markers", "frames": int(frames), "markers": int(self.markers)}
         if spec.get("marker_layout") is not None:  # trained on markers tracked in videos, taken so
-            from slipsense.sensors.markers import layout_name, marker_layout
-
             count, _ = marker_layout(spec["marker_layout"])
             if count != int(self.markers):
                 raise ConfigError(
@@ -331,8 +327,6 @@ def window_geometry(model: nn.Module, info: Mapping[str, Any] | None = None) -> 
 
 def settings_of(cls: type) -> set[str]:
     """Keyword settings a model class takes; a class forwarding ``**kwargs`` takes its parent's."""
-    import inspect
-
     for klass in cls.__mro__:
         params = inspect.signature(klass.__init__).parameters
         if not any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):

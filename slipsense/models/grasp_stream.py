@@ -15,7 +15,10 @@ import numpy as np
 import torch
 
 from slipsense.errors import ConfigError, InputError
-from slipsense.models.streams import slip_probability
+from slipsense.models.runners import make_runner
+from slipsense.models.streams import check_image, check_video_stream, slip_probability
+from slipsense.recordings.contact import STARTUP_FRAMES as STARTUP
+from slipsense.recordings.video import gray_frames
 
 
 class GraspStream:
@@ -25,9 +28,6 @@ class GraspStream:
     PyTorch or, exported to ONNX, on ONNX Runtime (``backend``)."""
 
     def __init__(self, model, *, sensors=None, info=None, backend="torch", dtype="float32", onnx_dir=None):
-        from slipsense.models.runners import make_runner
-        from slipsense.recordings.contact import STARTUP_FRAMES as STARTUP
-
         self.model = model.eval()
         self.sensors = model.sensors if sensors is None else int(sensors)
         if self.sensors != model.sensors:
@@ -67,9 +67,6 @@ class GraspStream:
         raise NotImplementedError
 
     def push(self, frames, index: int):
-        from slipsense.models.streams import check_image
-        from slipsense.recordings.video import gray_frames
-
         gray = np.empty((self.sensors, *self.gray_size), dtype=np.uint8)
         images = [check_image(f, f"frame {index}, sensor {s}", None) for s, f in enumerate(frames)]
         for s, image in enumerate(images):  # every frame checked before the stream remembers any size
@@ -89,9 +86,6 @@ class GraspStream:
         return np.full(self.sensors, self.push_gray(gray))
 
     def replay(self, streams) -> np.ndarray:
-        from slipsense.models.streams import check_video_stream
-        from slipsense.recordings.video import gray_frames
-
         streams = [check_video_stream(s, f"sensor {i}") for i, s in enumerate(streams)]
         return self.replay_gray(np.stack([gray_frames(s, self.gray_size) for s in streams]))
 

@@ -31,7 +31,7 @@ from einops import rearrange
 from torch import Tensor, nn
 
 from slipsense.errors import ConfigError, InputError
-from slipsense.models.base import GraspModel, register
+from slipsense.models.base import GraspModel, OnnxPart, register
 from slipsense.models.grasp_stream import GraspStream, slip_probability
 
 #: Bounds on settings a checkpoint may carry (refused before anything is allocated).
@@ -238,8 +238,6 @@ class MotionNet(GraspModel):
     def onnx_parts(self, geometry=None, batch: int | None = None) -> dict:
         """``model``: ``gray (B, S, N, h, w)`` -> ``logits (B, N, 2)`` (batch and frames free);
         ``frame`` and ``step`` as :meth:`streaming_modules` (one frame at a time, no free axis)."""
-        from slipsense.models.base import OnnxPart
-
         g = torch.Generator().manual_seed(0)
         b = batch or 1
         gray = torch.rand(b, self.sensors, max(8, self.max_lag // 4), *self.image_size, generator=g)

@@ -7,7 +7,10 @@ Which exporter, which files: :mod:`slipsense.streaming.export` (the user-facing 
 from __future__ import annotations
 
 import contextlib
+import hashlib
+import inspect
 import io
+import json
 import logging
 import os
 import sys
@@ -20,9 +23,9 @@ import numpy as np
 import torch
 from torch import nn
 
-from slipsense.atomic import atomic_path, file_sha256
-from slipsense.errors import InputError
-
+from slipsense import __version__
+from slipsense.atomic import atomic_path, file_sha256, write_text
+from slipsense.errors import CacheWarning, InputError
 
 #: Opset for the TorchScript exporter (its newest well-tested one); the dynamo exporter picks its own.
 TORCHSCRIPT_OPSET = 17
@@ -261,13 +264,6 @@ PARTS_FORMAT = 1
 
 
 def _parts_key(model: nn.Module, geometry: Mapping[str, Any], dtype: str) -> dict[str, Any]:
-    import json
-
-    from slipsense import __version__
-
-    import hashlib
-    import inspect
-
     config = model.config() if hasattr(model, "config") else {}
     # the model's own code: parts exported before a change to it (their inputs, their maths) are stale
     code = hashlib.sha256(Path(inspect.getfile(type(model))).read_bytes()).hexdigest()[:16]
@@ -290,8 +286,6 @@ def _parts_key(model: nn.Module, geometry: Mapping[str, Any], dtype: str) -> dic
 def check_parts(folder: str | Path, names: list[str], key: Mapping[str, Any]) -> str | None:
     """Why the cached parts ``names`` in ``folder`` cannot be used (None: they can): the manifest is
     missing or unreadable, records other inputs than ``key``, or a file's sha256 differs."""
-    import json
-
     folder = Path(folder)
     try:
         manifest = json.loads((folder / PARTS_MANIFEST).read_text(encoding="utf-8"))
@@ -326,11 +320,6 @@ def cached_streaming_parts(
     library versions and each file's sha256; files that do not match it (damaged, half written,
     from another checkpoint) are exported again with a :class:`~slipsense.errors.CacheWarning`.
     """
-    import json
-
-    from slipsense.atomic import write_text
-    from slipsense.errors import CacheWarning
-
     folder = Path(folder)
     parts = streaming_names(model, geometry)
     suffix = ".int8.onnx" if dtype == "int8" else ".onnx"

@@ -5,6 +5,8 @@ and never knows which."""
 from __future__ import annotations
 
 import hashlib
+import importlib.util
+import tempfile
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -12,7 +14,10 @@ import numpy as np
 import torch
 from torch import nn
 
+from slipsense import __version__
+from slipsense.config import cache_root
 from slipsense.errors import ConfigError
+from slipsense.models.onnx import cached_streaming_parts, onnx_session
 
 #: "auto": ONNX Runtime where it is installed (several times faster for the small streaming models),
 #: else PyTorch (:func:`resolve_backend`).
@@ -27,7 +32,6 @@ def resolve_backend(backend: str, model: nn.Module | None = None) -> str:
         return backend
     if getattr(model, "auto_backend", "onnx") == "torch":
         return "torch"
-    import importlib.util
 
     return "onnx" if all(importlib.util.find_spec(m) is not None for m in ("onnxruntime", "onnx")) else "torch"
 
@@ -50,8 +54,6 @@ class OnnxRunner:
     :class:`~slipsense.models.base.OnnxPart` inputs)."""
 
     def __init__(self, paths: Mapping[str, Path], inputs: Mapping[str, list[str]]):
-        from slipsense.models.onnx import onnx_session
-
         self.sessions = {name: onnx_session(path) for name, path in paths.items()}
         self._declared = {name: list(inputs[name]) for name in paths}
         self._kept = {name: {i.name for i in s.get_inputs()} for name, s in self.sessions.items()}
@@ -64,9 +66,6 @@ class OnnxRunner:
 
 def onnx_cache_dir(checkpoint: Path) -> Path:
     """``<cache_root>/onnx/<hash>``: keyed by the checkpoint's bytes and the library versions."""
-    from slipsense import __version__
-    from slipsense.config import cache_root
-
     h = hashlib.sha256()
     with open(checkpoint, "rb") as fh:
         for block in iter(lambda: fh.read(1 << 20), b""):
@@ -93,11 +92,8 @@ def make_runner(
         return TorchRunner(model.streaming_modules(geometry)), None
     tmpdir = None
     if onnx_dir is None:
-        import tempfile
-
         tmpdir = tempfile.TemporaryDirectory(prefix="slipsense-onnx-")
         onnx_dir = tmpdir.name
-    from slipsense.models.onnx import cached_streaming_parts
 
     paths = cached_streaming_parts(model, Path(onnx_dir), geometry, dtype)
     inputs = {k: part.inputs for k, part in model.exportable().onnx_parts(geometry).items() if k in paths}

@@ -84,6 +84,9 @@ from einops.layers.torch import Rearrange
 
 from slipsense.errors import ConfigError, InputError
 from slipsense.models.base import MarkerModel, register
+from slipsense.models.stnet_fast import optimize_for_inference, quantize_dynamic_int8
+from slipsense.models.stnet_parts import MarkerFramePart, MarkerWindowPart, marker_saliency
+from slipsense.sensors.marker_grid import rest_estimate
 
 POOLS = ("flatten", "mean", "last")
 ACTIVATIONS = {"relu": nn.ReLU, "gelu": nn.GELU}
@@ -398,8 +401,6 @@ class STNet(MarkerModel):
         first frames (up to 2048 of them; :func:`~slipsense.sensors.marker_grid.rest_estimate`). The standing shear of a steadily
         sliding contact then shows as an offset from it (studies/docs/simulator.md: the within-window motion
         alone stops when sliding is steady)."""
-        from slipsense.sensors.marker_grid import rest_estimate
-
         n = getattr(train_data, "windows", len(train_data))  # the originals, not a dataset's moved copies
         if not self.centred or n == 0:
             return
@@ -410,7 +411,6 @@ class STNet(MarkerModel):
     def streaming_parts(self) -> tuple[nn.Module | None, nn.Module]:
         if self.relative:  # every frame is seen relative to its window's first one: nothing to cache
             return None, self
-        from slipsense.models.stnet_parts import MarkerFramePart, MarkerWindowPart
 
         return MarkerFramePart(self), MarkerWindowPart(self)
 
@@ -419,8 +419,6 @@ class STNet(MarkerModel):
         return self.marker_saliency(window, baseline="rest")[0].detach().numpy()
 
     def reduced_precision(self, precision: str) -> nn.Module:
-        from slipsense.models.stnet_fast import optimize_for_inference, quantize_dynamic_int8
-
         if precision == "int8":
             return quantize_dynamic_int8(self)
         if precision == "bfloat16":
@@ -444,8 +442,6 @@ class STNet(MarkerModel):
         available on a model made by :func:`optimize_for_inference`. Reshape to (23, 24) for the
         paper's sensor grid.
         """
-        from slipsense.models.stnet_parts import marker_saliency
-
         self.check_input(x)
         return marker_saliency(self, x, target, baseline)
 

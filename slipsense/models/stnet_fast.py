@@ -8,13 +8,14 @@ The paper-size STNet streams ~0.5 GB of Linear weights per sample; these copies 
 from __future__ import annotations
 
 import copy
+import warnings
 
 import torch
 from einops import rearrange
 from torch import nn
+from torch.ao.quantization import quantize_dynamic
 
 from slipsense.errors import ConfigError
-
 
 _PACKING: dict[torch.dtype, bool] = {}
 
@@ -120,10 +121,6 @@ def optimize_for_inference(model: nn.Module, dtype: torch.dtype = torch.float32,
 def quantize_dynamic_int8(model: nn.Module) -> nn.Module:
     """A copy of ``model`` with every nn.Linear dynamically quantized to int8 (weights int8 per
     tensor, activations quantized on the fly), for CPU inference."""
-    import warnings
-
-    from torch.ao.quantization import quantize_dynamic
-
     engines = torch.backends.quantized.supported_engines
     for engine in ("x86", "fbgemm", "onednn", "qnnpack"):
         if engine in engines:

@@ -4,15 +4,14 @@ be counted)."""
 
 from __future__ import annotations
 
+import inspect
 from typing import Any
+
+from slipsense.models.stnet import STNet
 
 
 def _full_config(config: dict[str, Any] | None, model: str) -> dict[str, Any]:
     """``config`` with STNet's own defaults filled in (what the analytic counts below need)."""
-    import inspect
-
-    from slipsense.models.stnet import STNet
-
     defaults = {k: p.default for k, p in inspect.signature(STNet.__init__).parameters.items() if k != "self"}
     return {**defaults, "use_codecs": model == "stnet", **(config or {})}
 

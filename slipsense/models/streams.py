@@ -32,6 +32,7 @@ import numpy as np
 import torch
 
 from slipsense.errors import InputError
+from slipsense.models.runners import make_runner
 
 #: Frames per batch when replaying a recording (bounds memory: 64 frames of 240 x 320 = 59 MB float).
 REPLAY_CHUNK = 64
@@ -58,8 +59,6 @@ class WindowStream:
         dtype: str = "float32",
         onnx_dir: Any = None,
     ):
-        from slipsense.models.runners import make_runner
-
         self.model, self.sensors = model.eval(), int(sensors)
         self.geometry = dict(geometry)
         self.kind: str = self.geometry["kind"]

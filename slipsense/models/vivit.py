@@ -52,7 +52,9 @@ spatial token is then the same in every slot, so a streaming detector encodes ea
 
 from __future__ import annotations
 
+import copy
 import threading
+import types
 from typing import Any, Sequence
 
 import torch
@@ -63,6 +65,8 @@ from torch import Tensor, nn
 from slipsense.errors import ConfigError, InputError
 from slipsense.models.base import VideoModel, check_video_values, register
 from slipsense.models.vivit_layers import Transformer, eager_inference, version_key
+from slipsense.models.vivit_parts import ViViTFramePart, ViViTWindowPart, conv_embed_patches
+from slipsense.models.vivit_reference import reference_key
 
 
 def pair(value: int | Sequence[int]) -> tuple[int, int]:
@@ -386,18 +390,11 @@ class ViViT(VideoModel):
         return {"image_size": [48, 64], "patch_size": [16, 16], "frames": 3}
 
     def streaming_parts(self) -> tuple[nn.Module, nn.Module]:
-        from slipsense.models.vivit_parts import ViViTFramePart, ViViTWindowPart
-
         return ViViTFramePart(self), ViViTWindowPart(self)
 
     def exportable(self) -> nn.Module:
         """A copy whose patch embedding is :func:`~slipsense.models.vivit_parts.conv_embed_patches`
         (the fused path does not trace; the plain one is slow on ONNX Runtime)."""
-        import copy
-        import types
-
-        from slipsense.models.vivit_parts import conv_embed_patches
-
         m = copy.deepcopy(self).eval()
         m.fused = False
         # an instance attribute shadows the method: encode_frames and the streaming frame part use it
@@ -495,6 +492,5 @@ class ViViT(VideoModel):
                 "load_reference_state_dict: vit-pytorch's ViViT has per-slot positions; this model has "
                 f"positions={self.positions!r}"
             )
-        from slipsense.models.vivit_reference import reference_key
 
         self.load_state_dict({reference_key(k): v for k, v in sd.items()}, strict=True)
