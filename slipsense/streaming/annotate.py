@@ -5,13 +5,16 @@ from __future__ import annotations
 
 import collections
 import math
+import os
 import tempfile
 from pathlib import Path
 from typing import Any, Sequence
 
 import cv2
 import numpy as np
+from PIL import Image
 
+from slipsense.atomic import write_with
 from slipsense.errors import InputError
 from slipsense.streaming.detector import FPS, Reading
 
@@ -151,8 +154,6 @@ class AnnotatedWriter:
         elif (picture.shape[1], picture.shape[0]) != self._size:
             picture = cv2.resize(picture, self._size, interpolation=cv2.INTER_AREA)
         if self.kind == ".gif":
-            from PIL import Image
-
             rgb = Image.fromarray(cv2.cvtColor(picture, cv2.COLOR_BGR2RGB))
             self._frames.append(rgb.quantize(colors=256, method=Image.Quantize.MEDIANCUT))
             return
@@ -161,7 +162,6 @@ class AnnotatedWriter:
             fd, tmp = tempfile.mkstemp(
                 prefix=f".{self.path.stem}.", suffix=f".tmp{self.path.suffix}", dir=self.path.parent
             )
-            import os
 
             os.close(fd)
             self._tmp = Path(tmp)
@@ -174,12 +174,9 @@ class AnnotatedWriter:
 
     def close(self) -> Path | None:
         """Finish the file; returns its path (None when no picture was added)."""
-        import os
-
         if self.kind == ".gif":
             if not self._frames:
                 return None
-            from slipsense.atomic import write_with
 
             first, rest = self._frames[0], self._frames[1:]
             write_with(

@@ -16,6 +16,7 @@ import threading
 import time
 from typing import Any, Callable, Sequence
 
+import cv2
 import numpy as np
 
 from slipsense.errors import InputError
@@ -170,8 +171,6 @@ def open_camera(index: int, fps: float, capture_format: str | None, frame_size: 
     """An OpenCV camera asked for the sensor's format, frame size (height, width) and rate; InputError
     if it cannot be opened. What the camera grants is its business: :meth:`CaptureThread.stats`
     reports the rate achieved."""
-    import cv2
-
     cap = cv2.VideoCapture(index)
     if not cap.isOpened():
         raise InputError(None, f"camera {index}: cannot be opened")

@@ -20,6 +20,7 @@ Heat maps (:meth:`SlipDetector.heatmap`) always use the PyTorch model.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
@@ -28,11 +29,12 @@ import numpy as np
 from torch import nn
 
 from slipsense.alarm import debounce
+from slipsense.checkpoint import load_model, read_info
 from slipsense.errors import ConfigError, InputError
 from slipsense.models.base import SlipModel, window_geometry
-from slipsense.resources import shipped_model
 from slipsense.models.runners import BACKENDS, DTYPES, onnx_cache_dir, resolve_backend
-from slipsense.sensors.spec import GELSIGHT_MINI
+from slipsense.resources import default_model_name, shipped_model, shipped_models
+from slipsense.sensors.spec import GELSIGHT_MINI, sensor_of
 
 #: Frame rate of the GelSight recordings (frames per second): converts frames to milliseconds.
 FPS = GELSIGHT_MINI.fps
@@ -140,7 +142,6 @@ class SlipDetector:
         self.model_name = model.model_name
         self.threshold, self.sensors, self.combine, self.backend = float(threshold), int(sensors), combine, backend
         self.debounce, self.dtype = int(debounce), dtype
-        from slipsense.sensors.spec import sensor_of
 
         #: the sensor the model was trained on (:class:`~slipsense.sensors.spec.SensorSpec`, from the checkpoint)
         self.sensor = sensor_of(info)
@@ -168,10 +169,6 @@ class SlipDetector:
         :attr:`backend` says which. On ONNX Runtime the parts are cached under ``onnx_dir`` (default
         ``<cache_root>/onnx/<hash of the checkpoint file>``), so only the first use pays the export.
         """
-        from slipsense.checkpoint import load_model
-
-        from slipsense.sensors.spec import sensor_of
-
         model, info = load_model(path)
         sensor_of(info, path)  # a malformed sensor spec is named with its file
         threshold, debounce = stored_operating_point(path, info, threshold, debounce)
@@ -204,8 +201,6 @@ class SlipDetector:
         ``sensors=1``: ``"motionnet-gelsight-1"``, one finger; a 480 x 640 GelSight:
         ``"shear-retention-gelsight-lift"``); ``"vivit-gelsight"`` is the paper's ViViT. ``kwargs`` as
         :meth:`from_checkpoint`."""
-        from slipsense.resources import shipped_models
-
         name = name or shipped_name(kwargs.get("sensors"), image_size)
         if name not in shipped_models():
             raise ConfigError(f"no shipped detector {name!r}; shipped: {', '.join(shipped_models())}")
@@ -318,9 +313,6 @@ class SlipDetector:
 def shipped_name(sensors: int | None = None, image_size: tuple[int, int] | None = None) -> str:
     """The shipped detector for an input: the one whose sensor has frames of ``image_size`` ``(h, w)``
     and that takes ``sensors`` sensors (default 2), else the GelSight Mini's for that many fingers."""
-    from slipsense.checkpoint import read_info
-    from slipsense.resources import default_model_name, shipped_model, shipped_models
-
     if image_size is not None:
         for name in shipped_models():
             info = read_info(shipped_model(name))
@@ -335,8 +327,6 @@ def stored_operating_point(
 ) -> tuple[float, int]:
     """The threshold and debounce to use: the caller's where given, else the checkpoint's operating
     point, else 0.5 / 1 with a warning naming the checkpoint."""
-    import warnings
-
     op = info.get("operating_point") if isinstance(info, Mapping) else None
     if threshold is None:
         if isinstance(op, Mapping) and isinstance(op.get("threshold"), (int, float)):

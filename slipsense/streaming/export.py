@@ -36,6 +36,7 @@ from typing import Any, Mapping
 
 from torch import nn
 
+from slipsense.checkpoint import load_model
 from slipsense.errors import InputError
 from slipsense.models.base import window_geometry
 from slipsense.models.onnx import ExportResult, export_module, export_parts, exportable, max_abs_diff, streaming_names
@@ -44,7 +45,6 @@ from slipsense.models.onnx import ExportResult, export_module, export_parts, exp
 def _load(source: str | Path | nn.Module) -> tuple[nn.Module, dict[str, Any], Path | None]:
     if isinstance(source, nn.Module):
         return source, {}, None
-    from slipsense.checkpoint import load_model
 
     model, info = load_model(source)
     return model, info, Path(source)

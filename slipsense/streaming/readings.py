@@ -23,6 +23,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from slipsense.errors import OutputError
 
 #: the ROS 2 message definition of one reading
@@ -77,7 +79,7 @@ class JsonlWriter:
 
 
 def _typestore():
-    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore  # ~0.3 s: only for bags
 
     store = get_typestore(Stores.ROS2_HUMBLE)
     store.register(get_types_from_msg(SLIP_READING_MSG, SLIP_READING))
@@ -89,7 +91,7 @@ class BagWriter:
     ``path`` (sqlite3 storage), each stamped with its frame's time."""
 
     def __init__(self, path: str | Path, topic: str = "/slipsense/reading", frame_id: str = "slipsense"):
-        from rosbags.rosbag2 import Writer
+        from rosbags.rosbag2 import Writer  # ~0.3 s to import: only for bags
 
         self.path, self.topic, self.frame_id = Path(path), topic, frame_id
         if self.path.exists():
@@ -106,8 +108,6 @@ class BagWriter:
         self._conn = self._writer.add_connection(self.topic, SLIP_READING, typestore=self.store)
 
     def write(self, record: dict[str, Any]) -> None:
-        import numpy as np
-
         ns = int(round(record["stamp"] * 1e9))
         p = record["probability"]
         msg = self._msg(
@@ -128,7 +128,7 @@ class BagWriter:
 
 def read_bag_readings(path: str | Path, topic: str = "/slipsense/reading") -> list[dict[str, Any]]:
     """The records a :class:`BagWriter` wrote (NaN probability back to None)."""
-    from rosbags.highlevel import AnyReader
+    from rosbags.highlevel import AnyReader  # ~0.3 s to import: only for bags
 
     out = []
     with AnyReader([Path(path)], default_typestore=_typestore()) as reader:

@@ -20,6 +20,7 @@ and the detectors take as the grasp's start).
 from __future__ import annotations
 
 import re
+from collections import deque
 from pathlib import Path
 from typing import Callable, Sequence
 
@@ -133,8 +134,6 @@ def record(
 
     ``commands(index)``: the commands given since the last step (``""``, ``"s"``, ``"q"``).
     Returns the grasp folders written; a grasp still open when the frames end is kept."""
-    from collections import deque
-
     check_object_name(obj)
     trigger = ContactTrigger() if by_contact else None
     before: deque = deque(maxlen=PRE_ROLL)  # the latest frames while no grasp is written

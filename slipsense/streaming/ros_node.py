@@ -17,6 +17,10 @@ from __future__ import annotations
 import json
 import time
 
+from slipsense.recordings.bags import COMPRESSED, IMAGE, decode_image
+from slipsense.streaming.detector import SlipDetector
+from slipsense.streaming.readings import reading_record
+
 
 def main() -> None:  # pragma: no cover - needs a ROS 2 installation
     import message_filters
@@ -24,10 +28,6 @@ def main() -> None:  # pragma: no cover - needs a ROS 2 installation
     from rclpy.node import Node
     from sensor_msgs.msg import CompressedImage, Image
     from std_msgs.msg import Bool, String
-
-    from slipsense.recordings.bags import COMPRESSED, IMAGE, decode_image
-    from slipsense.streaming.detector import SlipDetector
-    from slipsense.streaming.readings import reading_record
 
     class SlipNode(Node):
         def __init__(self):

@@ -15,6 +15,10 @@ from typing import Any, Callable, Iterator, Mapping, Sequence
 import numpy as np
 
 from slipsense.errors import InputError
+from slipsense.recordings.bags import check_timing, is_bag, read_bag
+from slipsense.recordings.folders import CAMERA_GLOB
+from slipsense.recordings.frames import is_frame_folder
+from slipsense.recordings.video import read_video
 from slipsense.streaming.capture import CaptureThread, open_camera, paired
 
 
@@ -73,11 +77,6 @@ def open_source(
     sensor's rate (stamps of files without time, the pairing tolerance of bags); ``capture_format`` /
     ``frame_size``: what a camera is asked for (:class:`~slipsense.streaming.capture.CaptureThread`).
     """
-    from slipsense.recordings.bags import is_bag, read_bag
-    from slipsense.recordings.folders import CAMERA_GLOB
-    from slipsense.recordings.frames import is_frame_folder
-    from slipsense.recordings.video import read_video
-
     camera_glob = camera_glob or CAMERA_GLOB  # the sensor's camera files (the GelSight study's by default)
     path = Path(source)
     if topics and not is_bag(path):
@@ -135,8 +134,6 @@ def _npy_source(path: Path, model: Any, fps: float) -> Source:
 def capture_source(name: str, threads: Sequence[CaptureThread], fps: float, tolerance_s: float | None = None):
     """A :class:`Source` over running capture threads, paired by time
     (``tolerance_s``: half a frame period by default); its ``stats`` are the threads'."""
-    from slipsense.recordings.bags import check_timing
-
     check_timing(fps, tolerance_s)
     tol = 0.5 / fps if tolerance_s is None else tolerance_s
     steps = (Step(list(frames), list(frames), stamps[0]) for frames, stamps in paired(threads, tol))
