@@ -19,6 +19,8 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from slipsense.recordings.frame_cache import video_products
+
 #: ``(h, w)`` of the grey frames the baselines read.
 SIZE = (60, 80)
 
@@ -44,8 +46,6 @@ def baseline_scores(
 ) -> dict[str, np.ndarray]:
     """``{name: (len(runs),) scores}`` for replayed ``runs`` (each with ``object``, ``experiment``,
     ``cameras``), reading the frames of ``recordings`` and the contact starts of ``labels``."""
-    from slipsense.recordings.frame_cache import video_products
-
     by_key = {r.key: r for r in recordings}
     product = f"gray:{SIZE[0]}x{SIZE[1]}"
     out = {name: np.zeros(len(runs)) for name in NAMES}

@@ -21,8 +21,12 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from slipsense.atomic import atomic_path
+from slipsense.checkpoint import read_info, update_info
 from slipsense.errors import ConfigError, InputError
 from slipsense.evaluation import pergrasp
+from slipsense.evaluation.replay import evaluate, recordings_folder, shipped_for
+from slipsense.recordings.frame_folders import data_sensor
 
 
 def calibrated_threshold(held: Sequence[float], others: Sequence[float], budget: float) -> float:
@@ -92,10 +96,6 @@ def calibrate(
         on_error: ``"raise"`` (default) stops at a video that cannot be read; ``"skip"`` leaves its
             run out with a warning naming it.
     """
-    from slipsense.checkpoint import read_info, update_info
-    from slipsense.evaluation.replay import evaluate, recordings_folder, shipped_for
-    from slipsense.recordings.frame_folders import data_sensor
-
     if isinstance(budget, bool) or not isinstance(budget, (int, float)) or not 0.0 <= budget < 1.0:
         raise ConfigError(f"--budget must be a fraction in [0, 1), got {budget!r}")
     root = recordings_folder(recordings)
@@ -128,7 +128,6 @@ def calibrate(
             "before": before,
         },
     }
-    from slipsense.atomic import atomic_path
 
     out = Path(out)
     sensor = data_sensor(root)
@@ -154,8 +153,6 @@ def check_by_objects(
     left-out object's grasps judged at it. Returns per-object rows and the pooled figures: held grasps
     alarming on the left-out objects against the largest bound the calibrations stated, slipped grasps
     caught, accuracy. ``on_error`` as :func:`calibrate` takes it."""
-    from slipsense.evaluation.replay import evaluate, recordings_folder, shipped_for
-
     root = recordings_folder(recordings)
     source = Path(checkpoint) if checkpoint is not None else shipped_for(root)
     ev = evaluate(source, root, overrides=overrides, progress=progress, on_error=on_error)

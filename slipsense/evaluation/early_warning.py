@@ -23,9 +23,15 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from slipsense.evaluation import pergrasp
+from slipsense import atomic
+from slipsense.data import label_runs
 from slipsense.errors import InputError
+from slipsense.evaluation import pergrasp
+from slipsense.plots import _plt, save_figure
 from slipsense.progress import progress_bar
+from slipsense.recordings.frame_cache import video_products
+from slipsense.recordings.types import by_run
+from slipsense.recordings.video import read_video
 from slipsense.sensors.spec import GELSIGHT_MINI
 
 #: Columns of the early-warning CSV, in order.
@@ -93,11 +99,6 @@ def replay_recordings(
             whole, judged by :mod:`slipsense.evaluation.outcome`); by default they are left out
             (nothing to warn of).
     """
-    from slipsense.data import label_runs
-    from slipsense.recordings.frame_cache import video_products
-    from slipsense.recordings.types import by_run
-    from slipsense.recordings.video import read_video
-
     detector.model.check_video_replay(detector.geometry)
     runs = by_run(recordings)
     keys = list(runs)[:limit] if limit is not None else list(runs)
@@ -161,8 +162,6 @@ def write_early_warning(
     """Write ``early_warning.csv``, ``early_warning.json`` (table, definitions, every run's outcome
     per threshold and its trace) and ``early_warning.png`` (slips warned in time against grasps
     that held yet alarmed, one point per threshold) into ``out_dir``."""
-    from slipsense import atomic
-
     out_dir = Path(out_dir)
     rows = early_warning_table(runs, thresholds, debounce, horizon, fps)
     buf = io.StringIO()
@@ -218,8 +217,6 @@ def _json_safe(row: Mapping[str, Any]) -> dict[str, Any]:
 def plot_tradeoff(rows: Sequence[Mapping[str, Any]], path: str | Path, title: str = "") -> None:
     """Slips warned in time against grasps that held yet alarmed, one labelled point per threshold
     (with 95% bootstrap intervals over runs where the rows carry them)."""
-    from slipsense.plots import _plt, save_figure
-
     plt = _plt()
     fig, ax = plt.subplots(figsize=(5.2, 4.2))
     xs = [r["false_positive_rate"] for r in rows]

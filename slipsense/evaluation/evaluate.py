@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import json
+import math
+import warnings
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -13,9 +16,15 @@ from torch import nn
 from torch.utils.data import DataLoader, Dataset, Subset
 
 from slipsense.atomic import write_text
+from slipsense.checkpoint import load_model
+from slipsense.config import portable_path
+from slipsense.errors import ConfigError, InputError, SlipsenseError
+from slipsense.evaluation.metrics import metrics_from
+from slipsense.evaluation.replay import evaluate as evaluate_grasps
+from slipsense.models import at_dtype
+from slipsense.plots import plot_confusion
 from slipsense.progress import progress_bar
 from slipsense.training.distributed import Dist
-from slipsense.errors import ConfigError, InputError
 
 
 @torch.inference_mode()
@@ -61,9 +70,6 @@ def evaluate_model(
 ) -> dict[str, Any]:
     """Metrics of ``model`` on a Dataset of ``(x, y)``: accuracy, precision, recall, F1, counts,
     confusion matrix; optionally written to ``json_out`` and drawn to ``png``."""
-    from slipsense.plots import plot_confusion
-    from slipsense.evaluation.metrics import metrics_from
-
     if len(data) == 0:
         raise InputError(None, "nothing to evaluate: the data set is empty")
     p, y = predict(model, data, batch_size=batch_size, progress=progress)
@@ -103,12 +109,6 @@ def evaluate_clip_checkpoint(
     held-out objects' runs of a split by objects) replayed through it as the live detector runs it,
     at the checkpoint's operating point (``"per_grasp"`` in the result).
     """
-    import math
-
-    from slipsense.checkpoint import load_model
-    from slipsense.config import portable_path
-    from slipsense.models import at_dtype
-
     if not isinstance(noise_std, (int, float)) or not math.isfinite(noise_std) or noise_std < 0:
         raise ConfigError(f"--noise-std must be a finite number >= 0, got {noise_std!r}")
     sources = [s for s in (recordings, split, markers) if s is not None]
@@ -148,11 +148,6 @@ def _replayed(checkpoint, *, recordings, overrides, progress, objects, on_error=
     """Per-grasp outcomes of a clip model's replay (:func:`slipsense.evaluation.replay.evaluate`) with its
     operating point. Data the replay cannot take (runs of different camera counts) leaves the clip
     metrics standing: ``{"skipped": why}`` and a warning instead."""
-    import warnings
-
-    from slipsense.evaluation.replay import evaluate as evaluate_grasps
-    from slipsense.errors import SlipsenseError
-
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # trained-on objects / no threshold: stated in the result instead
@@ -190,11 +185,6 @@ def evaluate_grasp_checkpoint(
     :func:`evaluate_clip_checkpoint` (``on_error="skip"`` leaves out the runs of videos that cannot be
     read, each named in a warning); ``png``, ``noise_std`` and ``per_grasp`` are for clip models and
     not used."""
-    from dataclasses import asdict
-
-    from slipsense.evaluation.replay import evaluate as evaluate_grasps
-    from slipsense.config import portable_path
-
     if split is not None or markers is not None:
         raise InputError(
             split or markers,
@@ -231,7 +221,5 @@ def evaluate_grasp_checkpoint(
         ],
     }
     if json_out is not None:
-        from slipsense import atomic
-
-        atomic.write_text(json_out, json.dumps(doc, indent=1, default=float))
+        write_text(json_out, json.dumps(doc, indent=1, default=float))
     return doc

@@ -20,22 +20,23 @@ import time
 from pathlib import Path
 from typing import Any, Sequence
 
-
 from slipsense import atomic
 from slipsense.errors import ConfigError
+from slipsense.evaluation.early_warning import plot_tradeoff
 from slipsense.evaluation.grasp_scores import fold_result, pool_folds
+from slipsense.parallel import run_jobs
+from slipsense.recordings.runs import GraspRun, runs_summary
 from slipsense.training.grasp_detector import (
     chosen_part,
     finish_training,
     fit_job,
     inner_traces,
-    judged_indices,
     job_weight,
+    judged_indices,
     object_split,
     plan_training,
 )
 from slipsense.training.grasps import GraspTrainConfig
-from slipsense.recordings.runs import GraspRun, runs_summary
 
 
 def _config_key(cfg: GraspTrainConfig, folds: int, runs: Sequence[GraspRun]) -> str:
@@ -61,8 +62,6 @@ def run_folds(
     Every training of the folds not yet done (each fold's detector and its inner folds') goes to
     one pool of ``workers`` processes (default one per core, :mod:`slipsense.parallel`); a fold is
     written as soon as its trainings are finished."""
-    from slipsense.parallel import run_jobs
-
     out = Path(out)
     usable = [r for r in runs if r.usable]
     if any(r.whole and not r.extra for r in usable):
@@ -132,8 +131,6 @@ def run_folds(
 def _write_report(out: Path, head: dict[str, Any], folds: list[dict[str, Any]], title: str) -> dict[str, Any]:
     """``head`` with the ``folds`` pooled, written into ``out`` as folds.json, README.md and
     tradeoff.png; returns the report."""
-    from slipsense.evaluation.early_warning import plot_tradeoff
-
     pooled = pool_folds(folds)
     report = {
         **head,

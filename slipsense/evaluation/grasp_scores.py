@@ -13,6 +13,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from slipsense.evaluation import pergrasp
+from slipsense.recordings.clips import ClipSpec, plan_windows
 from slipsense.recordings.runs import GraspRun
 
 
@@ -30,8 +31,6 @@ def clip_scores(
     slip, two wiggle windows per video of a run that held) is scored by the detector's probability
     at its last frame. Returns ``(p, y)``; a run's cameras share one fused trace, so both cameras'
     clips of a run get the probability of their own end frames."""
-    from slipsense.recordings.clips import ClipSpec, plan_windows
-
     spec = ClipSpec(frames=frames)
     p, y = [], []
     for run, trace in zip(runs, probs):

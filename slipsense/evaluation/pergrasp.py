@@ -27,6 +27,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from slipsense.alarm import debounce  # the alarm rule every outcome is judged by
+from slipsense.errors import ConfigError
 from slipsense.recordings.contact import MIN_CONTACT as REST_MARGIN  # touching: this far above the rest floor
 from slipsense.recordings.contact import STARTUP_FRAMES as STARTUP  # camera start-up transient, never scored
 from slipsense.sensors.spec import GELSIGHT_MINI
@@ -219,8 +220,6 @@ def choose_operating_point(
         rule = "best score (warned rate - false-positive rate)"
     else:
         if not 0.0 <= float(max_held_alarm) <= 1.0:
-            from slipsense.errors import ConfigError
-
             raise ConfigError(f"max_held_alarm must be a fraction in [0, 1], got {max_held_alarm!r}")
         ok = [r for r in rows if r["false_positive_grasps"] <= max_held_alarm * r["held_runs"] + 1e-9]
         if not ok:

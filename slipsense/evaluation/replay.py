@@ -5,14 +5,28 @@ frame through the live detector, each run one per-grasp outcome (:mod:`slipsense
 from __future__ import annotations
 
 import json
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
 
+from slipsense.atomic import write_text
+from slipsense.checkpoint import read_info
 from slipsense.config import gelsight_recordings
+from slipsense.data import label_runs
+from slipsense.errors import InputError
 from slipsense.evaluation import outcome, pergrasp
+from slipsense.evaluation.baselines import baseline_scores
+from slipsense.evaluation.early_warning import replay_recordings
+from slipsense.evaluation.grasp_scores import clip_metrics, clip_scores
+from slipsense.recordings.folders import SkippedInputWarning, camera_counts, find_recordings, validate_recordings
+from slipsense.recordings.frame_folders import data_sensor
+from slipsense.recordings.video import probe_video
+from slipsense.resources import shipped_model
+from slipsense.sensors.spec import sensor_of
+from slipsense.streaming.detector import SlipDetector, shipped_name
 
 
 def recordings_folder(recordings: str | Path | None) -> Path:
@@ -31,16 +45,6 @@ def shipped_for(recordings: str | Path | None) -> Path:
     """The shipped detector for a recordings folder (:func:`~slipsense.streaming.detector.shipped_name`):
     the one of its sensor where one is shipped (the frame size its ``sensor.json`` or layout states,
     else its first recording's), for one finger where its grasps have one camera each."""
-    import warnings
-
-    from slipsense.recordings.folders import camera_counts, find_recordings
-    from slipsense.recordings.frame_folders import data_sensor
-    from slipsense.recordings.video import probe_video
-    from slipsense.resources import shipped_model
-    from slipsense.streaming.detector import shipped_name
-
-    from slipsense.errors import InputError
-
     root = recordings_folder(recordings)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the evaluation that follows reports them
@@ -89,8 +93,6 @@ class Evaluation:
         accuracy and balanced accuracy at its operating point and with thresholds chosen on the other
         objects, 95% intervals over objects; beside it the non-learned baselines
         (:mod:`slipsense.evaluation.baselines`) on the same frames, and where it does not beat them."""
-        from slipsense.evaluation.baselines import baseline_scores
-
         slipped = [r.slipped for r in self.runs]
         objects = [r.object for r in self.runs]
         score = self.peak_scores()
@@ -117,14 +119,10 @@ class Evaluation:
         """The papers' protocol on the same traces: every ``frames``-frame clip the project cuts from
         these runs, scored by the probability at its last frame, at the operating point and at 0.5
         (accuracy beside the always-wiggle baseline, balanced accuracy, precision, recall, F1)."""
-        from slipsense.evaluation.grasp_scores import clip_metrics, clip_scores
-
         p, y = clip_scores(self.runs, [r.probability for r in self.runs], self.labels or {}, frames)
         return {"operating_point": clip_metrics(p, y, self.threshold), "at_0.5": clip_metrics(p, y, 0.5)}
 
     def to_json(self, path: str | Path) -> Path:
-        from slipsense.atomic import write_text
-
         doc = {
             "threshold": self.threshold,
             "debounce": self.debounce,
@@ -139,10 +137,6 @@ def _whole_runs(found: Sequence[Any], kept: Sequence[Any]) -> list[Any]:
     """``kept`` without the runs that lost a camera video among ``found`` (skipped with
     ``on_error="skip"``), each named in a :class:`~slipsense.recordings.folders.SkippedInputWarning`:
     a detector on both fingers cannot judge a grasp from one."""
-    import warnings
-
-    from slipsense.recordings.folders import SkippedInputWarning
-
     have = {r.key for r in kept}
     broken = {}
     for r in found:
@@ -185,16 +179,6 @@ def evaluate(
     (one: each camera is a grasp of its own); a clip model sees every camera of a run at once and
     alarms on either.
     """
-    from slipsense.evaluation.early_warning import replay_recordings
-    from slipsense.streaming.detector import SlipDetector
-    from slipsense.recordings.folders import camera_counts, find_recordings, validate_recordings
-
-    import warnings
-
-    from slipsense.checkpoint import read_info
-    from slipsense.errors import InputError
-    from slipsense.sensors.spec import sensor_of
-
     root = recordings_folder(recordings)
     path = checkpoint or shipped_for(root)
     info = read_info(path)
@@ -225,7 +209,6 @@ def evaluate(
             f"{', ...' if len(seen) > 5 else ''}): their runs do not measure objects it never saw",
             stacklevel=2,
         )
-    from slipsense.data import label_runs
 
     labels = label_runs(recs, label_overrides(overrides), on_error=on_error, progress=progress)
     recs = [r for r in recs if r.key in labels]  # left out by on_error="skip"

@@ -20,6 +20,8 @@ from __future__ import annotations
 import math
 from typing import Any, Mapping
 
+from slipsense.sensors.spec import GELSIGHT_MINI
+
 #: Plain words for the baselines of :meth:`slipsense.evaluation.replay.Evaluation.grasp_measure`.
 BASELINE_WORDS = {
     "majority_class": "always answers the outcome most grasps of the other objects had",
@@ -208,8 +210,6 @@ def summary_lines(metrics: Mapping[str, Any], fps: float | None = None) -> list[
         fps: frames per second, to state the warning window in seconds (default: the GelSight Mini's).
     """
     if fps is None:
-        from slipsense.sensors.spec import GELSIGHT_MINI
-
         fps = GELSIGHT_MINI.fps
     if "grasp_measure" in metrics:
         return _grasp_detector_lines(metrics, fps)
