@@ -77,18 +77,21 @@ def test_fit_applies_what_the_command_line_applies(tmp_path, grasp_recordings, c
     assert trained.detector().sensors == 1
 
 
-def _quick_start() -> str:
+def _quick_start() -> tuple[str, str]:
+    """The README's quick start: its code and the printout it says the code gives."""
     text = README.read_text(encoding="utf-8")
-    section = text[text.index("## Python quick start") :]
-    return re.search(r"```python\n(.*?)```", section, re.S).group(1)
+    section = text[text.index("## Quick start") :]
+    code = re.search(r"```python\n(.*?)```", section, re.S).group(1)
+    printed = re.search(r"\nprints\n\n```\n(.*?)```", section, re.S).group(1)
+    return code, printed
 
 
 @needs_data
-def test_readme_quick_start_runs(tmp_path, one_thread):
-    result = subprocess.run(
-        [sys.executable, "-c", _quick_start()], capture_output=True, text=True, cwd=tmp_path, timeout=300
-    )
+def test_readme_quick_start_prints_what_the_readme_says(tmp_path, one_thread):
+    code, printed = _quick_start()
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, timeout=300)
     assert result.returncode == 0, result.stderr
+    assert result.stdout == printed
 
 
 def test_api_names_survive_importing_every_module():

@@ -17,26 +17,18 @@ from slipsense.run_config import empty_tree, given, load_tree, merge, parse_sets
 DEFAULT_MODEL = "motionnet"
 
 SET_HELP = (
-    "section.key=value, section model, data or train, e.g. train.lr=0.001, model.width=16, data.sensor=gelsight-mini; "
-    "a bare key=value is a training setting where it names one (grasp detectors), else a model setting; repeatable"
+    "section.key=value, section model, data or train, e.g. train.lr=0.001, model.width=16, "
+    "data.sensor=gelsight-mini, train.num_workers=2 (clip models' data loaders); a bare key=value is a "
+    "training setting where it names one, else a model setting; repeatable"
 )
 
 
 def _tree(config: Optional[Path], options: dict, sets: Optional[List[str]]) -> dict:
-    """The configuration tree: defaults < --config < options < --set (model name resolved first, so a
-    bare --set key lands in the section of the model's own trainer)."""
-    from slipsense.models import model_class  # torch: imported when a command runs, not for --help
-    from slipsense.training.grasps import GraspTrainConfig
-
-    layer = parse_sets(sets, bare="bare")
-    tree = merge(load_tree(config) if config else empty_tree(), given(options))
-    tree["model"]["name"] = layer.get("model", {}).get("name") or tree["model"].get("name") or DEFAULT_MODEL
-    cls = model_class(tree["model"]["name"]) if tree["model"]["name"] else None
-    train_keys = set(GraspTrainConfig.__dataclass_fields__) - {"model", "model_config"}
-    grasps = cls is not None and cls.training_task == "grasps"
-    for key, value in layer.pop("bare", {}).items():
-        layer.setdefault("train" if grasps and key in train_keys else "model", {})[key] = value
-    return merge(tree, layer)
+    """The configuration tree: defaults < --config < options < --set. A bare ``--set KEY=VALUE`` goes
+    to the model section; the recipe moves it to training where it names a training setting."""
+    tree = merge(load_tree(config) if config else empty_tree(), given(options), parse_sets(sets))
+    tree["model"]["name"] = tree["model"].get("name") or DEFAULT_MODEL
+    return tree
 
 
 def report_training(res: dict, echo=typer.echo) -> None:
@@ -121,9 +113,8 @@ def register(app: typer.Typer) -> None:
         ),
         workers: Optional[int] = typer.Option(
             None,
-            min=0,
-            help="grasp detectors: trainings side by side (default one per core; results do not depend on it); "
-            "clip models: data-loading processes",
+            min=1,
+            help="grasp detectors: trainings side by side (default one per core; results do not depend on it)",
         ),
         threads: Optional[int] = typer.Option(None, help="torch threads of each training process"),
         device: Optional[str] = typer.Option(None, help="clip models: auto (default), cpu, cuda, cuda:1, ..."),
@@ -143,13 +134,10 @@ def register(app: typer.Typer) -> None:
         from slipsense.training import recipe
 
         check_output_dir(out, "--out")
-        clips = model_class_task(model, config) == "clips"
-        clip_only = {"num_workers": workers} if clips else {}
-        hw = list(parse_hw(size)) if size else None  # clips are cut at this size; a grasp model sees frames so
         options = {
-            "model": {"name": model, "preset": preset, "image_size": None if clips else hw},
+            "model": {"name": model, "preset": preset},
             "data": dict(
-                size=hw if clips else None,
+                size=list(parse_hw(size)) if size else None,
                 recordings=recordings,
                 markers=markers,
                 frames=frames,
@@ -166,29 +154,18 @@ def register(app: typer.Typer) -> None:
                 epochs=epochs, batch_size=batch_size, lr=lr, device=device, seed=seed, inner_folds=inner_folds
             ),
         }
-        options["train"].update(clip_only)
         tree = _tree(config, options, sets)
         check_seed(tree["train"].get("seed", 0))
-        grasp_workers = None if clip_only else workers
         if cross_validate:
             n = tree["data"].pop("folds", None) or 5
             rep = recipe.cross_validate(
-                tree, out, n, progress=progress, workers=grasp_workers, threads=threads, command=command_line()
+                tree, out, n, progress=progress, workers=workers, threads=threads, command=command_line()
             )
             report_folds(rep, out)
             return
         if tree["data"].get("fold") is not None:
             tree["data"].setdefault("folds", 5)
         res = recipe.fit(
-            tree, out, progress=progress, resume=resume, workers=grasp_workers, threads=threads, command=command_line()
+            tree, out, progress=progress, resume=resume, workers=workers, threads=threads, command=command_line()
         )
         report_training(res)
-
-
-def model_class_task(model: Optional[str], config: Optional[Path]) -> str | None:
-    """The training task of the model named by --model or the --config file (None when unknown: the
-    recipe names the problem)."""
-    from slipsense.models import available, model_class
-
-    name = model or (load_tree(config)["model"].get("name") if config else None) or DEFAULT_MODEL
-    return model_class(name).training_task if name in available() else None

@@ -109,6 +109,7 @@ def _task(tree: dict[str, Any]) -> str:
 def _grasp_folds(tree, out: Path, folds: int, *, progress, workers, threads, command) -> dict[str, Any]:
     from slipsense.evaluation.folds import run_folds
 
+    grasp_split(tree)  # the clip-only settings refused, data.size moved to the model (nothing is held out)
     cfg, runs, labels, data = prepare_grasps(tree, progress, threads, out)
     meta = {"command": command, **data}
     return run_folds(runs, labels, cfg, out, folds, meta=meta, progress=progress, workers=workers)
