@@ -20,7 +20,8 @@ from slipsense.cli import app
 from studies.__main__ import app as studies_app
 from slipsense.config import gelsight_recordings
 from slipsense.errors import ConfigError, InputError
-from slipsense.evaluation.early_warning import EARLY_WARNING_COLUMNS, RunTrace, early_warning_table
+from slipsense.evaluation.early_warning import RunTrace
+from studies.grasp.early_warning import EARLY_WARNING_COLUMNS, early_warning_table
 from slipsense.models.streams import slip_probability
 from slipsense.streaming.detector import Reading, SlipDetector
 from slipsense.models import build

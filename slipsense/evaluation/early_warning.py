@@ -1,4 +1,4 @@
-"""Early warning: replay recordings through a streaming detector and judge it per grasp.
+"""Replay recordings through a streaming detector, every run from its first frame, for judging it per grasp.
 
 Every run is replayed from its first frame with all its cameras, exactly as the live detector
 would see it (:meth:`slipsense.streaming.detector.SlipDetector.replay`), then scored with
@@ -13,9 +13,6 @@ opposite.
 
 from __future__ import annotations
 
-import csv
-import io
-import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,7 +20,6 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from slipsense import atomic
 from slipsense.data import label_runs
 from slipsense.errors import InputError
 from slipsense.evaluation import pergrasp
@@ -32,10 +28,6 @@ from slipsense.progress import progress_bar
 from slipsense.recordings.frame_cache import video_products
 from slipsense.recordings.types import by_run
 from slipsense.recordings.video import read_video
-from slipsense.sensors.spec import GELSIGHT_MINI
-
-#: Columns of the early-warning CSV, in order.
-EARLY_WARNING_COLUMNS = pergrasp.COLUMNS
 
 
 @dataclass
@@ -57,24 +49,6 @@ class RunTrace:
         return pergrasp.trace_outcome(
             self.probability, threshold, debounce, self.moment_of_slip, self.slipped, horizon, startup, self.rest
         )
-
-
-def early_warning_table(
-    runs: Sequence[RunTrace],
-    thresholds: Sequence[float],
-    debounce: int = 1,
-    horizon: int = pergrasp.HORIZON,
-    fps: float = GELSIGHT_MINI.fps,
-) -> list[dict[str, Any]]:
-    """One row (:data:`EARLY_WARNING_COLUMNS`) per threshold, pooled over ``runs``."""
-    return [
-        {
-            "threshold": float(th),
-            "debounce": int(debounce),
-            **pergrasp.summarise([r.outcome(th, debounce, horizon) for r in runs], fps),
-        }
-        for th in thresholds
-    ]
 
 
 def replay_recordings(
@@ -148,70 +122,6 @@ def _replay_run(detector, key, cams, run_cams, labels, read_video, video_product
         trace = detector.replay(*[read_video(r.path, expected_size=None, min_frames=1) for r in cams])
     rest = pergrasp.rest_mask(np.stack([c["contact"] for c in cached])) if n > 1 else None
     return RunTrace(key[0], key[1], slipped, moment, n, trace.probability, rest, tuple(c.camera for c in cams))
-
-
-def write_early_warning(
-    runs: Sequence[RunTrace],
-    thresholds: Sequence[float],
-    out_dir: str | Path,
-    debounce: int = 1,
-    horizon: int = pergrasp.HORIZON,
-    fps: float = GELSIGHT_MINI.fps,
-    meta: Mapping[str, Any] | None = None,
-) -> dict[str, Path]:
-    """Write ``early_warning.csv``, ``early_warning.json`` (table, definitions, every run's outcome
-    per threshold and its trace) and ``early_warning.png`` (slips warned in time against grasps
-    that held yet alarmed, one point per threshold) into ``out_dir``."""
-    out_dir = Path(out_dir)
-    rows = early_warning_table(runs, thresholds, debounce, horizon, fps)
-    buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=EARLY_WARNING_COLUMNS, lineterminator="\n")
-    writer.writeheader()
-    for row in rows:
-        writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in row.items()})
-    paths = {
-        "csv": out_dir / "early_warning.csv",
-        "json": out_dir / "early_warning.json",
-        "png": out_dir / "early_warning.png",
-    }
-    atomic.write_text(paths["csv"], buf.getvalue())
-    doc = {
-        **(dict(meta) if meta else {}),
-        "fps": fps,
-        "horizon_frames": horizon,
-        "debounce": debounce,
-        "startup_frames": pergrasp.STARTUP,
-        "thresholds": [float(t) for t in thresholds],
-        "definitions": {
-            "warned": "slip run whose first alarm after the start-up falls in moment-horizon..moment",
-            "premature": "slip run whose first alarm comes before moment-horizon (a false alarm)",
-            "missed": "slip run without an alarm up to the moment",
-            "false_positive_grasps": "runs that held yet alarmed at any frame after the start-up",
-            "runs_alarming_at_rest": "runs with an alarm while no gel was touched",
-            "score": "warned_rate - false_positive_rate",
-        },
-        "table": [_json_safe(r) for r in rows],
-        "runs": [
-            {
-                "object": r.object,
-                "experiment": r.experiment,
-                "slipped": r.slipped,
-                "moment_of_slip": r.moment_of_slip,
-                "n_frames": r.n_frames,
-                "outcome": {f"{t:g}": r.outcome(t, debounce, horizon).outcome for t in thresholds},
-                "first_alarm": {f"{t:g}": r.outcome(t, debounce, horizon).first_alarm for t in thresholds},
-                "probability": [None if math.isnan(p) else round(float(p), 5) for p in r.probability],
-            }
-            for r in runs
-        ],
-    }
-    atomic.write_text(paths["json"], json.dumps(doc, indent=1))
-    plot_tradeoff(rows, paths["png"])
-    return paths
-
-
-def _json_safe(row: Mapping[str, Any]) -> dict[str, Any]:
-    return {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in row.items()}
 
 
 def plot_tradeoff(rows: Sequence[Mapping[str, Any]], path: str | Path, title: str = "") -> None:

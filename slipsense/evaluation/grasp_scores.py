@@ -163,29 +163,3 @@ def _outcomes(runs, probs, op: dict[str, Any], horizon: int, rests) -> list[perg
         pergrasp.trace_outcome(p, op["threshold"], op["debounce"], r.moment_of_slip, r.slipped, horizon, startup, rest)
         for r, p, rest in zip(runs, probs, rests)
     ]
-
-
-def fold_at(fold: dict[str, Any], op: dict[str, Any], horizon: int) -> dict[str, Any]:
-    """A fold written by :func:`fold_result` scored again at another operating point ``op``, from
-    the held-out traces and clip probabilities it keeps (6 decimals; fold files written before kept 4,
-    where a threshold near 0.9999 can decide differently than the full-precision trace would)."""
-    runs, outs = [], []
-    for r in fold["runs"]:
-        p = stored_trace(r)
-        rest = np.zeros(len(p), dtype=bool)
-        rest[r["rest"]] = True
-        startup = int(op.get("startup", pergrasp.STARTUP))
-        o = pergrasp.trace_outcome(
-            p, op["threshold"], op["debounce"], r["moment_of_slip"], bool(r.get("slipped")), horizon, startup, rest
-        )
-        outs.append(o)
-        runs.append({**r, "outcome": o.outcome, "first_alarm": o.first_alarm, "lead": o.lead})
-    p = np.asarray(fold["clip_probability"], dtype=np.float64)
-    y = np.asarray(fold["clip_label"], dtype=np.int64)
-    return {
-        **fold,
-        "operating_point": op,
-        "per_grasp": pergrasp.summarise(outs),
-        "clips": clip_metrics(p, y, op["threshold"]),
-        "runs": runs,
-    }

@@ -187,29 +187,3 @@ def beats(detector: Mapping[str, Any], baselines: Mapping[str, Mapping[str, Any]
             if not mine_v > theirs_v:
                 said.append(f"the detector does not beat {name} on {label} ({mine_v:.3f} against {theirs_v:.3f})")
     return said
-
-
-def table_lines(measure: Mapping[str, Any]) -> list[str]:
-    """The measure of :meth:`slipsense.evaluation.replay.Evaluation.grasp_measure` as lines of text:
-    one row per scorer (the detector first, then the baselines), then where it does not beat them."""
-
-    def cell(m: Mapping[str, Any] | None) -> str:
-        if m is None:
-            return f"{'-':<19}"
-        lo, hi = m["interval"]
-        return f"{m['value']:.3f} [{lo:.2f}, {hi:.2f}]".ljust(19)
-
-    d = measure["detector"]
-    lines = [
-        f"per grasp: {d['slipped']} of {d['grasps']} grasps slipped, {d['objects']} objects "
-        "(95% intervals: bootstrap over objects)",
-        f"  {'':<22}{'ROC AUC':<19}{'acc. own point':<19}{'acc. leave-obj-out':<19}{'balanced, l-o-o':<19}",
-    ]
-    for name, m in [("detector", d)] + list(measure["baselines"].items()):
-        own, loo = m.get("operating_point") or {}, m.get("leave_objects_out") or {}
-        lines.append(
-            f"  {name:<22}{cell(m['roc_auc'])}{cell(own.get('accuracy'))}{cell(loo.get('accuracy'))}"
-            f"{cell(loo.get('balanced_accuracy'))}"
-        )
-    lines += [f"  note: {s}" for s in measure["not_beaten"]]
-    return lines

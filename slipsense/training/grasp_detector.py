@@ -205,20 +205,6 @@ def train_with_operating_point(
     return finish_training(runs, jobs, results, cfg)
 
 
-def inner_fold_traces(usable: Sequence[GraspRun], cfg: GraspTrainConfig, workers=1, progress=False) -> list[np.ndarray]:
-    """P(slip) traces of ``usable`` runs but another data set's, each from the model of
-    ``cfg.inner_folds`` inner folds by object that did not train on its object (what an operating
-    point is chosen on)."""
-    from slipsense.parallel import run_jobs
-
-    if cfg.choose:
-        raise ConfigError("train.choose: give the chosen settings (GraspTrainConfig via with_settings)")
-    jobs = plan_training(usable, (), cfg)[1:]
-    results = run_jobs(fit_job, jobs, (usable, cfg), workers, [job_weight(j, cfg) for j in jobs], progress=progress)
-    by_index = {i: p for job, res in zip(jobs, results) for i, p in zip(job.predict, res["probs"])}
-    return [by_index[i] for i, r in enumerate(usable) if not r.extra]
-
-
 def held_alarm_of(probs: Sequence[np.ndarray], runs: Sequence[GraspRun], op: dict, cfg: GraspTrainConfig) -> dict:
     """:func:`~slipsense.evaluation.pergrasp.held_alarm_promise` of the held ``runs`` at ``op``."""
     held = [(p, r.object) for p, r in zip(probs, runs) if not r.slipped]

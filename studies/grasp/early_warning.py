@@ -4,19 +4,25 @@ trade-off plot. ``python -m studies grasp early-warning``."""
 
 from __future__ import annotations
 
+import csv
+import io
+import json
+import math
 import warnings
 from pathlib import Path
-from typing import Optional, Sequence
+from typing import Any, Mapping, Optional, Sequence
 
 from slipsense.atomic import check_output_dir
 from slipsense.checkpoint import read_info
 from slipsense.config import gelsight_recordings
 from slipsense.errors import ConfigError, InputError
-from slipsense.evaluation.early_warning import early_warning_table, replay_recordings, write_early_warning
+from slipsense import atomic
+from slipsense.evaluation import pergrasp
+from slipsense.evaluation.early_warning import RunTrace, plot_tradeoff, replay_recordings
 from slipsense.evaluation.replay import shipped_for
 from slipsense.recordings.folders import camera_counts, find_recordings
 from slipsense.recordings.label_csv import read_labels_csv
-from slipsense.sensors.spec import sensor_of
+from slipsense.sensors.spec import GELSIGHT_MINI, sensor_of
 from slipsense.streaming.detector import SlipDetector
 from slipsense.watch import checkpoint_or_shipped
 
@@ -33,6 +39,92 @@ def parse_thresholds(text: str) -> list[float]:
     if not values or any(not 0.0 <= v <= 1.0 for v in values):
         raise ConfigError(f"--thresholds must be comma-separated numbers in [0, 1], got {text!r}")
     return values
+
+
+#: Columns of the early-warning CSV, in order.
+EARLY_WARNING_COLUMNS = pergrasp.COLUMNS
+
+
+def early_warning_table(
+    runs: Sequence[RunTrace],
+    thresholds: Sequence[float],
+    debounce: int = 1,
+    horizon: int = pergrasp.HORIZON,
+    fps: float = GELSIGHT_MINI.fps,
+) -> list[dict[str, Any]]:
+    """One row (:data:`EARLY_WARNING_COLUMNS`) per threshold, pooled over ``runs``."""
+    return [
+        {
+            "threshold": float(th),
+            "debounce": int(debounce),
+            **pergrasp.summarise([r.outcome(th, debounce, horizon) for r in runs], fps),
+        }
+        for th in thresholds
+    ]
+
+
+def write_early_warning(
+    runs: Sequence[RunTrace],
+    thresholds: Sequence[float],
+    out_dir: str | Path,
+    debounce: int = 1,
+    horizon: int = pergrasp.HORIZON,
+    fps: float = GELSIGHT_MINI.fps,
+    meta: Mapping[str, Any] | None = None,
+) -> dict[str, Path]:
+    """Write ``early_warning.csv``, ``early_warning.json`` (table, definitions, every run's outcome
+    per threshold and its trace) and ``early_warning.png`` (slips warned in time against grasps
+    that held yet alarmed, one point per threshold) into ``out_dir``."""
+    out_dir = Path(out_dir)
+    rows = early_warning_table(runs, thresholds, debounce, horizon, fps)
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=EARLY_WARNING_COLUMNS, lineterminator="\n")
+    writer.writeheader()
+    for row in rows:
+        writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in row.items()})
+    paths = {
+        "csv": out_dir / "early_warning.csv",
+        "json": out_dir / "early_warning.json",
+        "png": out_dir / "early_warning.png",
+    }
+    atomic.write_text(paths["csv"], buf.getvalue())
+    doc = {
+        **(dict(meta) if meta else {}),
+        "fps": fps,
+        "horizon_frames": horizon,
+        "debounce": debounce,
+        "startup_frames": pergrasp.STARTUP,
+        "thresholds": [float(t) for t in thresholds],
+        "definitions": {
+            "warned": "slip run whose first alarm after the start-up falls in moment-horizon..moment",
+            "premature": "slip run whose first alarm comes before moment-horizon (a false alarm)",
+            "missed": "slip run without an alarm up to the moment",
+            "false_positive_grasps": "runs that held yet alarmed at any frame after the start-up",
+            "runs_alarming_at_rest": "runs with an alarm while no gel was touched",
+            "score": "warned_rate - false_positive_rate",
+        },
+        "table": [_json_safe(r) for r in rows],
+        "runs": [
+            {
+                "object": r.object,
+                "experiment": r.experiment,
+                "slipped": r.slipped,
+                "moment_of_slip": r.moment_of_slip,
+                "n_frames": r.n_frames,
+                "outcome": {f"{t:g}": r.outcome(t, debounce, horizon).outcome for t in thresholds},
+                "first_alarm": {f"{t:g}": r.outcome(t, debounce, horizon).first_alarm for t in thresholds},
+                "probability": [None if math.isnan(p) else round(float(p), 5) for p in r.probability],
+            }
+            for r in runs
+        ],
+    }
+    atomic.write_text(paths["json"], json.dumps(doc, indent=1))
+    plot_tradeoff(rows, paths["png"])
+    return paths
+
+
+def _json_safe(row: Mapping[str, Any]) -> dict[str, Any]:
+    return {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in row.items()}
 
 
 def run_early_warning(

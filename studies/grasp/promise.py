@@ -3,13 +3,31 @@
 from __future__ import annotations
 
 import json
-from typing import Any
+from typing import Any, Sequence
+
+import numpy as np
 
 from slipsense.checkpoint import read_info, update_info
 from slipsense.errors import InputError
-from slipsense.training.grasp_detector import held_alarm_of, inner_fold_traces
+from slipsense.errors import ConfigError
+from slipsense.parallel import run_jobs
+from slipsense.recordings.runs import GraspRun
+from slipsense.training.grasp_detector import fit_job, held_alarm_of, job_weight, plan_training
+from slipsense.training.grasps import GraspTrainConfig
 from slipsense.training.grasps import with_settings
 from slipsense.training.recipe import prepare_grasps
+
+
+def inner_fold_traces(usable: Sequence[GraspRun], cfg: GraspTrainConfig, workers=1, progress=False) -> list[np.ndarray]:
+    """P(slip) traces of ``usable`` runs but another data set's, each from the model of
+    ``cfg.inner_folds`` inner folds by object that did not train on its object (what an operating
+    point is chosen on)."""
+    if cfg.choose:
+        raise ConfigError("train.choose: give the chosen settings (GraspTrainConfig via with_settings)")
+    jobs = plan_training(usable, (), cfg)[1:]
+    results = run_jobs(fit_job, jobs, (usable, cfg), workers, [job_weight(j, cfg) for j in jobs], progress=progress)
+    by_index = {i: p for job, res in zip(jobs, results) for i, p in zip(job.predict, res["probs"])}
+    return [by_index[i] for i, r in enumerate(usable) if not r.extra]
 
 
 def restate_promise(checkpoint, workers: int | None = 1, progress: bool = False) -> dict[str, Any]:
