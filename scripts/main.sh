@@ -23,5 +23,5 @@ rm -rf "$out/held-out-recordings" && mkdir -p "$out/held-out-recordings"
 data=$(.venv/bin/python -c "from slipsense.config import gelsight_recordings; print(gelsight_recordings())")
 for o in $held; do ln -s "$data/$o" "$out/held-out-recordings/$o"; done
 .venv/bin/slipsense evaluate --checkpoint "$out/motionnet-fold0/detector.safetensors" \
-    --recordings "$out/held-out-recordings" --overrides "$overrides" --json "$out/held-out-evaluation.json" --no-progress
+    --recordings "$out/held-out-recordings" --json "$out/held-out-evaluation.json" --no-progress
 echo "reports in $out: labels.csv, motionnet-fold0/ (detector, metrics.csv, curves.png, held_out.json), held-out-evaluation.json"
