@@ -23,7 +23,7 @@ from __future__ import annotations
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 from torch import nn
@@ -35,6 +35,7 @@ from slipsense.models.base import SlipModel, window_geometry
 from slipsense.models.runners import BACKENDS, DTYPES, onnx_cache_dir, resolve_backend
 from slipsense.resources import default_model_name, shipped_model, shipped_models
 from slipsense.sensors.spec import GELSIGHT_MINI, sensor_of
+from slipsense.streaming.clock import ModelClock, resample
 
 #: Frame rate of the GelSight recordings (frames per second): converts frames to milliseconds.
 FPS = GELSIGHT_MINI.fps
@@ -220,9 +221,12 @@ class SlipDetector:
         return self.geometry["frames"]
 
     def reset(self) -> None:
-        """Forget the window and restart frame numbering at 0."""
-        self._index = 0
-        self._above = 0  # consecutive pushes at or above the threshold (debounce)
+        """Forget the window and restart frame numbering (and the model's clock) at 0."""
+        self._index = 0  # pushes
+        self._ticks = 0  # steps of the model: one a push, or one a tick of its clock for stamped pushes
+        self._above = 0  # consecutive steps at or above the threshold (debounce)
+        self._answer: tuple[float, tuple[float, ...]] | None = None  # the latest step's (combined, per sensor)
+        self._clock = ModelClock(self.sensor.fps)
         self._stream.reset()
 
     @property
@@ -230,38 +234,56 @@ class SlipDetector:
         """True once the model answers (its window is full, the camera start-up is over)."""
         return self._stream.ready
 
-    def push(self, *frames: Any) -> Reading:
+    def push(self, *frames: Any, stamp: float | None = None) -> Reading:
         """Add one frame per sensor and classify the latest frames.
 
         Video and grasp models take uint8 ``(H, W, 3)`` BGR images (resized to the model's size when
         it differs); marker models take float ``(M, 3)`` marker positions in mm. Raises
         :class:`InputError` (naming the frame and sensor) for a wrong count, type, shape, dtype or
         a non-finite value; the window is left unchanged then.
+
+        ``stamp``: when the frames were taken (seconds, the source's clock). With stamps the model
+        runs on its own clock (:class:`~slipsense.streaming.clock.ModelClock`, its sensor's rate
+        ``self.sensor.fps``): a source at another rate, with dropped frames or jitter, gives the model
+        what it was trained on, and the reading is the model's latest answer. Without stamps every
+        push is one step of the model, as if the source ran at the model's rate.
         """
         if len(frames) != self.sensors:
             raise InputError(
                 None, f"frame {self._index}: push takes {self.sensors} frame(s), one per sensor, got {len(frames)}"
             )
         index = self._index
-        per_sensor = self._stream.push(frames, index)
+        for inputs in [frames] if stamp is None else self._clock.ticks(stamp, frames):
+            self._step(inputs)
         self._index += 1
-        if per_sensor is None:
+        if self._answer is None:
             return Reading(index, None, None, False)
+        p, per_sensor = self._answer
+        return Reading(index, p, per_sensor, self._above >= self.debounce)
+
+    def _step(self, frames: Sequence[Any]) -> None:
+        """One step of the model on its clock: its answer and the debounce count."""
+        per_sensor = self._stream.push(frames, self._ticks)
+        self._ticks += 1
+        if per_sensor is None:
+            return
         p = float(combine_probabilities(np.asarray(per_sensor), self.combine))
         # NaN must never read as "safe": a model answer that is not a number raises the alarm
         above = not (p < self.threshold)
         self._above = self._above + 1 if above else 0
-        return Reading(index, p, tuple(float(v) for v in per_sensor), self._above >= self.debounce)
+        self._answer = (p, tuple(float(v) for v in per_sensor))
 
-    def replay(self, *streams: np.ndarray) -> Trace:
+    def replay(self, *streams: np.ndarray, stamps: np.ndarray | None = None) -> Trace:
         """Probabilities for whole recordings at once: the numbers pushing every frame would give.
 
         Args:
             streams: one per sensor, all N frames long: uint8 ``(N, H, W, 3)`` BGR videos (video
                 and grasp models) or float ``(N, M, 3)`` marker clouds (marker models).
+            stamps: ``(N,)`` seconds the frames were taken: the model runs on its own clock, as
+                :meth:`push` with stamps does (None: every frame one step of the model).
 
         Returns:
-            :class:`Trace`. Does not touch the streaming state.
+            :class:`Trace`, one value per source frame. Does not touch the streaming state.
         """
         if len(streams) != self.sensors:
             raise InputError(None, f"replay takes {self.sensors} stream(s), one per sensor, got {len(streams)}")
@@ -271,7 +293,10 @@ class SlipDetector:
         n = len(streams[0])
         if any(len(s) != n for s in streams):
             raise InputError(None, f"replay streams differ in length: {[len(s) for s in streams]}")
-        return self._trace(self._stream.replay(streams))
+        if stamps is None:
+            return self._trace(self._stream.replay(streams))
+        ticks, last = resample(streams, np.asarray(stamps, dtype=np.float64), self.sensor.fps)
+        return self._trace(self._stream.replay(ticks)[last])
 
     @property
     def cache_product(self) -> str | None:
@@ -280,12 +305,15 @@ class SlipDetector:
         replay the decoded video."""
         return getattr(self._stream, "cache_product", None)
 
-    def replay_cached(self, frames: np.ndarray) -> Trace:
+    def replay_cached(self, frames: np.ndarray, stamps: np.ndarray | None = None) -> Trace:
         """:meth:`replay` from the frame cache's :attr:`cache_product` of every sensor, stacked:
-        ``(S, N, ...)`` (grey frames uint8 ``(S, N, h, w)`` for a grasp model)."""
+        ``(S, N, ...)`` (grey frames uint8 ``(S, N, h, w)`` for a grasp model); ``stamps`` as there."""
         if self.cache_product is None:
             raise ConfigError(f"{self.model_name} is replayed from decoded videos: use replay()")
-        return self._trace(self._stream.replay_cached(frames))
+        if stamps is None:
+            return self._trace(self._stream.replay_cached(frames))
+        ticks, last = resample(list(frames), np.asarray(stamps, dtype=np.float64), self.sensor.fps)
+        return self._trace(self._stream.replay_cached(np.stack(ticks))[last])
 
     def replay_gray(self, gray: np.ndarray) -> Trace:
         """:meth:`replay_cached` of a grasp model: grey frames uint8 ``(S, N, h, w)`` at its size."""
