@@ -83,11 +83,15 @@ def watch_source(
     jsonl: Optional[str] = None,
     bag_out: Optional[Path] = None,
     realtime: bool = False,
+    fps: Optional[float] = None,
 ) -> dict[str, Any]:
     """Stream ``source`` through the detector; print a line per frame; optionally write an annotated
     GIF/video, the readings as JSON lines (``jsonl``, ``"-"`` for standard output) and into a new bag
     (``bag_out``). ``topics``: a bag's image topics, one per sensor; ``realtime``: play a file at the
-    sensor's rate through the live capture path. Returns ``{"frames", "alarm_onsets", "first_alarm",
+    source's rate through the live capture path; ``fps``: the source's rate where it states none (a
+    folder of frames without ``sensor.json``) or states it wrongly. The detector runs on its own clock
+    (:meth:`SlipDetector.push` with the source's stamps), so any source rate gives the model what it was
+    trained on; readings are one per source frame, stamped on the source's clock. Returns ``{"frames", "alarm_onsets", "first_alarm",
     "out", "source"}`` (``source``: what the source reports of its delivery)."""
     if max_frames is not None and max_frames < 0:
         raise ConfigError(f"--max-frames must be 0 or more, got {max_frames}")
@@ -99,23 +103,18 @@ def watch_source(
     # the user's own settings are checked before any source is opened or checkpoint blamed
     check_settings(0.5 if threshold is None else threshold, 1, combine, backend, dtype)
     if checkpoint is None:  # the shipped detectors read videos: one for one finger, one for both
-        sensor = GELSIGHT_MINI
-        src = _open(source, None, sensor, topics, tolerance, realtime)  # the shipped detectors take pictures
+        src = _open(source, None, GELSIGHT_MINI, topics, tolerance, realtime, fps=fps)  # they take pictures
         try:
             ckpt = _shipped_for_source(source, src.sensors)
             model, info = load_model(ckpt)
         except BaseException:
             src.close()
             raise
-        if sensor_of(info, ckpt).fps != sensor.fps:  # picked for another sensor: its rate stamps the frames
-            src.close()
-            sensor = sensor_of(info, ckpt)
-            src = _open(source, None, sensor, topics, tolerance, realtime)
     else:
         ckpt = checkpoint_or_shipped(checkpoint)
         model, info = load_model(ckpt)
         sensor = sensor_of(info, ckpt)  # a malformed sensor spec is named with its file
-        src = _open(source, model, sensor, topics, tolerance, realtime, window_geometry(model, info))
+        src = _open(source, model, sensor, topics, tolerance, realtime, window_geometry(model, info), fps)
     own_point = threshold is None
     threshold, debounce = stored_operating_point(ckpt, info, threshold, None)
     backend = resolve_backend(backend, model)
@@ -139,8 +138,9 @@ def watch_source(
         echo(f"{Path(ckpt).stem} on {runs_on}, {det.sensors} sensor(s), alarm at {det.threshold:g}", err=jsonl == "-")
         if own_point:  # the checkpoint's own operating point: what it promises
             echo(promise_text(info.get("operating_point")), err=jsonl == "-")
-    annot = Annotator(det.threshold, det.sensors, fps=det.sensor.fps) if out is not None else None
-    writer = AnnotatedWriter(out, fps=det.sensor.fps) if out is not None else None
+    echo(rate_line(src, det), err=jsonl == "-")
+    annot = Annotator(det.threshold, det.sensors, fps=src.fps) if out is not None else None
+    writer = AnnotatedWriter(out, fps=src.fps) if out is not None else None  # plays at the source's speed
     sinks = _sinks(jsonl, bag_out, src, det)
     onsets: list[int] = []
     previous = False
@@ -149,7 +149,10 @@ def watch_source(
         for step in itertools.islice(src.frames(), max_frames):  # takes no frame beyond the last pushed
             display, inputs = step.display, step.inputs
             t0 = time.perf_counter()
-            r = det.push(*inputs)
+            try:
+                r = det.push(*inputs, stamp=step.stamp)
+            except InputError as exc:  # stamps that go backwards: the source is what is wrong
+                raise InputError(src.name, exc.problem) if exc.path is None else exc from None
             latency_ms = (time.perf_counter() - t0) * 1e3
             n += 1
             if sinks:
@@ -202,8 +205,9 @@ def watch_source(
     return summary
 
 
-def _open(source, model, sensor, topics, tolerance, realtime, geometry=None):
-    """The source, with the sensor's rate, camera files and capture settings."""
+def _open(source, model, sensor, topics, tolerance, realtime, geometry=None, fps=None):
+    """The source on its own clock (``fps``: the user's statement of its rate), with the sensor's camera
+    files and capture settings (cameras are asked for the sensor's rate)."""
     size = tuple(sensor.image_size) if sensor.image_size else None
     src = open_source(
         source,
@@ -211,7 +215,8 @@ def _open(source, model, sensor, topics, tolerance, realtime, geometry=None):
         sensor.camera_glob,
         geometry,
         topics=topics,
-        fps=sensor.fps,
+        fps=fps,
+        camera_fps=sensor.fps,
         tolerance_s=tolerance,
         capture_format=sensor.capture_format,
         frame_size=size,
@@ -229,10 +234,10 @@ def _open(source, model, sensor, topics, tolerance, realtime, geometry=None):
 
     def play():  # the clock starts at the first frame asked for, once the detector is ready
         threads = [
-            CaptureThread(PacedReader([s.inputs[k] for s in steps], sensor.fps).read, f"{src.name}[{k}]")
+            CaptureThread(PacedReader([s.inputs[k] for s in steps], src.fps).read, f"{src.name}[{k}]")
             for k in range(src.sensors)
         ]
-        live.append(capture_source(f"{src.name} in real time", threads, sensor.fps, tolerance))
+        live.append(capture_source(f"{src.name} in real time", threads, src.fps, tolerance))
         yield from live[0].frames()
 
     return Source(
@@ -241,6 +246,8 @@ def _open(source, model, sensor, topics, tolerance, realtime, geometry=None):
         play(),
         closer=lambda: [s.close() for s in live],
         stats=lambda: live[0].stats() if live else {},
+        fps=src.fps,
+        clock=f"{src.clock}, played on the capture clock",
     )
 
 
@@ -258,6 +265,14 @@ def _sinks(jsonl, bag_out, src, det) -> list:
         det.close()
         raise
     return sinks
+
+
+def rate_line(src, det) -> str:
+    """What rate the source delivers at, where that was read, and the rate the detector runs at."""
+    same = abs(src.fps - det.sensor.fps) < 0.01 * det.sensor.fps
+    return f"{src.name}: {src.fps:g} frames/s ({src.clock}); the detector runs at {det.sensor.fps:g} frames/s" + (
+        " too" if same else f", its clock fills in between ({det.sensor.name}'s rate, as it was trained)"
+    )
 
 
 def reading_line(r) -> str:

@@ -21,11 +21,19 @@ FRAMES = 60  # of the real run: enough for the shipped detector to answer (start
 
 
 def write_bag(
-    path: Path, videos, topics, offsets_ns=(0, 3_000_000), compressed=(False, True), extra_string=False, slots=None
+    path: Path,
+    videos,
+    topics,
+    offsets_ns=(0, 3_000_000),
+    compressed=(False, True),
+    extra_string=False,
+    slots=None,
+    logged_in_order=False,
 ):
     """A rosbag2 (sqlite3) with one image topic per video: Image bgr8, or CompressedImage PNG
     (lossless), frames 40 ms apart, each topic's stamps shifted by its offset. ``slots``: per topic,
-    the 40 ms slot of each of its frames (default 0, 1, 2, ...: a slot left out is a frame missing)."""
+    the 40 ms slot of each of its frames (default 0, 1, 2, ...: a slot left out is a frame missing);
+    ``logged_in_order``: messages logged 40 ms apart in the order written, whatever their header stamps."""
     from rosbags.rosbag2 import Writer
     from rosbags.typesys import Stores, get_typestore
 
@@ -62,7 +70,8 @@ def write_bag(
                         step=wd * 3,
                         data=img.reshape(-1),
                     )
-                w.write(conn, ns, ts.serialize_cdr(msg, conn.msgtype))
+                logged = 1_700_000_000_000_000_000 + k * 40_000_000 + off if logged_in_order else ns
+                w.write(conn, logged, ts.serialize_cdr(msg, conn.msgtype))
             if text is not None:
                 w.write(text, 1_700_000_000_000_000_000 + k, ts.serialize_cdr(String(data="hi"), String.__msgtype__))
     return path
@@ -439,3 +448,14 @@ def test_watch_and_convert_refuse_bad_settings_in_one_line(tmp_path):
         assert res.exit_code == 2 and "Traceback" not in res.output and bad[0] in res.output, res.output
     res = CliRunner().invoke(app, ["watch", str(bag), *topics, "--tolerance", "nan"])
     assert res.exit_code == 2 and "--tolerance" in res.output
+
+
+@needs_data
+def test_a_topic_whose_header_stamps_go_backwards_is_refused_in_one_line(tmp_path):
+    from slipsense.cli import app
+
+    bag = write_bag(tmp_path / "back", _videos(6), ["/l", "/r"], slots=[[0, 1, 3, 2, 4, 5]] * 2, logged_in_order=True)
+    res = CliRunner().invoke(app, ["watch", str(bag), "--topic", "/l", "--topic", "/r"])
+    lines = [line for line in res.output.splitlines() if line.startswith("error: ")]
+    assert res.exit_code == 2 and len(lines) == 1, res.output
+    assert str(bag) in lines[0] and "/l: header stamps go backwards at message 3" in lines[0]

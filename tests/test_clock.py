@@ -90,3 +90,28 @@ def test_stamped_pushes_at_the_models_rate_equal_plain_pushes_and_replay_equals_
     replayed = slow.replay(video, stamps=stamps).probability
     assert np.allclose(np.nan_to_num(pushed, nan=-1), np.nan_to_num(replayed, nan=-1), atol=1e-5)
     assert slow.push(video[0], stamp=stamps[-1] + 0.04).index == 30  # readings count source frames
+
+
+def test_watch_reads_a_video_at_the_rate_it_states_and_stamps_readings_on_its_clock(tmp_path):
+    """A 12.5 frames/s AVI: readings k at k / 12.5 s, the GIF plays at the same speed, and the
+    detector (trained at 25 frames/s) is told so in one line."""
+    import json
+
+    import cv2
+    from PIL import Image
+    from typer.testing import CliRunner
+
+    from slipsense.cli import app
+
+    video = tmp_path / "slow.avi"
+    w = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"XVID"), 12.5, (320, 240))
+    for f in _frames(20, size=(240, 320)):
+        w.write(f)
+    w.release()
+    out, gif = tmp_path / "r.jsonl", tmp_path / "r.gif"
+    res = CliRunner().invoke(app, ["watch", str(video), "--jsonl", str(out), "--out", str(gif), "--quiet"])
+    assert res.exit_code == 0, res.output
+    assert "12.5 frames/s (the video's stated rate); the detector runs at 25 frames/s" in res.output
+    stamps = [json.loads(line)["stamp"] for line in out.read_text().splitlines()]
+    assert stamps == pytest.approx([k / 12.5 for k in range(20)])
+    assert Image.open(gif).info["duration"] == 80  # ms a frame: real time

@@ -323,15 +323,26 @@ def test_held_out_grasps_labelled_as_a_whole_are_not_counted_as_held(tmp_path, c
     assert res.exit_code == 0, res.output
 
 
-def test_watch_stamps_a_grasp_folder_at_its_sensors_rate(tmp_path, cache):
+def test_watch_stamps_a_grasp_folder_at_the_rate_its_data_states(tmp_path, cache):
     grasp = tmp_path / "object000" / "060_00_mm"
     _grasp(grasp, False, seed=1, n=4, size=(480, 640))  # the gelsight-lift sensor's frame size
     out = tmp_path / "r.jsonl"
     res = runner.invoke(app, ["watch", str(grasp), "--jsonl", str(out)])
+    assert res.exit_code == 2 and "060_00_mm: a folder of frames states no frame rate" in _error(res)
+    res = runner.invoke(app, ["watch", str(grasp), "--jsonl", str(out), "--fps", "1000"])
+    assert res.exit_code == 2 and "--fps" in _error(res) and "frame rate" in _error(res)
+    (tmp_path / "sensor.json").write_text(json.dumps({"name": "my-gelsight", "output": "video", "fps": 12.5}))
+    res = runner.invoke(app, ["watch", str(grasp), "--jsonl", str(out)])
     assert "shear-retention-gelsight-lift on PyTorch" in res.output.splitlines()[0]  # its faster backend
     assert res.exit_code == 0, res.output
+    assert "12.5 frames/s" in res.output and "the detector runs at 30 frames/s" in res.output
     stamps = [json.loads(line)["stamp"] for line in out.read_text().splitlines()]
-    assert stamps[1] - stamps[0] == pytest.approx(1 / 30)  # the gelsight-lift sensor's 30 frames/s, not 25
+    assert stamps == pytest.approx([k / 12.5 for k in range(4)])  # the source's clock, not the model's
+    res = runner.invoke(app, ["watch", str(grasp), "--jsonl", str(out), "--fps", "30"])
+    assert res.exit_code == 0 and "30 frames/s (--fps)" in res.output, res.output
+    (tmp_path / "sensor.json").write_text(json.dumps({"name": "my-gelsight", "output": "video", "fps": 1000}))
+    res = runner.invoke(app, ["watch", str(grasp)])
+    assert res.exit_code == 2 and "sensor.json" in _error(res) and "frame rate" in _error(res)
 
 
 def test_folds_train_on_another_data_set_too_but_never_hold_it_out_or_judge_it(

@@ -31,13 +31,13 @@ def test_commands_start_stop_and_mark_a_grasp(tmp_path):
     done = record(
         ([f, f] for f in frames), tmp_path, "cup", 25.0, commands=lambda i: keys.get(i, []), echo=lambda s: None
     )
-    assert [p.name for p in done] == ["exp_num_0", "exp_num_1"]  # the second still open at "q": kept
+    assert [p.name for p in done] == ["exp_num_1", "exp_num_2"]  # the second still open at "q": kept
     assert (done[0] / "slip.txt").exists() and not (done[1] / "slip.txt").exists()
     assert len(read_video(done[0] / "camera_0.avi", expected_size=None)) == 10  # frames 5..14
     recs = find_recordings(tmp_path)
-    assert [(r.object, r.experiment, r.camera) for r in recs][:2] == [("cup", 0, "camera_0"), ("cup", 0, "camera_1")]
+    assert [(r.object, r.experiment, r.camera) for r in recs][:2] == [("cup", 1, "camera_0"), ("cup", 1, "camera_1")]
     again = record(([f, f] for f in frames), tmp_path, "cup", 25.0, commands=lambda i: [""] if i == 3 else [])
-    assert again[0].name == "exp_num_2"  # recording again adds grasps
+    assert again[0].name == "exp_num_3"  # recording again adds grasps
 
 
 def test_contact_starts_and_stops_grasps_and_the_cli_writes_videos(tmp_path):
@@ -51,7 +51,9 @@ def test_contact_starts_and_stops_grasps_and_the_cli_writes_videos(tmp_path):
     )
     assert res.exit_code == 0, res.output
     assert "2 grasp(s) recorded" in res.output
-    for k in (0, 1):
+    assert "25 frames/s (the video's stated rate)" in res.output and "the gels start and stop" in res.output
+    assert "Enter starts" not in res.output  # no key starts a grasp here
+    for k in (1, 2):  # numbered from 1, as the shared recordings are
         n = len(read_video(tmp_path / "rec" / "mug" / f"exp_num_{k}" / "camera_0.avi", expected_size=None))
         assert 45 <= n <= 60, n  # the 31 frames of contact, 20 before them (pre-roll), 5 after (the stop rule)
     res = CliRunner().invoke(app, ["record", str(video), "--out", str(tmp_path / "rec"), "--object", "a b"])

@@ -65,6 +65,11 @@ def register(app: typer.Typer) -> None:
             None,
             help="write every reading to a new ROS 2 bag (topic /slipsense/reading, slipsense_msgs/msg/SlipReading)",
         ),
+        fps: Optional[float] = typer.Option(
+            None,
+            help="the source's frame rate where it states none (a folder of frames without sensor.json, a "
+            "marker .npy) or states it wrongly; videos, bags and cameras carry their own clock",
+        ),
         realtime: bool = typer.Option(
             False, help="play a recorded source at the sensor's rate through the live capture path"
         ),
@@ -89,6 +94,7 @@ def register(app: typer.Typer) -> None:
             jsonl=jsonl,
             bag_out=bag_out,
             realtime=realtime,
+            fps=fps,
         )
 
     @app.command("export")

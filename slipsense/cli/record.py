@@ -42,30 +42,38 @@ def register(app: typer.Typer) -> None:
         out: Path = typer.Option(..., help="recordings folder: <out>/<object>/exp_num_<N>/camera_<i>.avi"),
         object_name: str = typer.Option(..., "--object", help="the object grasped (names its folder)"),
         by_contact: bool = typer.Option(False, help="start and stop each grasp when the gels are touched and let go"),
-        fps: Optional[float] = typer.Option(None, help="frame rate of the cameras (default: the GelSight Mini's 25)"),
+        fps: Optional[float] = typer.Option(
+            None, help="frame rate asked of the cameras (default: the GelSight Mini's 25), or of a folder of frames"
+        ),
         max_grasps: Optional[int] = typer.Option(None, help="stop after this many grasps"),
     ):
         """Record grasps: Enter starts and stops a grasp, s + Enter marks it slipped, q + Enter quits
         (--by-contact: the gels start and stop it). Every command then reads the folder."""
         from slipsense.errors import ConfigError
         from slipsense.sensors.spec import GELSIGHT_MINI
+        from slipsense.streaming.clock import check_fps
         from slipsense.streaming.record import check_object_name, record as run
         from slipsense.streaming.sources import open_source
 
         check_object_name(object_name)
-        rate = GELSIGHT_MINI.fps if fps is None else fps
-        if not 0 < rate <= 1000:
-            raise ConfigError(f"--fps must be in (0, 1000], got {rate}")
         if max_grasps is not None and max_grasps < 1:
             raise ConfigError(f"--max-grasps must be 1 or more, got {max_grasps}")
-        src = open_source(source, None, fps=rate, capture_format=GELSIGHT_MINI.capture_format)
+        camera = GELSIGHT_MINI.fps if fps is None else check_fps(fps, "--fps")
+        live = all(part.strip().isdigit() for part in source.split(","))
+        src = open_source(
+            source, None, fps=None if live else fps, camera_fps=camera, capture_format=GELSIGHT_MINI.capture_format
+        )
         try:
-            typer.echo(f"{src.name}: {src.sensors} camera(s); Enter starts/stops a grasp, s marks it slipped, q quits")
+            keys = "the gels start and stop each grasp" if by_contact else "Enter starts and stops a grasp"
+            typer.echo(
+                f"{src.name}: {src.sensors} camera(s) at {src.fps:g} frames/s ({src.clock}); {keys}, "
+                "s + Enter marks it slipped, q + Enter quits"
+            )
             done = run(
                 (step.display for step in src.frames()),
                 out,
                 object_name,
-                rate,
+                src.fps,
                 commands=_stdin_commands(),
                 by_contact=by_contact,
                 max_grasps=max_grasps,

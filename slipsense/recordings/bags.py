@@ -191,7 +191,8 @@ def read_bag(path: str | Path, topics: Sequence[str], fps: float = 25.0, toleran
     ``tolerance_s``: the largest stamp difference of a pair (default half a frame period at ``fps``).
     InputError naming the bag for a missing bag or topic, a topic of another message type, an image
     that cannot be decoded, frames of different sizes on one topic, a damaged or truncated bag,
-    topics whose stamps do not pair (fewer than half of the frames of the shorter topic), or paired
+    topics whose stamps do not pair (fewer than half of the frames of the shorter topic), a topic whose
+    header stamps go backwards in the order it was recorded, or paired
     frames more than 1.5 frame periods apart (a frame missing inside the stream). Frames left without
     a partner at the start or end are counted in ``dropped`` and warned about
     (:class:`UnpairedFramesWarning`, one per topic)."""
@@ -212,7 +213,12 @@ def read_bag(path: str | Path, topics: Sequence[str], fps: float = 25.0, toleran
     for t in topics:
         if not per[t]:
             raise InputError(path, f"topic {t} holds no messages")
-        per[t].sort(key=lambda m: m[0])
+        back = next((k for k in range(1, len(per[t])) if per[t][k][0] < per[t][k - 1][0]), None)
+        if back is not None:  # a camera's clock that runs backwards: no order of its frames can be trusted
+            a, b = per[t][back][0] * 1e-9, per[t][back - 1][0] * 1e-9
+            raise InputError(
+                path, f"topic {t}: header stamps go backwards at message {back} ({a:.6f} s after {b:.6f} s)"
+            )
     stamps = [np.array([s for s, _ in per[t]], np.int64) for t in topics]
     tol = int(round((tolerance_s if tolerance_s is not None else 0.5 / fps) * 1e9))
     idx = pair_by_time(stamps, tol)

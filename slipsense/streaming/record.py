@@ -3,7 +3,7 @@
     <out>/<object>/exp_num_<N>/camera_<i>.avi   one video per camera (i: its place in the order given)
     <out>/<object>/exp_num_<N>/slip.txt         when the grasp was marked as slipped
 
-``N`` is the next number free in the object's folder, so recording again adds grasps. A grasp starts
+``N`` is the next number free in the object's folder (from 1), so recording again adds grasps. A grasp starts
 and stops by command or, with ``by_contact``, when the gels are touched and let go: the labeller's
 rule (:mod:`slipsense.recordings.contact`), the mean of the most changed 8 x 8 pixel blocks against
 the gel at rest (the median of the first frames) above ``REST_TOLERANCE + MIN_CONTACT`` grey levels for
@@ -43,13 +43,14 @@ def check_object_name(obj: str) -> None:
 
 
 def next_grasp_folder(out: Path, obj: str) -> Path:
-    """``<out>/<obj>/exp_num_<N>`` with ``N`` one above the largest there (0 in a new folder)."""
+    """``<out>/<obj>/exp_num_<N>`` with ``N`` one above the largest there (1 in a new folder, as the
+    shared recordings number their runs)."""
     check_object_name(obj)
     folder = Path(out) / obj
     # a grasp cut short by a kill keeps its number (its hidden .exp_num_<N>.partial is left as it was)
     names = [p.name for p in folder.glob("*exp_num_*")]
     numbers = [int(m.group(1)) for n in names if (m := re.fullmatch(r"\.?exp_num_(\d+)(\.partial)?", n))]
-    return folder / f"exp_num_{max(numbers) + 1 if numbers else 0}"
+    return folder / f"exp_num_{max(numbers) + 1 if numbers else 1}"
 
 
 class GraspWriter:

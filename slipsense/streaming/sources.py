@@ -2,8 +2,9 @@
 arrays and live cameras, each as a :class:`Source` of timestamped steps.
 
 A step holds, per sensor, the picture to show and the model's input, and the time the frames were
-taken (seconds): the bag's header stamps, the capture clock of a live camera, ``index / fps`` for
-files that carry no time.
+taken (seconds) on the source's own clock: a bag's header stamps, a live camera's capture clock,
+``index / rate`` for a video at the rate its container states, and for a folder of frames at the rate
+its ``sensor.json`` (or ``--fps``) states. A source whose rate cannot be known is refused in one line.
 """
 
 from __future__ import annotations
@@ -17,9 +18,11 @@ import numpy as np
 from slipsense.errors import InputError
 from slipsense.recordings.bags import check_timing, is_bag, read_bag
 from slipsense.recordings.folders import CAMERA_GLOB
+from slipsense.recordings.frame_folders import data_sensor
 from slipsense.recordings.frames import is_frame_folder
-from slipsense.recordings.video import read_video
+from slipsense.recordings.video import probe_video, read_video
 from slipsense.streaming.capture import CaptureThread, open_camera, paired
+from slipsense.streaming.clock import check_fps
 
 
 @dataclass
@@ -36,7 +39,8 @@ class Step:
 class Source:
     """Steps to stream. ``sensors``: streams per step; ``name``: for messages; ``stats``: what the
     source knows of its own delivery (a live camera's achieved rate, dropped and repeated frames);
-    ``converted``: the inputs are not the pictures shown (markers tracked in them, a saved stream)."""
+    ``converted``: the inputs are not the pictures shown (markers tracked in them, a saved stream);
+    ``fps``: the rate the source delivers at and ``clock``: where that rate was read."""
 
     name: str
     sensors: int
@@ -45,6 +49,8 @@ class Source:
     stats: Callable[[], dict[str, Any]] = field(default=lambda: {})
     #: the inputs are not the pictures shown (markers tracked in them, or a saved stream)
     converted: bool = False
+    fps: float = 25.0
+    clock: str = ""
 
     def frames(self) -> Iterator[Step]:
         return self.steps
@@ -60,10 +66,11 @@ def open_source(
     camera_glob: str | None = None,
     geometry: Mapping[str, Any] | None = None,
     topics: Sequence[str] = (),
-    fps: float = 25.0,
+    fps: float | None = None,
     tolerance_s: float | None = None,
     capture_format: str | None = None,
     frame_size: tuple[int, int] | None = None,
+    camera_fps: float = 25.0,
 ) -> Source:
     """A video file, a folder of one sensor's frames (:mod:`slipsense.recordings.frames`), a recordings
     experiment folder (its ``camera_*.avi`` videos as sensors), a ROS 2
@@ -73,53 +80,100 @@ def open_source(
     ``model`` (a :class:`~slipsense.models.base.SlipModel`) turns what is read into its inputs
     (:meth:`~slipsense.models.base.SlipModel.inputs_from_videos`: pictures as they are, or markers
     tracked first, in the layout of the checkpoint's ``geometry``; a ``.npy`` holds them already); None
-    pushes the pictures as they are. ``fps``: the
-    sensor's rate (stamps of files without time, the pairing tolerance of bags); ``capture_format`` /
-    ``frame_size``: what a camera is asked for (:class:`~slipsense.streaming.capture.CaptureThread`).
+    pushes the pictures as they are. ``fps``: the source's rate where the user states it (it replaces
+    a video's stated rate; a folder of frames or a ``.npy`` holds none of its own); ``camera_fps``:
+    the rate asked of cameras and of a ``.npy`` without ``fps`` (the model's sensor's), also the bag
+    pairing's default tolerance; ``capture_format`` / ``frame_size``: what a camera is asked for
+    (:class:`~slipsense.streaming.capture.CaptureThread`).
     """
     camera_glob = camera_glob or CAMERA_GLOB  # the sensor's camera files (the GelSight study's by default)
+    given = None if fps is None else check_fps(fps, "--fps")
     path = Path(source)
     if topics and not is_bag(path):
         raise InputError(path, "--topic names image topics of a ROS 2 bag; this is not a bag")
     if is_bag(path):
-        bag = read_bag(path, topics, fps=fps, tolerance_s=tolerance_s)
+        bag = read_bag(path, topics, fps=given or camera_fps, tolerance_s=tolerance_s)
         videos = [np.stack([step[k] for step in bag.frames]) for k in range(len(topics))]
         stamps = bag.stamps[:, 0] * 1e-9
         name = f"{path} ({', '.join(topics)})"
         src = _array_source(name, videos, [Path(f"{path}:{t}") for t in topics], model, stamps, geometry)
         src.stats = lambda: {"dropped_unpaired": dict(bag.dropped)}
+        src.fps, src.clock = _stamped_rate(stamps, given or camera_fps), "the messages' header stamps"
         return src
     if path.is_dir() and is_frame_folder(path):  # one sensor's frames, read as its video
+        rate, clock = (given, "--fps") if given else frame_folder_rate(path)
         video = read_video(path, expected_size=None, min_frames=1)
-        return _array_source(str(path), [video], [path], model, np.arange(len(video)) / fps, geometry)
+        return _array_source(str(path), [video], [path], model, np.arange(len(video)) / rate, geometry, rate, clock)
     if path.is_dir():
         cams = sorted(p for p in path.glob(camera_glob) if p.is_file())
         if not cams:
             raise InputError(path, f"folder holds no {camera_glob} videos (expected a recordings experiment folder)")
+        rates = {video_rate(p, given) for p in cams}
+        if len(rates) != 1:
+            raise InputError(path, f"the camera videos state different frame rates: {sorted(r for r, _ in rates)}")
+        ((rate, clock),) = rates
         videos = [read_video(p, expected_size=None, min_frames=1) for p in cams]
         if len({len(v) for v in videos}) != 1:
             raise InputError(path, f"the camera videos differ in frame count: {[len(v) for v in videos]}")
-        return _array_source(str(path), videos, cams, model, np.arange(len(videos[0])) / fps, geometry)
+        stamps = np.arange(len(videos[0])) / rate
+        return _array_source(str(path), videos, cams, model, stamps, geometry, rate, clock)
     if path.is_file():
         if path.suffix.lower() == ".npy":
-            return _npy_source(path, model, fps)
+            return _npy_source(path, model, given or camera_fps, "--fps" if given else "the model's sensor")
+        rate, clock = video_rate(path, given)
         video = read_video(path, expected_size=None, min_frames=1)
-        return _array_source(str(path), [video], [path], model, np.arange(len(video)) / fps, geometry)
+        return _array_source(str(path), [video], [path], model, np.arange(len(video)) / rate, geometry, rate, clock)
     indices = source.replace(" ", "").split(",")
     if all(i.isdigit() for i in indices):
         if model is not None:
             model.check_live_cameras(source)
-        return camera_source([int(i) for i in indices], fps, capture_format, frame_size, tolerance_s)
+        return camera_source([int(i) for i in indices], given or camera_fps, capture_format, frame_size, tolerance_s)
     raise InputError(path, "no such file or folder (nor a camera index)")
 
 
-def _array_source(name: str, videos: list, paths: list[Path], model: Any, stamps: np.ndarray, geometry=None) -> Source:
+def video_rate(path: Path, given: float | None = None) -> tuple[float, str]:
+    """A video's rate and where it was read: ``given`` (``--fps``), else what its container states;
+    a container that states none (or one out of range) is refused, naming the file."""
+    if given:
+        return given, "--fps"
+    stated = probe_video(path, expected_size=None, min_frames=1).fps
+    if not 1.0 <= stated <= 240.0:
+        raise InputError(path, f"the video states no usable frame rate ({stated:g} frames/s): give --fps")
+    return float(stated), "the video's stated rate"
+
+
+def frame_folder_rate(folder: Path) -> tuple[float, str]:
+    """A folder of frames' rate: the ``sensor.json`` of its recordings folder (the folder itself or up
+    to two above it: ``<root>/<object>/<grasp>``), or the known layout of the ``gelsight-lift`` data;
+    else refused, naming the folder: frames in a folder carry no time of their own."""
+    for root in (folder, folder.parent, folder.parent.parent):
+        spec = data_sensor(root)
+        if spec is not None:
+            where = root / "sensor.json"
+            return check_fps(spec.fps, str(where)), str(where) if where.is_file() else f"the {spec.name} layout"
+    raise InputError(
+        folder,
+        'a folder of frames states no frame rate: put a sensor.json ({"fps": 25}) in its recordings folder or give --fps',
+    )
+
+
+def _stamped_rate(stamps: np.ndarray, fallback: float) -> float:
+    """The rate of stamped frames: one over their median spacing (``fallback`` for fewer than 2)."""
+    steps = np.diff(stamps)
+    steps = steps[steps > 0]
+    return float(1.0 / np.median(steps)) if len(steps) else float(fallback)
+
+
+def _array_source(
+    name: str, videos: list, paths: list[Path], model: Any, stamps: np.ndarray, geometry=None, fps=25.0, clock=""
+) -> Source:
     inputs = videos if model is None else model.inputs_from_videos(videos, paths, geometry)
     steps = (Step(list(fr), list(x), float(t)) for fr, x, t in zip(zip(*videos), zip(*inputs), stamps))
-    return Source(name, len(videos), steps, converted=any(x is not v for x, v in zip(inputs, videos)))
+    converted = any(x is not v for x, v in zip(inputs, videos))
+    return Source(name, len(videos), steps, converted=converted, fps=fps, clock=clock)
 
 
-def _npy_source(path: Path, model: Any, fps: float) -> Source:
+def _npy_source(path: Path, model: Any, fps: float, clock: str) -> Source:
     try:
         x = np.load(path, allow_pickle=False)
     except Exception as exc:
@@ -128,7 +182,7 @@ def _npy_source(path: Path, model: Any, fps: float) -> Source:
         raise InputError(path, "a marker .npy needs a marker model (stnet, temnet): give its --checkpoint")
     x = model.inputs_from_array(x, path)
     steps = (Step([None] * len(x), [x[s, t] for s in range(len(x))], t / fps) for t in range(x.shape[1]))
-    return Source(str(path), len(x), steps, converted=True)
+    return Source(str(path), len(x), steps, converted=True, fps=fps, clock=clock)
 
 
 def capture_source(name: str, threads: Sequence[CaptureThread], fps: float, tolerance_s: float | None = None):
@@ -142,7 +196,8 @@ def capture_source(name: str, threads: Sequence[CaptureThread], fps: float, tole
         for th in threads:
             th.close()
 
-    return Source(name, len(threads), steps, closer=close, stats=lambda: {"cameras": [th.stats() for th in threads]})
+    stats = lambda: {"cameras": [th.stats() for th in threads]}  # noqa: E731
+    return Source(name, len(threads), steps, closer=close, stats=stats, fps=fps, clock="the capture clock")
 
 
 def camera_source(indices, fps, capture_format=None, frame_size=None, tolerance_s=None):
