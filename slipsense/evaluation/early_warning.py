@@ -28,6 +28,7 @@ from slipsense.progress import progress_bar
 from slipsense.recordings.frame_cache import video_products
 from slipsense.recordings.types import by_run
 from slipsense.recordings.video import read_video
+from slipsense.streaming.sources import recording_rate
 
 
 @dataclass
@@ -42,12 +43,18 @@ class RunTrace:
     probability: np.ndarray  # (N,) combined; NaN where the detector gives no answer yet
     rest: np.ndarray | None = field(default=None, repr=False)  # (N,) bool: no sensor touched
     cameras: tuple[str, ...] = ()  # the cameras replayed: one for a one-finger detector, else all
+    fps: float = 25.0  # the rate the run's frames were taken at
+    model_fps: float = 25.0  # the rate the detector runs at (its sensor's)
 
     def outcome(
         self, threshold: float, debounce: int = 1, horizon: int = pergrasp.HORIZON, startup: int = pergrasp.STARTUP
     ) -> pergrasp.GraspOutcome:
+        """The run's verdict; ``horizon`` and ``startup`` count frames at the detector's rate (50 and 10
+        at 25 frames/s: 2 s and 0.4 s), so a run taken at another rate is judged over the same time."""
+        scale = self.fps / self.model_fps
+        h, s = (horizon, startup) if scale == 1 else (max(1, round(horizon * scale)), round(startup * scale))
         return pergrasp.trace_outcome(
-            self.probability, threshold, debounce, self.moment_of_slip, self.slipped, horizon, startup, self.rest
+            self.probability, threshold, debounce, self.moment_of_slip, self.slipped, h, s, self.rest
         )
 
 
@@ -116,12 +123,17 @@ def _replay_run(detector, key, cams, run_cams, labels, read_video, video_product
     if any(len(c[k]) != n for c in cached for k in c):
         counts = [{k: len(v) for k, v in c.items()} for c in cached]
         raise InputError(cams[0].path.parent, f"the cameras of this run differ in frame count: {counts}")
+    # the detector runs on its own clock: frames taken at another rate are resampled to it
+    fps = recording_rate(cams[0].path)[0]
+    stamps = None if abs(fps - detector.sensor.fps) < 1e-6 * fps else np.arange(n) / fps
     if product:
-        trace = detector.replay_cached(np.stack([c[product] for c in cached]))
+        trace = detector.replay_cached(np.stack([c[product] for c in cached]), stamps=stamps)
     else:
-        trace = detector.replay(*[read_video(r.path, expected_size=None, min_frames=1) for r in cams])
+        videos = [read_video(r.path, expected_size=None, min_frames=1) for r in cams]
+        trace = detector.replay(*videos, stamps=stamps)
     rest = pergrasp.rest_mask(np.stack([c["contact"] for c in cached])) if n > 1 else None
-    return RunTrace(key[0], key[1], slipped, moment, n, trace.probability, rest, tuple(c.camera for c in cams))
+    cameras = tuple(c.camera for c in cams)
+    return RunTrace(key[0], key[1], slipped, moment, n, trace.probability, rest, cameras, fps, detector.sensor.fps)
 
 
 def plot_tradeoff(rows: Sequence[Mapping[str, Any]], path: str | Path, title: str = "") -> None:

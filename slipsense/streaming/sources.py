@@ -157,6 +157,12 @@ def frame_folder_rate(folder: Path) -> tuple[float, str]:
     )
 
 
+def recording_rate(path: Path) -> tuple[float, str]:
+    """The rate of one recording (a video, or a folder of one sensor's frames) and where it was read."""
+    path = Path(path)
+    return frame_folder_rate(path) if path.is_dir() else video_rate(path)
+
+
 def _stamped_rate(stamps: np.ndarray, fallback: float) -> float:
     """The rate of stamped frames: one over their median spacing (``fallback`` for fewer than 2)."""
     steps = np.diff(stamps)
