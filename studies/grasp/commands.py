@@ -16,12 +16,16 @@ from slipsense.cli.live import THREADS_HELP, set_threads
 from slipsense.config import gelsight_recordings, resolve_path
 from slipsense.errors import ConfigError
 from slipsense.evaluation.pergrasp import promise_text
+from slipsense.resources import shipped_model
 from slipsense.training.grasps import load_grasp_data
 from studies.grasp.adaptation import adaptation_study, table, write
 from studies.grasp.ceiling import held_out_traces, one_threshold, per_fold, phases
 from studies.grasp.early_warning import DEFAULT_THRESHOLDS, run_early_warning
 from studies.grasp.precursors import aligned_means, precursor_table, summary, write_report
 from studies.grasp.promise import restate_promise
+from studies.grasp.rates import rates_study
+from studies.grasp.rates import table as rates_table
+from studies.grasp.rates import write as write_rates
 from studies.grasp.rechoose import compare_markdown, rechoose
 
 group = typer.Typer(
@@ -220,4 +224,27 @@ def adaptation_cmd(
     doc["command"] = command_line()
     paths = write(doc, out)
     typer.echo(table(doc))
+    typer.echo(f"-> {', '.join(str(p) for p in paths)}")
+
+
+@group.command("rates")
+@friendly
+def rates_cmd(
+    out: Path = typer.Option(Path("reports/rates"), help="report folder: README.md (the table), rates.json"),
+    recordings: Optional[Path] = typer.Option(None, help="recordings folder (default: the shared recordings)"),
+    checkpoint: Optional[Path] = typer.Option(None, help="a two-finger detector (default: the shipped one)"),
+    seed: int = typer.Option(0, help="seed of the dropped frames"),
+    progress: bool = typer.Option(True, help="progress bars"),
+):
+    """The shipped detector at 15 and 12.5 frames/s and with 10% of frame pairs dropped, on its clock and
+    without it, judged per grasp."""
+    check_output_dir(out, "--out")
+    doc = rates_study(
+        resolve_path(recordings or gelsight_recordings()),
+        checkpoint or shipped_model(),
+        seed=check_seed(seed),
+        progress=progress,
+    )
+    paths = write_rates(doc, out, command_line())
+    typer.echo(rates_table(doc))
     typer.echo(f"-> {', '.join(str(p) for p in paths)}")
