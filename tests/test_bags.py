@@ -383,7 +383,7 @@ def test_decode_image_takes_ros_messages_of_every_read_encoding():
     from types import SimpleNamespace
 
     from slipsense.recordings.bags import COMPRESSED, IMAGE, decode_image
-    from slipsense.streaming import ros_node  # imports without rclpy; main() needs ROS 2
+    from slipsense import ros_node  # imports without rclpy; main() needs the ROS extra
 
     assert callable(ros_node.main)
     rng = np.random.default_rng(4)

@@ -13,7 +13,8 @@ reaches itself through its imports (function-local imports count too).
     models       models (the contract, one file per network, streams, runners, ONNX parts), checkpoint
     streaming    the live detector, sources, capture, export: what runs on the robot
     training / evaluation   the one training loop and its tasks; replay, per-grasp scores, folds
-    top          api, watch (a source watched through a detector: what ``slipsense watch`` runs)
+    top          api, watch (a source watched through a detector: what ``slipsense watch`` runs),
+                 ros_node (the same detector as a ROS 2 node)
     cli          the ``slipsense`` command
 
 The live detector sits below evaluation on purpose: a detector is judged by replaying recordings
@@ -34,7 +35,7 @@ FLOORS = [
     ["models", "checkpoint"],
     ["streaming"],
     ["training", "evaluation"],
-    ["api", "watch"],
+    ["api", "watch", "ros_node"],
     ["cli"],
 ]
 MAX_LINES = 600

@@ -1,4 +1,4 @@
-"""Commands for live detection: ``watch`` and ``export`` (registered by slipsense.cli)."""
+"""Commands for live detection: ``watch``, ``ros`` and ``export`` (registered by slipsense.cli)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from typing import Optional
 
 import typer
 
-from slipsense.errors import ConfigError
+from slipsense.errors import ConfigError, InputError
 
 
 THREADS_HELP = (
@@ -24,6 +24,13 @@ def set_threads(threads: Optional[int]) -> None:
     import torch
 
     torch.set_num_threads(threads)
+
+
+def checkpoint_path(path: Path) -> Path:
+    """``path`` if it is a file; else one error naming it."""
+    if not Path(path).is_file():
+        raise InputError(path, "checkpoint not found")
+    return Path(path)
 
 
 def register(app: typer.Typer) -> None:
@@ -96,6 +103,31 @@ def register(app: typer.Typer) -> None:
             realtime=realtime,
             fps=fps,
         )
+
+    @app.command("ros")
+    @friendly
+    def ros(
+        topic: list[str] = typer.Option(
+            [], help="an image topic, once per sensor, in order (default /left/image_raw and /right/image_raw)"
+        ),
+        checkpoint: Optional[Path] = typer.Option(None, help="checkpoint (default: the shipped detector)"),
+        backend: str = typer.Option("auto", help="auto (ONNX Runtime where installed, else PyTorch), torch or onnx"),
+        compressed: bool = typer.Option(False, help="the topics carry sensor_msgs/CompressedImage"),
+    ):
+        """Run the detector as a ROS 2 node: image topics in, /slipsense/reading (JSON) and
+        /slipsense/alarm (stamped) out (needs: pip install "slipsense\\[ros]")."""
+        try:
+            import rclpy  # noqa: F401  (the ROS extra)
+        except ImportError:
+            raise ConfigError('the ROS 2 node needs rclpy: pip install "slipsense[ros]"') from None
+        from slipsense.ros_node import main as run_node
+
+        overrides = {"backend": backend, "compressed": compressed}
+        if topic:
+            overrides["topics"] = list(topic)
+        if checkpoint is not None:
+            overrides["checkpoint"] = str(checkpoint_path(checkpoint))
+        run_node(argv=[], overrides=overrides)
 
     @app.command("export")
     @friendly
