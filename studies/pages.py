@@ -344,6 +344,19 @@ def rates(root: Path) -> str:
     return _table(header, rows, ["---", "---:", "---:", "---:", "---:"])
 
 
+def ros(root: Path) -> str:
+    """The ROS 2 node's latency in the loop, beside the detector's own push time."""
+    doc = _json(root, "reports/ros/ros.json")
+    lat, push = doc["latency_ms"], doc["push_ms"]
+    rows = [
+        ["publication to reading", f"{lat['p50']:.1f}", f"{lat['p99']:.1f}"],
+        ["the detector's push", f"{push['p50']:.1f}", f"{push['p99']:.1f}"],
+    ]
+    lost = doc["frames"] - doc["readings"]
+    table = _table(["two sensors at 25 frames/s", "p50 (ms)", "p99 (ms)"], rows, ["---", "---:", "---:"])
+    return table.rstrip("\n") + f"\n\n{doc['readings']} readings for {doc['frames']} frame pairs ({lost} without one).\n"
+
+
 FIGURES: dict[str, Figure] = {
     "readme": Figure(
         (
@@ -362,6 +375,7 @@ FIGURES: dict[str, Figure] = {
     "stnet-sim": Figure(tuple(r for _, r in _STNET_SIM), stnet_sim),
     "stnet-real": Figure(("reports/stnet-real-grid",), stnet_real),
     "rates": Figure(("reports/rates",), rates),
+    "ros": Figure(("reports/ros",), ros),
 }
 
 
