@@ -354,7 +354,9 @@ def ros(root: Path) -> str:
     ]
     lost = doc["frames"] - doc["readings"]
     table = _table(["two sensors at 25 frames/s", "p50 (ms)", "p99 (ms)"], rows, ["---", "---:", "---:"])
-    return table.rstrip("\n") + f"\n\n{doc['readings']} readings for {doc['frames']} frame pairs ({lost} without one).\n"
+    return (
+        table.rstrip("\n") + f"\n\n{doc['readings']} readings for {doc['frames']} frame pairs ({lost} without one).\n"
+    )
 
 
 FIGURES: dict[str, Figure] = {
