@@ -161,7 +161,7 @@ def main(argv: Sequence[str] | None = None, overrides: dict[str, Any] | None = N
 
     rclpy.init(args=list(argv) if argv is not None else sys.argv)
     params = [Parameter(k, value=v) for k, v in (overrides or {}).items()]
-    node = Node("slipsense", parameter_overrides=params)
+    node = Node("slipsense", parameter_overrides=params, enable_rosout=False)  # its log is its own output
     log = node.get_logger().info
     topics = list(node.declare_parameter("topics", ["/left/image_raw", "/right/image_raw"]).value)
     compressed = bool(node.declare_parameter("compressed", False).value)

@@ -125,5 +125,6 @@ def test_the_node_reads_what_watch_reads_frame_for_frame(tmp_path):
         if want["probability"] is not None:
             assert got["probability"] == pytest.approx(want["probability"], abs=1e-6)
     assert len(alarms) == sum(r["alarm"] for r in reference)
-    assert "25 frames/s (the header stamps)" in log and "alarm at" in log and "left out" not in log, log
+    assert "25 frames/s (the header stamps)" in log and "alarm at" in log and "left out:" not in log, log
+    assert "rosout" not in log, log  # the node stops cleanly on SIGTERM
     assert "frame pairs judged, 0 left out, unpaired messages: /left/image_raw 0, /right/image_raw 0" in log, log
