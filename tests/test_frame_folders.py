@@ -407,3 +407,18 @@ def test_a_recipe_chooses_model_settings_on_the_training_grasps(tmp_path, cache,
     res = runner.invoke(app, ["train", "--recordings", str(root), "--model", "shear-retention",
         "--set", f"train.choose={big}", "--out", str(tmp_path / "big"), "--no-progress"])  # fmt: skip
     assert "65 combinations" in _error(res)
+
+
+def test_calibrate_says_so_and_what_to_do_next_when_it_catches_no_slip():
+    from slipsense.evaluation.calibrate import Calibration
+
+    held = {"held_grasps": 20, "alarming": 0, "rate": 0.0, "bound_counting_objects": 0.3}
+    held |= {"bound_counting_grasps": 0.14, "held_objects": 5}
+    before = {"threshold": 0.99, "held_alarming": 0, "slipped_caught": 0}
+    ship = Path("/pkg/motionnet-gelsight-1.safetensors")
+    none = Calibration(Path("mine.safetensors"), 0.9, 1, held, 11, 0, before, ship).lines()
+    assert "catches none of the 11 slipped grasps" in none[-2] and f"train.init={ship}" in none[-1]
+    some = Calibration(Path("mine.safetensors"), 0.9, 1, held, 11, 3, before, ship).lines()
+    assert not any(line.startswith(("warning", "next")) for line in some)
+    blind = Calibration(Path("mine.safetensors"), 0.9, 1, held, 0, 0, before, ship).lines()
+    assert "no slipped grasps" in blind[-1]

@@ -57,6 +57,7 @@ class Calibration:
     slipped: int
     slipped_caught: int
     before: dict[str, Any]
+    source: Path | None = None  # the checkpoint calibrated (the weights a fine-tuning would start from)
 
     def lines(self) -> list[str]:
         h, b = self.held_alarm, self.before
@@ -69,6 +70,24 @@ class Calibration:
             f"counting the {h['held_objects']} objects, {100 * h['bound_counting_grasps']:.0f}% counting grasps), "
             f"slipped grasps caught: {caught}",
             f"-> {self.checkpoint}",
+            *self.advice(),
+        ]
+
+    def advice(self) -> list[str]:
+        """What to do next where the calibrated detector cannot be trusted to catch slips: none caught,
+        or no slipped grasp to tell."""
+        if not self.slipped:
+            return [
+                "warning: no slipped grasps among these, so nothing says what it catches: record a few slips "
+                "(slipsense record ... then s + Enter) and calibrate again"
+            ]
+        if self.slipped_caught:
+            return []
+        return [
+            f"warning: the calibrated detector catches none of the {self.slipped} slipped grasps: on this sensor "
+            "its weights do not tell them from held ones, and a threshold cannot fix that",
+            f"next: fine-tune it on your grasps, from its weights: slipsense train --recordings RECORDINGS --set "
+            f"train.init={self.source} --out mine (docs/new-sensor.md); judge it with slipsense evaluate",
         ]
 
 
@@ -134,9 +153,8 @@ def calibrate(
     with atomic_path(out) as tmp:  # copied and calibrated before it takes the name: never half of it
         shutil.copyfile(source, tmp)
         update_info(tmp, {"operating_point": op, **({"sensor": sensor.to_dict()} if sensor else {})})
-    return Calibration(
-        out, threshold, ev.debounce, promise, int(slipped.sum()), int((scores[slipped] >= threshold).sum()), before
-    )
+    caught = int((scores[slipped] >= threshold).sum())
+    return Calibration(out, threshold, ev.debounce, promise, int(slipped.sum()), caught, before, source)
 
 
 def check_by_objects(
