@@ -359,6 +359,16 @@ def ros(root: Path) -> str:
     )
 
 
+def looks(root: Path) -> str:
+    """The shipped detector as another unit of the sensor sees the runs (one row a look)."""
+    rows = [
+        [r["look"], f"{r['warned']} of {r['slip_runs']}", f"{r['false_positive_grasps']} of {r['held_runs']}"]
+        for r in _json(root, "reports/looks/looks.json")["rows"]
+    ]
+    header = ["the same runs, as another unit sees them", "slips warned in time", "held grasps alarming"]
+    return _table(header, rows, ["---", "---:", "---:"])
+
+
 FIGURES: dict[str, Figure] = {
     "readme": Figure(
         (
@@ -378,6 +388,7 @@ FIGURES: dict[str, Figure] = {
     "stnet-real": Figure(("reports/stnet-real-grid",), stnet_real),
     "rates": Figure(("reports/rates",), rates),
     "ros": Figure(("reports/ros",), ros),
+    "looks": Figure(("reports/looks",), looks),
 }
 
 

@@ -22,6 +22,9 @@ from studies.grasp.adaptation import adaptation_study, table, write
 from studies.grasp.ceiling import held_out_traces, one_threshold, per_fold, phases
 from studies.grasp.early_warning import DEFAULT_THRESHOLDS, run_early_warning
 from studies.grasp.precursors import aligned_means, precursor_table, summary, write_report
+from studies.grasp.looks import looks_study
+from studies.grasp.looks import table as looks_table
+from studies.grasp.looks import write as write_looks
 from studies.grasp.promise import restate_promise
 from studies.grasp.rates import rates_study
 from studies.grasp.rates import table as rates_table
@@ -247,4 +250,21 @@ def rates_cmd(
     )
     paths = write_rates(doc, out, command_line())
     typer.echo(rates_table(doc))
+    typer.echo(f"-> {', '.join(str(p) for p in paths)}")
+
+
+@group.command("looks")
+@friendly
+def looks_cmd(
+    out: Path = typer.Option(Path("reports/looks"), help="report folder: README.md (the table), looks.json"),
+    recordings: Optional[Path] = typer.Option(None, help="recordings folder (default: the shared recordings)"),
+    checkpoint: Optional[Path] = typer.Option(None, help="a two-finger detector (default: the shipped one)"),
+    progress: bool = typer.Option(True, help="progress bars"),
+):
+    """The shipped detector as a dimmer or brighter unit, another LED tint or a softer focus sees the
+    runs, judged per grasp."""
+    check_output_dir(out, "--out")
+    doc = looks_study(resolve_path(recordings or gelsight_recordings()), checkpoint or shipped_model(), progress)
+    paths = write_looks(doc, out, command_line())
+    typer.echo(looks_table(doc))
     typer.echo(f"-> {', '.join(str(p) for p in paths)}")
