@@ -65,7 +65,12 @@ def test_evaluate_a_frame_folder_set_prints_the_outcome_measure_with_baselines(t
     for name in ("detector", "majority_class", "frame_difference", "mean_frame_difference", "difference_to_contact"):
         assert name in res.output
     assert "early-warning figures do not apply" in res.output
+    assert "Frame rate: read at 30 frames/s (the gelsight-lift layout); the detector runs at 30 frames/s." in res.output
     doc = json.loads(out.read_text())
+    assert doc["frame_rate"] == {
+        "detector": 30.0,
+        "recordings": [{"fps": 30.0, "from": "the gelsight-lift layout", "runs": 12}],
+    }
     measure = doc["grasp_measure"]
     assert measure["detector"]["grasps"] == 12
     # the sliding square is what the frame difference sees: it ranks these grasps perfectly
@@ -169,6 +174,29 @@ def test_calibrate_chooses_a_threshold_on_the_users_grasps_and_states_its_promis
     # the rule itself: just above the held grasps that must stay quiet, below the slipped ones above them
     assert calibrated_threshold([0.1, 0.2, 0.3], [0.5, 0.05], 0.0) == pytest.approx(0.4)
     assert calibrated_threshold([0.1, 0.2, 0.9] + [0.0] * 17, [0.5], 0.05) == pytest.approx(0.35)
+
+
+def test_calibrate_at_another_rate_keeps_the_detectors_clock_and_says_so(tmp_path, cache):
+    """Grasps taken at 15 frames/s calibrate the shipped one-finger detector (trained at 25): the rate
+    is printed, the calibrated copy keeps the 25 frames/s clock (frames resampled to it, as during calibration), so
+    judging it again gives the figures calibration printed."""
+    from slipsense.checkpoint import read_info
+
+    root = _lift_data(tmp_path / "lift")
+    (root / "sensor.json").write_text(
+        json.dumps({"name": "my-lift", "output": "video", "fps": 15, "image_size": [48, 64], "camera_glob": "*.jpg"})
+    )
+    out = tmp_path / "mine.safetensors"
+    res = runner.invoke(app, ["calibrate", "--recordings", str(root), "--out", str(out), "--no-progress"])
+    assert res.exit_code == 0, res.output
+    assert "read at 15 frames/s" in res.output and "the detector runs at 25 frames/s: frames taken at" in res.output
+    info = read_info(out)
+    assert info["sensor"]["fps"] == 25.0 and info["sensor"]["name"] == "my-lift"
+    doc = tmp_path / "e.json"
+    res = runner.invoke(app, ["evaluate", "--checkpoint", str(out), "--recordings", str(root), "--json", str(doc)])
+    assert res.exit_code == 0, res.output
+    alarming = info["operating_point"]["held_alarm"]["alarming"]
+    assert json.loads(doc.read_text())["per_grasp"]["false_positive_grasps"] == alarming
 
 
 def test_calibrate_without_held_grasps_or_with_a_bad_budget_ends_in_one_line(tmp_path, cache):

@@ -107,7 +107,10 @@ def test_the_node_reads_what_watch_reads_frame_for_frame(tmp_path):
                 msg.header.stamp.sec, msg.header.stamp.nanosec, msg.header.frame_id = sec, nsec, "gel"
                 msg.data = video[k].tobytes()
                 pub.publish(msg)
-            while time.monotonic() < start + (k + 1) * 0.04:  # 25 per second
+            # 25 per second; on a loaded machine no faster than the node judges, so that its sensor-data
+            # subscription (best effort, a short queue, as a camera driver's) never has to drop a frame
+            late = time.monotonic() + 10
+            while time.monotonic() < start + (k + 1) * 0.04 or (len(readings) <= k and time.monotonic() < late):
                 rclpy.spin_once(me, timeout_sec=0.005)
         deadline = time.monotonic() + 15
         while len(readings) < len(reference) and time.monotonic() < deadline:

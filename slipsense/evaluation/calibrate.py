@@ -26,7 +26,9 @@ from slipsense.checkpoint import read_info, update_info
 from slipsense.errors import ConfigError, InputError
 from slipsense.evaluation import pergrasp
 from slipsense.evaluation.replay import evaluate, recordings_folder, shipped_for
+from slipsense.evaluation.summary import rate_lines
 from slipsense.recordings.frame_folders import data_sensor
+from slipsense.sensors.spec import sensor_of
 
 
 def calibrated_threshold(held: Sequence[float], others: Sequence[float], budget: float) -> float:
@@ -58,11 +60,13 @@ class Calibration:
     slipped_caught: int
     before: dict[str, Any]
     source: Path | None = None  # the checkpoint calibrated (the weights a fine-tuning would start from)
+    frame_rate: dict[str, Any] | None = None  # the rates the grasps were read at and the detector's
 
     def lines(self) -> list[str]:
         h, b = self.held_alarm, self.before
         caught = f"{self.slipped_caught} of {self.slipped}" if self.slipped else "none given"
         return [
+            *rate_lines(self.frame_rate),
             f"before: threshold {b['threshold']:g}: {b['held_alarming']} of {h['held_grasps']} held grasps alarm, "
             f"{b['slipped_caught']} of {self.slipped} slipped grasps caught",
             f"after:  threshold {self.threshold:.6g} x{self.debounce}: {h['alarming']} of {h['held_grasps']} held "
@@ -152,9 +156,14 @@ def calibrate(
     sensor = data_sensor(root)
     with atomic_path(out) as tmp:  # copied and calibrated before it takes the name: never half of it
         shutil.copyfile(source, tmp)
-        update_info(tmp, {"operating_point": op, **({"sensor": sensor.to_dict()} if sensor else {})})
+        # the data's layout and frame size, but the clock the weights were trained on: frames at the
+        # data's rate are resampled to it (lags and windows keep their durations)
+        trained = {"fps": sensor_of(info, source).fps}
+        update_info(tmp, {"operating_point": op, **({"sensor": {**sensor.to_dict(), **trained}} if sensor else {})})
     caught = int((scores[slipped] >= threshold).sum())
-    return Calibration(out, threshold, ev.debounce, promise, int(slipped.sum()), caught, before, source)
+    return Calibration(
+        out, threshold, ev.debounce, promise, int(slipped.sum()), caught, before, source, ev.frame_rates()
+    )
 
 
 def check_by_objects(

@@ -45,6 +45,7 @@ class RunTrace:
     cameras: tuple[str, ...] = ()  # the cameras replayed: one for a one-finger detector, else all
     fps: float = 25.0  # the rate the run's frames were taken at
     model_fps: float = 25.0  # the rate the detector runs at (its sensor's)
+    fps_from: str = ""  # where the run's rate was read (sensor.json, the video's stated rate, ...)
 
     def outcome(
         self, threshold: float, debounce: int = 1, horizon: int = pergrasp.HORIZON, startup: int = pergrasp.STARTUP
@@ -124,7 +125,7 @@ def _replay_run(detector, key, cams, run_cams, labels, read_video, video_product
         counts = [{k: len(v) for k, v in c.items()} for c in cached]
         raise InputError(cams[0].path.parent, f"the cameras of this run differ in frame count: {counts}")
     # the detector runs on its own clock: frames taken at another rate are resampled to it
-    fps = recording_rate(cams[0].path)[0]
+    fps, fps_from = recording_rate(cams[0].path)
     stamps = None if abs(fps - detector.sensor.fps) < 1e-6 * fps else np.arange(n) / fps
     if product:
         trace = detector.replay_cached(np.stack([c[product] for c in cached]), stamps=stamps)
@@ -133,7 +134,9 @@ def _replay_run(detector, key, cams, run_cams, labels, read_video, video_product
         trace = detector.replay(*videos, stamps=stamps)
     rest = pergrasp.rest_mask(np.stack([c["contact"] for c in cached])) if n > 1 else None
     cameras = tuple(c.camera for c in cams)
-    return RunTrace(key[0], key[1], slipped, moment, n, trace.probability, rest, cameras, fps, detector.sensor.fps)
+    return RunTrace(
+        key[0], key[1], slipped, moment, n, trace.probability, rest, cameras, fps, detector.sensor.fps, fps_from
+    )
 
 
 def plot_tradeoff(rows: Sequence[Mapping[str, Any]], path: str | Path, title: str = "") -> None:

@@ -162,7 +162,13 @@ def _replayed(checkpoint, *, recordings, overrides, progress, objects, on_error=
     except SlipsenseError as exc:
         warnings.warn(f"per-grasp replay left out ({exc}); the clip metrics stand", stacklevel=2)
         return {"skipped": str(exc)}
-    return {**ev.summary(), "threshold": ev.threshold, "debounce": ev.debounce, "horizon": ev.horizon}
+    return {
+        **ev.summary(),
+        "threshold": ev.threshold,
+        "debounce": ev.debounce,
+        "horizon": ev.horizon,
+        "frame_rate": ev.frame_rates(),
+    }
 
 
 def evaluate_grasp_checkpoint(
@@ -206,6 +212,7 @@ def evaluate_grasp_checkpoint(
         "threshold": ev.threshold,
         "debounce": ev.debounce,
         "horizon": ev.horizon,
+        "frame_rate": ev.frame_rates(),
         "per_grasp": ev.summary(),
         "clips": ev.clips(),
         "grasp_measure": ev.grasp_measure(),

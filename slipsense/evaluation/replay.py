@@ -5,6 +5,7 @@ frame through the live detector, each run one per-grasp outcome (:mod:`slipsense
 from __future__ import annotations
 
 import json
+import math
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -121,6 +122,16 @@ class Evaluation:
         (accuracy beside the always-wiggle baseline, balanced accuracy, precision, recall, F1)."""
         p, y = clip_scores(self.runs, [r.probability for r in self.runs], self.labels or {}, frames)
         return {"operating_point": clip_metrics(p, y, self.threshold), "at_0.5": clip_metrics(p, y, 0.5)}
+
+    def frame_rates(self) -> dict[str, Any]:
+        """The rate the detector runs at and the rates the runs were read at (frames per second),
+        each with where it was read and how many runs: ``{"detector": 25.0, "recordings": [{"fps": 12.5,
+        "from": ".../sensor.json", "runs": 26}]}``. Runs at another rate were resampled to the detector's clock."""
+        counts: dict[tuple[float, str], int] = {}
+        for r in self.runs:
+            counts[(r.fps, r.fps_from)] = counts.get((r.fps, r.fps_from), 0) + 1
+        detector = self.runs[0].model_fps if self.runs else math.nan
+        return {"detector": detector, "recordings": [{"fps": f, "from": w, "runs": n} for (f, w), n in counts.items()]}
 
     def to_json(self, path: str | Path) -> Path:
         doc = {

@@ -106,6 +106,21 @@ def _not_beaten(d: Mapping[str, Any], baselines: Mapping[str, Mapping[str, Any]]
     return lines
 
 
+def rate_lines(rate: Mapping[str, Any] | None) -> list[str]:
+    """The rates the runs were read at and the detector's, in words (:meth:`Evaluation.frame_rates
+    <slipsense.evaluation.replay.Evaluation.frame_rates>`)."""
+    if not rate or not rate.get("recordings"):
+        return []
+    model = rate["detector"]
+    read = "; ".join(
+        f"{r['fps']:g} frames/s ({r['from']}{'' if len(rate['recordings']) == 1 else ', ' + _plural(r['runs'], 'run')})"
+        for r in rate["recordings"]
+    )
+    other = any(abs(r["fps"] - model) > 1e-6 * model for r in rate["recordings"])
+    tail = ": frames taken at another rate are resampled to its clock" if other else ""
+    return [f"Frame rate: read at {read}; the detector runs at {model:g} frames/s{tail}."]
+
+
 def _early_warning(g: Mapping[str, Any], slipped: int, horizon: int | None, fps: float) -> list[str]:
     """Warned in time / too early / missed, on the slips with a moment of slip; false alarms on held grasps."""
     lines = []
@@ -162,6 +177,7 @@ def _grasp_detector_lines(m: Mapping[str, Any], fps: float) -> list[str]:
         f"per grasp: {d['slipped']} of {d['grasps']} grasps slipped, {d['objects']} objects "
         f"({d['grasps'] - d['slipped']} held).",
         f"Alarm: {alarm_rule(m['threshold'], m['debounce'])}.",
+        *rate_lines(m.get("frame_rate")),
         *_telling_apart(measure),
         *_early_warning(g, d["slipped"], m.get("horizon"), fps),
     ]
@@ -196,6 +212,7 @@ def _clip_model_lines(m: Mapping[str, Any], fps: float) -> list[str]:
         f"Whole grasps replayed as a gripper runs the model: {slipped} of {slipped + g['held_runs']} grasps slipped. "
         f"Alarm: {alarm_rule(g['threshold'], g['debounce'])}."
     )
+    lines += rate_lines(g.get("frame_rate"))
     return lines + _early_warning(g, slipped, g.get("horizon"), fps)
 
 
@@ -209,11 +226,12 @@ def summary_lines(metrics: Mapping[str, Any], fps: float | None = None) -> list[
             runs were replayed).
         fps: frames per second, to state the warning window in seconds (default: the GelSight Mini's).
     """
-    if fps is None:
-        fps = GELSIGHT_MINI.fps
+    if fps is None:  # the horizon counts frames of the detector's clock
+        rate = metrics.get("frame_rate") or (metrics.get("per_grasp") or {}).get("frame_rate") or {}
+        fps = rate.get("detector") or GELSIGHT_MINI.fps
     if "grasp_measure" in metrics:
         return _grasp_detector_lines(metrics, fps)
     return _clip_model_lines(metrics, fps)
 
 
-__all__ = ["BASELINE_WORDS", "alarm_rule", "summary_lines"]
+__all__ = ["BASELINE_WORDS", "alarm_rule", "rate_lines", "summary_lines"]
