@@ -60,6 +60,29 @@ def test_contact_starts_and_stops_grasps_and_the_cli_writes_videos(tmp_path):
     assert res.exit_code == 2 and "object name" in res.output
 
 
+def test_a_recorded_run_that_slipped_gives_grasps_labelled_slipped(tmp_path):
+    """A run folder standing in for the cameras, labelled slipped (its slip.txt): the grasp cut from
+    it by contact is labelled slipped, as the line printed for it says."""
+    run = tmp_path / "src" / "mug" / "exp_num_4"
+    run.mkdir(parents=True)
+    for cam in ("camera_0", "camera_2"):
+        w = cv2.VideoWriter(str(run / f"{cam}.avi"), cv2.VideoWriter_fourcc(*"XVID"), 25, (64, 48))
+        for f in _frames(90, [(20, 60)]):
+            w.write(f)
+        w.release()
+    (run / "slip.txt").write_text("")
+    out = tmp_path / "rec"
+    res = CliRunner().invoke(app, ["record", str(run), "--out", str(out), "--object", "mug", "--by-contact"])
+    assert res.exit_code == 0, res.output
+    assert "the source is labelled slipped" in res.output and "(slipped)" in res.output
+    recs = find_recordings(out)
+    assert len(recs) == 2 and all(r.slipped for r in recs)
+    (run / "slip.txt").unlink()  # the same run labelled held gives a held grasp
+    res = CliRunner().invoke(app, ["record", str(run), "--out", str(out), "--object", "cup", "--by-contact"])
+    assert res.exit_code == 0 and "(held)" in res.output, res.output
+    assert not any(r.slipped for r in find_recordings(out) if r.object == "cup")
+
+
 def test_a_grasp_cut_short_leaves_only_a_partial_file(tmp_path):
     writer = GraspWriter(tmp_path / "cup" / "exp_num_0", 1, 25.0)
     for f in _frames(5, []):

@@ -63,8 +63,13 @@ def register(app: typer.Typer) -> None:
         src = open_source(
             source, None, fps=None if live else fps, camera_fps=camera, capture_format=GELSIGHT_MINI.capture_format
         )
+        # a recorded run standing in for the cameras keeps its label: its slip.txt marks every grasp cut from it
+        folder = Path(source) if Path(source).is_dir() else Path(source).parent
+        source_slipped = not live and (folder / "slip.txt").is_file()
         try:
             keys = "the gels start and stop each grasp" if by_contact else "Enter starts and stops a grasp"
+            if source_slipped:
+                keys += f"; the source is labelled slipped ({folder / 'slip.txt'}), so its grasps are too"
             typer.echo(
                 f"{src.name}: {src.sensors} camera(s) at {src.fps:g} frames/s ({src.clock}); {keys}, "
                 "s + Enter marks it slipped, q + Enter quits"
@@ -78,6 +83,7 @@ def register(app: typer.Typer) -> None:
                 by_contact=by_contact,
                 max_grasps=max_grasps,
                 echo=typer.echo,
+                source_slipped=source_slipped,
             )
         finally:
             src.close()

@@ -129,11 +129,14 @@ def record(
     by_contact: bool = False,
     max_grasps: int | None = None,
     echo: Callable[[str], None] = print,
+    source_slipped: bool = False,
 ) -> list[Path]:
     """Record grasps from ``steps`` (one list of frames, one per camera, per step: a
     :class:`~slipsense.streaming.sources.Source`'s) into ``out`` (see the module notes).
 
     ``commands(index)``: the commands given since the last step (``""``, ``"s"``, ``"q"``).
+    ``source_slipped``: the frames come from a recording labelled slipped (its ``slip.txt``), so every
+    grasp cut from it is labelled slipped too; nobody is there to type ``s``.
     Returns the grasp folders written; a grasp still open when the frames end is kept."""
     check_object_name(obj)
     trigger = ContactTrigger() if by_contact else None
@@ -168,7 +171,7 @@ def record(
                 break
             continue
         if start:
-            writer, slipped = GraspWriter(next_grasp_folder(Path(out), obj), len(frames), fps), False
+            writer, slipped = GraspWriter(next_grasp_folder(Path(out), obj), len(frames), fps), source_slipped
             echo(f"recording grasp {len(done) + 1} into {writer.folder}")
             for earlier in before if state is True else ():  # started by contact: from the gel at rest
                 writer.add(earlier)
