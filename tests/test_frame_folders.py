@@ -450,3 +450,23 @@ def test_calibrate_says_so_and_what_to_do_next_when_it_catches_no_slip():
     assert not any(line.startswith(("warning", "next")) for line in some)
     blind = Calibration(Path("mine.safetensors"), 0.9, 1, held, 0, 0, before, ship).lines()
     assert "no slipped grasps" in blind[-1]
+
+
+@pytest.mark.parametrize(
+    "sensor, problem",
+    [
+        (None, "states no frame rate: state it in a sensor.json"),
+        ({"name": "mine", "output": "video", "fps": 0}, "sensor fps must be a number"),
+        ({"name": "mine", "output": "video", "fps": 1000}, "a frame rate must be 1 to 240 frames per second"),
+    ],
+)
+def test_frame_folders_without_a_usable_rate_are_refused_in_one_line(tmp_path, cache, sensor, problem):
+    """Frames in a folder carry no time: a recordings folder of them with no sensor.json, or one
+    stating a rate of 0 or 1,000 frames/s, is refused by evaluate, naming the file and the problem."""
+    root = tmp_path / "mine"
+    _grasp(root / "mug" / "exp_num_1", slipped=True, seed=1)
+    if sensor is not None:
+        (root / "sensor.json").write_text(json.dumps(sensor))
+    res = runner.invoke(app, ["evaluate", "--recordings", str(root), "--no-progress"])
+    line = _error(res)
+    assert problem in line and str(root / ("sensor.json" if sensor else "mug/exp_num_1")) in line

@@ -131,36 +131,42 @@ def open_source(
     raise InputError(path, "no such file or folder (nor a camera index)")
 
 
-def video_rate(path: Path, given: float | None = None) -> tuple[float, str]:
+#: What to do about a source whose rate cannot be known, where the command takes ``--fps``.
+GIVE_FPS = "give --fps"
+#: ... and where it reads whole recordings folders (``evaluate``, ``calibrate``, training).
+STATE_FPS = 'state it in a sensor.json ({"fps": 25}) in the recordings folder'
+
+
+def video_rate(path: Path, given: float | None = None, fix: str = GIVE_FPS) -> tuple[float, str]:
     """A video's rate and where it was read: ``given`` (``--fps``), else what its container states;
-    a container that states none (or one out of range) is refused, naming the file."""
+    a container that states none (or one out of range) is refused, naming the file and ``fix``."""
     if given:
         return given, "--fps"
     stated = probe_video(path, expected_size=None, min_frames=1).fps
     if not 1.0 <= stated <= 240.0:
-        raise InputError(path, f"the video states no usable frame rate ({stated:g} frames/s): give --fps")
+        raise InputError(path, f"the video states no usable frame rate ({stated:g} frames/s): {fix}")
     return float(stated), "the video's stated rate"
 
 
-def frame_folder_rate(folder: Path) -> tuple[float, str]:
+def frame_folder_rate(
+    folder: Path, fix: str = f'put a sensor.json ({{"fps": 25}}) in its recordings folder or {GIVE_FPS}'
+) -> tuple[float, str]:
     """A folder of frames' rate: the ``sensor.json`` of its recordings folder (the folder itself or up
     to two above it: ``<root>/<object>/<grasp>``), or the known layout of the ``gelsight-lift`` data;
-    else refused, naming the folder: frames in a folder carry no time of their own."""
+    else refused, naming the folder and ``fix``: frames in a folder carry no time of their own."""
     for root in (folder, folder.parent, folder.parent.parent):
         spec = data_sensor(root)
         if spec is not None:
             where = root / "sensor.json"
             return check_fps(spec.fps, str(where)), str(where) if where.is_file() else f"the {spec.name} layout"
-    raise InputError(
-        folder,
-        'a folder of frames states no frame rate: put a sensor.json ({"fps": 25}) in its recordings folder or give --fps',
-    )
+    raise InputError(folder, f"a folder of frames states no frame rate: {fix}")
 
 
 def recording_rate(path: Path) -> tuple[float, str]:
-    """The rate of one recording (a video, or a folder of one sensor's frames) and where it was read."""
+    """The rate of one recording of a recordings folder (a video, or a folder of one sensor's frames)
+    and where it was read; a rate that cannot be known is refused, saying to state it in a sensor.json."""
     path = Path(path)
-    return frame_folder_rate(path) if path.is_dir() else video_rate(path)
+    return frame_folder_rate(path, STATE_FPS) if path.is_dir() else video_rate(path, fix=STATE_FPS)
 
 
 def _stamped_rate(stamps: np.ndarray, fallback: float) -> float:
