@@ -26,9 +26,11 @@ from studies.grasp.looks import looks_study
 from studies.grasp.looks import table as looks_table
 from studies.grasp.looks import write as write_looks
 from studies.grasp.promise import restate_promise
-from studies.grasp.rates import rates_study
+from studies.grasp.rates import folds_study, rates_study
+from studies.grasp.rates import folds_table as rates_folds_table
 from studies.grasp.rates import table as rates_table
 from studies.grasp.rates import write as write_rates
+from studies.grasp.rates import write_folds as write_rates_folds
 from studies.grasp.rechoose import compare_markdown, rechoose
 
 group = typer.Typer(
@@ -236,12 +238,27 @@ def rates_cmd(
     out: Path = typer.Option(Path("reports/rates"), help="report folder: README.md (the table), rates.json"),
     recordings: Optional[Path] = typer.Option(None, help="recordings folder (default: the shared recordings)"),
     checkpoint: Optional[Path] = typer.Option(None, help="a two-finger detector (default: the shipped one)"),
+    folds: Optional[Path] = typer.Option(
+        None,
+        help="instead: a folder of fold<k>/ trainings (slipsense train --fold k): each judged on its held-out objects",
+    ),
+    baseline_folds: Optional[Path] = typer.Option(
+        None, help="with --folds: the non-learned baseline's fold<k>/ beside it"
+    ),
     seed: int = typer.Option(0, help="seed of the dropped frames"),
     progress: bool = typer.Option(True, help="progress bars"),
 ):
     """The shipped detector at 15 and 12.5 frames/s and with 10% of frame pairs dropped, on its clock and
-    without it, judged per grasp."""
+    without it, judged per grasp; with --folds, a recipe's folds on their held-out objects."""
     check_output_dir(out, "--out")
+    if folds is not None:
+        doc = folds_study(
+            resolve_path(recordings or gelsight_recordings()), folds, baseline_folds, check_seed(seed), progress
+        )
+        paths = write_rates_folds(doc, out, command_line())
+        typer.echo(rates_folds_table(doc))
+        typer.echo(f"-> {', '.join(str(p) for p in paths)}")
+        return
     doc = rates_study(
         resolve_path(recordings or gelsight_recordings()),
         checkpoint or shipped_model(),

@@ -12,6 +12,7 @@ import json
 import os
 import platform
 import subprocess
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
@@ -66,15 +67,15 @@ CONDITIONS = [at_rate(25.0), at_rate(15.0), at_rate(12.5), dropped(0.10)]
 CONDITIONS[0] = Condition("as recorded (25 frames/s)", CONDITIONS[0].frames, 25.0)
 
 
-def rates_study(recordings: Path, checkpoint: Path, seed: int = 0, progress: bool = True) -> dict[str, Any]:
-    """Per-grasp outcomes of ``checkpoint`` on every run of ``recordings`` under each condition, on the
-    detector's clock and without it. Slips without a moment of slip are left out (nothing to warn of)."""
-    det = SlipDetector.from_checkpoint(checkpoint, backend="torch")
+def _replayed(
+    det: SlipDetector, recordings: Path, labels: dict, objects, rng_for, modes=("clock", "plain"), progress=True
+):
+    """``{condition: {mode: [GraspOutcome]}}`` of ``det`` on every run of ``objects`` (all: None)
+    under each of :data:`CONDITIONS`, ``rng_for(object, experiment)`` drawing the dropped frames.
+    Slips without a moment of slip are left out (nothing to warn of)."""
     product = det.cache_product
-    recs = find_recordings(recordings, on_error="skip")
-    labels = label_runs(recs, progress=progress)
-    rng = np.random.default_rng(seed)
-    outcomes: dict[str, dict[str, list]] = {c.name: {"clock": [], "plain": []} for c in CONDITIONS}
+    recs = [r for r in find_recordings(recordings, on_error="skip") if objects is None or r.object in objects]
+    outcomes: dict[str, dict[str, list]] = {c.name: {m: [] for m in modes} for c in CONDITIONS}
     for (obj, exp), cams in progress_bar(list(by_run(recs).items()), progress, "replaying runs"):
         labs = [labels[r.key] for r in cams if r.key in labels]
         if len(labs) != len(cams) or len(cams) != det.sensors:
@@ -86,24 +87,33 @@ def rates_study(recordings: Path, checkpoint: Path, seed: int = 0, progress: boo
         cached = [video_products(r.path, ["contact", product]) for r in cams]
         gray, contact = np.stack([c[product] for c in cached]), np.stack([c["contact"] for c in cached])
         for cond in CONDITIONS:
-            idx, stamps = cond.frames(gray.shape[1], rng)
+            idx, stamps = cond.frames(gray.shape[1], rng_for(obj, exp))
             sub_moment = None if moment is None else int(np.searchsorted(idx, moment, side="right")) - 1
             rest = pergrasp.rest_mask(contact[:, idx])
-            for mode, trace in (
-                ("clock", det.replay_cached(gray[:, idx], stamps=stamps)),
-                ("plain", det.replay_cached(gray[:, idx])),
-            ):
+            for mode in modes:
+                trace = det.replay_cached(gray[:, idx], stamps=stamps if mode == "clock" else None)
                 run = RunTrace(obj, exp, slipped, sub_moment, len(idx), trace.probability, rest, (), cond.fps)
                 outcomes[cond.name][mode].append(run.outcome(det.threshold, det.debounce))
+    return outcomes
+
+
+def _counts(outs: list) -> dict[str, Any]:
+    s = pergrasp.summarise(outs)
+    row = {k: s[k] for k in ("slip_runs", "warned", "premature", "missed", "held_runs", "false_positive_grasps")}
+    row["warned_interval"] = pergrasp.wilson(row["warned"], row["slip_runs"])
+    row["false_positive_interval"] = pergrasp.wilson(row["false_positive_grasps"], row["held_runs"])
+    return row
+
+
+def rates_study(recordings: Path, checkpoint: Path, seed: int = 0, progress: bool = True) -> dict[str, Any]:
+    """Per-grasp outcomes of ``checkpoint`` on every run of ``recordings`` under each condition, on the
+    detector's clock and without it."""
+    det = SlipDetector.from_checkpoint(checkpoint, backend="torch")
+    labels = label_runs(find_recordings(recordings, on_error="skip"), progress=progress)
+    rng = np.random.default_rng(seed)
+    outcomes = _replayed(det, recordings, labels, None, lambda o, e: rng, progress=progress)
     det.close()
-    rows = []
-    for cond in CONDITIONS:
-        row: dict[str, Any] = {"condition": cond.name}
-        for mode, outs in outcomes[cond.name].items():
-            s = pergrasp.summarise(outs)
-            row[mode] = {k: s[k] for k in ("slip_runs", "warned", "premature", "missed", "held_runs")}
-            row[mode]["false_positive_grasps"] = s["false_positive_grasps"]
-        rows.append(row)
+    rows = [{"condition": c.name, **{m: _counts(o) for m, o in outcomes[c.name].items()}} for c in CONDITIONS]
     return {
         "checkpoint": Path(checkpoint).name,
         "recordings": portable_path(recordings),
@@ -111,6 +121,33 @@ def rates_study(recordings: Path, checkpoint: Path, seed: int = 0, progress: boo
         "seed": seed,
         "rows": rows,
     }
+
+
+def folds_study(
+    recordings: Path, detectors: Path, baselines: Path | None = None, seed: int = 0, progress: bool = True
+) -> dict[str, Any]:
+    """Leave objects out: each fold's detector (``<detectors>/fold<k>/detector.safetensors``, trained by
+    ``slipsense train --fold k``) replays only its held-out objects (``held_out.json``) under each
+    condition on its clock, at its own operating point; the outcomes are pooled over folds. The
+    non-learned baseline's folds (``baselines``, e.g. ``motion-energy``) the same way beside it."""
+    labels = label_runs(find_recordings(recordings, on_error="skip"), progress=progress)
+
+    def rng_for(obj: str, exp: int) -> np.random.Generator:  # the same frames dropped for every model
+        return np.random.default_rng([seed, zlib.crc32(obj.encode()), exp])
+
+    pooled: dict[str, dict[str, list]] = {c.name: {} for c in CONDITIONS}
+    folds = []
+    for name, root in (("detector", detectors), ("baseline", baselines)):
+        for fold in sorted(Path(root).glob("fold*")) if root is not None else ():
+            held = json.loads((fold / "held_out.json").read_text())["objects"]
+            det = SlipDetector.from_checkpoint(fold / "detector.safetensors", backend="torch")
+            outs = _replayed(det, recordings, labels, set(held), rng_for, modes=("clock",), progress=progress)
+            det.close()
+            for cond in CONDITIONS:
+                pooled[cond.name].setdefault(name, []).extend(outs[cond.name]["clock"])
+            folds.append({"model": name, "fold": fold.name, "objects": held, "threshold": det.threshold})
+    rows = [{"condition": c.name, **{m: _counts(o) for m, o in pooled[c.name].items()}} for c in CONDITIONS]
+    return {"recordings": portable_path(recordings), "seed": seed, "folds": folds, "rows": rows}
 
 
 def table(doc: dict[str, Any]) -> str:
@@ -127,6 +164,35 @@ def table(doc: dict[str, Any]) -> str:
             f"| {r['condition']} | {c['warned']} of {c['slip_runs']} | {c['false_positive_grasps']} of "
             f"{c['held_runs']} | {p['warned']} of {p['slip_runs']} | {p['false_positive_grasps']} of {p['held_runs']} |"
         )
+    return "\n".join(lines) + "\n"
+
+
+def _with_interval(k: int, n: int, interval) -> str:
+    lo, hi = interval
+    return f"{k} of {n} ({100 * lo:.0f}-{100 * hi:.0f}%)"
+
+
+def folds_table(doc: dict[str, Any]) -> str:
+    """The leave-objects-out study as a Markdown table: each condition's slips warned in time and held
+    grasps alarming (95% Wilson intervals), the detector beside the non-learned baseline."""
+    base = any("baseline" in r for r in doc["rows"])
+    head = "| the same runs, objects never trained on | slips warned in time | held grasps alarming |"
+    head += " baseline: slips warned in time | baseline: held grasps alarming |" if base else ""
+    lines = [head + " detector within 2 of 25 frames/s |", "|---|---:|---:|" + ("---:|---:|" if base else "") + "---|"]
+    first = doc["rows"][0]["detector"]
+    for r in doc["rows"]:
+        cells = [r["condition"]]
+        for name in ("detector", "baseline") if base else ("detector",):
+            c = r[name]
+            cells.append(_with_interval(c["warned"], c["slip_runs"], c["warned_interval"]))
+            cells.append(_with_interval(c["false_positive_grasps"], c["held_runs"], c["false_positive_interval"]))
+        d = r["detector"]
+        near = (
+            abs(d["warned"] - first["warned"]) <= 2
+            and abs(d["false_positive_grasps"] - first["false_positive_grasps"]) <= 2
+        )
+        cells.append("yes" if near else "no")
+        lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -154,6 +220,27 @@ def write(doc: dict[str, Any], out: Path, command: str) -> list[Path]:
         f"`{doc['recordings']}` replayed from its first frame, judged per grasp (in time: the first alarm at most "
         "2 s before the moment of slip). The detector was trained on these runs: the change between rows is what "
         "counts, not the level.\n\n" + table(doc)
+    )
+    atomic.write_text(out / "README.md", text)
+    return [out / "rates.json", out / "README.md"]
+
+
+def write_folds(doc: dict[str, Any], out: Path, command: str) -> list[Path]:
+    """``rates.json`` and ``README.md`` (the leave-objects-out table, the command) into ``out``."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    doc = {**doc, "command": command}
+    atomic.write_text(out / "rates.json", json.dumps(doc, indent=1))
+    thresholds = ", ".join(f"{f['threshold']:g}" for f in doc["folds"] if f["model"] == "detector")
+    text = (
+        "# The detector's recipe at other frame rates, on objects it never saw\n\n"
+        f"Command: `{command}`  \n{provenance()}\n\n"
+        f"Each fold's detector (thresholds {thresholds}, chosen on its training objects) replays the runs of its "
+        f"held-out objects of `{doc['recordings']}` from their first frame on its own clock (frames taken at "
+        "another rate resampled to 25 frames/s), judged per grasp (in time: the first alarm at most 2 s before the "
+        "moment of slip), pooled over the folds; the non-learned baseline's folds the same way. 95% Wilson "
+        "intervals over runs. The last column: within 2 slips warned and 2 held grasps alarming of the 25 "
+        "frames/s row.\n\n" + folds_table(doc)
     )
     atomic.write_text(out / "README.md", text)
     return [out / "rates.json", out / "README.md"]

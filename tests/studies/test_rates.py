@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from studies.grasp.rates import at_rate, dropped, table
+from studies.grasp.rates import at_rate, dropped, folds_study, folds_table, rates_study, table
 
 
 def test_a_slower_sensor_takes_the_recorded_frame_at_or_before_each_of_its_moments():
@@ -26,3 +26,42 @@ def test_the_table_reads_as_counts_of_runs():
     row = {"slip_runs": 5, "warned": 2, "premature": 0, "missed": 3, "held_runs": 9, "false_positive_grasps": 1}
     text = table({"rows": [{"condition": "as recorded", "clock": row, "plain": {**row, "warned": 1}}]})
     assert "| as recorded | 2 of 5 | 1 of 9 | 1 of 5 | 1 of 9 |" in text
+
+
+def test_folds_table_puts_the_baseline_beside_and_says_which_rows_keep_the_bound():
+    def row(warned, fp):
+        return {
+            "slip_runs": 10, "warned": warned, "held_runs": 20, "false_positive_grasps": fp,
+            "warned_interval": (0.1, 0.5), "false_positive_interval": (0.0, 0.2),
+        }  # fmt: skip
+
+    doc = {
+        "rows": [
+            {"condition": "as recorded", "detector": row(5, 1), "baseline": row(4, 3)},
+            {"condition": "slower", "detector": row(3, 3), "baseline": row(4, 3)},
+            {"condition": "slowest", "detector": row(2, 1), "baseline": row(4, 3)},
+        ]
+    }
+    text = folds_table(doc)
+    assert "| as recorded | 5 of 10 (10-50%) | 1 of 20 (0-20%) | 4 of 10 (10-50%) | 3 of 20 (0-20%) | yes |" in text
+    assert "| slower | 3 of 10" in text and text.splitlines()[3].endswith("| yes |")
+    assert text.splitlines()[4].endswith("| no |")  # 3 slips fewer
+
+
+def test_the_folds_pool_every_held_out_run_once(tmp_path, cache, grasp_recordings):
+    """Two folds of two objects each, the same detector in both: pooled, they judge every run once,
+    as one replay of the whole folder does."""
+    import json
+    import shutil
+
+    from slipsense.resources import shipped_model
+
+    for k, held in enumerate((["obj0", "obj1"], ["obj2", "obj3"])):
+        (tmp_path / "folds" / f"fold{k}").mkdir(parents=True)
+        shutil.copy(shipped_model(), tmp_path / "folds" / f"fold{k}" / "detector.safetensors")
+        (tmp_path / "folds" / f"fold{k}" / "held_out.json").write_text(json.dumps({"objects": held}))
+    pooled = folds_study(grasp_recordings, tmp_path / "folds", progress=False)
+    whole = rates_study(grasp_recordings, shipped_model(), progress=False)
+    assert len(pooled["folds"]) == 2
+    for p, w in zip(pooled["rows"][:3], whole["rows"][:3]):  # the dropped frames are drawn differently
+        assert p["detector"] == w["clock"] and p["detector"]["slip_runs"] + p["detector"]["held_runs"] == 8
