@@ -35,7 +35,7 @@ FLOORS = [
     ["models", "checkpoint"],
     ["streaming"],
     ["training", "evaluation"],
-    ["api", "watch", "ros_node"],
+    ["api", "watch", "ros_node", "adapt"],
     ["cli"],
 ]
 MAX_LINES = 600

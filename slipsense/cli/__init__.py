@@ -101,6 +101,40 @@ def calibrate(
 
 @app.command()
 @friendly
+def adapt(
+    recordings: Path = typer.Option(..., help="your own grasps, slipped and held, of several objects"),
+    out: Path = typer.Option(..., help="folder: detector.safetensors (where one is kept), adapt.json, folds/"),
+    budget: float = typer.Option(0.05, help="fraction of the held grasps allowed to alarm"),
+    folds: int = typer.Option(5, help="object folds that judge the fine-tuned detector on objects it never saw"),
+    epochs: int = typer.Option(10, help="fine-tuning epochs"),
+    seed: int = typer.Option(0, help="seed of the object folds and the trainings"),
+    progress: bool = typer.Option(True, help="progress bars on long work (--no-progress: none)"),
+):
+    """Fit a detector to your sensor: the shipped detector as is, recalibrated and fine-tuned from its
+    weights, each judged on objects it never saw beside non-learned baselines; the best is kept where
+    it beats them, and the summary says what was chosen and why. A killed run resumes."""
+    from slipsense.adapt import adapt as run
+    from slipsense.errors import ConfigError
+    from slipsense.run_config import check_seed
+
+    if not 0.0 <= budget < 1.0:
+        raise ConfigError(f"--budget must be a fraction in [0, 1), got {budget!r}")
+    if folds < 2 or epochs < 1:
+        raise ConfigError(f"--folds must be 2 or more and --epochs 1 or more, got {folds} and {epochs}")
+    run(
+        recordings,
+        out,
+        budget=budget,
+        folds=folds,
+        epochs=epochs,
+        seed=check_seed(seed),
+        progress=progress,
+        echo=typer.echo,
+    )
+
+
+@app.command()
+@friendly
 def models():
     """List the registered models and their parameter counts at default settings."""
     import torch

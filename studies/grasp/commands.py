@@ -26,6 +26,7 @@ from studies.grasp.looks import looks_study
 from studies.grasp.looks import table as looks_table
 from studies.grasp.looks import write as write_looks
 from studies.grasp.promise import restate_promise
+from studies.grasp.derive import derive_sensor
 from studies.grasp.rates import folds_study, rates_study
 from studies.grasp.rates import folds_table as rates_folds_table
 from studies.grasp.rates import table as rates_table
@@ -268,6 +269,25 @@ def rates_cmd(
     paths = write_rates(doc, out, command_line())
     typer.echo(rates_table(doc))
     typer.echo(f"-> {', '.join(str(p) for p in paths)}")
+
+
+@group.command("derive")
+@friendly
+def derive_cmd(
+    out: Path = typer.Option(..., help="folder for the derived sensor's grasps (frame folders, sensor.json)"),
+    recordings: Optional[Path] = typer.Option(None, help="recordings folder (default: the shared recordings)"),
+    width: int = typer.Option(160, help="frame width, pixels"),
+    height: int = typer.Option(120, help="frame height, pixels"),
+    every: int = typer.Option(2, help="keep every N-th frame (2: 12.5 frames/s from 25)"),
+    camera: str = typer.Option("camera_0", help="the one camera kept"),
+    progress: bool = typer.Option(True, help="progress bars"),
+):
+    """A user's own sensor made from the shared recordings: one camera, smaller frames, a lower rate,
+    as frame folders labelled per grasp (what slipsense adapt is measured on)."""
+    n = derive_sensor(
+        resolve_path(recordings or gelsight_recordings()), out, (height, width), every, camera, progress=progress
+    )
+    typer.echo(f"{n} grasps -> {out}")
 
 
 @group.command("looks")
