@@ -13,7 +13,7 @@ from slipsense.atomic import check_output_dir, check_output_file, write_text
 from slipsense.checkpoint import read_info
 from slipsense.cli.common import check_seed, command_line, friendly
 from slipsense.cli.live import THREADS_HELP, set_threads
-from slipsense.config import gelsight_recordings, resolve_path
+from slipsense.config import data_root, gelsight_recordings, resolve_path
 from slipsense.errors import ConfigError
 from slipsense.evaluation.pergrasp import promise_text
 from slipsense.resources import shipped_model
@@ -26,8 +26,8 @@ from studies.grasp.looks import looks_study
 from studies.grasp.looks import table as looks_table
 from studies.grasp.looks import write as write_looks
 from studies.grasp.promise import restate_promise
-from studies.grasp.derive import derive_sensor
-from studies.grasp.rates import folds_study, rates_study
+from studies.grasp.derive import derive_sensor, slower_frame_folders
+from studies.grasp.rates import folds_study, lift_study, rates_study
 from studies.grasp.rates import folds_table as rates_folds_table
 from studies.grasp.rates import table as rates_table
 from studies.grasp.rates import write as write_rates
@@ -246,6 +246,9 @@ def rates_cmd(
     baseline_folds: Optional[Path] = typer.Option(
         None, help="with --folds: the non-learned baseline's fold<k>/ beside it"
     ),
+    lift: Optional[Path] = typer.Option(
+        None, help="with --folds: the gelsight-lift data too, as recorded and at half its rate"
+    ),
     seed: int = typer.Option(0, help="seed of the dropped frames"),
     progress: bool = typer.Option(True, help="progress bars"),
 ):
@@ -256,6 +259,8 @@ def rates_cmd(
         doc = folds_study(
             resolve_path(recordings or gelsight_recordings()), folds, baseline_folds, check_seed(seed), progress
         )
+        if lift is not None:
+            doc["lift"] = lift_study(resolve_path(lift), progress)
         paths = write_rates_folds(doc, out, command_line())
         typer.echo(rates_folds_table(doc))
         typer.echo(f"-> {', '.join(str(p) for p in paths)}")
@@ -280,10 +285,16 @@ def derive_cmd(
     height: int = typer.Option(120, help="frame height, pixels"),
     every: int = typer.Option(2, help="keep every N-th frame (2: 12.5 frames/s from 25)"),
     camera: str = typer.Option("camera_0", help="the one camera kept"),
+    frames: bool = typer.Option(False, help="instead: a frame-folder set (gelsight-lift) at 1/--every of its rate"),
     progress: bool = typer.Option(True, help="progress bars"),
 ):
     """A user's own sensor made from the shared recordings: one camera, smaller frames, a lower rate,
-    as frame folders labelled per grasp (what slipsense adapt is measured on)."""
+    as frame folders labelled per grasp (what slipsense adapt is measured on); with --frames, the
+    gelsight-lift grasps at a lower rate."""
+    if frames:
+        n = slower_frame_folders(resolve_path(recordings or data_root() / "gelsight-lift"), out, every)
+        typer.echo(f"{n} grasps -> {out}")
+        return
     n = derive_sensor(
         resolve_path(recordings or gelsight_recordings()), out, (height, width), every, camera, progress=progress
     )

@@ -6,6 +6,7 @@ What ``slipsense adapt`` is measured on (``docs/new-sensor.md``): ``python -m st
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import cv2
@@ -13,6 +14,7 @@ import cv2
 from slipsense import atomic
 from slipsense.progress import progress_bar
 from slipsense.recordings.folders import find_recordings
+from slipsense.recordings.frames import frame_files
 from slipsense.recordings.video import read_video
 
 
@@ -47,3 +49,24 @@ def derive_sensor(
     sensor = {"name": "derived-gelsight", "output": "video", "fps": recorded_fps / every, "image_size": [h, w]}
     atomic.write_text(out / "sensor.json", json.dumps(sensor))
     return len(recs)
+
+
+def slower_frame_folders(recordings: Path, out: Path, every: int = 2, fps: float = 30.0) -> int:
+    """A frame-folder data set (the ``gelsight-lift`` layout: ``<object>/<grasp>/`` frames and
+    ``<object>_result.dat``) as a sensor ``every`` times slower would have taken it: every ``every``-th
+    frame, numbered again without gaps, the label files copied, ``sensor.json`` stating the rate
+    (``fps / every``). Returns the grasps written."""
+    recordings, out = Path(recordings), Path(out)
+    grasps = 0
+    for labels in sorted(recordings.glob("*_result.dat")):
+        obj = labels.name[: -len("_result.dat")]
+        for grasp in sorted(p for p in (recordings / obj).iterdir() if p.is_dir()):
+            target = out / obj / grasp.name
+            target.mkdir(parents=True, exist_ok=True)
+            for k, frame in enumerate(frame_files(grasp)[::every]):
+                shutil.copyfile(frame, target / f"{k:05d}{frame.suffix}")
+            grasps += 1
+        shutil.copyfile(labels, out / labels.name)
+    spec = {"name": "gelsight-lift", "output": "video", "fps": fps / every, "image_size": [480, 640]}
+    atomic.write_text(out / "sensor.json", json.dumps({**spec, "camera_glob": "*.jpg"}))
+    return grasps
