@@ -80,7 +80,12 @@ class Candidate:
         return self.measure["operating_point"]["balanced_accuracy"]["value"]
 
     def to_dict(self) -> dict[str, Any]:
-        return {"name": self.name, "measure": self.measure, "alarmed": int(self.alarmed.sum())}
+        return {
+            "name": self.name,
+            "measure": self.measure,
+            "slips_caught": int(self.alarmed[self.slipped].sum()),
+            "held_alarming": int(self.alarmed[~self.slipped].sum()),
+        }
 
 
 def _pct(m: dict[str, Any]) -> str:

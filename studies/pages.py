@@ -26,7 +26,7 @@ import re
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -369,6 +369,89 @@ def looks(root: Path) -> str:
     return _table(header, rows, ["---", "---:", "---:"])
 
 
+# tables the report writers of studies/grasp share with the pages (one source for each figure)
+
+
+def _with_interval(k: int, n: int, interval) -> str:
+    lo, hi = interval
+    return f"{k} of {n} ({100 * lo:.0f}-{100 * hi:.0f}%)"
+
+
+def folds_table(doc: dict[str, Any]) -> str:
+    """The leave-objects-out study as a Markdown table: each condition's slips warned in time and held
+    grasps alarming (95% Wilson intervals), the detector beside the non-learned baseline."""
+    base = any("baseline" in r for r in doc["rows"])
+    head = "| the same runs, objects never trained on | slips warned in time | held grasps alarming |"
+    head += " baseline: slips warned in time | baseline: held grasps alarming |" if base else ""
+    lines = [head + " detector within 2 of 25 frames/s |", "|---|---:|---:|" + ("---:|---:|" if base else "") + "---|"]
+    first = doc["rows"][0]["detector"]
+    for r in doc["rows"]:
+        cells = [r["condition"]]
+        for name in ("detector", "baseline") if base else ("detector",):
+            c = r[name]
+            cells.append(_with_interval(c["warned"], c["slip_runs"], c["warned_interval"]))
+            cells.append(_with_interval(c["false_positive_grasps"], c["held_runs"], c["false_positive_interval"]))
+        d = r["detector"]
+        near = (
+            abs(d["warned"] - first["warned"]) <= 2
+            and abs(d["false_positive_grasps"] - first["false_positive_grasps"]) <= 2
+        )
+        cells.append("yes" if near else "no")
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def lift_table(rows: list[dict[str, Any]]) -> str:
+    lines = [
+        "| gelsight-lift grasps | slipped grasps caught | held grasps alarming | right, thresholds chosen on the other objects |",
+        "|---|---:|---:|---:|",
+    ]
+    for r in rows:
+        acc = r["leave_objects_out_accuracy"]
+        lo, hi = acc["interval"]
+        lines.append(
+            f"| {r['condition']} | {r['caught']} of {r['slipped']} | {r['held_alarming']} of {r['held']} | "
+            f"{100 * acc['value']:.0f}% ({100 * lo:.0f}-{100 * hi:.0f}%) |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def adapt_table(doc: dict) -> str:
+    """``adapt.json`` as a Markdown table: each candidate and baseline judged on objects it never saw."""
+
+    def rng(m) -> str:
+        lo, hi = m["interval"]
+        return f"{100 * m['value']:.0f}% ({100 * lo:.0f}-{100 * hi:.0f}%)"
+
+    lines = [
+        "| judged on objects it never saw | balanced accuracy (95% range) | ranking (ROC AUC) | slips caught "
+        "| held grasps alarming |",
+        "|---|---:|---:|---:|---:|",
+    ]
+    for c in doc["candidates"]:
+        m = c["measure"]
+        lines.append(
+            f"| {c['name']} | {rng(m['operating_point']['balanced_accuracy'])} | {rng(m['roc_auc'])} | "
+            f"{c['slips_caught']} of {m['slipped']} | {c['held_alarming']} of {m['grasps'] - m['slipped']} |"
+        )
+    for name, m in doc["baselines"].items():
+        lines.append(
+            f"| baseline: {name} | {rng(m['leave_objects_out']['balanced_accuracy'])} | {rng(m['roc_auc'])} | | |"
+        )
+    return "\n".join(lines) + f"\n\nKept: {doc['chosen'] or 'none'}. {doc['why']}.\n"
+
+
+def adapt_derived(root: Path) -> str:
+    """slipsense adapt on the derived sensor: each candidate and baseline on objects it never saw."""
+    return adapt_table(_json(root, "reports/adapt-derived/adapt.json"))
+
+
+def rates_folds(root: Path) -> str:
+    """The recipe's folds at other frame rates on their held-out objects, and gelsight-lift at half rate."""
+    doc = _json(root, "reports/rates-folds/rates.json")
+    return folds_table(doc) + ("\n" + lift_table(doc["lift"]) if doc.get("lift") else "")
+
+
 FIGURES: dict[str, Figure] = {
     "readme": Figure(
         (
@@ -389,6 +472,8 @@ FIGURES: dict[str, Figure] = {
     "rates": Figure(("reports/rates",), rates),
     "ros": Figure(("reports/ros",), ros),
     "looks": Figure(("reports/looks",), looks),
+    "adapt": Figure(("reports/adapt-derived",), adapt_derived),
+    #     "rates-folds": Figure(("reports/rates-folds",), rates_folds),
 }
 
 

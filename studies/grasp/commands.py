@@ -26,7 +26,7 @@ from studies.grasp.looks import looks_study
 from studies.grasp.looks import table as looks_table
 from studies.grasp.looks import write as write_looks
 from studies.grasp.promise import restate_promise
-from studies.grasp.derive import derive_sensor, slower_frame_folders
+from studies.grasp.derive import adapt_report, derive_sensor, slower_frame_folders
 from studies.grasp.rates import folds_study, lift_study, rates_study
 from studies.grasp.rates import folds_table as rates_folds_table
 from studies.grasp.rates import table as rates_table
@@ -299,6 +299,31 @@ def derive_cmd(
         resolve_path(recordings or gelsight_recordings()), out, (height, width), every, camera, progress=progress
     )
     typer.echo(f"{n} grasps -> {out}")
+
+
+@group.command("adapt-report")
+@friendly
+def adapt_report_cmd(
+    sensor: Path = typer.Option(..., help="the derived sensor's folder (python -m studies grasp derive --out ...)"),
+    work: Path = typer.Option(..., help="slipsense adapt's --out (kept: a second run resumes from its folds)"),
+    out: Path = typer.Option(Path("reports/adapt-derived"), help="report folder: README.md, adapt.json"),
+    progress: bool = typer.Option(True, help="progress bars"),
+):
+    """slipsense adapt on a derived sensor, timed, and its report: every candidate and baseline judged on
+    objects it never saw, what was kept and why."""
+    import time
+
+    from slipsense.adapt import adapt
+
+    t0 = time.perf_counter()
+    adapt(sensor, work, progress=progress, echo=typer.echo)
+    seconds = time.perf_counter() - t0
+    commands = [
+        "python -m studies grasp derive --out SENSOR",
+        f"slipsense adapt --recordings SENSOR --out WORK   # timed here: {seconds:.0f} s",
+        f"{command_line()}",
+    ]
+    typer.echo(f"-> {adapt_report(work, out, commands, seconds)}")
 
 
 @group.command("looks")

@@ -16,6 +16,8 @@ from slipsense.progress import progress_bar
 from slipsense.recordings.folders import find_recordings
 from slipsense.recordings.frames import frame_files
 from slipsense.recordings.video import read_video
+from studies.pages import adapt_table
+from studies.provenance import provenance
 
 
 def derive_sensor(
@@ -70,3 +72,25 @@ def slower_frame_folders(recordings: Path, out: Path, every: int = 2, fps: float
     spec = {"name": "gelsight-lift", "output": "video", "fps": fps / every, "image_size": [480, 640]}
     atomic.write_text(out / "sensor.json", json.dumps({**spec, "camera_glob": "*.jpg"}))
     return grasps
+
+
+def adapt_report(adapt_dir: Path, out: Path, commands: list[str], seconds: float) -> Path:
+    """``README.md`` of a ``slipsense adapt`` run (its ``adapt.json``) into ``out``: every candidate and
+    baseline judged on objects it never saw, what was kept and why, the commands and the time taken."""
+    doc = json.loads((Path(adapt_dir) / "adapt.json").read_text())
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    text = (
+        "# slipsense adapt on a derived sensor\n\n"
+        + "Commands:\n\n"
+        + "".join(f"    {c}\n" for c in commands)
+        + f"\n{provenance()} `adapt` took {seconds:.0f} s.\n\n"
+        "The sensor: the shared GelSight Mini recordings as a user's own sensor would give them (one camera, "
+        "160 x 120 pixels, 12.5 frames/s, frame folders labelled per grasp). The shipped one-finger detector was "
+        'trained on the same objects at 25 frames/s, so its row "as is" flatters it; the other rows choose their '
+        "thresholds (and, fine-tuned, their weights) without the object judged. Baselines: thresholds chosen on "
+        "the other objects.\n\n" + adapt_table(doc)
+    )
+    atomic.write_text(out / "README.md", text)
+    atomic.write_text(out / "adapt.json", json.dumps(doc, indent=1))
+    return out / "README.md"

@@ -23,7 +23,7 @@ from slipsense.recordings.frame_cache import video_products
 from slipsense.recordings.types import by_run
 from slipsense.recordings.video import read_video
 from slipsense.streaming.detector import SlipDetector
-from studies.grasp.rates import provenance
+from studies.provenance import provenance
 
 
 def _exposure(gain: float) -> Callable[[np.ndarray], np.ndarray]:

@@ -7,11 +7,7 @@ the clock, with every frame taken for one 40 ms step. ``python -m studies grasp 
 
 from __future__ import annotations
 
-import datetime
 import json
-import os
-import platform
-import subprocess
 import tempfile
 import warnings
 import zlib
@@ -33,6 +29,8 @@ from slipsense.recordings.frame_cache import video_products
 from slipsense.recordings.types import by_run
 from slipsense.streaming.detector import SlipDetector
 from studies.grasp.derive import slower_frame_folders
+from studies.pages import folds_table, lift_table
+from studies.provenance import provenance
 
 
 @dataclass(frozen=True)
@@ -198,60 +196,6 @@ def lift_study(lift: Path, progress: bool = True) -> list[dict[str, Any]]:
                 }
             )
     return rows
-
-
-def lift_table(rows: list[dict[str, Any]]) -> str:
-    lines = [
-        "| gelsight-lift grasps | slipped grasps caught | held grasps alarming | right, thresholds chosen on the other objects |",
-        "|---|---:|---:|---:|",
-    ]
-    for r in rows:
-        acc = r["leave_objects_out_accuracy"]
-        lo, hi = acc["interval"]
-        lines.append(
-            f"| {r['condition']} | {r['caught']} of {r['slipped']} | {r['held_alarming']} of {r['held']} | "
-            f"{100 * acc['value']:.0f}% ({100 * lo:.0f}-{100 * hi:.0f}%) |"
-        )
-    return "\n".join(lines) + "\n"
-
-
-def _with_interval(k: int, n: int, interval) -> str:
-    lo, hi = interval
-    return f"{k} of {n} ({100 * lo:.0f}-{100 * hi:.0f}%)"
-
-
-def folds_table(doc: dict[str, Any]) -> str:
-    """The leave-objects-out study as a Markdown table: each condition's slips warned in time and held
-    grasps alarming (95% Wilson intervals), the detector beside the non-learned baseline."""
-    base = any("baseline" in r for r in doc["rows"])
-    head = "| the same runs, objects never trained on | slips warned in time | held grasps alarming |"
-    head += " baseline: slips warned in time | baseline: held grasps alarming |" if base else ""
-    lines = [head + " detector within 2 of 25 frames/s |", "|---|---:|---:|" + ("---:|---:|" if base else "") + "---|"]
-    first = doc["rows"][0]["detector"]
-    for r in doc["rows"]:
-        cells = [r["condition"]]
-        for name in ("detector", "baseline") if base else ("detector",):
-            c = r[name]
-            cells.append(_with_interval(c["warned"], c["slip_runs"], c["warned_interval"]))
-            cells.append(_with_interval(c["false_positive_grasps"], c["held_runs"], c["false_positive_interval"]))
-        d = r["detector"]
-        near = (
-            abs(d["warned"] - first["warned"]) <= 2
-            and abs(d["false_positive_grasps"] - first["false_positive_grasps"]) <= 2
-        )
-        cells.append("yes" if near else "no")
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines) + "\n"
-
-
-def provenance() -> str:
-    """Commit, machine and date of a report, in one line."""
-    try:
-        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
-    except OSError:
-        commit = ""
-    machine = f"{platform.system()} {platform.machine()}, {os.cpu_count()} cores"
-    return f"Commit {commit or 'unknown'}, {machine}, {datetime.date.today().isoformat()}."
 
 
 def write(doc: dict[str, Any], out: Path, command: str) -> list[Path]:

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from studies.grasp.rates import at_rate, dropped, folds_study, folds_table, rates_study, table
+from studies.grasp.rates import at_rate, dropped, folds_study, rates_study, table
+from studies.pages import folds_table
 
 
 def test_a_slower_sensor_takes_the_recorded_frame_at_or_before_each_of_its_moments():
