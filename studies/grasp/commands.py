@@ -22,7 +22,7 @@ from studies.grasp.adaptation import adaptation_study, table, write
 from studies.grasp.ceiling import held_out_traces, one_threshold, per_fold, phases
 from studies.grasp.early_warning import DEFAULT_THRESHOLDS, run_early_warning
 from studies.grasp.precursors import aligned_means, precursor_table, summary, write_report
-from studies.grasp.looks import looks_study
+from studies.grasp.looks import looks_folds_study, looks_study
 from studies.grasp.looks import table as looks_table
 from studies.grasp.looks import write as write_looks
 from studies.grasp.promise import restate_promise
@@ -332,12 +332,19 @@ def looks_cmd(
     out: Path = typer.Option(Path("reports/looks"), help="report folder: README.md (the table), looks.json"),
     recordings: Optional[Path] = typer.Option(None, help="recordings folder (default: the shared recordings)"),
     checkpoint: Optional[Path] = typer.Option(None, help="a two-finger detector (default: the shipped one)"),
+    folds: Optional[Path] = typer.Option(
+        None, help="instead: a folder of fold<k>/ trainings (slipsense train --fold k), each on its held-out objects"
+    ),
     progress: bool = typer.Option(True, help="progress bars"),
 ):
-    """The shipped detector as a dimmer or brighter unit, another LED tint or a softer focus sees the
-    runs, judged per grasp."""
+    """The shipped detector as a dimmer or brighter unit, another LED tint, a softer focus or a gel that
+    lost markers sees the runs, judged per grasp; with --folds, a recipe's folds on their held-out objects."""
     check_output_dir(out, "--out")
-    doc = looks_study(resolve_path(recordings or gelsight_recordings()), checkpoint or shipped_model(), progress)
+    root = resolve_path(recordings or gelsight_recordings())
+    if folds is not None:
+        doc = looks_folds_study(root, folds, progress)
+    else:
+        doc = looks_study(root, checkpoint or shipped_model(), progress)
     paths = write_looks(doc, out, command_line())
     typer.echo(looks_table(doc))
     typer.echo(f"-> {', '.join(str(p) for p in paths)}")

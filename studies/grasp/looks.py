@@ -22,6 +22,9 @@ from slipsense.recordings.folders import find_recordings
 from slipsense.recordings.frame_cache import video_products
 from slipsense.recordings.types import by_run
 from slipsense.recordings.video import read_video
+from slipsense.sensors.marker_detection import detect_markers
+from slipsense.recordings.contact import STARTUP_FRAMES
+from slipsense.errors import InputError
 from slipsense.streaming.detector import SlipDetector
 from studies.provenance import provenance
 
@@ -38,6 +41,30 @@ def _blur(v: np.ndarray) -> np.ndarray:
     return np.stack([cv2.GaussianBlur(f, (5, 5), 1.5) for f in v])
 
 
+def _markers_gone(v: np.ndarray, fraction: float = 0.1, seed: int = 0) -> np.ndarray:
+    """``fraction`` of the gel's markers (found on a frame after the camera start-up) painted over with
+    the gel around them in every frame, as on a worn gel; a video with too few markers is left as is."""
+    try:
+        centres = detect_markers(v[min(STARTUP_FRAMES, len(v) - 1)])
+    except InputError:
+        return v
+    rng = np.random.default_rng([seed, len(centres)])
+    gone = centres[rng.choice(len(centres), max(1, round(fraction * len(centres))), replace=False)]
+    out = v.copy()
+    h, w = v.shape[1:3]
+    for x, y in gone:  # each painted over with the mean of the unpainted gel around it (smooth shading)
+        cx, cy = int(round(x)), int(round(y))
+        y0, y1, x0, x1 = max(0, cy - 30), min(h, cy + 31), max(0, cx - 30), min(w, cx + 31)
+        mask = np.zeros((y1 - y0, x1 - x0), np.uint8)
+        cv2.circle(mask, (cx - x0, cy - y0), 14, 1, -1)  # markers of the shared gels: 11-22 px wide, and their shift
+        keep = (1 - mask).astype(np.float32)
+        weight = np.maximum(cv2.blur(keep, (31, 31)), 1e-6)[..., None]
+        for f in out[:, y0:y1, x0:x1]:
+            fill = cv2.blur(f.astype(np.float32) * keep[..., None], (31, 31)) / weight
+            f[mask == 1] = np.clip(np.rint(fill[mask == 1]), 0, 255).astype(np.uint8)
+    return out
+
+
 #: name -> what it does to a video (uint8 (N, H, W, 3) BGR)
 LOOKS: dict[str, Callable[[np.ndarray], np.ndarray] | None] = {
     "as recorded": None,
@@ -45,15 +72,14 @@ LOOKS: dict[str, Callable[[np.ndarray], np.ndarray] | None] = {
     "exposure x1.3": _exposure(1.3),
     "Gaussian blur (5 px, sigma 1.5)": _blur,
     "LED tint (B -20, R +25)": _tint,
+    "10% of the gel's markers gone": _markers_gone,
 }
 
 
-def looks_study(recordings: Path, checkpoint: Path, progress: bool = True) -> dict[str, Any]:
-    """Per-grasp outcomes of ``checkpoint`` on every run of ``recordings`` under each look."""
-    det = SlipDetector.from_checkpoint(checkpoint, backend="torch")
-    recs = find_recordings(recordings, on_error="skip")
-    labels = label_runs(recs, progress=progress)
-    outcomes: dict[str, list] = {name: [] for name in LOOKS}
+def _replayed(det: SlipDetector, recs: list, labels: dict, looks: dict, progress: bool) -> dict[str, list]:
+    """``{look: [GraspOutcome]}`` of ``det`` on every run of ``recs`` under each look (slips without a
+    moment of slip left out: nothing to warn of)."""
+    outcomes: dict[str, list] = {name: [] for name in looks}
     for (obj, exp), cams in progress_bar(list(by_run(recs).items()), progress, "replaying runs"):
         labs = [labels[r.key] for r in cams if r.key in labels]
         if len(labs) != len(cams) or len(cams) != det.sensors:
@@ -64,21 +90,51 @@ def looks_study(recordings: Path, checkpoint: Path, progress: bool = True) -> di
             continue
         videos = [read_video(r.path, expected_size=None) for r in cams]
         rest = pergrasp.rest_mask(np.stack([video_products(r.path, ["contact"])["contact"] for r in cams]))
-        for name, change in LOOKS.items():
+        for name, change in looks.items():
             trace = det.replay(*[v if change is None else change(v) for v in videos])
             run = RunTrace(obj, exp, slipped, moment, len(videos[0]), trace.probability, rest)
             outcomes[name].append(run.outcome(det.threshold, det.debounce))
+    return outcomes
+
+
+def _row(name: str, outs: list) -> dict[str, Any]:
+    s = pergrasp.summarise(outs)
+    row = {"look": name, **{k: s[k] for k in ("slip_runs", "warned", "premature", "held_runs")}}
+    row["false_positive_grasps"] = s["false_positive_grasps"]
+    return row
+
+
+def looks_study(recordings: Path, checkpoint: Path, progress: bool = True) -> dict[str, Any]:
+    """Per-grasp outcomes of ``checkpoint`` on every run of ``recordings`` under each look."""
+    det = SlipDetector.from_checkpoint(checkpoint, backend="torch")
+    recs = find_recordings(recordings, on_error="skip")
+    outcomes = _replayed(det, recs, label_runs(recs, progress=progress), LOOKS, progress)
     det.close()
-    rows = []
-    for name, outs in outcomes.items():
-        s = pergrasp.summarise(outs)
-        rows.append({"look": name, **{k: s[k] for k in ("slip_runs", "warned", "premature", "held_runs")}})
-        rows[-1]["false_positive_grasps"] = s["false_positive_grasps"]
     return {
         "checkpoint": Path(checkpoint).name,
         "recordings": portable_path(recordings),
         "operating_point": {"threshold": det.threshold, "debounce": det.debounce},
-        "rows": rows,
+        "rows": [_row(name, outs) for name, outs in outcomes.items()],
+    }
+
+
+def looks_folds_study(recordings: Path, detectors: Path, progress: bool = True) -> dict[str, Any]:
+    """Leave objects out: each fold's detector (``<detectors>/fold<k>/``, ``slipsense train --fold k``)
+    on its held-out objects (``held_out.json``) under each look, pooled over the folds."""
+    recs = find_recordings(recordings, on_error="skip")
+    labels = label_runs(recs, progress=progress)
+    pooled: dict[str, list] = {name: [] for name in LOOKS}
+    for fold in sorted(Path(detectors).glob("fold*")):
+        held = set(json.loads((fold / "held_out.json").read_text())["objects"])
+        det = SlipDetector.from_checkpoint(fold / "detector.safetensors", backend="torch")
+        mine = [r for r in recs if r.object in held]
+        for name, outs in _replayed(det, mine, labels, LOOKS, progress).items():
+            pooled[name].extend(outs)
+        det.close()
+    return {
+        "checkpoint": f"the folds of {portable_path(detectors)}, each on its held-out objects",
+        "recordings": portable_path(recordings),
+        "rows": [_row(name, outs) for name, outs in pooled.items()],
     }
 
 
@@ -99,13 +155,21 @@ def write(doc: dict[str, Any], out: Path, command: str) -> list[Path]:
     out.mkdir(parents=True, exist_ok=True)
     doc = {**doc, "command": command}
     atomic.write_text(out / "looks.json", json.dumps(doc, indent=1))
-    text = (
-        "# The shipped detector as another unit of the sensor sees the runs\n\n"
-        f"Command: `{command}`  \n{provenance()}\n\n"
-        f"Detector `{doc['checkpoint']}` at its operating point (threshold {doc['operating_point']['threshold']:g}, "
-        f"debounce {doc['operating_point']['debounce']}), every run of `{doc['recordings']}` replayed from its "
-        "first frame with the change applied to both cameras' frames, judged per grasp. The detector was trained "
-        "on these runs: the change between rows is what counts, not the level.\n\n" + table(doc)
-    )
+    if "operating_point" in doc:
+        title, how = (
+            "The shipped detector as another unit of the sensor sees the runs",
+            f"Detector `{doc['checkpoint']}` at its operating point (threshold {doc['operating_point']['threshold']:g}, "
+            f"debounce {doc['operating_point']['debounce']}), every run of `{doc['recordings']}` replayed from its "
+            "first frame with the change applied to both cameras' frames, judged per grasp. The detector was trained "
+            "on these runs: the change between rows is what counts, not the level.",
+        )
+    else:
+        title, how = (
+            "The detector's recipe as another unit of the sensor sees the runs, on objects it never saw",
+            f"Detectors: {doc['checkpoint']}, at their own operating points; every run of `{doc['recordings']}` "
+            "replayed from its first frame with the change applied to both cameras' frames, judged per grasp, "
+            "pooled over the folds.",
+        )
+    text = f"# {title}\n\nCommand: `{command}`  \n{provenance()}\n\n{how}\n\n" + table(doc)
     atomic.write_text(out / "README.md", text)
     return [out / "looks.json", out / "README.md"]
