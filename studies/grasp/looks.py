@@ -26,6 +26,7 @@ from slipsense.sensors.marker_detection import detect_markers
 from slipsense.recordings.contact import STARTUP_FRAMES
 from slipsense.errors import InputError
 from slipsense.streaming.detector import SlipDetector
+from studies.grasp.rates import trained_by_command
 from studies.provenance import provenance
 
 
@@ -124,7 +125,7 @@ def looks_folds_study(recordings: Path, detectors: Path, progress: bool = True) 
     recs = find_recordings(recordings, on_error="skip")
     labels = label_runs(recs, progress=progress)
     pooled: dict[str, list] = {name: [] for name in LOOKS}
-    for fold in sorted(Path(detectors).glob("fold*")):
+    for fold in sorted(p for p in Path(detectors).glob("fold*") if p.is_dir()):
         held = set(json.loads((fold / "held_out.json").read_text())["objects"])
         det = SlipDetector.from_checkpoint(fold / "detector.safetensors", backend="torch")
         mine = [r for r in recs if r.object in held]
@@ -133,6 +134,7 @@ def looks_folds_study(recordings: Path, detectors: Path, progress: bool = True) 
         det.close()
     return {
         "checkpoint": f"the folds of {portable_path(detectors)}, each on its held-out objects",
+        "trained_by": trained_by_command(detectors),
         "recordings": portable_path(recordings),
         "rows": [_row(name, outs) for name, outs in pooled.items()],
     }
@@ -170,6 +172,7 @@ def write(doc: dict[str, Any], out: Path, command: str) -> list[Path]:
             "replayed from its first frame with the change applied to both cameras' frames, judged per grasp, "
             "pooled over the folds.",
         )
-    text = f"# {title}\n\nCommand: `{command}`  \n{provenance()}\n\n{how}\n\n" + table(doc)
+    trained = f"Folds trained by `{doc['trained_by']}` for K = 0..4.\n\n" if doc.get("trained_by") else ""
+    text = f"# {title}\n\nCommand: `{command}`  \n{provenance()}\n\n{trained}{how}\n\n" + table(doc)
     atomic.write_text(out / "README.md", text)
     return [out / "looks.json", out / "README.md"]

@@ -8,6 +8,7 @@ the clock, with every frame taken for one 40 ms step. ``python -m studies grasp 
 from __future__ import annotations
 
 import json
+import re
 import tempfile
 import warnings
 import zlib
@@ -18,6 +19,7 @@ from typing import Any, Callable
 import numpy as np
 
 from slipsense import atomic
+from slipsense.checkpoint import read_info
 from slipsense.config import portable_path
 from slipsense.data import label_runs
 from slipsense.evaluation import pergrasp
@@ -140,7 +142,7 @@ def folds_study(
     pooled: dict[str, dict[str, list]] = {c.name: {} for c in CONDITIONS}
     folds = []
     for name, root in (("detector", detectors), ("baseline", baselines)):
-        for fold in sorted(Path(root).glob("fold*")) if root is not None else ():
+        for fold in sorted(p for p in Path(root).glob("fold*") if p.is_dir()) if root is not None else ():
             held = json.loads((fold / "held_out.json").read_text())["objects"]
             det = SlipDetector.from_checkpoint(fold / "detector.safetensors", backend="torch")
             outs = _replayed(det, recordings, labels, set(held), rng_for, modes=("clock",), progress=progress)
@@ -149,7 +151,22 @@ def folds_study(
                 pooled[cond.name].setdefault(name, []).extend(outs[cond.name]["clock"])
             folds.append({"model": name, "fold": fold.name, "objects": held, "threshold": det.threshold})
     rows = [{"condition": c.name, **{m: _counts(o) for m, o in pooled[c.name].items()}} for c in CONDITIONS]
-    return {"recordings": portable_path(recordings), "seed": seed, "folds": folds, "rows": rows}
+    trained_by = [trained_by_command(root) for root in (detectors, baselines) if root is not None]
+    return {
+        "recordings": portable_path(recordings),
+        "seed": seed,
+        "folds": folds,
+        "rows": rows,
+        "trained_by": trained_by,
+    }
+
+
+def trained_by_command(folds: Path) -> str:
+    """The command that trained fold ``k`` of ``folds`` (as its first fold's checkpoint keeps it), for any k."""
+    command = read_info(sorted(p for p in Path(folds).glob("fold*") if p.is_dir())[0] / "detector.safetensors")
+    command = (command.get("data") or {}).get("command") or "?"
+    command = re.sub(r"--fold \d+", "--fold K", command)
+    return re.sub(r"--out \S+", f"--out {portable_path(folds)}/foldK", command)
 
 
 def table(doc: dict[str, Any]) -> str:
@@ -227,7 +244,8 @@ def write_folds(doc: dict[str, Any], out: Path, command: str) -> list[Path]:
     text = (
         "# The detector's recipe at other frame rates, on objects it never saw\n\n"
         f"Command: `{command}`  \n{provenance()}\n\n"
-        f"Each fold's detector (thresholds {thresholds}, chosen on its training objects) replays the runs of its "
+        + "".join(f"Folds trained by `{c}` for K = 0..4.  \n" for c in doc.get("trained_by", ()))
+        + f"\nEach fold's detector (thresholds {thresholds}, chosen on its training objects) replays the runs of its "
         f"held-out objects of `{doc['recordings']}` from their first frame on its own clock (frames taken at "
         "another rate resampled to 25 frames/s), judged per grasp (in time: the first alarm at most 2 s before the "
         "moment of slip), pooled over the folds; the non-learned baseline's folds the same way. 95% Wilson "
