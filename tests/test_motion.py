@@ -264,3 +264,23 @@ def test_the_training_benchmark_still_times_both_steps():
     res = bench.grasp_throughput(runs, cfg, seconds=0.01)
     assert res["current"]["frames"] > 0 and res["reference"]["frames"] > 0 and res["ratio"] > 0
     assert {"operator", "self_percent", "calls"} <= set(bench.grasp_profile(runs, cfg)[0])
+
+
+def test_training_across_rates_sees_runs_as_a_slower_camera_and_the_live_detector_would():
+    """``train.slower``: a run as a camera at 0.6 of the recorded rate takes it, resampled to the
+    model's clock, is exactly what the live detector builds from such a camera's stamped frames."""
+    from slipsense.streaming.clock import ModelClock
+    from slipsense.training.grasps import as_slower_camera
+
+    gray = np.random.default_rng(1).integers(0, 256, (2, 40, 6, 8), dtype=np.uint8)
+    slow = as_slower_camera(gray, 0.6)
+    clock, live = ModelClock(25.0), []
+    for k in range(int(39 * 0.6) + 1):  # the slower camera: 15 frames/s, the recorded frame at each moment
+        live += clock.ticks(k / 15.0, [gray[s, int(np.floor(k / 0.6 + 1e-9))] for s in range(2)])
+    assert slow.shape[1] == len(live) <= 40
+    assert all(np.array_equal(slow[:, t], np.stack(f)) for t, f in enumerate(live))
+    runs = _runs()
+    model, hist = fit_runs(runs, GraspTrainConfig(**TINY, epochs=2, slower=[0.6, 0.5]), progress=False)
+    assert len(hist) == 2 and np.isfinite(hist[-1]["train_loss"])
+    with pytest.raises(ConfigError, match="slower"):
+        GraspTrainConfig(slower=[1.5])

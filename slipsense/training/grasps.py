@@ -31,6 +31,7 @@ import torch.nn.functional as F
 from slipsense.evaluation import pergrasp
 from slipsense.errors import ConfigError
 from slipsense.recordings.runs import GraspRun
+from slipsense.streaming.clock import resample
 from slipsense.training.trainer import LoopSettings, Step, train
 
 
@@ -65,6 +66,10 @@ class GraspTrainConfig:
     # combination is trained and judged as the detector is (its operating point on the inner folds);
     # the best by the rule's score on the training runs is the detector (ties: the better ROC AUC)
     choose: dict = field(default_factory=dict)
+    # train also on each run as a slower camera would give it: at these fractions of the recorded rate
+    # (0.6: 15 of 25 frames/s), resampled to the model's clock as the live detector does; each run of a
+    # step takes the recorded rate or one of these at random (empty: the recorded rate only)
+    slower: list = field(default_factory=list)
 
     def __post_init__(self):
         checks = {
@@ -105,6 +110,10 @@ class GraspTrainConfig:
             raise ConfigError(f"choose: {combinations} combinations (at most 64)")
         if self.inner_folds == 1:
             raise ConfigError("inner_folds must be 0 or at least 2")
+        if not isinstance(self.slower, list) or not all(
+            isinstance(f, (int, float)) and not isinstance(f, bool) and 0.1 <= f < 1 for f in self.slower
+        ):
+            raise ConfigError(f"slower must list fractions of the recorded rate in [0.1, 1), got {self.slower!r}")
         k = self.max_held_alarm
         if k is not None and (isinstance(k, bool) or not isinstance(k, (int, float)) or not 0 <= k <= 1):
             raise ConfigError(f"max_held_alarm must be a fraction in [0, 1] (0.05: at most 5%), got {k!r}")
@@ -179,6 +188,19 @@ class _Chunks:
                 continue  # a held run when no random chunks are drawn (negatives=0) before any mining
             out.append((i, ends, _chunk_targets(y, ends, self.cfg.chunk)))
         return [out[i] for i in rng.permutation(len(out))]
+
+
+def as_slower_camera(gray: np.ndarray, fraction: float) -> np.ndarray:
+    """uint8 ``(S, N, h, w)`` frames at the recorded rate -> the same span as a camera at ``fraction``
+    of that rate takes it (the recorded frame at or before each of its moments), resampled back to the
+    recorded rate's clock (:func:`~slipsense.streaming.clock.resample`): what the live detector feeds
+    the model from such a camera. ``(S, N', h, w)``, ``N' <= N``; frame k is still the moment k/rate."""
+    nominal = 25.0  # the clock's unit only: the result depends on the fraction, not on this rate
+    n = gray.shape[1]
+    k = np.arange(int(np.floor((n - 1) * fraction)) + 1)
+    taken = np.floor(k / fraction + 1e-9).astype(np.int64)
+    ticks, _ = resample(list(gray[:, taken]), k / (nominal * fraction), nominal)
+    return np.ascontiguousarray(np.stack(ticks))
 
 
 def _chunk_targets(y: np.ndarray, ends: Sequence[int], chunk: int) -> np.ndarray:
@@ -263,13 +285,19 @@ class GraspTask:
 
     def batches(self, steps, epoch: int, d, accumulate: int):
         mine = range(d.rank * accumulate, (d.rank + 1) * accumulate)
-        for step in steps:
+        rates = [1.0, *self.cfg.slower]
+        for k, step in enumerate(steps):
             for m in mine:
                 if step.micro[m] is not None:
                     runs, dims, weight = step.micro[m]
                     x = []
                     for i, ends, _ in runs:
-                        g = torch.from_numpy(self.data.items[i][0])  # uint8 (S, N, h, w): flipped before 4x larger
+                        g = self.data.items[i][0]  # uint8 (S, N, h, w): flipped before 4x larger
+                        rate = rates[np.random.default_rng([self.cfg.seed, epoch, k, i]).integers(len(rates))]
+                        if rate < 1:  # the same seconds as a slower camera gives them, on the model's clock
+                            g = as_slower_camera(g, rate)
+                            ends = [min(e, g.shape[1] - 1) for e in ends]
+                        g = torch.from_numpy(g)
                         x.append(((g.flip(dims) if dims else g).float().div_(255.0), ends))
                     yield x, torch.from_numpy(np.concatenate([c[2] for c in runs])), weight
 

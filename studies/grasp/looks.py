@@ -27,6 +27,7 @@ from slipsense.recordings.contact import STARTUP_FRAMES
 from slipsense.errors import InputError
 from slipsense.streaming.detector import SlipDetector
 from studies.grasp.rates import trained_by_command
+from studies.pages import looks_table
 from studies.provenance import provenance
 
 
@@ -141,15 +142,7 @@ def looks_folds_study(recordings: Path, detectors: Path, progress: bool = True) 
 
 
 def table(doc: dict[str, Any]) -> str:
-    lines = [
-        "| the same runs, as another unit sees them | slips warned in time | held grasps alarming |",
-        "|---|---:|---:|",
-    ]
-    for r in doc["rows"]:
-        lines.append(
-            f"| {r['look']} | {r['warned']} of {r['slip_runs']} | {r['false_positive_grasps']} of {r['held_runs']} |"
-        )
-    return "\n".join(lines) + "\n"
+    return looks_table(doc["rows"], bound="operating_point" not in doc)
 
 
 def write(doc: dict[str, Any], out: Path, command: str) -> list[Path]:
