@@ -47,7 +47,7 @@ Reading of the paper and the choices it leaves open
   the one consistent with the speed the direct port was measured at on this machine (batch 64 at
   >= 82 samples/s x 2.35 GFLOP = the ~190 GFLOP/s this CPU's matmul reaches; 3.1 GFLOP/sample would
   need 250+, above its peak). The other reading (one FC head as the text says, f = 4096) is the
-  "paper-ff4096" preset. ``count_parameters_for`` gives the exact count of any configuration.
+  "paper-ff4096" preset. ``studies/stnet/size.py`` gives the exact count of any configuration.
 * Xavier-normal init of every Linear and Conv1d weight, zero biases (paper, section III.B). The
   paper's training setup (Adam, lr 1e-5, batch 64, cross-entropy, 80/20 split) is the trainer's.
 
@@ -482,19 +482,3 @@ def _validate(c: dict) -> None:
         raise ConfigError(f"pool must be one of {POOLS}, got {c['pool']!r}")
     if c["activation"] not in ACTIVATIONS:
         raise ConfigError(f"activation must be one of {tuple(ACTIVATIONS)}, got {c['activation']!r}")
-
-
-def build_preset(name: str, model: str = "stnet", **overrides) -> STNet:
-    """Build ``model`` ("stnet" or "temnet") from ``PRESETS[name]``, with keyword overrides."""
-    if name not in PRESETS:
-        raise ConfigError(f"unknown preset {name!r}; available: {', '.join(PRESETS)}")
-    if model not in ("stnet", "temnet"):
-        raise ConfigError(f"build_preset: model must be 'stnet' or 'temnet', got {model!r}")
-    cls = STNet if model == "stnet" else TemNet
-    try:
-        return cls(**{**PRESETS[name], **overrides})
-    except TypeError as exc:
-        raise ConfigError(f"model {model!r}: {exc}") from None
-
-
-# fast / reduced-precision inference
