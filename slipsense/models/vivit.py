@@ -66,7 +66,6 @@ from slipsense.errors import ConfigError, InputError
 from slipsense.models.base import VideoModel, check_video_values, register
 from slipsense.models.vivit_layers import Transformer, eager_inference, version_key
 from slipsense.models.vivit_parts import ViViTFramePart, ViViTWindowPart, conv_embed_patches
-from slipsense.models.vivit_reference import reference_key
 
 
 def pair(value: int | Sequence[int]) -> tuple[int, int]:
@@ -443,54 +442,3 @@ class ViViT(VideoModel):
         received = joint[..., 0, 1:] if has_cls else joint.mean(dim=-2)  # (B, T, P)
         received = received / received.sum(dim=-1, keepdim=True)
         return rearrange(received, "b t (hp wp) -> b t hp wp", hp=self.grid[0], wp=self.grid[1])
-
-    # vit-pytorch interoperability
-
-    @classmethod
-    def from_vit_pytorch(cls, ref: nn.Module, image_size: int | Sequence[int] = (240, 320)) -> "ViViT":
-        """A ViViT with the weights of a vit-pytorch ``ViViT(frame_patch_size=1, variant="factorized_encoder")``.
-
-        vit-pytorch does not store its image size: pass the one ``ref`` was built with (default: the
-        paper's). The two models compute the same logits (vit-pytorch takes the clip as ``(B, C, T, H, W)``).
-        """
-        if getattr(ref, "frame_patch_size", 1) != 1:
-            raise ConfigError("from_vit_pytorch: only frame_patch_size=1 (one token sequence per frame) is supported")
-        if getattr(ref, "variant", "factorized_encoder") != "factorized_encoder":
-            raise ConfigError("from_vit_pytorch: only variant='factorized_encoder' is supported")
-        _, frames, num_patches, dim = ref.pos_embedding.shape
-        ph, pw = ref.patch_size
-        image_h, image_w = pair(image_size)
-        if (image_h // ph) * (image_w // pw) != num_patches:
-            raise ConfigError(
-                f"from_vit_pytorch: image_size {(image_h, image_w)} with {ph} x {pw} patches does not "
-                f"give the reference's {num_patches} patches"
-            )
-        attn, ff = (ref.spatial_transformer.layers or ref.temporal_transformer.layers)[0]
-        model = cls(
-            image_size=(image_h, image_w),
-            patch_size=(ph, pw),
-            frames=frames,
-            dim=dim,
-            spatial_depth=len(ref.spatial_transformer.layers),
-            temporal_depth=len(ref.temporal_transformer.layers),
-            heads=attn.heads,
-            dim_head=attn.to_qkv.out_features // (3 * attn.heads),
-            mlp_dim=ff.net[1].out_features,
-            pool=ref.pool,
-            dropout=float(attn.dropout_p),
-            emb_dropout=float(ref.dropout.p),
-            channels=ref.to_patch_embedding[1].normalized_shape[0] // (ph * pw),
-            num_classes=ref.mlp_head.out_features,
-        )
-        model.load_reference_state_dict(ref.state_dict())
-        return model
-
-    def load_reference_state_dict(self, sd: dict[str, Tensor]) -> None:
-        """Load a vit-pytorch ViViT (``frame_patch_size=1``) state dict, renaming its keys to this file's."""
-        if self.positions != "slot":
-            raise ConfigError(
-                "load_reference_state_dict: vit-pytorch's ViViT has per-slot positions; this model has "
-                f"positions={self.positions!r}"
-            )
-
-        self.load_state_dict({reference_key(k): v for k, v in sd.items()}, strict=True)
