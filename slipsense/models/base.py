@@ -70,6 +70,14 @@ class OnnxPart:
     dynamic: dict[str, dict[int, str]]
 
 
+class ModelPart(nn.Module):
+    """A module that runs part of ``model`` (a streaming or ONNX part), sharing its weights."""
+
+    def __init__(self, model: nn.Module):
+        super().__init__()
+        self.model = model
+
+
 class Stream(Protocol):
     """What :meth:`SlipModel.stream` returns: the model run one frame per sensor at a time.
 

@@ -31,7 +31,7 @@ from einops import rearrange
 from torch import Tensor, nn
 
 from slipsense.errors import ConfigError, InputError
-from slipsense.models.base import GraspModel, OnnxPart, register
+from slipsense.models.base import GraspModel, ModelPart, OnnxPart, register
 from slipsense.models.grasp_stream import GraspStream, slip_probability
 
 #: Bounds on settings a checkpoint may carry (refused before anything is allocated).
@@ -262,18 +262,14 @@ class MotionNet(GraspModel):
         }
 
 
-class MotionFrame(nn.Module):
+class MotionFrame(ModelPart):
     """The per-frame part of :class:`MotionNet`: differences ``(1, S, L, h, w)`` -> features ``(1, 2F)``."""
 
-    def __init__(self, net: MotionNet):
-        super().__init__()
-        self.net = net
-
     def forward(self, diffs: Tensor) -> Tensor:
-        return self.net.encode(diffs[:, :, None])[:, 0]
+        return self.model.encode(diffs[:, :, None])[:, 0]
 
 
-class MotionStep(nn.Module):
+class MotionStep(ModelPart):
     """One step of :class:`MotionNet`'s causal temporal stack, its state passed in and out.
 
     Inputs: ``features (1, C0)``, ``fresh (1,)`` (1 on the first frame: every state is filled with
@@ -284,8 +280,7 @@ class MotionStep(nn.Module):
     """
 
     def __init__(self, net: MotionNet):
-        super().__init__()
-        self.net = net
+        super().__init__(net)
         self.layers = list(getattr(net, "tcn", ()))
         self.feature_size = 2 * net.features if self.layers else len(net.lags)
         self.state_shapes = [(conv.in_channels, 2 * d + 1) for conv, d in zip(self.layers, net.dilations)]
@@ -299,7 +294,7 @@ class MotionStep(nn.Module):
             nxt.append(buf)
             y = F.relu(conv(buf))[:, :, -1]
             x = y + x if i > 0 else y
-        return (self.net.head(x), *nxt)
+        return (self.model.head(x), *nxt)
 
 
 class MotionStream(GraspStream):

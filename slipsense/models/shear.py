@@ -33,7 +33,7 @@ from einops import rearrange
 from torch import Tensor, nn
 
 from slipsense.errors import ConfigError, InputError
-from slipsense.models.base import GraspModel, OnnxPart, register
+from slipsense.models.base import GraspModel, ModelPart, OnnxPart, register
 from slipsense.models.grasp_stream import GraspStream, slip_probability
 
 #: Doublings of the running maximum's window: peaks are exact over up to 2**20 frames (13 h at 20 fps).
@@ -264,23 +264,15 @@ class ShearRetention(GraspModel):
         }
 
 
-class _Frame(nn.Module):
-    def __init__(self, net: ShearRetention):
-        super().__init__()
-        self.net = net
-
+class _Frame(ModelPart):
     def forward(self, reference: Tensor, gray: Tensor):
-        return self.net.frame_shift(reference, gray)
+        return self.model.frame_shift(reference, gray)
 
 
-class _Step(nn.Module):
-    def __init__(self, net: ShearRetention):
-        super().__init__()
-        self.net = net
-
+class _Step(ModelPart):
     def forward(self, shift: Tensor, fresh: Tensor, peak: Tensor):
         peak = torch.where(fresh.reshape(1, 1, 1) > 0.5, shift, torch.maximum(peak, shift))
-        return self.net.logits_of(shift, peak), peak
+        return self.model.logits_of(shift, peak), peak
 
 
 class ShearStream(GraspStream):
