@@ -26,7 +26,6 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
-import cv2
 import numpy as np
 from tqdm.auto import tqdm
 
@@ -37,7 +36,7 @@ from ..errors import ConfigError, InputError
 from .folders import SkippedInputWarning
 from .frames import source_stat
 from .types import Recording, VideoLabel
-from .video import read_video
+from .video import read_video, resize
 
 MIN_CLIP_FRAMES = 2
 MAX_CLIP_FRAMES = 12
@@ -242,15 +241,6 @@ class ClipSet:
         }
 
 
-def _resize_clip(clip: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-    h, w = size
-    if clip.shape[1:3] == (h, w):
-        return clip
-    shrink = clip.shape[1] >= h and clip.shape[2] >= w
-    interp = cv2.INTER_AREA if shrink else cv2.INTER_LINEAR
-    return np.stack([cv2.resize(frame, (w, h), interpolation=interp) for frame in clip])
-
-
 def build_clips(
     recordings: Iterable[Recording],
     labels: Mapping[Key, VideoLabel],
@@ -291,7 +281,7 @@ def build_clips(
                 rec.path, f"label is for {label.n_frames} frames but the video has {len(video)}; relabel it"
             )
         for win in windows:
-            x[i] = _resize_clip(video[win.start : win.end + 1], spec.size)
+            x[i] = [resize(frame, spec.size) for frame in video[win.start : win.end + 1]]
             y[i] = win.y
             meta.append(_meta(rec, label, win))
             i += 1
