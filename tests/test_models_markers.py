@@ -180,25 +180,6 @@ def test_a_few_steps_learn_a_toy_task():
     assert loss.item() < 0.1
 
 
-def test_attention_maps(small):
-    maps = small.attention_maps(_x(3))
-    assert len(maps) == SMALL["blocks"]
-    for m in maps:
-        assert m.shape == (3, SMALL["heads"], SMALL["frames"], SMALL["frames"])
-        torch.testing.assert_close(m.sum(-1), torch.ones(3, SMALL["heads"], SMALL["frames"]))
-
-
-def test_explicit_attention_equals_fused_path(small):
-    """attention_maps runs the explicit softmax path; its final features match forward's."""
-    x = _x(2)
-    with torch.no_grad():
-        h1 = h2 = small._tokens(x)
-        for blk in small.blocks:
-            h1, _ = blk(h1)
-            h2, _ = blk(h2, return_attn=True)
-    torch.testing.assert_close(h1, h2)
-
-
 def test_marker_saliency(small):
     x = _x(2)
     x[:, :, 3] += torch.linspace(0, 2, 4).view(1, 4, 1)  # marker 3 moves
@@ -218,7 +199,6 @@ def test_marker_saliency(small):
 def test_saliency_restores_training_mode():
     model = build("stnet", **SMALL).train()
     model.marker_saliency(_x(1))
-    model.attention_maps(_x(1))
     assert model.training
 
 
@@ -238,7 +218,6 @@ def test_optimize_for_inference_matches(name):
         bf = optimize_for_inference(model, torch.bfloat16)(x)
     assert bf.dtype == torch.float32
     assert (bf - ref).abs().max() < 0.1 * ref.abs().max() + 0.05
-    assert len(fast.attention_maps(x)) == SMALL["blocks"]
     with pytest.raises(ConfigError, match="gradients"):
         fast.marker_saliency(x)
     assert next(model.parameters()).dtype == torch.float32  # the original is untouched

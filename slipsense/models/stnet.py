@@ -66,9 +66,9 @@ decoder's one-channel convolution over the upsampled signal is computed on the s
 
 Heat maps
 ---------
-The MSA attends over the T frames, so :meth:`STNet.attention_maps` gives ``(B, heads, T, T)`` per
-block. A heat map over the sensor surface needs an attribution to markers:
-:meth:`STNet.marker_saliency` is gradient x input-displacement (see its docstring).
+The MSA attends over the T frames, not over the sensor surface, so a heat map over the surface needs
+an attribution to markers: :meth:`STNet.marker_saliency` is gradient x input-displacement (see its
+docstring).
 """
 
 from __future__ import annotations
@@ -185,17 +185,12 @@ class Attention(nn.Module):
         self.to_qkv = nn.Linear(dim, dim * 3)  # W^Q, W^K, W^V in one matmul (eq. 6a)
         self.to_out = nn.Linear(dim, dim)
 
-    def forward(self, x, return_attn=False):  # (b, n, d)
+    def forward(self, x):  # (b, n, d)
         qkv = self.to_qkv(x)
         q, k, v = rearrange(qkv, "b n (three h d) -> three b h n d", three=3, h=self.heads)
-        if return_attn:  # explicit softmax(QK^T / sqrt(d_k)), eq. 6b
-            attn = torch.softmax(q @ k.transpose(-1, -2) * q.shape[-1] ** -0.5, dim=-1)
-            out = F.dropout(attn, self.dropout, self.training) @ v
-        else:
-            attn = None
-            out = F.scaled_dot_product_attention(q, k, v, dropout_p=self.dropout if self.training else 0.0)
-        out = self.to_out(rearrange(out, "b h n d -> b n (h d)"))
-        return out, attn
+        # softmax(QK^T / sqrt(d_k)) V, eq. 6b
+        out = F.scaled_dot_product_attention(q, k, v, dropout_p=self.dropout if self.training else 0.0)
+        return self.to_out(rearrange(out, "b h n d -> b n (h d)"))
 
 
 class Block(nn.Module):
@@ -211,11 +206,9 @@ class Block(nn.Module):
         self.norm2 = nn.LayerNorm(dim)
         self.drop = nn.Dropout(dropout)
 
-    def forward(self, x, return_attn=False):
-        a, attn = self.attn(x, return_attn)
-        x = self.norm1(x + self.drop(a))
-        x = self.norm2(x + self.drop(self.ff(x)))
-        return x, attn
+    def forward(self, x):
+        x = self.norm1(x + self.drop(self.attn(x)))
+        return self.norm2(x + self.drop(self.ff(x)))
 
 
 # the network
@@ -366,28 +359,8 @@ class STNet(MarkerModel):
     def forward(self, x):
         x = self._tokens(x)
         for block in self.blocks:
-            x, _ = block(x)
+            x = block(x)
         return self._head(x)
-
-    # interpretation
-
-    @torch.no_grad()
-    def attention_maps(self, x) -> list[torch.Tensor]:
-        """Softmax attention weights of every block: a list of ``blocks`` tensors (B, heads, T, T).
-
-        Row ``i`` of a map is how much frame ``i`` draws on each frame. Dropout is off (eval).
-        """
-        self.check_input(x)
-        was_training = self.training
-        self.eval()
-        try:
-            maps, h = [], self._tokens(x)
-            for block in self.blocks:
-                h, attn = block(h, return_attn=True)
-                maps.append(attn.float())
-            return maps
-        finally:
-            self.train(was_training)
 
     # the model contract (slipsense.models.base)
 

@@ -35,7 +35,7 @@ class MarkerWindowPart(ModelPart):
     def forward(self, tokens: Tensor) -> Tensor:
         x = tokens + self.model.pos_embedding
         for block in self.model.blocks:
-            x, _ = block(x)
+            x = block(x)
         return self.model._head(x)
 
 

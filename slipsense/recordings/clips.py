@@ -481,13 +481,11 @@ def _window_groups(clips: ClipSet) -> np.ndarray:
     )
 
 
-def split_by_clip(
-    clips: ClipSet, test_fraction: float = 0.1, seed: int = 0, stratify: bool = True
-) -> tuple[np.ndarray, np.ndarray]:
+def split_by_clip(clips: ClipSet, test_fraction: float = 0.1, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Random clip-level split (the paper's protocol; objects and runs occur on both sides).
 
     An augmented copy always lands on the same side as its original, so augmenting before
-    splitting does not leak. With ``stratify`` each class is split in the same proportion.
+    splitting does not leak. Each class is split in the same proportion.
 
     Returns:
         ``(train_idx, test_idx)``: sorted int64 index arrays into ``clips``, disjoint, covering all.
@@ -499,7 +497,7 @@ def split_by_clip(
     group_y = np.zeros(n_groups, dtype=np.int64)
     group_y[groups] = clips.y
     rng = np.random.default_rng(seed)
-    strata = [np.flatnonzero(group_y == c) for c in np.unique(group_y)] if stratify else [np.arange(n_groups)]
+    strata = [np.flatnonzero(group_y == c) for c in np.unique(group_y)]
     test_groups: list[np.ndarray] = []
     for members in strata:
         n = len(members)
