@@ -32,7 +32,7 @@ from tqdm.auto import tqdm
 from .. import config
 from ..sensors.spec import GELSIGHT_MINI
 from ..atomic import file_sha256, write_text, write_with
-from ..errors import ConfigError, InputError
+from ..errors import CacheWarning, ConfigError, InputError
 from .folders import SkippedInputWarning
 from .frames import source_stat
 from .types import Recording, VideoLabel
@@ -44,11 +44,6 @@ MAX_CLIP_FRAMES = 12
 CACHE_VERSION = 2
 
 Key = tuple[str, int, str]
-
-
-# A cache entry could not be used (or written) and the clips were rebuilt from the videos; one
-# class for every cache of slipsense (labels, clips, markers).
-from ..errors import CacheWarning  # noqa: E402
 
 
 def _is_int(v: Any) -> bool:

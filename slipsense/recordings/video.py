@@ -408,17 +408,6 @@ def probe_video(
     return VideoInfo(n_frames=int(count), height=int(height), width=int(width), fps=fps, fourcc=fourcc)
 
 
-__all__ = [
-    "TRUNCATION_TOLERANCE",
-    "VideoInfo",
-    "check_frame_count",
-    "decoded_frame_count",
-    "frame_count",
-    "probe_video",
-    "read_video",
-]
-
-
 def gray_frames(frames: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     """uint8 BGR ``(N, H, W, 3)`` or one ``(H, W, 3)`` frame -> uint8 grey ``(N, h, w)`` / ``(h, w)``
     at ``size = (h, w)``, area-averaged (which also smooths the codec's per-pixel flicker)."""
