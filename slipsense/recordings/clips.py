@@ -181,7 +181,8 @@ class ClipSet:
         y: int64 ``(N,)``, 1 = onset of slip, 0 = wiggle.
         meta: N dicts with ``object`` (str), ``experiment`` (int), ``camera`` (str), ``start`` and
             ``end`` (first and last frame index in the video, inclusive), ``moment_of_slip``
-            (int or None) and ``augmented`` (bool; True for copies made by augmentation).
+            (int or None) and ``augmented`` (False: the training data augments clips as it reads
+            them, :class:`~slipsense.datasets.ClipDataset`).
         spec: the ClipSpec the clips were cut with, when known.
     """
 
@@ -467,43 +468,25 @@ def load_or_build_clips(
 # ---------------------------------------------------------------------------------------- splits
 
 
-def _window_groups(clips: ClipSet) -> np.ndarray:
-    """Group id per clip: an augmented copy shares its original's (same video, same start frame)."""
-    ids: dict[tuple, int] = {}
-    return np.array(
-        [ids.setdefault((m["object"], m["experiment"], m["camera"], m["start"]), len(ids)) for m in clips.meta],
-        dtype=np.int64,
-    )
-
-
 def split_by_clip(clips: ClipSet, test_fraction: float = 0.1, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Random clip-level split (the paper's protocol; objects and runs occur on both sides).
 
-    An augmented copy always lands on the same side as its original, so augmenting before
-    splitting does not leak. Each class is split in the same proportion.
+    Each class is split in the same proportion.
 
     Returns:
         ``(train_idx, test_idx)``: sorted int64 index arrays into ``clips``, disjoint, covering all.
     """
     if not (isinstance(test_fraction, (int, float)) and 0.0 < test_fraction < 1.0):
         raise ConfigError(f"test_fraction must be in (0, 1), got {test_fraction!r}")
-    groups = _window_groups(clips)
-    n_groups = int(groups.max()) + 1 if len(groups) else 0
-    group_y = np.zeros(n_groups, dtype=np.int64)
-    group_y[groups] = clips.y
     rng = np.random.default_rng(seed)
-    strata = [np.flatnonzero(group_y == c) for c in np.unique(group_y)]
-    test_groups: list[np.ndarray] = []
-    for members in strata:
+    is_test = np.zeros(len(clips), dtype=bool)
+    for c in np.unique(clips.y):
+        members = np.flatnonzero(clips.y == c)
         n = len(members)
         n_test = int(round(test_fraction * n))
         if n >= 2:
             n_test = min(max(n_test, 1), n - 1)  # keep every class on both sides when possible
-        test_groups.append(rng.permutation(members)[:n_test])
-    is_test_group = np.zeros(n_groups, dtype=bool)
-    if test_groups:
-        is_test_group[np.concatenate(test_groups)] = True
-    is_test = is_test_group[groups] if len(groups) else np.zeros(0, dtype=bool)
+        is_test[rng.permutation(members)[:n_test]] = True
     return np.flatnonzero(~is_test).astype(np.int64), np.flatnonzero(is_test).astype(np.int64)
 
 
