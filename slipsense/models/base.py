@@ -311,6 +311,13 @@ class GraspModel(SlipModel):
         a frame shared by several chunks once: training time is mostly this call."""
         raise NotImplementedError
 
+    def chunk_rows(self, gray: Tensor, ends: Sequence[int], n: int) -> Tensor:
+        """For :meth:`chunk_logits`: InputError unless ``gray`` is one run ``(S, N, h, w)``; the frame
+        indices of the ``n`` frames ending at each of ``ends``, ``(C, n)`` (below 0: frame 0)."""
+        if gray.ndim != 4 or gray.shape[0] != self.sensors or tuple(gray.shape[2:]) != tuple(self.image_size):
+            raise InputError(None, f"{self.model_name} chunk_logits takes runs (S, N, h, w), got {tuple(gray.shape)}")
+        return (torch.as_tensor(list(ends))[:, None] + torch.arange(1 - n, 1)[None]).clamp(min=0)
+
     def streaming_parts(self):
         raise ConfigError(
             f"{self.model_name} takes whole grasps: it streams itself (stream()) and has no frame/window parts"

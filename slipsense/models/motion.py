@@ -30,7 +30,7 @@ import torch.nn.functional as F
 from einops import rearrange
 from torch import Tensor, nn
 
-from slipsense.errors import ConfigError, InputError
+from slipsense.errors import ConfigError
 from slipsense.models.base import GraspModel, ModelPart, OnnxPart, register
 from slipsense.models.grasp_stream import GraspStream, slip_probability
 
@@ -198,9 +198,7 @@ class MotionNet(GraspModel):
         grays, now, pasts, gathers = [], [], [], []
         frames = distinct = 0  # frames of the runs so far, distinct frames so far
         for gray, ends in runs:
-            if gray.ndim != 4 or gray.shape[0] != self.sensors or tuple(gray.shape[2:]) != self.image_size:
-                raise InputError(None, f"motionnet chunk_logits takes runs (S, N, h, w), got {tuple(gray.shape)}")
-            rows = (torch.as_tensor(list(ends))[:, None] + torch.arange(1 - need, 1)[None]).clamp(min=0)
+            rows = self.chunk_rows(gray, ends, need)
             at, where = torch.unique(rows, return_inverse=True)  # the distinct frames, and each chunk slot's
             grays.append(gray)
             now.append(at + frames)
@@ -213,15 +211,7 @@ class MotionNet(GraspModel):
         feats = self.encode(diffs.movedim(-1, 2)[None])[0]  # (U, 2F)
         return self.classify(feats[torch.cat(gathers)])
 
-    def stream(
-        self,
-        *,
-        sensors: int | None = None,
-        info=None,
-        backend: str = "torch",
-        dtype: str = "float32",
-        onnx_dir=None,
-    ) -> "MotionStream":
+    def stream(self, *, sensors=None, info=None, backend="torch", dtype="float32", onnx_dir=None) -> "MotionStream":
         """A frame-by-frame runner of this model (eval mode); see :class:`MotionStream`."""
         return MotionStream(self, sensors=sensors, info=info, backend=backend, dtype=dtype, onnx_dir=onnx_dir)
 

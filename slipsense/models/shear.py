@@ -32,7 +32,7 @@ import torch.nn.functional as F
 from einops import rearrange
 from torch import Tensor, nn
 
-from slipsense.errors import ConfigError, InputError
+from slipsense.errors import ConfigError
 from slipsense.models.base import GraspModel, ModelPart, OnnxPart, register
 from slipsense.models.grasp_stream import GraspStream, slip_probability
 
@@ -227,11 +227,8 @@ class ShearRetention(GraspModel):
         :meth:`GraspModel.chunk_logits`."""
         out = []
         for gray, ends in runs:
-            if gray.ndim != 4 or gray.shape[0] != self.sensors or tuple(gray.shape[2:]) != self.image_size:
-                raise InputError(None, f"shear-retention chunk_logits takes runs (S, N, h, w), got {tuple(gray.shape)}")
-            logits = self(gray[None])[0]
-            rows = (torch.as_tensor(list(ends))[:, None] + torch.arange(1 - n_out, 1)[None]).clamp(min=0)
-            out.append(logits[rows])
+            rows = self.chunk_rows(gray, ends, n_out)
+            out.append(self(gray[None])[0][rows])
         return torch.cat(out)
 
     # streaming
