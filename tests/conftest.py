@@ -120,3 +120,14 @@ def killed_once(state, args) -> int:
     from slipsense.checkpoint import load_resume_state
 
     return load_resume_state(state)["epoch"]
+
+
+def onnx_output(path, *x):
+    """The first output of the ONNX file ``path`` on ONNX Runtime for its inputs ``x`` in order
+    (tensors or arrays)."""
+    from slipsense.models.onnx import onnx_session
+
+    session = onnx_session(path)
+    arrays = [v.detach().cpu().numpy() if isinstance(v, torch.Tensor) else v for v in x]
+    feed = {i.name: np.ascontiguousarray(a) for i, a in zip(session.get_inputs(), arrays)}
+    return session.run(None, feed)[0]

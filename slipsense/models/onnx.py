@@ -179,13 +179,6 @@ def onnx_session(path: str | Path, threads: int | None = None):
         ) from None
 
 
-def run_onnx(session, *x: np.ndarray | torch.Tensor) -> np.ndarray:
-    """Run a session on ``x`` (its inputs in order); returns its first output."""
-    arrays = [v.detach().cpu().numpy() if isinstance(v, torch.Tensor) else v for v in x]
-    feed = {i.name: np.ascontiguousarray(a) for i, a in zip(session.get_inputs(), arrays)}
-    return session.run(None, feed)[0]
-
-
 def max_abs_diff(path: str | Path, module: nn.Module, x: torch.Tensor | tuple[torch.Tensor, ...]) -> float:
     """Largest |ONNX Runtime - PyTorch| over every output of ``module`` exported at ``path``, on ``x``."""
     xs = x if isinstance(x, tuple) else (x,)
