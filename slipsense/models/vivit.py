@@ -211,9 +211,6 @@ class ViViT(VideoModel):
 
     # input checks
 
-    def expected_shape(self) -> tuple[str, int, int, int, int]:
-        return ("B", self.frames, self.channels, *self.image_size)
-
     def check_input(self, x: Any) -> None:
         """Raise :class:`InputError` unless ``x`` is a finite float tensor ``(B, frames, channels, H, W)``."""
         self._check_shape(x)
@@ -222,11 +219,12 @@ class ViViT(VideoModel):
     def _check_shape(self, x: Any) -> None:
         if not isinstance(x, Tensor):
             raise InputError(None, f"video must be a torch.Tensor, got {type(x).__name__}")
-        expected = self.expected_shape()
-        shown = "(" + ", ".join(map(str, expected)) + ")"
-        if x.dim() != 5 or x.shape[0] < 1 or tuple(x.shape[1:]) != expected[1:]:
+        expected = (self.frames, self.channels, *self.image_size)
+        if x.dim() != 5 or x.shape[0] < 1 or tuple(x.shape[1:]) != expected:
+            shown = ", ".join(map(str, expected))
             raise InputError(
-                None, f"video must have shape {shown} (batch, frames, channels, height, width), got {tuple(x.shape)}"
+                None,
+                f"video must have shape (B, {shown}) (batch, frames, channels, height, width), got {tuple(x.shape)}",
             )
 
     # patch embedding
@@ -416,28 +414,22 @@ class ViViT(VideoModel):
         return self(x, return_attention=True)[1]
 
     @torch.no_grad()
-    def cls_attention_map(self, x: Tensor, mode: str = "rollout") -> Tensor:
+    def cls_attention_map(self, x: Tensor) -> Tensor:
         """Per-frame spatial attention on the patch grid, for heat maps: (B, T, Hp, Wp), each map sums to 1.
 
-        ``mode="last"``: the last spatial layer's CLS-to-patch attention, averaged over heads.
-        ``mode="rollout"``: attention rollout (Abnar & Zuidema 2020) through all spatial layers:
-        each layer's head-averaged attention plus the identity (the residual), rows renormalised,
-        multiplied from the first layer to the last; the CLS row. With ``pool="mean"`` (no CLS) the
-        attention each patch receives is averaged over all query tokens instead of the CLS row.
+        Attention rollout (Abnar & Zuidema 2020) through all spatial layers: each layer's
+        head-averaged attention plus the identity (the residual), rows renormalised, multiplied from
+        the first layer to the last; the CLS row. With ``pool="mean"`` (no CLS) the attention each
+        patch receives is averaged over all query tokens instead of the CLS row.
         """
-        if mode not in ("last", "rollout"):
-            raise ConfigError(f"cls_attention_map: mode must be 'last' or 'rollout', got {mode!r}")
         spatial = self.attention_maps(x)["spatial"].mean(dim=3)  # (B, T, L, n, n)
         if spatial.shape[2] == 0:
             raise ConfigError("cls_attention_map: the model has no spatial layers")
-        if mode == "last":
-            joint = spatial[:, :, -1]
-        else:
-            eye = torch.eye(spatial.shape[-1], dtype=spatial.dtype, device=spatial.device)
-            joint = eye.expand_as(spatial[:, :, 0])
-            for layer in spatial.unbind(dim=2):
-                a = layer + eye
-                joint = (a / a.sum(dim=-1, keepdim=True)) @ joint
+        eye = torch.eye(spatial.shape[-1], dtype=spatial.dtype, device=spatial.device)
+        joint = eye.expand_as(spatial[:, :, 0])
+        for layer in spatial.unbind(dim=2):
+            a = layer + eye
+            joint = (a / a.sum(dim=-1, keepdim=True)) @ joint
         has_cls = self.spatial_cls is not None
         received = joint[..., 0, 1:] if has_cls else joint.mean(dim=-2)  # (B, T, P)
         received = received / received.sum(dim=-1, keepdim=True)
