@@ -219,7 +219,6 @@ def track_recordings(
     recordings: Iterable[Any],
     reference_index: int | None = None,
     *,
-    cache: bool = True,
     cache_dir: str | Path | None = None,
     progress: bool = True,
     expected_size: tuple[int, int] | None = GELSIGHT_MINI.image_size,
@@ -231,12 +230,11 @@ def track_recordings(
         recordings: objects with a ``.path`` (e.g. :class:`slipsense.recordings.types.Recording`)
             or plain paths.
         reference_index, expected_size, track_kwargs: as for :func:`track_recording`.
-        cache: read and write the cache. Files live in ``cache_dir`` (default
-            ``config.cache_root()/markers``), named by a hash of the video's resolved path, size,
-            mtime and all tracking parameters, and are written atomically with a ``.json``
-            sidecar (sha256 and inputs, written last); an entry whose checksum or inputs do not
-            match, or whose arrays do not fit together or the video, is tracked again with a
-            :class:`~slipsense.errors.CacheWarning` and overwritten.
+        cache_dir: the cache (default ``config.cache_root()/markers``). Its files are named by a
+            hash of the video's resolved path, size, mtime and all tracking parameters, and are
+            written atomically with a ``.json`` sidecar (sha256 and inputs, written last); an entry
+            whose checksum or inputs do not match, or whose arrays do not fit together or the
+            video, is tracked again with a :class:`~slipsense.errors.CacheWarning` and overwritten.
         progress: show a tqdm progress bar.
 
     Returns:
@@ -248,17 +246,12 @@ def track_recordings(
     tracks: list[MarkerTrack] = []
     for item in tqdm(items, desc="tracking markers", unit="video", disable=not progress):
         path = Path(getattr(item, "path", item))
-        cfile = None
-        if cache:
-            if not path.is_file():
-                raise InputError(path, "video file does not exist")
-            cfile = _cache_file(folder, path, params)
-            cached = _load_cached_track(cfile, path, params, expected_size)
-            if cached is not None:
-                tracks.append(cached)
-                continue
-        track = track_recording(path, reference_index, expected_size=expected_size, **track_kwargs)
-        if cfile is not None:
+        if not path.is_file():
+            raise InputError(path, "video file does not exist")
+        cfile = _cache_file(folder, path, params)
+        track = _load_cached_track(cfile, path, params, expected_size)
+        if track is None:
+            track = track_recording(path, reference_index, expected_size=expected_size, **track_kwargs)
             _save_cached_track(cfile, path, params, track)
         tracks.append(track)
     return tracks
