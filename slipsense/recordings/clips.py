@@ -205,13 +205,8 @@ class ClipSet:
         return int(self.x.shape[0])
 
     def subset(self, indices: Sequence[int] | np.ndarray) -> "ClipSet":
-        """A new ClipSet of the clips at ``indices`` (int positions or a boolean mask), copied."""
-        idx = np.asarray(indices)
-        if idx.dtype == bool:
-            if idx.shape != (len(self),):
-                raise InputError(None, f"boolean mask has shape {idx.shape}, expected ({len(self)},)")
-            idx = np.flatnonzero(idx)
-        idx = idx.astype(np.int64, copy=False).reshape(-1)
+        """A new ClipSet of the clips at the int positions ``indices``, copied."""
+        idx = np.asarray(indices, dtype=np.int64).reshape(-1)
         if idx.size and (idx.min() < -len(self) or idx.max() >= len(self)):
             raise InputError(None, f"clip indices out of range for {len(self)} clips")
         return ClipSet(self.x[idx], self.y[idx], [dict(self.meta[i]) for i in idx], self.spec)
