@@ -140,7 +140,11 @@ class SlipModel(nn.Module):
     training_task: str = "clips"
 
     def config(self) -> dict[str, Any]:
-        raise NotImplementedError(f"{type(self).__name__} must define config()")
+        """The keyword arguments that rebuild this model (JSON-ready; stored in checkpoints); by default
+        a copy of the ``_config`` its constructor keeps."""
+        if "_config" not in self.__dict__:
+            raise NotImplementedError(f"{type(self).__name__} must define config()")
+        return {k: list(v) if isinstance(v, list) else v for k, v in self._config.items()}
 
     def check_input(self, x: Tensor) -> None:
         raise NotImplementedError(f"{type(self).__name__} must define check_input()")

@@ -196,10 +196,6 @@ class ResNet3D50(VideoModel):
         nn.init.normal_(self.fc.weight, std=0.01)
         nn.init.zeros_(self.fc.bias)
 
-    def config(self) -> dict[str, Any]:
-        """The keyword arguments that rebuild this model (JSON-friendly)."""
-        return {k: list(v) if isinstance(v, list) else v for k, v in self._config.items()}
-
     # input checks
 
     def check_input(self, x: Any) -> None:

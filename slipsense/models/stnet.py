@@ -311,9 +311,6 @@ class STNet(MarkerModel):
                     nn.init.zeros_(m.bias)
         nn.init.normal_(self.pos_embedding, std=0.02)
 
-    def config(self) -> dict[str, Any]:
-        return dict(self._config)
-
     # input checks
 
     def check_input(self, x) -> None:

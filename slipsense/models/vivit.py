@@ -205,10 +205,6 @@ class ViViT(VideoModel):
         self.temporal_transformer = Transformer(dim, temporal_depth, heads, dim_head, mlp_dim, dropout)
         self.head = nn.Linear(dim, num_classes)
 
-    def config(self) -> dict[str, Any]:
-        """The keyword arguments that rebuild this model (JSON-friendly: lists, not tuples)."""
-        return {k: list(v) if isinstance(v, list) else v for k, v in self._config.items()}
-
     # input checks
 
     def check_input(self, x: Any) -> None:
