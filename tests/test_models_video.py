@@ -8,6 +8,7 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from conftest import perturbed, random_clip
 from slipsense.errors import ConfigError, InputError
 from slipsense.models import available, build, count_parameters
 from slipsense.models.resnet3d import PAPER_PARAMETERS
@@ -20,19 +21,6 @@ def _one_thread(one_thread):
 
 # small ViViT for most tests: 2 x 3 patches of 8 x 8, 3 frames
 SMALL = dict(image_size=(16, 24), patch_size=(8, 8), frames=3, dim=8, heads=2, dim_head=16, mlp_dim=8)
-
-
-def _perturbed(model: torch.nn.Module, seed: int = 0, scale: float = 0.1) -> torch.nn.Module:
-    """Move every parameter off its initial value (LayerNorm weights != 1 etc.) so folding is exercised."""
-    g = torch.Generator().manual_seed(seed)
-    with torch.no_grad():
-        for p in model.parameters():
-            p.add_(torch.randn(p.shape, generator=g) * scale)
-    return model
-
-
-def _clip(*shape: int, seed: int = 0) -> torch.Tensor:
-    return torch.rand(*shape, generator=torch.Generator().manual_seed(seed))
 
 
 # ---------------------------------------------------------------- ViViT
@@ -68,7 +56,7 @@ def test_bad_config_is_config_error(bad):
 
 def test_shapes_and_split_forward():
     model = build("vivit").eval()
-    x = _clip(2, 5, 3, 240, 320)
+    x = random_clip(2, 5, 3, 240, 320)
     with torch.no_grad():
         tokens = model.encode_frames(x)
         logits = model(x)
@@ -104,7 +92,7 @@ def test_check_input_rejects_wrong_shapes(shape, fragment):
 
 def test_check_input_rejects_non_finite_and_non_float():
     model = build("vivit", **SMALL)
-    x = _clip(1, 3, 3, 16, 24)
+    x = random_clip(1, 3, 3, 16, 24)
     model.check_input(x)
     for value in (float("nan"), float("inf")):
         bad = x.clone()
@@ -139,8 +127,8 @@ def test_check_input_property(shape, fix):
 
 
 def test_fused_patch_embedding_matches_plain():
-    model = _perturbed(build("vivit")).eval()
-    x = _clip(2, 5, 3, 240, 320, seed=1)
+    model = perturbed(build("vivit")).eval()
+    x = random_clip(2, 5, 3, 240, 320, seed=1)
     # smooth, low-contrast frames are the hard case for variance arithmetic
     ramp = torch.linspace(0, 1, 320)
     smooth = 0.45 + 0.02 * ramp + 0.004 * torch.randn(2, 5, 3, 240, 320, generator=torch.Generator().manual_seed(2))
@@ -152,7 +140,7 @@ def test_fused_patch_embedding_matches_plain():
             plain = model(clip)
             assert (fast - plain).abs().max() < 1e-5
     # in float64 both paths are exact: they must agree to rounding
-    model64 = _perturbed(build("vivit")).double().eval()
+    model64 = perturbed(build("vivit")).double().eval()
     frames = smooth[0].double()
     with torch.no_grad():
         model64.fused = True
@@ -164,8 +152,8 @@ def test_fused_patch_embedding_matches_plain():
 
 def test_fused_patch_embedding_gradients_match_plain():
     torch.manual_seed(0)
-    model = _perturbed(build("vivit", **SMALL)).train()
-    x = _clip(2, 3, 3, 16, 24, seed=3)
+    model = perturbed(build("vivit", **SMALL)).train()
+    x = random_clip(2, 3, 3, 16, 24, seed=3)
     grads = []
     for fused in (True, False):
         model.zero_grad()
@@ -177,8 +165,8 @@ def test_fused_patch_embedding_gradients_match_plain():
 
 
 def test_folded_inference_attention_matches_training_path():
-    model = _perturbed(build("vivit")).eval()
-    x = _clip(1, 5, 3, 240, 320, seed=4)
+    model = perturbed(build("vivit")).eval()
+    x = random_clip(1, 5, 3, 240, 320, seed=4)
     with torch.no_grad():  # folded attention (and cached folded weights)
         folded = model(x)
         folded_again = model(x)
@@ -198,7 +186,7 @@ def test_folded_inference_attention_matches_training_path():
 def test_gradients_reach_every_parameter():
     for pool in ("cls", "mean"):
         model = build("vivit", pool=pool, **SMALL).train()
-        loss = torch.nn.functional.cross_entropy(model(_clip(2, 3, 3, 16, 24)), torch.tensor([0, 1]))
+        loss = torch.nn.functional.cross_entropy(model(random_clip(2, 3, 3, 16, 24)), torch.tensor([0, 1]))
         loss.backward()
         for name, p in model.named_parameters():
             assert p.grad is not None and torch.isfinite(p.grad).all(), name
@@ -206,8 +194,8 @@ def test_gradients_reach_every_parameter():
 
 
 def test_attention_maps():
-    model = _perturbed(build("vivit", **SMALL)).eval()
-    x = _clip(2, 3, 3, 16, 24)
+    model = perturbed(build("vivit", **SMALL)).eval()
+    x = random_clip(2, 3, 3, 16, 24)
     logits, att = model(x, return_attention=True)
     assert torch.allclose(logits, model(x), atol=1e-6)
     assert att["spatial"].shape == (2, 3, 2, 2, 7, 7)  # (B, T, depth, heads, 1 + P, 1 + P)
@@ -229,16 +217,16 @@ def test_inference_caches_follow_state_dict_and_survive_copies():
     import copy
     import pickle
 
-    model = _perturbed(build("vivit", **SMALL)).eval()
-    other = _perturbed(build("vivit", **SMALL), seed=9).eval()
-    x = _clip(2, 3, 3, 16, 24)
+    model = perturbed(build("vivit", **SMALL)).eval()
+    other = perturbed(build("vivit", **SMALL), seed=9).eval()
+    x = random_clip(2, 3, 3, 16, 24)
     with torch.no_grad():
         model(x)  # fills the folded-weight caches and the scratch buffer
         model.load_state_dict(other.state_dict())
         assert torch.allclose(model(x), other(x), atol=1e-6)
         for clone in (copy.deepcopy(model), pickle.loads(pickle.dumps(model))):
             assert torch.allclose(clone(x), other(x), atol=1e-6)
-        assert torch.equal(x, _clip(2, 3, 3, 16, 24))  # the input is never written to
+        assert torch.equal(x, random_clip(2, 3, 3, 16, 24))  # the input is never written to
 
 
 def test_onnx_export_matches(tmp_path):
@@ -246,8 +234,8 @@ def test_onnx_export_matches(tmp_path):
     pytest.importorskip("onnx")
     import warnings
 
-    model = _perturbed(build("vivit", **SMALL)).eval()
-    x = _clip(1, 3, 3, 16, 24)
+    model = perturbed(build("vivit", **SMALL)).eval()
+    x = random_clip(1, 3, 3, 16, 24)
     path = tmp_path / "vivit.onnx"
     with torch.no_grad(), warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -263,7 +251,7 @@ def test_onnx_export_matches(tmp_path):
         )
     session = ort.InferenceSession(str(path))
     for batch in (1, 3):
-        clip = _clip(batch, 3, 3, 16, 24, seed=batch)
+        clip = random_clip(batch, 3, 3, 16, 24, seed=batch)
         (logits,) = session.run(None, {"video": clip.numpy()})
         with torch.no_grad():
             assert abs(torch.from_numpy(logits) - model(clip)).max() < 1e-5
@@ -285,9 +273,9 @@ def test_resnet3d50_parameter_count_matches_paper():
 def test_resnet3d50_tiny_forward_backward_any_frames():
     model = build("resnet3d50", **TINY)
     for t in (1, 3):
-        assert model.eval()(_clip(2, t, 3, 32, 32)).shape == (2, 2)
+        assert model.eval()(random_clip(2, t, 3, 32, 32)).shape == (2, 2)
     model.train()
-    loss = torch.nn.functional.cross_entropy(model(_clip(2, 2, 3, 32, 32)), torch.tensor([0, 1]))
+    loss = torch.nn.functional.cross_entropy(model(random_clip(2, 2, 3, 32, 32)), torch.tensor([0, 1]))
     loss.backward()
     for name, p in model.named_parameters():
         assert p.grad is not None and torch.isfinite(p.grad).all(), name
@@ -296,11 +284,11 @@ def test_resnet3d50_tiny_forward_backward_any_frames():
 
 def test_resnet3d50_check_input():
     model = build("resnet3d50", **TINY)
-    model.check_input(_clip(1, 2, 3, 32, 32))
+    model.check_input(random_clip(1, 2, 3, 32, 32))
     for shape in [(1, 2, 1, 32, 32), (2, 3, 32, 32), (0, 2, 3, 32, 32)]:
         with pytest.raises(InputError, match="shape"):
             model.check_input(torch.zeros(shape))
-    bad = _clip(1, 2, 3, 32, 32)
+    bad = random_clip(1, 2, 3, 32, 32)
     bad[0, 0, 0, 0, 0] = float("nan")
     with pytest.raises(InputError, match="NaN"):
         model.check_input(bad)

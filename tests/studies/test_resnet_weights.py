@@ -7,24 +7,12 @@ import pytest
 import torch
 from safetensors.torch import save_file
 
+from conftest import perturbed, random_clip
 from slipsense.errors import InputError
 from slipsense.models import build
 from studies.experiments.resnet_weights import load_weights
 
 TINY = dict(width=8)
-
-
-def _perturbed(model: torch.nn.Module, seed: int = 0, scale: float = 0.1) -> torch.nn.Module:
-    """Move every parameter off its initial value, so a weight that fails to load shows."""
-    g = torch.Generator().manual_seed(seed)
-    with torch.no_grad():
-        for p in model.parameters():
-            p.add_(torch.randn(p.shape, generator=g) * scale)
-    return model
-
-
-def _clip(*shape: int, seed: int = 0) -> torch.Tensor:
-    return torch.rand(*shape, generator=torch.Generator().manual_seed(seed))
 
 
 def _to_pytorchvideo_names(sd: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
@@ -51,8 +39,8 @@ def _to_pytorchvideo_names(sd: dict[str, torch.Tensor]) -> dict[str, torch.Tenso
 
 
 def test_resnet3d50_load_weights(tmp_path):
-    source = _perturbed(build("resnet3d50", **TINY), seed=7).eval()
-    x = _clip(1, 2, 3, 32, 32)
+    source = perturbed(build("resnet3d50", **TINY), seed=7).eval()
+    x = random_clip(1, 2, 3, 32, 32)
     expected = source(x)
     sd = {k: v.contiguous() for k, v in source.state_dict().items()}
 

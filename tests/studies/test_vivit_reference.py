@@ -6,6 +6,7 @@ from __future__ import annotations
 import pytest
 import torch
 
+from conftest import perturbed, random_clip
 from slipsense.errors import ConfigError
 from slipsense.models import count_parameters
 from studies.experiments.vivit_reference import from_vit_pytorch, vit_pytorch_vivit
@@ -14,19 +15,6 @@ from studies.experiments.vivit_reference import from_vit_pytorch, vit_pytorch_vi
 @pytest.fixture(autouse=True)
 def _one_thread(one_thread):
     """Every test here on one torch thread (tests/conftest.py)."""
-
-
-def _perturbed(model: torch.nn.Module, seed: int = 0, scale: float = 0.1) -> torch.nn.Module:
-    """Move every parameter off its initial value (LayerNorm weights != 1 etc.) so folding is exercised."""
-    g = torch.Generator().manual_seed(seed)
-    with torch.no_grad():
-        for p in model.parameters():
-            p.add_(torch.randn(p.shape, generator=g) * scale)
-    return model
-
-
-def _clip(*shape: int, seed: int = 0) -> torch.Tensor:
-    return torch.rand(*shape, generator=torch.Generator().manual_seed(seed))
 
 
 def test_matches_vit_pytorch_reference():
@@ -47,10 +35,10 @@ def test_matches_vit_pytorch_reference():
         heads=2,
         mlp_dim=8,
     ).eval()
-    _perturbed(ref)
+    perturbed(ref)
     ours = from_vit_pytorch(ref).eval()
     assert count_parameters(ours) == count_parameters(ref)
-    x = _clip(2, 5, 3, 240, 320, seed=5)
+    x = random_clip(2, 5, 3, 240, 320, seed=5)
     with torch.no_grad():
         expected = ref(x.permute(0, 2, 1, 3, 4))  # vit-pytorch takes (B, C, T, H, W)
         assert (ours(x) - expected).abs().max() < 1e-5
@@ -71,7 +59,7 @@ def test_matches_vit_pytorch_reference():
         pool="mean",
     ).eval()
     ours_mean = from_vit_pytorch(ref_mean, image_size=(16, 24)).eval()
-    x = _clip(2, 3, 3, 16, 24, seed=6)
+    x = random_clip(2, 3, 3, 16, 24, seed=6)
     with torch.no_grad():
         assert (ours_mean(x) - ref_mean(x.permute(0, 2, 1, 3, 4))).abs().max() < 1e-5
     tubelet = RefViViT(
