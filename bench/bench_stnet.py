@@ -52,8 +52,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from slipsense.models import count_parameters  # noqa: E402
 from studies.experiments.report import cpu_description  # noqa: E402
-from slipsense.models.stnet import PRESETS, build_preset  # noqa: E402
-from slipsense.models.stnet_size import flops_per_sample  # noqa: E402
+from slipsense.models.stnet import PRESETS, STNet  # noqa: E402
+from studies.stnet.size import flops_per_sample  # noqa: E402
 from slipsense.models.stnet_fast import onednn_packing_available, optimize_for_inference, quantize_dynamic_int8  # noqa: E402
 
 
@@ -301,7 +301,7 @@ def main(argv=None):
 
     # the paper preset: ports vs ours
     cfg = PRESETS["paper"]
-    net = build_preset("paper").eval()
+    net = STNet(**PRESETS["paper"]).eval()
     variants = {}
     if not args.no_ports:
         variants["port: naive"] = PortSTNet(**cfg, encoder="naive").load_from(net).eval()
@@ -315,7 +315,7 @@ def main(argv=None):
     del variants, net
 
     if not args.no_ff4096:  # the other ~129 M reading: 3.1 GFLOP/sample
-        net = build_preset("paper-ff4096").eval()
+        net = STNet(**PRESETS["paper-ff4096"]).eval()
         variants = {"STNet": net, "STNet packed": optimize_for_inference(net)}
         if bf16:
             variants["STNet bf16"] = optimize_for_inference(net, torch.bfloat16)
@@ -323,7 +323,7 @@ def main(argv=None):
         run("paper-ff4096", variants, "STNet", 15, 3, 30, 1)
         del variants, net
 
-    net = build_preset("compact").eval()
+    net = STNet(**PRESETS["compact"]).eval()
     variants = {"STNet": net, "STNet packed": optimize_for_inference(net)}
     run("compact", variants, "STNet", 10, 20, 10, 3)
     del variants, net

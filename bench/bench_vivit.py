@@ -43,6 +43,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from slipsense.models import count_parameters  # noqa: E402
 from slipsense.models.vivit import ViViT  # noqa: E402
+from studies.experiments.vivit_reference import from_vit_pytorch, vit_pytorch_vivit  # noqa: E402
 
 PAPER = dict(
     image_size=(240, 320),
@@ -55,17 +56,6 @@ PAPER = dict(
     heads=2,
     mlp_dim=8,
 )
-
-
-def load_reference_class():
-    spec = importlib.util.find_spec("vit_pytorch")
-    if spec is None or not spec.submodule_search_locations:
-        sys.exit("vit-pytorch is not installed (pip install --no-deps vit-pytorch)")
-    path = Path(list(spec.submodule_search_locations)[0]) / "vivit.py"
-    mod_spec = importlib.util.spec_from_file_location("_vit_pytorch_vivit", path)
-    module = importlib.util.module_from_spec(mod_spec)
-    mod_spec.loader.exec_module(module)
-    return module.ViViT
 
 
 def cpu_name() -> str:
@@ -175,10 +165,13 @@ def main(argv=None) -> int:
     clock_name = args.clock or ("cpu" if args.threads == 1 else "wall")
     clock = time.thread_time if clock_name == "cpu" else time.perf_counter
     torch.manual_seed(args.seed)
-    RefViViT = load_reference_class()
+    try:
+        RefViViT = vit_pytorch_vivit()
+    except ModuleNotFoundError as exc:
+        sys.exit(str(exc))
     ref_frame = RefViViT(frame_patch_size=1, **PAPER).eval()
     ref_tubelet = RefViViT(frame_patch_size=PAPER["frames"], **PAPER).eval()
-    ours = ViViT.from_vit_pytorch(ref_frame).eval()
+    ours = from_vit_pytorch(ref_frame).eval()
 
     onnx_run = None if args.no_onnx else onnx_runner(ours, args.threads)
     gen = torch.Generator().manual_seed(args.seed)

@@ -26,20 +26,24 @@ from slipsense.models import build
 META_KEY = "slipsense"
 
 
+def _save(path: str | Path, tensors: dict[str, torch.Tensor], metadata: dict[str, str]) -> None:
+    """A safetensors file written atomically."""
+    from safetensors.torch import save_file  # looked up per call: tests/test_disk_full.py replaces it
+
+    with atomic_path(Path(path)) as tmp:
+        save_file(tensors, str(tmp), metadata=metadata)
+
+
 def save_checkpoint(path: str | Path, model: nn.Module, info: dict[str, Any]) -> Path:
     """Write ``model``'s weights and ``info`` (must hold ``model`` and ``model_config``) atomically.
 
     ``info`` is stored as JSON in the safetensors metadata, together with the slipsense version.
     """
-    from safetensors.torch import save_file  # looked up per call: tests/test_disk_full.py replaces it
-
     model = getattr(model, "module", model)  # unwrap DistributedDataParallel
     info = {**info, "model": model.model_name, "model_config": model.config(), "slipsense_version": __version__}
     tensors = {k: v.detach().contiguous().cpu() for k, v in model.state_dict().items()}
-    path = Path(path)
-    with atomic_path(path) as tmp:
-        save_file(tensors, str(tmp), metadata={META_KEY: json.dumps(info)})
-    return path
+    _save(path, tensors, {META_KEY: json.dumps(info)})
+    return Path(path)
 
 
 def update_info(path: str | Path, updates: dict[str, Any]) -> Path:
@@ -50,10 +54,7 @@ def update_info(path: str | Path, updates: dict[str, Any]) -> Path:
         tensors = {k: fh.get_tensor(k) for k in fh.keys()}
     info = {**json.loads(meta[META_KEY]), **updates}
     meta[META_KEY] = json.dumps(info)
-    from safetensors.torch import save_file  # looked up per call: tests/test_disk_full.py replaces it
-
-    with atomic_path(path) as tmp:
-        save_file(tensors, str(tmp), metadata=meta)
+    _save(path, tensors, meta)
     return path
 
 
@@ -146,12 +147,17 @@ def _check_shapes_on_meta(path: Path, name: str, config: dict[str, Any], shapes:
         raise InputError(path, f"checkpoint config cannot build its model: {exc}") from None
     except Exception:  # a model that cannot be built on the meta device is checked after building
         return
-    missing, unexpected = _diff_keys(ref, shapes)
+    _check_fit(path, name, ref, shapes)
+
+
+def _check_fit(path: Path, name: str, expected: dict[str, tuple], got: dict[str, tuple]) -> None:
+    """InputError unless the weights ``got`` (name -> shape) are the ones model ``name`` has."""
+    missing, unexpected = sorted(set(expected) - set(got)), sorted(set(got) - set(expected))
     if missing or unexpected:
         raise InputError(path, f"weights do not fit model {name!r}: missing {missing[:3]}, unexpected {unexpected[:3]}")
-    for key, shape in ref.items():
-        if shapes[key] != shape:
-            raise InputError(path, f"weight {key} has shape {shapes[key]}, model expects {shape}")
+    for key, shape in expected.items():
+        if got[key] != shape:
+            raise InputError(path, f"weight {key} has shape {got[key]}, model expects {shape}")
 
 
 def load_model(path: str | Path, expect_model: str | None = None) -> tuple[nn.Module, dict[str, Any]]:
@@ -175,16 +181,11 @@ def load_model(path: str | Path, expect_model: str | None = None) -> tuple[nn.Mo
         state = load_file(str(path))
     except Exception as exc:
         raise InputError(path, f"checkpoint weights are unreadable ({type(exc).__name__}: {exc})") from None
-    missing, unexpected = _diff_keys(model.state_dict(), state)
-    if missing or unexpected:
-        raise InputError(
-            path, f"weights do not fit model {info['model']!r}: missing {missing[:3]}, unexpected {unexpected[:3]}"
-        )
-    for key, ref in model.state_dict().items():
-        if state[key].shape != ref.shape:
-            raise InputError(
-                path, f"weight {key} has shape {tuple(state[key].shape)}, model expects {tuple(ref.shape)}"
-            )
+    own = model.state_dict()
+    _check_fit(
+        path, info["model"], {k: tuple(v.shape) for k, v in own.items()}, {k: tuple(v.shape) for k, v in state.items()}
+    )
+    for key, ref in own.items():
         if state[key].is_floating_point() != ref.is_floating_point():
             # load_state_dict would cast int64 weights to float silently: nonsense predictions, no error
             raise InputError(path, f"weight {key} is stored as {state[key].dtype}, model expects {ref.dtype}")
@@ -193,10 +194,6 @@ def load_model(path: str | Path, expect_model: str | None = None) -> tuple[nn.Mo
     model.load_state_dict(state)
     model.eval()
     return model, info
-
-
-def _diff_keys(expected: dict, got: dict) -> tuple[list[str], list[str]]:
-    return sorted(set(expected) - set(got)), sorted(set(got) - set(expected))
 
 
 #: Metadata key of a resume state file, and the format tag stored under it.
@@ -293,16 +290,13 @@ def save_resume_state(path: str | Path, state: dict[str, Any]) -> None:
     The file is a safetensors file (whatever its name): the tensors (weights, optimizer moments,
     RNG state) as tensors, everything else as JSON in its metadata. Nothing in it is executable.
     """
-    from safetensors.torch import save_file  # looked up per call: tests/test_disk_full.py replaces it
-
     tensors: dict[str, torch.Tensor] = {}
     tree = _encode(state, tensors)
     meta = {
         RESUME_KEY: json.dumps({"format": RESUME_FORMAT, "state": tree}, allow_nan=False),
         "slipsense_version": __version__,
     }
-    with atomic_path(path) as tmp:
-        save_file(tensors, str(tmp), metadata=meta)
+    _save(path, tensors, meta)
 
 
 #: What a resume state holds, and the type each entry must have.

@@ -133,10 +133,7 @@ def clip_spec_from(info: dict[str, Any]):
 def load_markers(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(x (N,T,M,3) float32, y (N,) int64, groups (N,))`` from a marker ``.npz`` (validated)."""
     ds = load_marker_npz(path)
-    groups = getattr(ds, "groups", None)
-    if groups is None:
-        groups = np.arange(len(ds.y))
-    return ds.x, ds.y, np.asarray(groups)
+    return ds.x, ds.y, ds.groups
 
 
 def split_groups(groups: np.ndarray, test_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:

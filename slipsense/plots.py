@@ -19,11 +19,11 @@ def _plt():
     return plt
 
 
-def save_figure(fig, path: str | Path, dpi: int = 120) -> Path:
-    """Save ``fig`` atomically and close it."""
+def save_figure(fig, path: str | Path) -> Path:
+    """Save ``fig`` atomically (120 dpi) and close it."""
     plt = _plt()
     path = Path(path)
-    write_with(path, lambda tmp: fig.savefig(tmp, dpi=dpi, bbox_inches="tight"))
+    write_with(path, lambda tmp: fig.savefig(tmp, dpi=120, bbox_inches="tight"))
     plt.close(fig)
     return path
 
@@ -54,24 +54,17 @@ def plot_curves(history: Sequence[dict[str, Any]], path: str | Path, title: str 
     return save_figure(fig, path)
 
 
-def plot_confusion(cm, path: str | Path, labels=("wiggle", "slip"), title: str = "") -> Path:
-    """2x2 confusion matrix (rows: truth, columns: prediction) with counts in the cells."""
+def plot_confusion(cm, path: str | Path, title: str = "") -> Path:
+    """2x2 confusion matrix (rows: truth, columns: prediction; wiggle, slip) with counts in the cells."""
     plt = _plt()
     cm = np.asarray(cm)
     fig, ax = plt.subplots(figsize=(3.6, 3.2))
     ax.imshow(cm, cmap="Blues")
     for i in range(2):
         for j in range(2):
-            ax.text(
-                j,
-                i,
-                str(cm[i, j]),
-                ha="center",
-                va="center",
-                color="white" if cm[i, j] > cm.max() / 2 else "black",
-                fontsize=13,
-            )
-    ax.set_xticks([0, 1], [f"pred {l}" for l in labels])
-    ax.set_yticks([0, 1], [f"true {l}" for l in labels])
+            colour = "white" if cm[i, j] > cm.max() / 2 else "black"
+            ax.text(j, i, str(cm[i, j]), ha="center", va="center", color=colour, fontsize=13)
+    ax.set_xticks([0, 1], ["pred wiggle", "pred slip"])
+    ax.set_yticks([0, 1], ["true wiggle", "true slip"])
     ax.set_title(title)
     return save_figure(fig, path)

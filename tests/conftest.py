@@ -120,3 +120,29 @@ def killed_once(state, args) -> int:
     from slipsense.checkpoint import load_resume_state
 
     return load_resume_state(state)["epoch"]
+
+
+def onnx_output(path, *x):
+    """The first output of the ONNX file ``path`` on ONNX Runtime for its inputs ``x`` in order
+    (tensors or arrays)."""
+    from slipsense.models.onnx import onnx_session
+
+    session = onnx_session(path)
+    arrays = [v.detach().cpu().numpy() if isinstance(v, torch.Tensor) else v for v in x]
+    feed = {i.name: np.ascontiguousarray(a) for i, a in zip(session.get_inputs(), arrays)}
+    return session.run(None, feed)[0]
+
+
+def perturbed(model: torch.nn.Module, seed: int = 0, scale: float = 0.1) -> torch.nn.Module:
+    """Move every parameter off its initial value (LayerNorm weights != 1 etc.), so that folded fast
+    paths are exercised and a weight that fails to load shows."""
+    g = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        for p in model.parameters():
+            p.add_(torch.randn(p.shape, generator=g) * scale)
+    return model
+
+
+def random_clip(*shape: int, seed: int = 0) -> torch.Tensor:
+    """Uniform [0, 1) values of ``shape``, seeded (a video clip ``(B, T, 3, H, W)``)."""
+    return torch.rand(*shape, generator=torch.Generator().manual_seed(seed))

@@ -15,6 +15,7 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
+from conftest import onnx_output
 from slipsense.checkpoint import save_checkpoint
 from slipsense.cli import app
 from studies.__main__ import app as studies_app
@@ -437,7 +438,6 @@ def _as_input(clip: np.ndarray) -> torch.Tensor:
 @needs_data
 def test_onnx_vivit_matches_torch_on_real_clips(tmp_path, real_clips):
     from slipsense.streaming.export import export_onnx
-    from slipsense.models.onnx import onnx_session, run_onnx
 
     model = _model("vivit")  # the paper's configuration: 240 x 320, 40 x 40 patches, 5 frames
     res = export_onnx(model, tmp_path / "vivit.onnx", verify=False)  # verified here, on real frames
@@ -445,10 +445,10 @@ def test_onnx_vivit_matches_torch_on_real_clips(tmp_path, real_clips):
     x = torch.stack([_as_input(c[:5]) for c in real_clips])  # (2, 5, 3, 240, 320)
     with torch.no_grad():
         ref = model(x).numpy()
-    assert np.abs(run_onnx(onnx_session(res.paths["model"]), x) - ref).max() <= 1e-4
-    tokens = run_onnx(onnx_session(res.paths["frame"]), x.flatten(0, 1)).reshape(2, 5, 5, -1)
+    assert np.abs(onnx_output(res.paths["model"], x) - ref).max() <= 1e-4
+    tokens = onnx_output(res.paths["frame"], x.flatten(0, 1)).reshape(2, 5, 5, -1)
     window = tokens[:, np.arange(5), np.arange(5)]  # frame k at slot k
-    assert np.abs(run_onnx(onnx_session(res.paths["window"]), window) - ref).max() <= 1e-4
+    assert np.abs(onnx_output(res.paths["window"], window) - ref).max() <= 1e-4
 
     # the ONNX Runtime backend of the detector (given these parts) streams the same probabilities as PyTorch
     parts = tmp_path / "parts"
@@ -469,7 +469,6 @@ def test_onnx_vivit_matches_torch_on_real_clips(tmp_path, real_clips):
 @needs_data
 def test_onnx_stnet_matches_torch_on_real_markers(tmp_path, real_clips):
     from slipsense.streaming.export import export_onnx
-    from slipsense.models.onnx import onnx_session, run_onnx
     from slipsense.sensors.markers import marker_sequences, track_markers
 
     clouds = np.stack([marker_sequences(track_markers(c, source="clip"), 20) for c in real_clips])[:, :4]
@@ -478,16 +477,15 @@ def test_onnx_stnet_matches_torch_on_real_markers(tmp_path, real_clips):
     x = torch.from_numpy(clouds)  # (2, 4, 20, 3)
     with torch.no_grad():
         ref = model(x).numpy()
-    assert np.abs(run_onnx(onnx_session(res.paths["model"]), x) - ref).max() <= 1e-4
-    tokens = run_onnx(onnx_session(res.paths["frame"]), x.flatten(0, 1)).reshape(2, 4, -1)
-    assert np.abs(run_onnx(onnx_session(res.paths["window"]), tokens) - ref).max() <= 1e-4
+    assert np.abs(onnx_output(res.paths["model"], x) - ref).max() <= 1e-4
+    tokens = onnx_output(res.paths["frame"], x.flatten(0, 1)).reshape(2, 4, -1)
+    assert np.abs(onnx_output(res.paths["window"], tokens) - ref).max() <= 1e-4
 
 
 @needs_ort
 @needs_data
 def test_onnx_resnet3d_matches_torch_on_real_clips(tmp_path, real_clips):
     from slipsense.streaming.export import export_onnx
-    from slipsense.models.onnx import onnx_session, run_onnx
 
     model = _model("resnet3d50", **RESNET_TINY)
     small = [np.stack([cv2.resize(f, (160, 120), interpolation=cv2.INTER_AREA) for f in c[:4]]) for c in real_clips]
@@ -498,7 +496,7 @@ def test_onnx_resnet3d_matches_torch_on_real_clips(tmp_path, real_clips):
     x = torch.stack([_as_input(c) for c in small])
     with torch.no_grad():
         ref = model(x).numpy()
-    assert np.abs(run_onnx(onnx_session(res.paths["model"]), x) - ref).max() <= 1e-4
+    assert np.abs(onnx_output(res.paths["model"], x) - ref).max() <= 1e-4
 
 
 @needs_ort

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 
+from conftest import onnx_output
 from slipsense.checkpoint import load_model, save_checkpoint
 from slipsense.streaming.detector import SlipDetector
 from slipsense.models import SlipModel, available, build, model_class, window_geometry
@@ -107,8 +108,6 @@ def test_contract_chunk_logits_equal_whole_run_forward(name):
 def test_contract_onnx_parity(name, tmp_path):
     from slipsense.streaming.export import export_onnx
 
-    from slipsense.models.onnx import onnx_session, run_onnx
-
     model = _model(name)
     result = export_onnx(model, tmp_path / "m.onnx")
     assert result.max_abs_diff and max(result.max_abs_diff.values()) <= 1e-4
@@ -117,7 +116,7 @@ def test_contract_onnx_parity(name, tmp_path):
         x = _grasp_input(model, frames=57)  # another length than the export's example: frames are free
         with torch.no_grad():
             ref = model(x).numpy()
-        assert np.abs(run_onnx(onnx_session(result.paths["model"]), x) - ref).max() <= 1e-4
+        assert np.abs(onnx_output(result.paths["model"], x) - ref).max() <= 1e-4
         return
     assert ("frame" in result.paths) == (model.streaming_parts()[0] is not None)
 

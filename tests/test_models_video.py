@@ -2,18 +2,16 @@
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
 
 import pytest
 import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from conftest import perturbed, random_clip
 from slipsense.errors import ConfigError, InputError
 from slipsense.models import available, build, count_parameters
 from slipsense.models.resnet3d import PAPER_PARAMETERS
-from slipsense.models.vivit import ViViT
 
 
 @pytest.fixture(autouse=True)
@@ -23,34 +21,6 @@ def _one_thread(one_thread):
 
 # small ViViT for most tests: 2 x 3 patches of 8 x 8, 3 frames
 SMALL = dict(image_size=(16, 24), patch_size=(8, 8), frames=3, dim=8, heads=2, dim_head=16, mlp_dim=8)
-
-
-def _perturbed(model: torch.nn.Module, seed: int = 0, scale: float = 0.1) -> torch.nn.Module:
-    """Move every parameter off its initial value (LayerNorm weights != 1 etc.) so folding is exercised."""
-    g = torch.Generator().manual_seed(seed)
-    with torch.no_grad():
-        for p in model.parameters():
-            p.add_(torch.randn(p.shape, generator=g) * scale)
-    return model
-
-
-def _clip(*shape: int, seed: int = 0) -> torch.Tensor:
-    return torch.rand(*shape, generator=torch.Generator().manual_seed(seed))
-
-
-def _load_reference_vivit():
-    """vit-pytorch's vivit.py, loaded as a file (its package __init__ imports torchvision)."""
-    spec = importlib.util.find_spec("vit_pytorch")
-    if spec is None or not spec.submodule_search_locations:
-        pytest.skip("vit_pytorch not installed")
-    path = Path(list(spec.submodule_search_locations)[0]) / "vivit.py"
-    mod_spec = importlib.util.spec_from_file_location("_vit_pytorch_vivit", path)
-    module = importlib.util.module_from_spec(mod_spec)
-    try:
-        mod_spec.loader.exec_module(module)
-    except Exception as exc:  # pragma: no cover - depends on the installed version
-        pytest.skip(f"vit_pytorch.vivit not importable: {exc}")
-    return module.ViViT
 
 
 # ---------------------------------------------------------------- ViViT
@@ -86,7 +56,7 @@ def test_bad_config_is_config_error(bad):
 
 def test_shapes_and_split_forward():
     model = build("vivit").eval()
-    x = _clip(2, 5, 3, 240, 320)
+    x = random_clip(2, 5, 3, 240, 320)
     with torch.no_grad():
         tokens = model.encode_frames(x)
         logits = model(x)
@@ -122,7 +92,7 @@ def test_check_input_rejects_wrong_shapes(shape, fragment):
 
 def test_check_input_rejects_non_finite_and_non_float():
     model = build("vivit", **SMALL)
-    x = _clip(1, 3, 3, 16, 24)
+    x = random_clip(1, 3, 3, 16, 24)
     model.check_input(x)
     for value in (float("nan"), float("inf")):
         bad = x.clone()
@@ -157,8 +127,8 @@ def test_check_input_property(shape, fix):
 
 
 def test_fused_patch_embedding_matches_plain():
-    model = _perturbed(build("vivit")).eval()
-    x = _clip(2, 5, 3, 240, 320, seed=1)
+    model = perturbed(build("vivit")).eval()
+    x = random_clip(2, 5, 3, 240, 320, seed=1)
     # smooth, low-contrast frames are the hard case for variance arithmetic
     ramp = torch.linspace(0, 1, 320)
     smooth = 0.45 + 0.02 * ramp + 0.004 * torch.randn(2, 5, 3, 240, 320, generator=torch.Generator().manual_seed(2))
@@ -170,7 +140,7 @@ def test_fused_patch_embedding_matches_plain():
             plain = model(clip)
             assert (fast - plain).abs().max() < 1e-5
     # in float64 both paths are exact: they must agree to rounding
-    model64 = _perturbed(build("vivit")).double().eval()
+    model64 = perturbed(build("vivit")).double().eval()
     frames = smooth[0].double()
     with torch.no_grad():
         model64.fused = True
@@ -182,8 +152,8 @@ def test_fused_patch_embedding_matches_plain():
 
 def test_fused_patch_embedding_gradients_match_plain():
     torch.manual_seed(0)
-    model = _perturbed(build("vivit", **SMALL)).train()
-    x = _clip(2, 3, 3, 16, 24, seed=3)
+    model = perturbed(build("vivit", **SMALL)).train()
+    x = random_clip(2, 3, 3, 16, 24, seed=3)
     grads = []
     for fused in (True, False):
         model.zero_grad()
@@ -195,8 +165,8 @@ def test_fused_patch_embedding_gradients_match_plain():
 
 
 def test_folded_inference_attention_matches_training_path():
-    model = _perturbed(build("vivit")).eval()
-    x = _clip(1, 5, 3, 240, 320, seed=4)
+    model = perturbed(build("vivit")).eval()
+    x = random_clip(1, 5, 3, 240, 320, seed=4)
     with torch.no_grad():  # folded attention (and cached folded weights)
         folded = model(x)
         folded_again = model(x)
@@ -213,68 +183,10 @@ def test_folded_inference_attention_matches_training_path():
     assert (updated - folded).abs().max() > 1e-4
 
 
-def test_matches_vit_pytorch_reference():
-    RefViViT = _load_reference_vivit()
-    torch.manual_seed(0)
-    ref = RefViViT(
-        image_size=(240, 320),
-        image_patch_size=(40, 40),
-        frames=5,
-        frame_patch_size=1,
-        num_classes=2,
-        dim=8,
-        spatial_depth=2,
-        temporal_depth=2,
-        heads=2,
-        mlp_dim=8,
-    ).eval()
-    _perturbed(ref)
-    ours = ViViT.from_vit_pytorch(ref).eval()
-    assert count_parameters(ours) == count_parameters(ref)
-    x = _clip(2, 5, 3, 240, 320, seed=5)
-    with torch.no_grad():
-        expected = ref(x.permute(0, 2, 1, 3, 4))  # vit-pytorch takes (B, C, T, H, W)
-        assert (ours(x) - expected).abs().max() < 1e-5
-        ours.fused = False
-        assert (ours(x) - expected).abs().max() < 1e-5
-    ref_mean = RefViViT(
-        image_size=(16, 24),
-        image_patch_size=(8, 8),
-        frames=3,
-        frame_patch_size=1,
-        num_classes=2,
-        dim=8,
-        spatial_depth=1,
-        temporal_depth=2,
-        heads=1,
-        dim_head=8,
-        mlp_dim=4,
-        pool="mean",
-    ).eval()
-    ours_mean = ViViT.from_vit_pytorch(ref_mean, image_size=(16, 24)).eval()
-    x = _clip(2, 3, 3, 16, 24, seed=6)
-    with torch.no_grad():
-        assert (ours_mean(x) - ref_mean(x.permute(0, 2, 1, 3, 4))).abs().max() < 1e-5
-    tubelet = RefViViT(
-        image_size=(16, 24),
-        image_patch_size=(8, 8),
-        frames=4,
-        frame_patch_size=2,
-        num_classes=2,
-        dim=8,
-        spatial_depth=1,
-        temporal_depth=1,
-        heads=1,
-        mlp_dim=4,
-    )
-    with pytest.raises(ConfigError, match="frame_patch_size"):
-        ViViT.from_vit_pytorch(tubelet, image_size=(16, 24))
-
-
 def test_gradients_reach_every_parameter():
     for pool in ("cls", "mean"):
         model = build("vivit", pool=pool, **SMALL).train()
-        loss = torch.nn.functional.cross_entropy(model(_clip(2, 3, 3, 16, 24)), torch.tensor([0, 1]))
+        loss = torch.nn.functional.cross_entropy(model(random_clip(2, 3, 3, 16, 24)), torch.tensor([0, 1]))
         loss.backward()
         for name, p in model.named_parameters():
             assert p.grad is not None and torch.isfinite(p.grad).all(), name
@@ -282,8 +194,8 @@ def test_gradients_reach_every_parameter():
 
 
 def test_attention_maps():
-    model = _perturbed(build("vivit", **SMALL)).eval()
-    x = _clip(2, 3, 3, 16, 24)
+    model = perturbed(build("vivit", **SMALL)).eval()
+    x = random_clip(2, 3, 3, 16, 24)
     logits, att = model(x, return_attention=True)
     assert torch.allclose(logits, model(x), atol=1e-6)
     assert att["spatial"].shape == (2, 3, 2, 2, 7, 7)  # (B, T, depth, heads, 1 + P, 1 + P)
@@ -292,35 +204,29 @@ def test_attention_maps():
     with torch.enable_grad():  # the standard attention path gives the same weights
         _, att_std = model(x, return_attention=True)
     assert torch.allclose(att["spatial"], att_std["spatial"].detach(), atol=1e-6)
-    for mode in ("last", "rollout"):
-        heat = model.cls_attention_map(x, mode=mode)
-        assert heat.shape == (2, 3, 2, 3)  # (B, T, Hp, Wp)
-        assert torch.allclose(heat.sum(dim=(-1, -2)), torch.ones(2, 3), atol=1e-5)
-        assert (heat >= 0).all()
-    last = model.cls_attention_map(x, mode="last")
-    expected = att["spatial"][:, :, -1].mean(dim=2)[..., 0, 1:]
-    assert torch.allclose(last.flatten(2), expected / expected.sum(-1, keepdim=True), atol=1e-6)
+    heat = model.cls_attention_map(x)
+    assert heat.shape == (2, 3, 2, 3)  # (B, T, Hp, Wp)
+    assert torch.allclose(heat.sum(dim=(-1, -2)), torch.ones(2, 3), atol=1e-5)
+    assert (heat >= 0).all()
     mean_model = build("vivit", pool="mean", **SMALL).eval()
     assert mean_model.attention_maps(x)["spatial"].shape == (2, 3, 2, 2, 6, 6)
     assert mean_model.cls_attention_map(x).shape == (2, 3, 2, 3)
-    with pytest.raises(ConfigError):
-        model.cls_attention_map(x, mode="bogus")
 
 
 def test_inference_caches_follow_state_dict_and_survive_copies():
     import copy
     import pickle
 
-    model = _perturbed(build("vivit", **SMALL)).eval()
-    other = _perturbed(build("vivit", **SMALL), seed=9).eval()
-    x = _clip(2, 3, 3, 16, 24)
+    model = perturbed(build("vivit", **SMALL)).eval()
+    other = perturbed(build("vivit", **SMALL), seed=9).eval()
+    x = random_clip(2, 3, 3, 16, 24)
     with torch.no_grad():
         model(x)  # fills the folded-weight caches and the scratch buffer
         model.load_state_dict(other.state_dict())
         assert torch.allclose(model(x), other(x), atol=1e-6)
         for clone in (copy.deepcopy(model), pickle.loads(pickle.dumps(model))):
             assert torch.allclose(clone(x), other(x), atol=1e-6)
-        assert torch.equal(x, _clip(2, 3, 3, 16, 24))  # the input is never written to
+        assert torch.equal(x, random_clip(2, 3, 3, 16, 24))  # the input is never written to
 
 
 def test_onnx_export_matches(tmp_path):
@@ -328,8 +234,8 @@ def test_onnx_export_matches(tmp_path):
     pytest.importorskip("onnx")
     import warnings
 
-    model = _perturbed(build("vivit", **SMALL)).eval()
-    x = _clip(1, 3, 3, 16, 24)
+    model = perturbed(build("vivit", **SMALL)).eval()
+    x = random_clip(1, 3, 3, 16, 24)
     path = tmp_path / "vivit.onnx"
     with torch.no_grad(), warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -345,7 +251,7 @@ def test_onnx_export_matches(tmp_path):
         )
     session = ort.InferenceSession(str(path))
     for batch in (1, 3):
-        clip = _clip(batch, 3, 3, 16, 24, seed=batch)
+        clip = random_clip(batch, 3, 3, 16, 24, seed=batch)
         (logits,) = session.run(None, {"video": clip.numpy()})
         with torch.no_grad():
             assert abs(torch.from_numpy(logits) - model(clip)).max() < 1e-5
@@ -367,9 +273,9 @@ def test_resnet3d50_parameter_count_matches_paper():
 def test_resnet3d50_tiny_forward_backward_any_frames():
     model = build("resnet3d50", **TINY)
     for t in (1, 3):
-        assert model.eval()(_clip(2, t, 3, 32, 32)).shape == (2, 2)
+        assert model.eval()(random_clip(2, t, 3, 32, 32)).shape == (2, 2)
     model.train()
-    loss = torch.nn.functional.cross_entropy(model(_clip(2, 2, 3, 32, 32)), torch.tensor([0, 1]))
+    loss = torch.nn.functional.cross_entropy(model(random_clip(2, 2, 3, 32, 32)), torch.tensor([0, 1]))
     loss.backward()
     for name, p in model.named_parameters():
         assert p.grad is not None and torch.isfinite(p.grad).all(), name
@@ -378,11 +284,11 @@ def test_resnet3d50_tiny_forward_backward_any_frames():
 
 def test_resnet3d50_check_input():
     model = build("resnet3d50", **TINY)
-    model.check_input(_clip(1, 2, 3, 32, 32))
+    model.check_input(random_clip(1, 2, 3, 32, 32))
     for shape in [(1, 2, 1, 32, 32), (2, 3, 32, 32), (0, 2, 3, 32, 32)]:
         with pytest.raises(InputError, match="shape"):
             model.check_input(torch.zeros(shape))
-    bad = _clip(1, 2, 3, 32, 32)
+    bad = random_clip(1, 2, 3, 32, 32)
     bad[0, 0, 0, 0, 0] = float("nan")
     with pytest.raises(InputError, match="NaN"):
         model.check_input(bad)
@@ -391,66 +297,6 @@ def test_resnet3d50_check_input():
         fixed.check_input(torch.zeros(1, 2, 3, 32, 32))
     with pytest.raises(ConfigError):
         build("resnet3d50", temporal_kernels=(1, 2, 3, 3))
-
-
-def _to_pytorchvideo_names(sd: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-    """This file's names -> pytorchvideo create_resnet names (the inverse of the loader's mapping)."""
-    out = {}
-    bn = {"bn_a": "norm_a", "bn_b": "norm_b", "bn_c": "norm_c"}
-    for key, value in sd.items():
-        parts = key.split(".")
-        if parts[0] == "stem":
-            new = ["blocks", "0", "conv" if parts[1] == "conv" else "norm", *parts[2:]]
-        elif parts[0] == "fc":
-            new = ["blocks", "5", "proj", *parts[1:]]
-        else:
-            stage, block, name, rest = int(parts[1]), parts[2], parts[3], parts[4:]
-            head = ["blocks", str(stage + 1), "res_blocks", block]
-            if name == "shortcut_conv":
-                new = head + ["branch1_conv", *rest]
-            elif name == "shortcut_bn":
-                new = head + ["branch1_norm", *rest]
-            else:
-                new = head + ["branch2", bn.get(name, name), *rest]
-        out[".".join(new)] = value
-    return out
-
-
-def test_resnet3d50_load_weights(tmp_path):
-    from safetensors.torch import save_file
-
-    source = _perturbed(build("resnet3d50", **TINY), seed=7).eval()
-    x = _clip(1, 2, 3, 32, 32)
-    expected = source(x)
-    sd = {k: v.contiguous() for k, v in source.state_dict().items()}
-
-    st_path = tmp_path / "w.safetensors"
-    save_file(sd, str(st_path))
-    pt_path = tmp_path / "w.pt"
-    torch.save({"state_dict": _to_pytorchvideo_names(sd)}, pt_path)
-    for path in (st_path, pt_path):
-        target = build("resnet3d50", **TINY).eval()
-        target.load_weights(path)
-        assert torch.allclose(target(x), expected, atol=1e-6)
-
-    # a Kinetics-style head (400 classes) fits only with skip_head=True
-    head400 = dict(sd, **{"fc.weight": torch.zeros(400, 256), "fc.bias": torch.zeros(400)})
-    k400 = tmp_path / "k400.pt"
-    torch.save(head400, k400)
-    target = build("resnet3d50", **TINY)
-    with pytest.raises(InputError) as info:
-        target.load_weights(k400)
-    assert str(k400) in str(info.value) and "fc.weight" in str(info.value) and "shape" in str(info.value)
-    target.load_weights(k400, skip_head=True)
-
-    with pytest.raises(InputError, match="missing"):
-        build("resnet3d50", layers=(3, 4, 6, 4), **TINY).load_weights(st_path)
-    with pytest.raises(InputError, match="no such"):
-        target.load_weights(tmp_path / "absent.pt")
-    junk = tmp_path / "junk.pt"
-    junk.write_bytes(b"not a checkpoint")
-    with pytest.raises(InputError, match="cannot read"):
-        target.load_weights(junk)
 
 
 def test_inference_mode_then_no_grad_reuses_no_inference_buffer():

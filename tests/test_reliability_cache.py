@@ -208,8 +208,8 @@ def test_onnx_parts_cache_is_verified(tmp_path, monkeypatch):
     model = build("temnet", frames=4, markers=5, d_model=8, heads=2, blocks=1, ff_dim=8, head_hidden=0).eval()
     geometry = window_geometry(model)
     calls = []
-    real = export.export_streaming_parts
-    monkeypatch.setattr(export, "export_streaming_parts", lambda *a, **k: calls.append(1) or real(*a, **k))
+    real = export.export_parts
+    monkeypatch.setattr(export, "export_parts", lambda *a, **k: calls.append(1) or real(*a, **k))
     folder = tmp_path / "parts"
     paths = export.cached_streaming_parts(model, folder, geometry)
     frame, window = paths["frame"], paths["window"]

@@ -70,6 +70,14 @@ class OnnxPart:
     dynamic: dict[str, dict[int, str]]
 
 
+class ModelPart(nn.Module):
+    """A module that runs part of ``model`` (a streaming or ONNX part), sharing its weights."""
+
+    def __init__(self, model: nn.Module):
+        super().__init__()
+        self.model = model
+
+
 class Stream(Protocol):
     """What :meth:`SlipModel.stream` returns: the model run one frame per sensor at a time.
 
@@ -132,7 +140,11 @@ class SlipModel(nn.Module):
     training_task: str = "clips"
 
     def config(self) -> dict[str, Any]:
-        raise NotImplementedError(f"{type(self).__name__} must define config()")
+        """The keyword arguments that rebuild this model (JSON-ready; stored in checkpoints); by default
+        a copy of the ``_config`` its constructor keeps."""
+        if "_config" not in self.__dict__:
+            raise NotImplementedError(f"{type(self).__name__} must define config()")
+        return {k: list(v) if isinstance(v, list) else v for k, v in self._config.items()}
 
     def check_input(self, x: Tensor) -> None:
         raise NotImplementedError(f"{type(self).__name__} must define check_input()")
@@ -303,6 +315,13 @@ class GraspModel(SlipModel):
         a frame shared by several chunks once: training time is mostly this call."""
         raise NotImplementedError
 
+    def chunk_rows(self, gray: Tensor, ends: Sequence[int], n: int) -> Tensor:
+        """For :meth:`chunk_logits`: InputError unless ``gray`` is one run ``(S, N, h, w)``; the frame
+        indices of the ``n`` frames ending at each of ``ends``, ``(C, n)`` (below 0: frame 0)."""
+        if gray.ndim != 4 or gray.shape[0] != self.sensors or tuple(gray.shape[2:]) != tuple(self.image_size):
+            raise InputError(None, f"{self.model_name} chunk_logits takes runs (S, N, h, w), got {tuple(gray.shape)}")
+        return (torch.as_tensor(list(ends))[:, None] + torch.arange(1 - n, 1)[None]).clamp(min=0)
+
     def streaming_parts(self):
         raise ConfigError(
             f"{self.model_name} takes whole grasps: it streams itself (stream()) and has no frame/window parts"
@@ -384,11 +403,9 @@ def build_registered(name: str, **config: Any) -> SlipModel:
         raise ConfigError(f"model {name!r}: {exc}") from None
 
 
-def clip_example_inputs(
-    model: SlipModel, geometry: Mapping[str, Any], batch: int = 2, seed: int = 0
-) -> dict[str, Tensor]:
-    """Random example inputs ``{"model", "frame"?, "window"}`` of a clip model's files."""
-    g = torch.Generator().manual_seed(seed)
+def clip_example_inputs(model: SlipModel, geometry: Mapping[str, Any], batch: int = 2) -> dict[str, Tensor]:
+    """Random example inputs ``{"model", "frame"?, "window"}`` of a clip model's files (seed 0)."""
+    g = torch.Generator().manual_seed(0)
     t = geometry["frames"]
     if geometry["kind"] == "video":
         full = torch.rand(batch, t, 3, *geometry["image_size"], generator=g)

@@ -30,8 +30,8 @@ import torch.nn.functional as F
 from einops import rearrange
 from torch import Tensor, nn
 
-from slipsense.errors import ConfigError, InputError
-from slipsense.models.base import GraspModel, OnnxPart, register
+from slipsense.errors import ConfigError
+from slipsense.models.base import GraspModel, ModelPart, OnnxPart, register
 from slipsense.models.grasp_stream import GraspStream, slip_probability
 
 #: Bounds on settings a checkpoint may carry (refused before anything is allocated).
@@ -198,9 +198,7 @@ class MotionNet(GraspModel):
         grays, now, pasts, gathers = [], [], [], []
         frames = distinct = 0  # frames of the runs so far, distinct frames so far
         for gray, ends in runs:
-            if gray.ndim != 4 or gray.shape[0] != self.sensors or tuple(gray.shape[2:]) != self.image_size:
-                raise InputError(None, f"motionnet chunk_logits takes runs (S, N, h, w), got {tuple(gray.shape)}")
-            rows = (torch.as_tensor(list(ends))[:, None] + torch.arange(1 - need, 1)[None]).clamp(min=0)
+            rows = self.chunk_rows(gray, ends, need)
             at, where = torch.unique(rows, return_inverse=True)  # the distinct frames, and each chunk slot's
             grays.append(gray)
             now.append(at + frames)
@@ -213,15 +211,7 @@ class MotionNet(GraspModel):
         feats = self.encode(diffs.movedim(-1, 2)[None])[0]  # (U, 2F)
         return self.classify(feats[torch.cat(gathers)])
 
-    def stream(
-        self,
-        *,
-        sensors: int | None = None,
-        info=None,
-        backend: str = "torch",
-        dtype: str = "float32",
-        onnx_dir=None,
-    ) -> "MotionStream":
+    def stream(self, *, sensors=None, info=None, backend="torch", dtype="float32", onnx_dir=None) -> "MotionStream":
         """A frame-by-frame runner of this model (eval mode); see :class:`MotionStream`."""
         return MotionStream(self, sensors=sensors, info=info, backend=backend, dtype=dtype, onnx_dir=onnx_dir)
 
@@ -262,18 +252,14 @@ class MotionNet(GraspModel):
         }
 
 
-class MotionFrame(nn.Module):
+class MotionFrame(ModelPart):
     """The per-frame part of :class:`MotionNet`: differences ``(1, S, L, h, w)`` -> features ``(1, 2F)``."""
 
-    def __init__(self, net: MotionNet):
-        super().__init__()
-        self.net = net
-
     def forward(self, diffs: Tensor) -> Tensor:
-        return self.net.encode(diffs[:, :, None])[:, 0]
+        return self.model.encode(diffs[:, :, None])[:, 0]
 
 
-class MotionStep(nn.Module):
+class MotionStep(ModelPart):
     """One step of :class:`MotionNet`'s causal temporal stack, its state passed in and out.
 
     Inputs: ``features (1, C0)``, ``fresh (1,)`` (1 on the first frame: every state is filled with
@@ -284,8 +270,7 @@ class MotionStep(nn.Module):
     """
 
     def __init__(self, net: MotionNet):
-        super().__init__()
-        self.net = net
+        super().__init__(net)
         self.layers = list(getattr(net, "tcn", ()))
         self.feature_size = 2 * net.features if self.layers else len(net.lags)
         self.state_shapes = [(conv.in_channels, 2 * d + 1) for conv, d in zip(self.layers, net.dilations)]
@@ -299,7 +284,7 @@ class MotionStep(nn.Module):
             nxt.append(buf)
             y = F.relu(conv(buf))[:, :, -1]
             x = y + x if i > 0 else y
-        return (self.net.head(x), *nxt)
+        return (self.model.head(x), *nxt)
 
 
 class MotionStream(GraspStream):

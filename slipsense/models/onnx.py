@@ -56,29 +56,18 @@ def exportable(model: nn.Module) -> nn.Module:
 
 def export_module(
     module: nn.Module,
-    example: torch.Tensor | tuple[torch.Tensor, ...],
+    examples: tuple[torch.Tensor, ...],
     path: str | Path,
-    input_name: str | list[str],
-    output_name: str | list[str],
-    batch: int | None = None,
-    dynamic: Mapping[str, Mapping[int, str]] | None = None,
+    inputs: list[str],
+    outputs: list[str],
+    dynamic: Mapping[str, Mapping[int, str]],
 ) -> str:
-    """Export ``module(*example)`` to ``path`` (atomically); returns the exporter that worked.
+    """Export ``module(*examples)`` to ``path`` (atomically); returns the exporter that worked.
 
-    ``dynamic`` names the free axes per input/output name; without it, ``batch=None`` makes axis 0
-    of every input and output free and an int fixes it (the example is cut or repeated to it).
+    ``dynamic`` names the free axes per input/output name (``{}``: every axis fixed to the example's).
     Tries the TorchScript exporter, then the dynamo exporter; raises InputError with both reasons.
     """
     path = Path(path)
-    examples = example if isinstance(example, tuple) else (example,)
-    inputs = [input_name] if isinstance(input_name, str) else list(input_name)
-    outputs = [output_name] if isinstance(output_name, str) else list(output_name)
-    if dynamic is None:
-        if batch is not None:
-            examples = tuple(e.repeat(-(-batch // e.shape[0]), *[1] * (e.dim() - 1))[:batch] for e in examples)
-            dynamic = {}
-        else:
-            dynamic = {name: {0: "batch"} for name in inputs + outputs}
     module = module.eval()
     errors = []
     for exporter in ("torchscript", "dynamo"):
@@ -190,13 +179,6 @@ def onnx_session(path: str | Path, threads: int | None = None):
         ) from None
 
 
-def run_onnx(session, *x: np.ndarray | torch.Tensor) -> np.ndarray:
-    """Run a session on ``x`` (its inputs in order); returns its first output."""
-    arrays = [v.detach().cpu().numpy() if isinstance(v, torch.Tensor) else v for v in x]
-    feed = {i.name: np.ascontiguousarray(a) for i, a in zip(session.get_inputs(), arrays)}
-    return session.run(None, feed)[0]
-
-
 def max_abs_diff(path: str | Path, module: nn.Module, x: torch.Tensor | tuple[torch.Tensor, ...]) -> float:
     """Largest |ONNX Runtime - PyTorch| over every output of ``module`` exported at ``path``, on ``x``."""
     xs = x if isinstance(x, tuple) else (x,)
@@ -239,22 +221,6 @@ def export_parts(
         if verify:
             result.max_abs_diff[key] = max_abs_diff(path, ref[key], part.example)
     return result
-
-
-def export_streaming_parts(
-    model: nn.Module,
-    folder: str | Path,
-    *,
-    geometry: Mapping[str, Any] | None = None,
-    batch: int | None = None,
-    verify: bool = True,
-    prefix: str = "",
-) -> ExportResult:
-    """Write the modules a stream runs (``frame.onnx`` and ``window.onnx`` for a clip model,
-    ``frame.onnx`` and ``step.onnx`` for MotionNet) into ``folder``."""
-    geometry = geometry or model.window_geometry({})
-    names = streaming_names(model, geometry)
-    return export_parts(model, folder, names, geometry=geometry, batch=batch, verify=verify, prefix=prefix)
 
 
 # ------------------------------------------------------------------------------ verified parts cache
@@ -330,7 +296,7 @@ def cached_streaming_parts(
         if why != "no manifest":
             warnings.warn(f"{folder}: cached ONNX parts unusable ({why}); exporting again", CacheWarning, stacklevel=2)
         (folder / PARTS_MANIFEST).unlink(missing_ok=True)
-        export_streaming_parts(model, folder, geometry=geometry, verify=False)
+        export_parts(model, folder, parts, geometry=geometry, verify=False)
         if dtype == "int8":
             for p in parts:
                 quantize_int8(folder / f"{p}.onnx", folder / f"{p}.int8.onnx")

@@ -32,8 +32,8 @@ import torch.nn.functional as F
 from einops import rearrange
 from torch import Tensor, nn
 
-from slipsense.errors import ConfigError, InputError
-from slipsense.models.base import GraspModel, OnnxPart, register
+from slipsense.errors import ConfigError
+from slipsense.models.base import GraspModel, ModelPart, OnnxPart, register
 from slipsense.models.grasp_stream import GraspStream, slip_probability
 
 #: Doublings of the running maximum's window: peaks are exact over up to 2**20 frames (13 h at 20 fps).
@@ -227,11 +227,8 @@ class ShearRetention(GraspModel):
         :meth:`GraspModel.chunk_logits`."""
         out = []
         for gray, ends in runs:
-            if gray.ndim != 4 or gray.shape[0] != self.sensors or tuple(gray.shape[2:]) != self.image_size:
-                raise InputError(None, f"shear-retention chunk_logits takes runs (S, N, h, w), got {tuple(gray.shape)}")
-            logits = self(gray[None])[0]
-            rows = (torch.as_tensor(list(ends))[:, None] + torch.arange(1 - n_out, 1)[None]).clamp(min=0)
-            out.append(logits[rows])
+            rows = self.chunk_rows(gray, ends, n_out)
+            out.append(self(gray[None])[0][rows])
         return torch.cat(out)
 
     # streaming
@@ -264,23 +261,15 @@ class ShearRetention(GraspModel):
         }
 
 
-class _Frame(nn.Module):
-    def __init__(self, net: ShearRetention):
-        super().__init__()
-        self.net = net
-
+class _Frame(ModelPart):
     def forward(self, reference: Tensor, gray: Tensor):
-        return self.net.frame_shift(reference, gray)
+        return self.model.frame_shift(reference, gray)
 
 
-class _Step(nn.Module):
-    def __init__(self, net: ShearRetention):
-        super().__init__()
-        self.net = net
-
+class _Step(ModelPart):
     def forward(self, shift: Tensor, fresh: Tensor, peak: Tensor):
         peak = torch.where(fresh.reshape(1, 1, 1) > 0.5, shift, torch.maximum(peak, shift))
-        return self.net.logits_of(shift, peak), peak
+        return self.model.logits_of(shift, peak), peak
 
 
 class ShearStream(GraspStream):

@@ -47,7 +47,7 @@ Reading of the paper and the choices it leaves open
   the one consistent with the speed the direct port was measured at on this machine (batch 64 at
   >= 82 samples/s x 2.35 GFLOP = the ~190 GFLOP/s this CPU's matmul reaches; 3.1 GFLOP/sample would
   need 250+, above its peak). The other reading (one FC head as the text says, f = 4096) is the
-  "paper-ff4096" preset. ``count_parameters_for`` gives the exact count of any configuration.
+  "paper-ff4096" preset. ``studies/stnet/size.py`` gives the exact count of any configuration.
 * Xavier-normal init of every Linear and Conv1d weight, zero biases (paper, section III.B). The
   paper's training setup (Adam, lr 1e-5, batch 64, cross-entropy, 80/20 split) is the trainer's.
 
@@ -66,9 +66,9 @@ decoder's one-channel convolution over the upsampled signal is computed on the s
 
 Heat maps
 ---------
-The MSA attends over the T frames, so :meth:`STNet.attention_maps` gives ``(B, heads, T, T)`` per
-block. A heat map over the sensor surface needs an attribution to markers:
-:meth:`STNet.marker_saliency` is gradient x input-displacement (see its docstring).
+The MSA attends over the T frames, not over the sensor surface, so a heat map over the surface needs
+an attribution to markers: :meth:`STNet.marker_saliency` is gradient x input-displacement (see its
+docstring).
 """
 
 from __future__ import annotations
@@ -185,17 +185,12 @@ class Attention(nn.Module):
         self.to_qkv = nn.Linear(dim, dim * 3)  # W^Q, W^K, W^V in one matmul (eq. 6a)
         self.to_out = nn.Linear(dim, dim)
 
-    def forward(self, x, return_attn=False):  # (b, n, d)
+    def forward(self, x):  # (b, n, d)
         qkv = self.to_qkv(x)
         q, k, v = rearrange(qkv, "b n (three h d) -> three b h n d", three=3, h=self.heads)
-        if return_attn:  # explicit softmax(QK^T / sqrt(d_k)), eq. 6b
-            attn = torch.softmax(q @ k.transpose(-1, -2) * q.shape[-1] ** -0.5, dim=-1)
-            out = F.dropout(attn, self.dropout, self.training) @ v
-        else:
-            attn = None
-            out = F.scaled_dot_product_attention(q, k, v, dropout_p=self.dropout if self.training else 0.0)
-        out = self.to_out(rearrange(out, "b h n d -> b n (h d)"))
-        return out, attn
+        # softmax(QK^T / sqrt(d_k)) V, eq. 6b
+        out = F.scaled_dot_product_attention(q, k, v, dropout_p=self.dropout if self.training else 0.0)
+        return self.to_out(rearrange(out, "b h n d -> b n (h d)"))
 
 
 class Block(nn.Module):
@@ -211,11 +206,9 @@ class Block(nn.Module):
         self.norm2 = nn.LayerNorm(dim)
         self.drop = nn.Dropout(dropout)
 
-    def forward(self, x, return_attn=False):
-        a, attn = self.attn(x, return_attn)
-        x = self.norm1(x + self.drop(a))
-        x = self.norm2(x + self.drop(self.ff(x)))
-        return x, attn
+    def forward(self, x):
+        x = self.norm1(x + self.drop(self.attn(x)))
+        return self.norm2(x + self.drop(self.ff(x)))
 
 
 # the network
@@ -318,9 +311,6 @@ class STNet(MarkerModel):
                     nn.init.zeros_(m.bias)
         nn.init.normal_(self.pos_embedding, std=0.02)
 
-    def config(self) -> dict[str, Any]:
-        return dict(self._config)
-
     # input checks
 
     def check_input(self, x) -> None:
@@ -366,28 +356,8 @@ class STNet(MarkerModel):
     def forward(self, x):
         x = self._tokens(x)
         for block in self.blocks:
-            x, _ = block(x)
+            x = block(x)
         return self._head(x)
-
-    # interpretation
-
-    @torch.no_grad()
-    def attention_maps(self, x) -> list[torch.Tensor]:
-        """Softmax attention weights of every block: a list of ``blocks`` tensors (B, heads, T, T).
-
-        Row ``i`` of a map is how much frame ``i`` draws on each frame. Dropout is off (eval).
-        """
-        self.check_input(x)
-        was_training = self.training
-        self.eval()
-        try:
-            maps, h = [], self._tokens(x)
-            for block in self.blocks:
-                h, attn = block(h, return_attn=True)
-                maps.append(attn.float())
-            return maps
-        finally:
-            self.train(was_training)
 
     # the model contract (slipsense.models.base)
 
@@ -482,19 +452,3 @@ def _validate(c: dict) -> None:
         raise ConfigError(f"pool must be one of {POOLS}, got {c['pool']!r}")
     if c["activation"] not in ACTIVATIONS:
         raise ConfigError(f"activation must be one of {tuple(ACTIVATIONS)}, got {c['activation']!r}")
-
-
-def build_preset(name: str, model: str = "stnet", **overrides) -> STNet:
-    """Build ``model`` ("stnet" or "temnet") from ``PRESETS[name]``, with keyword overrides."""
-    if name not in PRESETS:
-        raise ConfigError(f"unknown preset {name!r}; available: {', '.join(PRESETS)}")
-    if model not in ("stnet", "temnet"):
-        raise ConfigError(f"build_preset: model must be 'stnet' or 'temnet', got {model!r}")
-    cls = STNet if model == "stnet" else TemNet
-    try:
-        return cls(**{**PRESETS[name], **overrides})
-    except TypeError as exc:
-        raise ConfigError(f"model {model!r}: {exc}") from None
-
-
-# fast / reduced-precision inference

@@ -12,14 +12,11 @@ import torch
 from torch import Tensor, nn
 
 from slipsense.errors import ConfigError
+from slipsense.models.base import ModelPart
 
 
-class MarkerFramePart(nn.Module):
+class MarkerFramePart(ModelPart):
     """STNet/TemNet per-frame layers (S codecs, fusion): ``(N, M, 3)`` mm -> ``(N, d_model)``."""
-
-    def __init__(self, model: nn.Module):
-        super().__init__()
-        self.model = model
 
     def forward(self, clouds: Tensor) -> Tensor:
         m = self.model
@@ -32,17 +29,13 @@ class MarkerFramePart(nn.Module):
         return m.fuse(x)[:, 0]
 
 
-class MarkerWindowPart(nn.Module):
+class MarkerWindowPart(ModelPart):
     """Frame embedding, MSA blocks and head: ``(B, T, d_model)`` -> ``(B, classes)`` logits."""
-
-    def __init__(self, model: nn.Module):
-        super().__init__()
-        self.model = model
 
     def forward(self, tokens: Tensor) -> Tensor:
         x = tokens + self.model.pos_embedding
         for block in self.model.blocks:
-            x, _ = block(x)
+            x = block(x)
         return self.model._head(x)
 
 

@@ -27,12 +27,12 @@ from __future__ import annotations
 import collections
 from typing import Any, Mapping, Sequence
 
-import cv2
 import numpy as np
 import torch
 
 from slipsense.errors import InputError
 from slipsense.models.runners import make_runner
+from slipsense.recordings.video import resize
 
 #: Frames per batch when replaying a recording (bounds memory: 64 frames of 240 x 320 = 59 MB float).
 REPLAY_CHUNK = 64
@@ -207,18 +207,6 @@ def check_image(frame: Any, where: str, size: tuple[int, int] | None) -> np.ndar
     if frame.ndim != 3 or frame.shape[2] != 3 or min(frame.shape[:2]) < 1:
         raise InputError(None, f"{where}: expected a (H, W, 3) BGR image, got shape {frame.shape}")
     return resize(frame, size)
-
-
-def resize(frame: np.ndarray, size: tuple[int, int] | None) -> np.ndarray:
-    """Resize like the training clips do (area filter when shrinking, bilinear when enlarging);
-    ``size`` None keeps the frame as it is."""
-    if size is None:
-        return frame
-    h, w = size
-    if frame.shape[:2] == (h, w):
-        return frame
-    shrink = frame.shape[0] >= h and frame.shape[1] >= w
-    return cv2.resize(np.ascontiguousarray(frame), (w, h), interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
 
 
 def video_input(frames: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:

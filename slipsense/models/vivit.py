@@ -66,7 +66,6 @@ from slipsense.errors import ConfigError, InputError
 from slipsense.models.base import VideoModel, check_video_values, register
 from slipsense.models.vivit_layers import Transformer, eager_inference, version_key
 from slipsense.models.vivit_parts import ViViTFramePart, ViViTWindowPart, conv_embed_patches
-from slipsense.models.vivit_reference import reference_key
 
 
 def pair(value: int | Sequence[int]) -> tuple[int, int]:
@@ -206,14 +205,7 @@ class ViViT(VideoModel):
         self.temporal_transformer = Transformer(dim, temporal_depth, heads, dim_head, mlp_dim, dropout)
         self.head = nn.Linear(dim, num_classes)
 
-    def config(self) -> dict[str, Any]:
-        """The keyword arguments that rebuild this model (JSON-friendly: lists, not tuples)."""
-        return {k: list(v) if isinstance(v, list) else v for k, v in self._config.items()}
-
     # input checks
-
-    def expected_shape(self) -> tuple[str, int, int, int, int]:
-        return ("B", self.frames, self.channels, *self.image_size)
 
     def check_input(self, x: Any) -> None:
         """Raise :class:`InputError` unless ``x`` is a finite float tensor ``(B, frames, channels, H, W)``."""
@@ -223,11 +215,12 @@ class ViViT(VideoModel):
     def _check_shape(self, x: Any) -> None:
         if not isinstance(x, Tensor):
             raise InputError(None, f"video must be a torch.Tensor, got {type(x).__name__}")
-        expected = self.expected_shape()
-        shown = "(" + ", ".join(map(str, expected)) + ")"
-        if x.dim() != 5 or x.shape[0] < 1 or tuple(x.shape[1:]) != expected[1:]:
+        expected = (self.frames, self.channels, *self.image_size)
+        if x.dim() != 5 or x.shape[0] < 1 or tuple(x.shape[1:]) != expected:
+            shown = ", ".join(map(str, expected))
             raise InputError(
-                None, f"video must have shape {shown} (batch, frames, channels, height, width), got {tuple(x.shape)}"
+                None,
+                f"video must have shape (B, {shown}) (batch, frames, channels, height, width), got {tuple(x.shape)}",
             )
 
     # patch embedding
@@ -417,80 +410,23 @@ class ViViT(VideoModel):
         return self(x, return_attention=True)[1]
 
     @torch.no_grad()
-    def cls_attention_map(self, x: Tensor, mode: str = "rollout") -> Tensor:
+    def cls_attention_map(self, x: Tensor) -> Tensor:
         """Per-frame spatial attention on the patch grid, for heat maps: (B, T, Hp, Wp), each map sums to 1.
 
-        ``mode="last"``: the last spatial layer's CLS-to-patch attention, averaged over heads.
-        ``mode="rollout"``: attention rollout (Abnar & Zuidema 2020) through all spatial layers:
-        each layer's head-averaged attention plus the identity (the residual), rows renormalised,
-        multiplied from the first layer to the last; the CLS row. With ``pool="mean"`` (no CLS) the
-        attention each patch receives is averaged over all query tokens instead of the CLS row.
+        Attention rollout (Abnar & Zuidema 2020) through all spatial layers: each layer's
+        head-averaged attention plus the identity (the residual), rows renormalised, multiplied from
+        the first layer to the last; the CLS row. With ``pool="mean"`` (no CLS) the attention each
+        patch receives is averaged over all query tokens instead of the CLS row.
         """
-        if mode not in ("last", "rollout"):
-            raise ConfigError(f"cls_attention_map: mode must be 'last' or 'rollout', got {mode!r}")
         spatial = self.attention_maps(x)["spatial"].mean(dim=3)  # (B, T, L, n, n)
         if spatial.shape[2] == 0:
             raise ConfigError("cls_attention_map: the model has no spatial layers")
-        if mode == "last":
-            joint = spatial[:, :, -1]
-        else:
-            eye = torch.eye(spatial.shape[-1], dtype=spatial.dtype, device=spatial.device)
-            joint = eye.expand_as(spatial[:, :, 0])
-            for layer in spatial.unbind(dim=2):
-                a = layer + eye
-                joint = (a / a.sum(dim=-1, keepdim=True)) @ joint
+        eye = torch.eye(spatial.shape[-1], dtype=spatial.dtype, device=spatial.device)
+        joint = eye.expand_as(spatial[:, :, 0])
+        for layer in spatial.unbind(dim=2):
+            a = layer + eye
+            joint = (a / a.sum(dim=-1, keepdim=True)) @ joint
         has_cls = self.spatial_cls is not None
         received = joint[..., 0, 1:] if has_cls else joint.mean(dim=-2)  # (B, T, P)
         received = received / received.sum(dim=-1, keepdim=True)
         return rearrange(received, "b t (hp wp) -> b t hp wp", hp=self.grid[0], wp=self.grid[1])
-
-    # vit-pytorch interoperability
-
-    @classmethod
-    def from_vit_pytorch(cls, ref: nn.Module, image_size: int | Sequence[int] = (240, 320)) -> "ViViT":
-        """A ViViT with the weights of a vit-pytorch ``ViViT(frame_patch_size=1, variant="factorized_encoder")``.
-
-        vit-pytorch does not store its image size: pass the one ``ref`` was built with (default: the
-        paper's). The two models compute the same logits (vit-pytorch takes the clip as ``(B, C, T, H, W)``).
-        """
-        if getattr(ref, "frame_patch_size", 1) != 1:
-            raise ConfigError("from_vit_pytorch: only frame_patch_size=1 (one token sequence per frame) is supported")
-        if getattr(ref, "variant", "factorized_encoder") != "factorized_encoder":
-            raise ConfigError("from_vit_pytorch: only variant='factorized_encoder' is supported")
-        _, frames, num_patches, dim = ref.pos_embedding.shape
-        ph, pw = ref.patch_size
-        image_h, image_w = pair(image_size)
-        if (image_h // ph) * (image_w // pw) != num_patches:
-            raise ConfigError(
-                f"from_vit_pytorch: image_size {(image_h, image_w)} with {ph} x {pw} patches does not "
-                f"give the reference's {num_patches} patches"
-            )
-        attn, ff = (ref.spatial_transformer.layers or ref.temporal_transformer.layers)[0]
-        model = cls(
-            image_size=(image_h, image_w),
-            patch_size=(ph, pw),
-            frames=frames,
-            dim=dim,
-            spatial_depth=len(ref.spatial_transformer.layers),
-            temporal_depth=len(ref.temporal_transformer.layers),
-            heads=attn.heads,
-            dim_head=attn.to_qkv.out_features // (3 * attn.heads),
-            mlp_dim=ff.net[1].out_features,
-            pool=ref.pool,
-            dropout=float(attn.dropout_p),
-            emb_dropout=float(ref.dropout.p),
-            channels=ref.to_patch_embedding[1].normalized_shape[0] // (ph * pw),
-            num_classes=ref.mlp_head.out_features,
-        )
-        model.load_reference_state_dict(ref.state_dict())
-        return model
-
-    def load_reference_state_dict(self, sd: dict[str, Tensor]) -> None:
-        """Load a vit-pytorch ViViT (``frame_patch_size=1``) state dict, renaming its keys to this file's."""
-        if self.positions != "slot":
-            raise ConfigError(
-                "load_reference_state_dict: vit-pytorch's ViViT has per-slot positions; this model has "
-                f"positions={self.positions!r}"
-            )
-
-        self.load_state_dict({reference_key(k): v for k, v in sd.items()}, strict=True)

@@ -3,7 +3,6 @@ eval-mode fast path (``dim_head`` folded away, cached while the weights do not c
 
 from __future__ import annotations
 
-
 import torch
 import torch.nn.functional as F
 from einops import rearrange
@@ -142,8 +141,3 @@ class Transformer(nn.Module):
                 x = attn(x, attn_store) + x
             x = ff(x) + x
         return self.norm(x)
-
-
-# the model
-
-#: ViViT position embeddings: per frame slot and patch (the paper's), or spatial + temporal.

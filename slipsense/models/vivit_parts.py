@@ -10,16 +10,14 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from slipsense.models.base import ModelPart
 
-class ViViTFramePart(nn.Module):
+
+class ViViTFramePart(ModelPart):
     """One frame at every window slot: ``(N, 3, H, W)`` in [0, 1] -> ``(N, T, dim)`` spatial tokens.
 
     Row ``t`` of the output is the frame's ``encode_frames`` token when it sits in slot ``t``.
     """
-
-    def __init__(self, model: nn.Module):
-        super().__init__()
-        self.model = model
 
     def forward(self, frames: Tensor) -> Tensor:
         tokens = self.model.embed_patches(frames)  # (N, P, dim), independent of the slot
@@ -29,12 +27,8 @@ class ViViTFramePart(nn.Module):
         return self.model.encode_patches(slots)  # slot t gets pos_embedding[t]
 
 
-class ViViTWindowPart(nn.Module):
+class ViViTWindowPart(ModelPart):
     """Temporal transformer and head: ``(B, T, dim)`` (frame of slot t at row t) -> ``(B, classes)`` logits."""
-
-    def __init__(self, model: nn.Module):
-        super().__init__()
-        self.model = model
 
     def forward(self, tokens: Tensor) -> Tensor:
         return self.model.classify_frames(tokens)

@@ -1,4 +1,5 @@
-"""Training-set augmentation as in the paper: one transformed copy per clip, appended.
+"""Training-set augmentation as in the paper: one transformed copy per clip, appended (as
+:class:`~slipsense.datasets.ClipDataset` reads the clips: the copies are never held in memory).
 
 The copy is made in three fixed steps: (1) add Gaussian noise (std 15 on the 0..255 scale,
 rounded and clipped back to uint8), (2) swap the red and blue channels, (3) flip horizontally.
@@ -12,11 +13,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ConfigError, InputError
-from .clips import ClipSet
 
 # Noise is generated in blocks of this many values so a whole clip set never needs a float copy
 # (a full-resolution set is ~0.5 GB of uint8, 2 GB as float32).
 _NOISE_BLOCK = 1 << 22
+
+
+def _is_std(std) -> bool:
+    """A noise standard deviation: a finite number >= 0 (not a bool)."""
+    numeric = isinstance(std, (int, float, np.integer, np.floating)) and not isinstance(std, bool)
+    return numeric and math.isfinite(std) and std >= 0
 
 
 @dataclass(frozen=True)
@@ -28,7 +34,7 @@ class AugmentConfig:
             (0 disables the step).
         swap_red_blue: exchange the red and blue channels.
         hflip: mirror each frame left-right.
-        enabled: False makes :func:`augment_clipset` return the originals only.
+        enabled: False: no copies (:class:`~slipsense.datasets.ClipDataset` appends none).
     """
 
     noise_std: float = 15.0
@@ -38,12 +44,7 @@ class AugmentConfig:
 
     def __post_init__(self) -> None:
         std = self.noise_std
-        if (
-            isinstance(std, bool)
-            or not isinstance(std, (int, float, np.integer, np.floating))
-            or not math.isfinite(std)
-            or std < 0
-        ):
+        if not _is_std(std):
             raise ConfigError(f"noise_std must be a finite number >= 0, got {std!r}")
         for name in ("swap_red_blue", "hflip", "enabled"):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
@@ -65,12 +66,7 @@ def add_noise(x: np.ndarray, std: float, rng: np.random.Generator) -> np.ndarray
     x = np.asarray(x)
     if x.dtype != np.uint8:
         raise InputError(None, f"add_noise needs uint8 images, got {x.dtype}")
-    if (
-        isinstance(std, bool)
-        or not isinstance(std, (int, float, np.integer, np.floating))
-        or not math.isfinite(std)
-        or std < 0
-    ):
+    if not _is_std(std):
         raise InputError(None, f"noise std must be a finite number >= 0, got {std!r}")
     out = np.array(x, copy=True, order="C")
     if std == 0 or out.size == 0:
@@ -118,30 +114,4 @@ def transform_clip(x: np.ndarray, cfg: AugmentConfig, rng: np.random.Generator) 
     return np.ascontiguousarray(out) if out is not x else x.copy()
 
 
-def augment_clipset(clips: ClipSet, cfg: AugmentConfig = AugmentConfig(), seed: int = 0) -> ClipSet:
-    """Originals followed by one transformed copy of each (same order), as in the paper.
-
-    Args:
-        clips: typically the training side of a split (augment after splitting, or use
-            :func:`~slipsense.recordings.clips.split_by_clip`, which keeps copies with originals).
-        cfg: the transform; with ``cfg.enabled`` False the originals are returned alone.
-        seed: seed of the noise.
-
-    Returns:
-        ClipSet of ``2 N`` clips: x uint8 ``(2N, T, H, W, 3)``, y repeated, and the copies' meta
-        equal to their originals' with ``augmented=True``.
-    """
-    if not cfg.enabled:
-        return clips.subset(np.arange(len(clips)))
-    n = len(clips)
-    x = np.empty((2 * n, *clips.x.shape[1:]), dtype=np.uint8)
-    x[:n] = clips.x
-    rng = np.random.default_rng(seed)
-    for i in range(n):
-        x[n + i] = transform_clip(clips.x[i], cfg, rng)
-    y = np.concatenate([clips.y, clips.y])
-    meta = [dict(m) for m in clips.meta] + [dict(m, augmented=True) for m in clips.meta]
-    return ClipSet(x, y, meta, clips.spec)
-
-
-__all__ = ["AugmentConfig", "add_noise", "augment_clipset", "transform_clip"]
+__all__ = ["AugmentConfig", "add_noise", "transform_clip"]

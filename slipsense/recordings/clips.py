@@ -26,18 +26,17 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
-import cv2
 import numpy as np
 from tqdm.auto import tqdm
 
 from .. import config
 from ..sensors.spec import GELSIGHT_MINI
 from ..atomic import file_sha256, write_text, write_with
-from ..errors import ConfigError, InputError
+from ..errors import CacheWarning, ConfigError, InputError
 from .folders import SkippedInputWarning
 from .frames import source_stat
 from .types import Recording, VideoLabel
-from .video import read_video
+from .video import read_video, resize
 
 MIN_CLIP_FRAMES = 2
 MAX_CLIP_FRAMES = 12
@@ -45,11 +44,6 @@ MAX_CLIP_FRAMES = 12
 CACHE_VERSION = 2
 
 Key = tuple[str, int, str]
-
-
-# A cache entry could not be used (or written) and the clips were rebuilt from the videos; one
-# class for every cache of slipsense (labels, clips, markers).
-from ..errors import CacheWarning  # noqa: E402
 
 
 def _is_int(v: Any) -> bool:
@@ -187,7 +181,8 @@ class ClipSet:
         y: int64 ``(N,)``, 1 = onset of slip, 0 = wiggle.
         meta: N dicts with ``object`` (str), ``experiment`` (int), ``camera`` (str), ``start`` and
             ``end`` (first and last frame index in the video, inclusive), ``moment_of_slip``
-            (int or None) and ``augmented`` (bool; True for copies made by augmentation).
+            (int or None) and ``augmented`` (False: the training data augments clips as it reads
+            them, :class:`~slipsense.datasets.ClipDataset`).
         spec: the ClipSpec the clips were cut with, when known.
     """
 
@@ -210,13 +205,8 @@ class ClipSet:
         return int(self.x.shape[0])
 
     def subset(self, indices: Sequence[int] | np.ndarray) -> "ClipSet":
-        """A new ClipSet of the clips at ``indices`` (int positions or a boolean mask), copied."""
-        idx = np.asarray(indices)
-        if idx.dtype == bool:
-            if idx.shape != (len(self),):
-                raise InputError(None, f"boolean mask has shape {idx.shape}, expected ({len(self)},)")
-            idx = np.flatnonzero(idx)
-        idx = idx.astype(np.int64, copy=False).reshape(-1)
+        """A new ClipSet of the clips at the int positions ``indices``, copied."""
+        idx = np.asarray(indices, dtype=np.int64).reshape(-1)
         if idx.size and (idx.min() < -len(self) or idx.max() >= len(self)):
             raise InputError(None, f"clip indices out of range for {len(self)} clips")
         return ClipSet(self.x[idx], self.y[idx], [dict(self.meta[i]) for i in idx], self.spec)
@@ -240,15 +230,6 @@ class ClipSet:
             "augmented": int(sum(bool(m.get("augmented", False)) for m in self.meta)),
             "objects": len(self.objects),
         }
-
-
-def _resize_clip(clip: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-    h, w = size
-    if clip.shape[1:3] == (h, w):
-        return clip
-    shrink = clip.shape[1] >= h and clip.shape[2] >= w
-    interp = cv2.INTER_AREA if shrink else cv2.INTER_LINEAR
-    return np.stack([cv2.resize(frame, (w, h), interpolation=interp) for frame in clip])
 
 
 def build_clips(
@@ -291,7 +272,7 @@ def build_clips(
                 rec.path, f"label is for {label.n_frames} frames but the video has {len(video)}; relabel it"
             )
         for win in windows:
-            x[i] = _resize_clip(video[win.start : win.end + 1], spec.size)
+            x[i] = [resize(frame, spec.size) for frame in video[win.start : win.end + 1]]
             y[i] = win.y
             meta.append(_meta(rec, label, win))
             i += 1
@@ -482,45 +463,25 @@ def load_or_build_clips(
 # ---------------------------------------------------------------------------------------- splits
 
 
-def _window_groups(clips: ClipSet) -> np.ndarray:
-    """Group id per clip: an augmented copy shares its original's (same video, same start frame)."""
-    ids: dict[tuple, int] = {}
-    return np.array(
-        [ids.setdefault((m["object"], m["experiment"], m["camera"], m["start"]), len(ids)) for m in clips.meta],
-        dtype=np.int64,
-    )
-
-
-def split_by_clip(
-    clips: ClipSet, test_fraction: float = 0.1, seed: int = 0, stratify: bool = True
-) -> tuple[np.ndarray, np.ndarray]:
+def split_by_clip(clips: ClipSet, test_fraction: float = 0.1, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Random clip-level split (the paper's protocol; objects and runs occur on both sides).
 
-    An augmented copy always lands on the same side as its original, so augmenting before
-    splitting does not leak. With ``stratify`` each class is split in the same proportion.
+    Each class is split in the same proportion.
 
     Returns:
         ``(train_idx, test_idx)``: sorted int64 index arrays into ``clips``, disjoint, covering all.
     """
     if not (isinstance(test_fraction, (int, float)) and 0.0 < test_fraction < 1.0):
         raise ConfigError(f"test_fraction must be in (0, 1), got {test_fraction!r}")
-    groups = _window_groups(clips)
-    n_groups = int(groups.max()) + 1 if len(groups) else 0
-    group_y = np.zeros(n_groups, dtype=np.int64)
-    group_y[groups] = clips.y
     rng = np.random.default_rng(seed)
-    strata = [np.flatnonzero(group_y == c) for c in np.unique(group_y)] if stratify else [np.arange(n_groups)]
-    test_groups: list[np.ndarray] = []
-    for members in strata:
+    is_test = np.zeros(len(clips), dtype=bool)
+    for c in np.unique(clips.y):
+        members = np.flatnonzero(clips.y == c)
         n = len(members)
         n_test = int(round(test_fraction * n))
         if n >= 2:
             n_test = min(max(n_test, 1), n - 1)  # keep every class on both sides when possible
-        test_groups.append(rng.permutation(members)[:n_test])
-    is_test_group = np.zeros(n_groups, dtype=bool)
-    if test_groups:
-        is_test_group[np.concatenate(test_groups)] = True
-    is_test = is_test_group[groups] if len(groups) else np.zeros(0, dtype=bool)
+        is_test[rng.permutation(members)[:n_test]] = True
     return np.flatnonzero(~is_test).astype(np.int64), np.flatnonzero(is_test).astype(np.int64)
 
 

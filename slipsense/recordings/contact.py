@@ -94,11 +94,6 @@ def video_blocks(frames: np.ndarray) -> np.ndarray:
     return out if out.ndim == 4 else out[..., None]
 
 
-def _blocks(frames: np.ndarray) -> np.ndarray:
-    """:func:`video_blocks` as float32 (uint8 frames); other dtypes are averaged as they are."""
-    return video_blocks(frames).astype(np.float32)
-
-
 def signal_of_blocks(blocks: np.ndarray, reference: Literal["tail", "head"] = "tail") -> np.ndarray:
     """:func:`contact_signal` from a video's :func:`video_blocks` (``T >= 2``)."""
     return _signal(np.asarray(blocks, dtype=np.float32), reference)[0]
@@ -172,7 +167,7 @@ def contact_signal(frames: np.ndarray, reference: Literal["tail", "head"] = "tai
         raise ValueError(f"frames must be (T, H, W[, C]) with T >= 2, got shape {frames.shape}")
     if reference not in ("tail", "head"):
         raise ValueError(f"reference must be 'tail' or 'head', got {reference!r}")
-    return _signal(_blocks(frames), reference)[0]
+    return _signal(video_blocks(frames).astype(np.float32), reference)[0]
 
 
 # --------------------------------------------------------------------------------------------

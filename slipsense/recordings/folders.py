@@ -185,16 +185,15 @@ def validate_recordings(
     recordings: Iterable[Recording],
     on_error: OnError = "raise",
     expected_size: tuple[int, int] | None = GELSIGHT_MINI.image_size,
-    min_frames: int = 2,
 ) -> list[Recording]:
-    """Probe each video (:func:`~slipsense.recordings.video.probe_video`, a few ms each).
+    """Probe each video (:func:`~slipsense.recordings.video.probe_video`, a few ms each; at least 2
+    frames).
 
     Args:
         recordings: as returned by :func:`find_recordings`.
         on_error: ``"raise"`` re-raises the first video's InputError; ``"skip"`` warns
             (:class:`SkippedInputWarning`, naming the file and the problem) and drops it.
         expected_size: required ``(height, width)`` in pixels, or None for any.
-        min_frames: fewest frames a video must state.
 
     Returns:
         The recordings whose videos passed, in the given order.
@@ -203,7 +202,7 @@ def validate_recordings(
     good: list[Recording] = []
     for rec in recordings:
         try:
-            probe_video(rec.path, expected_size=expected_size, min_frames=min_frames)
+            probe_video(rec.path, expected_size=expected_size, min_frames=2)
         except InputError as exc:
             if on_error == "raise":
                 raise
@@ -211,14 +210,3 @@ def validate_recordings(
             continue
         good.append(rec)
     return good
-
-
-__all__ = [
-    "CAMERA_GLOB",
-    "IncompleteRunWarning",
-    "SkippedInputWarning",
-    "check_on_error",
-    "find_recordings",
-    "report",
-    "validate_recordings",
-]

@@ -7,7 +7,7 @@ from __future__ import annotations
 import csv
 import io
 import re
-from dataclasses import replace
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Iterable, Mapping, Sequence
 
@@ -102,19 +102,8 @@ def write_labels_csv(labels: Mapping[Key, VideoLabel] | Iterable[VideoLabel], pa
     writer = csv.writer(buf, lineterminator="\n")
     writer.writerow(LABEL_COLUMNS)
     for l in items:
-        writer.writerow(
-            [
-                l.object,
-                l.experiment,
-                l.camera,
-                l.n_frames,
-                "true" if l.slipped else "false",
-                "" if l.moment_of_slip is None else l.moment_of_slip,
-                l.contact_start,
-                l.contact_end,
-                l.source,
-            ]
-        )
+        row = {**asdict(l), "slipped": "true" if l.slipped else "false"}
+        writer.writerow(["" if row[c] is None else row[c] for c in LABEL_COLUMNS])  # None: no moment
     atomic.write_text(path, buf.getvalue())
 
 

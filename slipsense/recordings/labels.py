@@ -187,11 +187,16 @@ def label_recordings(
     recordings: Iterable[Recording],
     overrides: Mapping[tuple[str, int, str | None], int | None] | str | Path | None = None,
     progress: bool = True,
-    cache: bool = True,
     rule: Rule = "either",
     workers: int | None = None,
 ) -> dict[Key, VideoLabel]:
     """Label all recordings, run by run, then apply hand-made overrides.
+
+    Automatic labels are cached under ``<cache_root>/labels``, one JSON file per run (and a
+    ``.check`` file beside it), keyed by algorithm version, rule and each video's path, size and
+    mtime. An entry is used only when its sha256 matches, the inputs its ``.check`` records are this
+    run's, and its labels are possible for the videos (:func:`check_run_labels`); otherwise the run
+    is labelled again with a :class:`~slipsense.errors.CacheWarning`.
 
     Args:
         recordings: e.g. from :func:`slipsense.recordings.folders.find_recordings`; grouped by
@@ -200,12 +205,6 @@ def label_recordings(
             camera of the run; moment None: the run did not slip), or a CSV path read with
             :func:`read_overrides_csv`. Overridden labels get ``source="override"``.
         progress: show a progress bar (tqdm) over the runs.
-        cache: read and write automatic labels under ``<cache_root>/labels``, one JSON file per
-            run (and a ``.check`` file beside it), keyed by algorithm version, rule and each
-            video's path, size and mtime. An entry is used only when its sha256 matches, the
-            inputs its ``.check`` records are this run's, and its
-            labels are possible for the videos (:func:`check_run_labels`); otherwise the run is
-            labelled again with a :class:`~slipsense.errors.CacheWarning`.
         rule: see :func:`find_moment_of_slip`.
         workers: processes labelling the runs the cache has no labels for (default: one per core;
             :mod:`slipsense.parallel`).
@@ -222,24 +221,23 @@ def label_recordings(
     if isinstance(overrides, (str, Path)):
         overrides = read_overrides_csv(overrides, known=known)
     labels: dict[Key, VideoLabel] = {}
-    todo: list[tuple[list[Recording], Path | None]] = []  # runs the cache cannot answer
+    todo: list[tuple[list[Recording], Path]] = []  # runs the cache cannot answer
     for recs in runs.values():
-        cached_path = _cache_file(recs, rule) if cache else None
-        run_labels = _load_cached(cached_path, recs, rule) if cached_path is not None else None
+        cached_path = _cache_file(recs, rule)
+        run_labels = _load_cached(cached_path, recs, rule)
         if run_labels is None:
             todo.append((recs, cached_path))
         else:
             labels.update((label.key, label) for label in run_labels)
     for (recs, cached_path), run_labels in zip(todo, _label_runs([r for r, _ in todo], rule, progress, workers)):
-        if cached_path is not None:
-            try:
-                _write_cache(cached_path, recs, rule, run_labels)
-            except OSError as exc:
-                warnings.warn(
-                    f"{cached_path}: cannot write the label cache ({exc}); continuing without it",
-                    CacheWarning,
-                    stacklevel=2,
-                )
+        try:
+            _write_cache(cached_path, recs, rule, run_labels)
+        except OSError as exc:
+            warnings.warn(
+                f"{cached_path}: cannot write the label cache ({exc}); continuing without it",
+                CacheWarning,
+                stacklevel=2,
+            )
         labels.update((label.key, label) for label in run_labels)
     if overrides:
         labels = apply_overrides(labels, overrides)

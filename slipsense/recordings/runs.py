@@ -14,7 +14,7 @@ and streaming see the same pixels.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Iterable, Mapping, Sequence
 
 import numpy as np
@@ -58,7 +58,8 @@ class GraspRun:
         return not self.slipped or self.moment_of_slip is not None or self.whole
 
 
-def _decode_run(recs: Sequence[Recording], size: tuple[int, int]) -> dict[str, np.ndarray]:
+def _decode_run(recs: Sequence[Recording], size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """The run's grey frames ``(S, N, h, w)`` and contact signals ``(S, N)``."""
     grays, contacts = [], []
     gray = f"gray:{size[0]}x{size[1]}"
     for r in recs:
@@ -68,7 +69,7 @@ def _decode_run(recs: Sequence[Recording], size: tuple[int, int]) -> dict[str, n
     counts = {r.camera: len(g) for r, g in zip(recs, grays)}
     if len(set(counts.values())) != 1:
         raise InputError(recs[0].path.parent, f"the cameras of this run differ in frame count: {counts}")
-    return {"gray": np.stack(grays), "contact": np.stack(contacts)}
+    return np.stack(grays), np.stack(contacts)
 
 
 def load_runs(
@@ -94,22 +95,12 @@ def load_runs(
             raise InputError(recs[0].path.parent, f"run has {len(recs)} camera video(s), expected {sensors}")
         if any(r.key not in labels for r in recs):
             continue  # excluded by an override
-        arrays = _decode_run(recs, size)
+        gray, contact = _decode_run(recs, size)
         labs = [labels[r.key] for r in recs]
         moment = next((l.moment_of_slip for l in labs if l.moment_of_slip is not None), None)
         slipped = any(l.slipped for l in labs)
-        runs.append(
-            GraspRun(
-                obj,
-                experiment,
-                slipped,
-                moment if slipped else None,
-                arrays["gray"],
-                arrays["contact"],
-                tuple(r.camera for r in recs),
-                any(r.per_grasp for r in recs),
-            )
-        )
+        cameras, whole = tuple(r.camera for r in recs), any(r.per_grasp for r in recs)
+        runs.append(GraspRun(obj, experiment, slipped, moment if slipped else None, gray, contact, cameras, whole))
     return runs
 
 
@@ -117,17 +108,7 @@ def per_sensor(runs: Sequence[GraspRun]) -> list[GraspRun]:
     """Each camera of each run as a grasp of its own (``gray (1, N, h, w)``): what a detector for one
     finger trains and is judged on. A run's cameras share its label (the grasp is lost for both)."""
     return [
-        GraspRun(
-            r.object,
-            r.experiment,
-            r.slipped,
-            r.moment_of_slip,
-            r.gray[s : s + 1],
-            r.contact[s : s + 1],
-            (cam,),
-            r.whole,
-            r.extra,
-        )
+        replace(r, gray=r.gray[s : s + 1], contact=r.contact[s : s + 1], cameras=(cam,))
         for r in runs
         for s, cam in enumerate(r.cameras)
     ]

@@ -408,17 +408,6 @@ def probe_video(
     return VideoInfo(n_frames=int(count), height=int(height), width=int(width), fps=fps, fourcc=fourcc)
 
 
-__all__ = [
-    "TRUNCATION_TOLERANCE",
-    "VideoInfo",
-    "check_frame_count",
-    "decoded_frame_count",
-    "frame_count",
-    "probe_video",
-    "read_video",
-]
-
-
 def gray_frames(frames: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     """uint8 BGR ``(N, H, W, 3)`` or one ``(H, W, 3)`` frame -> uint8 grey ``(N, h, w)`` / ``(h, w)``
     at ``size = (h, w)``, area-averaged (which also smooths the codec's per-pixel flicker)."""
@@ -430,3 +419,15 @@ def gray_frames(frames: np.ndarray, size: tuple[int, int]) -> np.ndarray:
         g = cv2.cvtColor(f, cv2.COLOR_BGR2GRAY)
         out[i] = g if g.shape == (h, w) else cv2.resize(g, (w, h), interpolation=cv2.INTER_AREA)
     return out[0] if one else out
+
+
+def resize(frame: np.ndarray, size: tuple[int, int] | None) -> np.ndarray:
+    """A uint8 ``(H, W, 3)`` frame at ``size = (h, w)``, as the training clips and the live detector
+    take it (area filter when shrinking, bilinear when enlarging); ``size`` None keeps it as it is."""
+    if size is None:
+        return frame
+    h, w = size
+    if frame.shape[:2] == (h, w):
+        return frame
+    shrink = frame.shape[0] >= h and frame.shape[1] >= w
+    return cv2.resize(np.ascontiguousarray(frame), (w, h), interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)

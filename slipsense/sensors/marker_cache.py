@@ -70,9 +70,7 @@ def _save_cached_track(cfile: Path, path: Path, params: dict[str, Any], track: "
         )
 
 
-def check_track(
-    track: "MarkerTrack", expected_size: tuple[int, int] | None = None, n_frames: int | None = None
-) -> None:
+def check_track(track: "MarkerTrack", expected_size: tuple[int, int] | None = None) -> None:
     """Raise ValueError unless ``track``'s arrays fit together (shapes, ranges, finite values)."""
     t, n = track.positions.shape[:2] if track.positions.ndim == 3 else (-1, -1)
     if track.positions.ndim != 3 or track.positions.shape[2] != 2 or n < 1 or t < 1:
@@ -93,8 +91,6 @@ def check_track(
         raise ValueError("marker spacing or diameter not positive")
     if float(track.depth.min()) < 0:
         raise ValueError("negative depth")
-    if n_frames is not None and t != n_frames:
-        raise ValueError(f"{t} frames tracked but the video has {n_frames}")
 
 
 def _load_cached_track(

@@ -1,5 +1,5 @@
 """The marker dataset format: :class:`MarkerDataset` in memory, the marker ``.npz`` on disk
-(:func:`save_dataset`, :func:`load_marker_npz`) and bare ``.npy`` marker arrays for inference.
+(:func:`load_marker_npz`; written by :func:`slipsense.sensors.real.save_marker_npz`).
 
 The same format holds simulated and real marker windows; every file read is validated and any
 problem is an InputError naming the file.
@@ -12,7 +12,6 @@ from pathlib import Path
 
 import numpy as np
 
-from slipsense.atomic import write_with
 from slipsense.errors import InputError
 
 #: The binocular sensor's objects and motion patterns (the STNet study's; a file may name others).
@@ -41,28 +40,6 @@ class MarkerDataset:
 
     def __len__(self) -> int:
         return len(self.x)
-
-
-def save_dataset(ds: MarkerDataset, path: str | Path) -> Path:
-    """Write ``ds`` atomically as the documented marker ``.npz`` (see :func:`load_marker_npz`)."""
-    path = Path(path)
-    if path.suffix != ".npz":
-        raise InputError(path, "marker datasets are saved as .npz; give a path ending in .npz")
-    arrays: dict[str, np.ndarray] = {
-        "x": np.asarray(ds.x, np.float32),
-        "groups": np.asarray(ds.groups, np.int64),
-        "fps": np.asarray(ds.fps, np.float64),
-    }
-    if ds.y is not None:
-        arrays["y"] = np.asarray(ds.y, np.int64)
-    if ds.pattern is not None:
-        arrays["pattern"] = np.asarray(ds.pattern, np.int64)
-        arrays["pattern_names"] = np.asarray(ds.pattern_names, dtype=str)
-    if ds.object is not None:
-        arrays["object"] = np.asarray(ds.object, np.int64)
-        arrays["object_names"] = np.asarray(ds.object_names, dtype=str)
-    write_with(path, lambda tmp: np.savez(tmp, **arrays))
-    return path
 
 
 #: Largest marker coordinate accepted, in mm (1 km): beyond it a value is a corrupt number, not a position.
@@ -198,15 +175,3 @@ def load_marker_npz(path: str | Path, require_labels: bool = True) -> MarkerData
         setattr(out, key, a.astype(np.int64))
         setattr(out, names_key, names)
     return out
-
-
-def load_marker_npy(path: str | Path) -> np.ndarray:
-    """Read a plain ``.npy`` of marker positions ``(N, T, M, 3)`` mm (no labels; for inference)."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(path, "no such file")
-    try:
-        x = np.load(path, allow_pickle=False)
-    except Exception as exc:
-        raise InputError(path, f"not a readable .npy file ({type(exc).__name__}: {exc})") from None
-    return validate_marker_array(x, path)

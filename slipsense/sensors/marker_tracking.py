@@ -90,18 +90,7 @@ class MarkerTrack:
         """float32 ``(T, N, 2)`` displacement ``(dx, dy)`` in px from the reference positions."""
         return (self.positions - self.reference_positions[None]).astype(np.float32)
 
-    def lost_fraction(self, start: int | None = None, stop: int | None = None) -> float:
-        """Fraction of (frame, marker) entries in frames ``[start, stop)`` that are not valid."""
-        v = self.valid[start:stop]
-        return float(1.0 - v.mean()) if v.size else 0.0
-
-    def to_cloud(
-        self,
-        normalise: bool = True,
-        *,
-        mm_per_px: float = DEFAULT_MM_PER_PX,
-        relative: bool = False,
-    ) -> np.ndarray:
+    def to_cloud(self, normalise: bool = True, *, mm_per_px: float = DEFAULT_MM_PER_PX) -> np.ndarray:
         """Per-frame marker clouds ``(x, y, depth)`` for STNet-style point-cloud models.
 
         Args:
@@ -109,18 +98,12 @@ class MarkerTrack:
                 side (x in [-1, 1], y in [-H/W, H/W]; one scale for both axes keeps directions);
                 False: x, y in mm relative to the image centre, via ``mm_per_px``.
             mm_per_px: pixel size in mm, used when ``normalise`` is False.
-            relative: use the displacement from the reference frame instead of the position
-                (same scaling, no centring).
 
         Returns:
             float32 ``(T, N, 3)``: x, y as above and the unitless depth proxy (:attr:`depth`).
         """
         h, w = self.frame_size
-        if relative:
-            xy = self.displacement().astype(np.float64)
-        else:
-            centre = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
-            xy = self.positions.astype(np.float64) - centre
+        xy = self.positions.astype(np.float64) - np.array([(w - 1) / 2.0, (h - 1) / 2.0])
         xy = xy / (max(h, w) / 2.0) if normalise else xy * mm_per_px
         return np.concatenate([xy, self.depth[..., None]], axis=-1).astype(np.float32)
 

@@ -44,7 +44,7 @@ Detection lives in :mod:`slipsense.sensors.marker_detection`, tracking and :clas
 in :mod:`slipsense.sensors.marker_tracking`, the track cache in
 :mod:`slipsense.sensors.marker_cache`. This module re-exports their public names and holds what
 works on whole recordings and finished tracks: :func:`track_recording`, :func:`track_recordings`,
-:func:`marker_sequences` and :func:`plot_displacement`.
+:func:`marker_sequences`, :func:`grid_sequences` and :func:`marker_clouds`.
 """
 
 from __future__ import annotations
@@ -73,7 +73,6 @@ __all__ = [
     "marker_layout",
     "marker_sequences",
     "order_markers",
-    "plot_displacement",
     "select_markers",
     "track_markers",
     "track_recording",
@@ -103,34 +102,21 @@ def select_markers(track: MarkerTrack, n_markers: int) -> np.ndarray:
     return keep[order_markers(track.reference_positions[keep], track.spacing)]
 
 
-def marker_sequences(
-    track: MarkerTrack,
-    n_markers: int,
-    *,
-    normalise: bool = True,
-    mm_per_px: float = DEFAULT_MM_PER_PX,
-    relative: bool = False,
-    return_mask: bool = False,
-) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+def marker_sequences(track: MarkerTrack, n_markers: int, *, normalise: bool = True) -> np.ndarray:
     """A fixed number of marker clouds per frame, in a stable order, for models.
 
     Markers are chosen and ordered by :func:`select_markers` (closest to the image centre, then
-    row-major). Values are :meth:`MarkerTrack.to_cloud` (``normalise``, ``mm_per_px`` and
-    ``relative`` passed through). When the track has fewer than ``n_markers`` markers the missing
-    slots are padded at the end with zeros (the image centre and zero depth; zero displacement
-    when ``relative``) and masked out.
+    row-major). Values are :meth:`MarkerTrack.to_cloud` (``normalise`` passed through). When the
+    track has fewer than ``n_markers`` markers the missing slots are padded at the end with zeros
+    (the image centre and zero depth).
 
     Returns:
-        float32 ``(T, n_markers, 3)``; with ``return_mask`` also bool ``(T, n_markers)``, True where
-        the slot holds a real marker that was validly tracked in that frame.
+        float32 ``(T, n_markers, 3)``.
     """
     idx = select_markers(track, n_markers)
-    cloud = track.to_cloud(normalise, mm_per_px=mm_per_px, relative=relative)
     out = np.zeros((track.n_frames, n_markers, 3), np.float32)
-    mask = np.zeros((track.n_frames, n_markers), bool)
-    out[:, : len(idx)] = cloud[:, idx]
-    mask[:, : len(idx)] = track.valid[:, idx]
-    return (out, mask) if return_mask else out
+    out[:, : len(idx)] = track.to_cloud(normalise)[:, idx]
+    return out
 
 
 def marker_layout(layout: str | int) -> tuple[int, tuple[int, int] | None]:
@@ -233,7 +219,6 @@ def track_recordings(
     recordings: Iterable[Any],
     reference_index: int | None = None,
     *,
-    cache: bool = True,
     cache_dir: str | Path | None = None,
     progress: bool = True,
     expected_size: tuple[int, int] | None = GELSIGHT_MINI.image_size,
@@ -245,12 +230,11 @@ def track_recordings(
         recordings: objects with a ``.path`` (e.g. :class:`slipsense.recordings.types.Recording`)
             or plain paths.
         reference_index, expected_size, track_kwargs: as for :func:`track_recording`.
-        cache: read and write the cache. Files live in ``cache_dir`` (default
-            ``config.cache_root()/markers``), named by a hash of the video's resolved path, size,
-            mtime and all tracking parameters, and are written atomically with a ``.json``
-            sidecar (sha256 and inputs, written last); an entry whose checksum or inputs do not
-            match, or whose arrays do not fit together or the video, is tracked again with a
-            :class:`~slipsense.errors.CacheWarning` and overwritten.
+        cache_dir: the cache (default ``config.cache_root()/markers``). Its files are named by a
+            hash of the video's resolved path, size, mtime and all tracking parameters, and are
+            written atomically with a ``.json`` sidecar (sha256 and inputs, written last); an entry
+            whose checksum or inputs do not match, or whose arrays do not fit together or the
+            video, is tracked again with a :class:`~slipsense.errors.CacheWarning` and overwritten.
         progress: show a tqdm progress bar.
 
     Returns:
@@ -262,85 +246,12 @@ def track_recordings(
     tracks: list[MarkerTrack] = []
     for item in tqdm(items, desc="tracking markers", unit="video", disable=not progress):
         path = Path(getattr(item, "path", item))
-        cfile = None
-        if cache:
-            if not path.is_file():
-                raise InputError(path, "video file does not exist")
-            cfile = _cache_file(folder, path, params)
-            cached = _load_cached_track(cfile, path, params, expected_size)
-            if cached is not None:
-                tracks.append(cached)
-                continue
-        track = track_recording(path, reference_index, expected_size=expected_size, **track_kwargs)
-        if cfile is not None:
+        if not path.is_file():
+            raise InputError(path, "video file does not exist")
+        cfile = _cache_file(folder, path, params)
+        track = _load_cached_track(cfile, path, params, expected_size)
+        if track is None:
+            track = track_recording(path, reference_index, expected_size=expected_size, **track_kwargs)
             _save_cached_track(cfile, path, params, track)
         tracks.append(track)
     return tracks
-
-
-# --------------------------------------------------------------------------------------------
-# Figures
-# --------------------------------------------------------------------------------------------
-
-
-def plot_displacement(
-    track: MarkerTrack,
-    frame_index: int,
-    image: np.ndarray | None = None,
-    ax: Any = None,
-    *,
-    scale: float | None = None,
-) -> Any:
-    """Quiver plot of marker displacement in one frame, over the tactile image.
-
-    Arrows start at the reference positions and show the displacement to ``frame_index``,
-    magnified ``scale`` times (None: so the longest arrow is one marker spacing long, at least 1x;
-    the factor is in the title). Lost markers are drawn as red crosses at their estimated position.
-
-    Args:
-        track: the tracked video.
-        frame_index: frame to show.
-        image: uint8 ``(H, W, 3)`` BGR frame to draw under the arrows (usually
-            ``frames[frame_index]``), or None for an empty axis in image coordinates.
-        ax: matplotlib axes; None creates a figure.
-
-    Returns:
-        the matplotlib axes.
-    """
-    import matplotlib.pyplot as plt  # here, not at the top: ~0.5 s to import, only this plot needs it
-
-    if ax is None:
-        _, ax = plt.subplots(figsize=(6.4, 4.8))
-    h, w = track.frame_size
-    if image is not None:
-        img = np.asarray(image)
-        if img.ndim == 3:
-            ax.imshow(img[..., ::-1])  # BGR -> RGB
-        else:
-            ax.imshow(img, cmap="gray")
-    disp = track.displacement()[frame_index]
-    ok = track.valid[frame_index]
-    ref = track.reference_positions
-    if scale is None:
-        longest = float(np.linalg.norm(disp[ok], axis=1).max()) if ok.any() else 0.0
-        scale = max(1.0, track.spacing / longest) if longest > 0 else 1.0
-    ax.quiver(
-        ref[ok, 0],
-        ref[ok, 1],
-        disp[ok, 0],
-        disp[ok, 1],
-        angles="xy",
-        scale_units="xy",
-        scale=1.0 / scale,
-        color="yellow",
-        width=0.004,
-    )
-    ax.plot(ref[:, 0], ref[:, 1], ".", color="white", markersize=3)
-    if (~ok).any():
-        lost = track.positions[frame_index][~ok]
-        ax.plot(lost[:, 0], lost[:, 1], "x", color="red", markersize=6)
-    ax.set_xlim(-0.5, w - 0.5)
-    ax.set_ylim(h - 0.5, -0.5)
-    ax.set_aspect("equal")
-    ax.set_title(f"frame {frame_index}: displacement x{scale:.1f} ({int(ok.sum())}/{len(ok)} tracked)")
-    return ax

@@ -49,21 +49,17 @@ def real_marker_dataset(
     labels = label_runs(recs, overrides, on_error=on_error, progress=progress)
     recs = [r for r in recs if r.key in labels]
     tracks = track_recordings(recs, progress=progress)
-    xs, ys, groups, exps, cams, starts = [], [], [], [], [], []
+    rows = []  # per window: its clouds, label, object, experiment, camera, first frame
     for rec, track in zip(recs, tracks):
         windows = plan_windows(labels[rec.key], spec)
-        if not windows:
-            continue
-        cloud = marker_clouds(track, layout)  # (T, M, 3)
-        for w in windows:
-            xs.append(cloud[w.start : w.end + 1])
-            ys.append(w.y)
-            groups.append(rec.object)
-            exps.append(rec.experiment)
-            cams.append(rec.camera)
-            starts.append(w.start)
-    if not xs:
+        if windows:
+            cloud = marker_clouds(track, layout)  # (T, M, 3)
+            rows += [
+                (cloud[w.start : w.end + 1], w.y, rec.object, rec.experiment, rec.camera, w.start) for w in windows
+            ]
+    if not rows:
         raise InputError(recordings_dir, "no marker windows could be made")
+    xs, ys, groups, exps, cams, starts = zip(*rows)
     return {
         "marker_layout": np.asarray(layout),  # how the markers were taken: a replay takes them alike
         "x": np.stack(xs).astype(np.float32),

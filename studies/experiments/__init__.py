@@ -17,5 +17,8 @@ Modules: :mod:`~studies.experiments.settings` (:class:`Settings`: full, quick an
 :mod:`~studies.experiments.training` (train, score, time); one module per experiment
 (``params``, ``video_compare``, ``frames``, ``noise``, ``stnet``, ``horizon``, ``all_models``); and
 :mod:`~studies.experiments.results` (studies/docs/results.md). The commands are in
-:mod:`studies.experiments.commands`.
+:mod:`studies.experiments.commands`. Beside them: :mod:`~studies.experiments.resnet_weights` (the
+3D ResNet's weights from a file, for ``video-compare --resnet-weights``) and
+:mod:`~studies.experiments.vivit_reference` (vit-pytorch's ViViT weights in slipsense's, for
+``bench/bench_vivit.py`` and the test that the two compute the same function).
 """

@@ -11,6 +11,7 @@ import numpy as np
 
 from slipsense.errors import InputError
 from studies.experiments.report import Report
+from studies.experiments.resnet_weights import load_weights
 from studies.experiments.settings import Settings
 from studies.experiments.source import DataSource, clip_spec, held_out_objects, object_split
 from studies.experiments.training import (
@@ -50,18 +51,17 @@ def run_video_compare(
     )
     rows = []
     histories = {}
-    from slipsense.models import model_class
 
     for name in ("vivit", "resnet3d50"):
         before = None
-        takes_weights = hasattr(model_class(name), "load_weights")  # the 3D ResNet (pytorchvideo layout)
+        takes_weights = name == "resnet3d50"  # studies/experiments/resnet_weights.py (pytorchvideo layout)
         if takes_weights and resnet_weights is not None:
 
             def before(model, path=Path(resnet_weights)):
                 try:
-                    model.load_weights(path)
+                    load_weights(model, path)
                 except InputError:
-                    model.load_weights(path, skip_head=True)  # e.g. Kinetics-400 weights: keep a 2-class head
+                    load_weights(model, path, skip_head=True)  # e.g. Kinetics-400 weights: keep a 2-class head
 
         model, history = train_model(
             name,

@@ -28,7 +28,7 @@ response kernels and the objects; :mod:`studies.stnet.sim_sequence` moves the ob
 computes each frame (:func:`simulate_sequence`; its docstring describes the deformation model);
 :mod:`slipsense.sensors.marker_npz` holds :class:`MarkerDataset` and the ``.npz`` format. This
 module re-exports their public names and holds :func:`make_dataset`, which cuts and labels the
-windows, and the figures.
+windows, :func:`save_dataset`, which writes them, and the figures.
 """
 
 from __future__ import annotations
@@ -40,7 +40,8 @@ import numpy as np
 
 from slipsense.atomic import write_with
 from slipsense.progress import progress_bar
-from slipsense.sensors.marker_npz import MarkerDataset, load_marker_npy, load_marker_npz, save_dataset
+from slipsense.sensors.marker_npz import MarkerDataset, load_marker_npz
+from slipsense.sensors.real import save_marker_npz
 from studies.stnet.sim_model import OBJECTS, PATTERNS, SLIP_PATTERN, SimConfig, displacement_field, rest_grid
 from studies.stnet.sim_sequence import simulate_sequence
 
@@ -52,7 +53,6 @@ __all__ = [
     "MarkerDataset",
     "SimConfig",
     "displacement_field",
-    "load_marker_npy",
     "load_marker_npz",
     "main",
     "make_dataset",
@@ -108,6 +108,24 @@ def make_dataset(cfg: SimConfig, progress: bool = True) -> MarkerDataset:
         np.concatenate(os_),
         fps=float(cfg.fps),
     )
+
+
+def save_dataset(ds: MarkerDataset, path: str | Path) -> Path:
+    """Write ``ds`` atomically as the documented marker ``.npz`` (see :func:`load_marker_npz`)."""
+    arrays: dict[str, np.ndarray] = {
+        "x": np.asarray(ds.x, np.float32),
+        "groups": np.asarray(ds.groups, np.int64),
+        "fps": np.asarray(ds.fps, np.float64),
+    }
+    if ds.y is not None:
+        arrays["y"] = np.asarray(ds.y, np.int64)
+    if ds.pattern is not None:
+        arrays["pattern"] = np.asarray(ds.pattern, np.int64)
+        arrays["pattern_names"] = np.asarray(ds.pattern_names, dtype=str)
+    if ds.object is not None:
+        arrays["object"] = np.asarray(ds.object, np.int64)
+        arrays["object_names"] = np.asarray(ds.object_names, dtype=str)
+    return save_marker_npz(arrays, path)
 
 
 # ----------------------------------------------------------------------------- figures

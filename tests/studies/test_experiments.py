@@ -178,7 +178,7 @@ def _one_thread(one_thread):
 def test_params_counts_table(tmp_path):
     from slipsense.models import resnet3d
     from slipsense.models.stnet import PRESETS
-    from slipsense.models.stnet_size import count_parameters_for
+    from studies.stnet.size import count_parameters_for
 
     res = run_params(Settings(out=tmp_path, command="x"))
     cols, rows = read_csv(tmp_path / "params.csv")

@@ -11,7 +11,6 @@ from studies.stnet.simulator import (
     PATTERNS,
     SimConfig,
     displacement_field,
-    load_marker_npy,
     load_marker_npz,
     make_dataset,
     plot_patterns,
@@ -291,14 +290,6 @@ def test_unreadable_and_missing_files(tmp_path):
         load_marker_npz(bad)
     with pytest.raises(InputError, match="no such file"):
         load_marker_npz(tmp_path / "nope.npz")
-
-
-def test_npy_for_inference(tmp_path):
-    np.save(tmp_path / "x.npy", _x())
-    assert load_marker_npy(tmp_path / "x.npy").shape == (3, 4, 5, 3)
-    np.save(tmp_path / "bad.npy", np.zeros((3, 4)))
-    with pytest.raises(InputError, match="bad.npy"):
-        load_marker_npy(tmp_path / "bad.npy")
 
 
 def test_figures_are_written(tmp_path):
