@@ -105,13 +105,11 @@ def parse_sets(sets: Iterable[str] | None, bare: str = "model") -> dict[str, dic
 
 
 def check_keys(
-    tree: Mapping[str, Mapping[str, Any]], allowed: Mapping[str, Iterable[str] | None], where: str = "configuration"
+    tree: Mapping[str, Mapping[str, Any]], allowed: Mapping[str, Iterable[str]], where: str = "configuration"
 ) -> None:
-    """ConfigError naming the first key a section does not know (``None``: any key)."""
+    """ConfigError naming the first key of a section of ``tree`` that ``allowed`` does not name."""
     for section, values in tree.items():
-        known = allowed.get(section)
-        if known is None:
-            continue
+        known = allowed[section]
         unknown = sorted(set(values) - set(known))
         if unknown:
             raise ConfigError(

@@ -8,7 +8,6 @@ from typing import List, Optional
 
 import typer
 
-from slipsense.atomic import check_output_dir
 from slipsense.cli.common import command_line, friendly, parse_hw
 from slipsense.run_config import DEFAULT_MODEL, empty_tree, given, load_tree, merge, parse_sets
 
@@ -128,7 +127,6 @@ def register(app: typer.Typer) -> None:
         resolved tree is kept in every checkpoint and written to OUT/config.yaml."""
         from slipsense.training import recipe
 
-        check_output_dir(out, "--out")
         options = {
             "model": {"name": model, "preset": preset},
             "data": dict(

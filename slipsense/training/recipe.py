@@ -53,9 +53,11 @@ def fit(
     """Train ``run``'s model into ``out``; returns (on rank 0 under torchrun, ``{}`` on the others)
     what its trainer reports: for a grasp detector ``checkpoint``, ``operating_point``, ``history``
     and, with held-out objects (``data.test_objects``, or ``data.fold`` of ``data.folds``),
-    ``per_grasp`` and ``clips``; for a clip model the held-out part's clip metrics. ``workers``:
+    ``per_grasp`` and ``clips``; for a clip model the held-out part's clip metrics. ``out`` is
+    checked before any work (OutputError unless it takes files). ``workers``:
     trainings side by side (grasp detectors), ``threads``: torch threads of this process; ``command``
     is kept with the checkpoint (how it was made)."""
+    check_output_dir(out, "--out")
     if threads is not None:
         torch.set_num_threads(threads)
     trainer = TRAINERS[model_class(run.name).training_task]
@@ -80,6 +82,7 @@ def cross_validate(
     (:func:`slipsense.evaluation.clip_folds.pool`). Returns the pooled report."""
     if run.data.fold is not None or run.data.test_objects:
         raise ConfigError("cross-validation holds out every fold in turn: leave --fold and --test-objects out")
+    check_output_dir(out, "--out")
     if threads is not None:
         torch.set_num_threads(threads)
     cross = FOLDS[model_class(run.name).training_task]
@@ -97,7 +100,6 @@ def evaluate(checkpoint: str | Path, **options: Any) -> dict[str, Any]:
 
 
 def _grasp_folds(run: RunConfig, out: Path, folds: int, *, progress, workers, command) -> dict[str, Any]:
-    check_output_dir(out, "--out")
     runs, labels, data = grasp_data(run, progress)
     return run_folds(
         runs, labels, run.train, out, folds, meta={"command": command, **data}, progress=progress, workers=workers
@@ -140,7 +142,6 @@ def fit_grasps(
     if ranked and workers not in (None, 1):
         raise ConfigError("under torchrun every training is shared out between the ranks: leave --workers out")
     progress = progress and int(os.environ.get("RANK", "0")) == 0
-    check_output_dir(out, "--out")
     runs, labels, data = grasp_data(run, progress)
     held = list(run.data.test_objects)
     if run.data.fold is not None:
