@@ -8,8 +8,10 @@ A run is described by a tree like ``configs/vivit-paper.yaml``::
 
 and built in layers, later ones winning: the command's defaults < ``--config FILE`` < the
 command's own options (``--epochs 3``) < ``--set section.key=value`` (a bare ``key=value`` goes to
-``model``). The resolved tree is stored whole in every checkpoint (``info["config"]``) and written
-as ``config.yaml`` beside it, so ``--config RUN/config.yaml`` repeats a run.
+``model``). A tree is checked once, into the frozen run that training reads
+(:class:`slipsense.training.config.RunConfig`); the run's resolved tree is stored whole in every
+checkpoint (``info["config"]``) and written as ``config.yaml`` beside it, so ``--config
+RUN/config.yaml`` repeats a run. This module is the torch-free part (``slipsense --help`` reads it).
 """
 
 from __future__ import annotations

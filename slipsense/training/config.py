@@ -73,9 +73,10 @@ class DataConfig:
 
 #: ``data`` keys of a clip model, in the order its stored tree lists them
 CLIP_DATA_KEYS = tuple(f.name for f in fields(DataConfig) if f.name != "also")
-#: ``data`` keys of a grasp detector, and those of them its stored tree keeps (what it holds out is not)
-GRASP_DATA_KEYS = ("recordings", "overrides", "on_error", "sensor", "also", "size", "test_objects", "fold", "folds")
-GRASP_STORED_KEYS = GRASP_DATA_KEYS[:5]
+#: ``data`` keys of a grasp detector that its stored tree keeps (what it held out is in its checkpoint)
+GRASP_STORED_KEYS = ("recordings", "overrides", "on_error", "sensor", "also")
+#: every ``data`` key of a grasp detector (``size`` becomes its ``model.image_size``)
+GRASP_DATA_KEYS = (*GRASP_STORED_KEYS, "size", "test_objects", "fold", "folds")
 #: Settings that only cut clips or drive the clip trainer, refused by name for a grasp detector
 CLIP_ONLY_DATA = tuple(k for k in CLIP_DATA_KEYS if k not in GRASP_DATA_KEYS)
 CLIP_ONLY_TRAIN = ("num_workers", "device", "max_steps_per_epoch", "step_size", "gamma", "select_by")

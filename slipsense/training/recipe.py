@@ -35,7 +35,7 @@ from slipsense.recordings.runs import per_sensor
 from slipsense.run_config import dump_tree
 from slipsense.sensors.spec import GELSIGHT_MINI, sensor_named
 from slipsense.training.clips import run_training
-from slipsense.training.config import DataConfig, RunConfig
+from slipsense.training.config import RunConfig
 from slipsense.training.grasp_detector import object_split, train_detector
 from slipsense.training.grasps import load_grasp_data
 
@@ -166,8 +166,7 @@ def grasp_data(run: RunConfig, progress: bool = True):
     and labels and trained on alongside, never held out, judged or calibrated on
     (:attr:`GraspRun.extra`, their objects named ``<folder>/<object>``). The metadata is what
     checkpoints and reports keep (``config``: the run's tree)."""
-    d: DataConfig = run.data
-    cfg = run.train
+    d, cfg = run.data, run.train
     image_size = tuple(cfg.model_config.get("image_size") or build(run.name).image_size)
     root = d.recordings or gelsight_recordings()
     sensor = sensor_named(d.sensor) if d.sensor else data_sensor(root) or GELSIGHT_MINI
