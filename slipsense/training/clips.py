@@ -31,16 +31,16 @@ from slipsense.atomic import write_text
 from slipsense.checkpoint import load_model, load_resume_state, read_info, update_info
 from slipsense.config import resolve_path
 from slipsense.errors import ConfigError, InputError, SlipsenseError
+from slipsense.evaluation.evaluate import evaluate_model, predict
+from slipsense.evaluation.metrics import metrics_from
 from slipsense.models import available, build, model_class, settings_of
+from slipsense.readers import check_same_split
 from slipsense.recordings.folders import find_recordings
 from slipsense.run_config import dump_tree, typed
 from slipsense.sensors.spec import sensor_of
-from slipsense.training.operating_point import choose_on_training_runs
 from slipsense.training.distributed import Dist, RankBatches, StepPlan, setup  # noqa: F401
+from slipsense.training.operating_point import choose_on_training_runs
 from slipsense.training.trainer import LoopSettings, Step, restore, rng_state, set_rng_state, train
-from slipsense.evaluation.evaluate import evaluate_model, predict
-from slipsense.evaluation.metrics import metrics_from
-from slipsense.readers import check_same_split
 
 
 @dataclass
