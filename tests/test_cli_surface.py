@@ -43,8 +43,9 @@ def test_every_option_of_every_command_is_explained():
 
 def test_one_default_model_everywhere():
     from slipsense.training.config import RunConfig
+    from slipsense.training.grasps import GraspTrainConfig
 
-    assert train_cli.DEFAULT_MODEL is run_config.DEFAULT_MODEL == "motionnet"
+    assert train_cli.DEFAULT_MODEL is run_config.DEFAULT_MODEL == GraspTrainConfig().model == "motionnet"
     assert inspect.signature(api.fit).parameters["model"].default == run_config.DEFAULT_MODEL
     assert RunConfig.from_tree({}).name == run_config.DEFAULT_MODEL  # a tree that names none
 

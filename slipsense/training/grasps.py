@@ -37,7 +37,7 @@ from slipsense.evaluation import pergrasp
 from slipsense.models import build
 from slipsense.recordings.folders import camera_counts, find_recordings, validate_recordings
 from slipsense.recordings.runs import GraspRun, load_runs
-from slipsense.run_config import typed
+from slipsense.run_config import DEFAULT_MODEL, typed
 from slipsense.sensors.spec import GELSIGHT_MINI
 from slipsense.training.trainer import LoopSettings, Step, train
 
@@ -46,7 +46,7 @@ from slipsense.training.trainer import LoopSettings, Step, train
 class GraspTrainConfig:
     """Settings of :func:`fit_runs` (stored whole in every checkpoint)."""
 
-    model: str = "motionnet"
+    model: str = DEFAULT_MODEL
     model_config: dict = field(default_factory=dict)
     epochs: int = 20
     lr: float = 2e-3
