@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from slipsense.evaluation.replay import Evaluation, evaluate, label_overrides, recordings_folder
-from slipsense.training.recipe import DEFAULT_MODEL
+from slipsense.run_config import DEFAULT_MODEL
 
 
 @dataclass
@@ -58,7 +58,8 @@ def fit(
     **settings: Any,
 ) -> TrainedDetector:
     """Train a registered model on a recordings folder, as ``slipsense train`` does
-    (:func:`slipsense.training.recipe.fit`: the same sensor spec, one-finger split and resume).
+    (:func:`slipsense.training.recipe.fit` of the :class:`~slipsense.training.config.RunConfig` of
+    its configuration tree: the same checks, sensor spec, one-finger split and resume).
 
     Args:
         recordings: the folder (default: the shared GelSight recordings, ``$SLIPSENSE_DATA``).
@@ -69,22 +70,20 @@ def fit(
         overrides: label overrides CSV; True = the shipped hand labels for runs of the shared
             recordings; False = none.
         settings: the model's settings (e.g. ``width=8``) and training settings (e.g. ``epochs=5``),
-            each by its name.
+            each by its name (:meth:`~slipsense.training.config.RunConfig.from_tree` sorts them).
     """
-    from slipsense.models import model_class, settings_of
-    from slipsense.training.recipe import fit as fit_recipe
+    from slipsense.training.recipe import RunConfig, fit as fit_recipe
 
-    model_keys = settings_of(model_class(model))
     tree = {
-        "model": {"name": model, **{k: v for k, v in settings.items() if k in model_keys}},
+        "model": {"name": model, **settings},
         "data": {
             "recordings": str(recordings_folder(recordings)),
             "overrides": label_overrides(overrides),
             "test_objects": list(held_out),
         },
-        "train": {**{k: v for k, v in settings.items() if k not in model_keys}, "seed": seed},
+        "train": {"seed": seed},
     }
-    res = fit_recipe(tree, out, progress=progress)
+    res = fit_recipe(RunConfig.from_tree(tree), out, progress=progress)
     held = {k: res[k] for k in ("per_grasp", "clips") if res.get(k) is not None} if held_out else None
     return TrainedDetector(Path(res["checkpoint"]), res.get("operating_point") or {}, res.get("history") or [], held)
 

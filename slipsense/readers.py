@@ -49,7 +49,7 @@ class ClipReader(Protocol):
     describes: str  #: what one item is, in words
     pictures: bool  #: items are camera pictures (clip size settings and image noise apply)
 
-    def training_data(self, req) -> tuple[Any, Any, dict[str, Any], dict[str, Any]]: ...
+    def training_data(self, run, progress: bool) -> tuple[Any, Any, dict[str, Any], dict[str, Any]]: ...
 
     def replays(self, split_info: dict[str, Any]) -> bool: ...
 
@@ -65,61 +65,62 @@ class VideoClips:
     describes = "video clip"
     pictures = True
 
-    def training_data(self, req) -> tuple[Any, Any, dict[str, Any], dict[str, Any]]:
-        """``(train, test, split_info, data_config)`` for a
-        :class:`~slipsense.training.clips.TrainRequest`; ``data_config`` holds the sizes the model is
-        built with and its ``sensor``."""
-        if req.markers is not None:
-            raise ConfigError(f"model {req.model!r} takes video clips: use --recordings, not --markers")
-        root = Path(req.recordings) if req.recordings else gelsight_recordings()
-        spec_kw = dict(frames=req.frames, horizon=req.horizon, wiggle_per_video=req.wiggle_per_video, seed=req.seed)
-        if req.size is not None:
-            spec_kw["size"] = req.size
+    def training_data(self, run, progress: bool) -> tuple[Any, Any, dict[str, Any], dict[str, Any]]:
+        """``(train, test, split_info, data_config)`` for a clip model's
+        :class:`~slipsense.training.config.RunConfig` (its ``data`` section and seed); ``data_config``
+        holds the sizes the model is built with and its ``sensor``."""
+        data = run.data
+        if data.markers is not None:
+            raise ConfigError(f"model {run.name!r} takes video clips: use --recordings, not --markers")
+        root = Path(data.recordings) if data.recordings else gelsight_recordings()
+        spec_kw = dict(frames=data.frames, horizon=data.horizon, wiggle_per_video=data.wiggle_per_video, seed=run.seed)
+        if data.size is not None:
+            spec_kw["size"] = data.size
         spec = ClipSpec(**spec_kw)
-        sensor = sensor_named(req.sensor) if req.sensor else GELSIGHT_MINI
+        sensor = sensor_named(data.sensor) if data.sensor else GELSIGHT_MINI
         clips, _ = gelsight_clips(
-            root, spec, on_error=req.on_error, overrides=req.overrides, progress=req.progress, sensor=sensor
+            root, spec, on_error=data.on_error, overrides=data.overrides, progress=progress, sensor=sensor
         )
         test_objects: list[str] = []
-        if req.split == "all":  # a model to ship: every clip trains, nothing is held out
+        if data.split == "all":  # a model to ship: every clip trains, nothing is held out
             tr, te = np.arange(len(clips)), np.zeros(0, np.int64)
-        elif req.split == "clips":
-            tr, te = split_by_clip(clips, test_fraction=req.test_fraction, seed=req.seed)
-        elif req.split == "objects":
+        elif data.split == "clips":
+            tr, te = split_by_clip(clips, test_fraction=data.test_fraction, seed=run.seed)
+        elif data.split == "objects":
             objects = sorted(set(clips.objects))
-            if req.test_objects:
-                unknown = sorted(set(req.test_objects) - set(objects))
+            if data.test_objects:
+                unknown = sorted(set(data.test_objects) - set(objects))
                 if unknown:
                     raise ConfigError(f"--test-objects not in {root}: {unknown}")
-                test_objects = sorted(req.test_objects)
+                test_objects = sorted(data.test_objects)
             else:
-                k = 0 if req.fold is None else req.fold
-                if not 0 <= k < req.folds:
-                    raise ConfigError(f"--fold must be in 0..{req.folds - 1}")
-                test_objects = sorted(object_folds(objects, n_folds=req.folds, seed=req.seed)[k])
+                k = 0 if data.fold is None else data.fold
+                if not 0 <= k < data.folds:
+                    raise ConfigError(f"--fold must be in 0..{data.folds - 1}")
+                test_objects = sorted(object_folds(objects, n_folds=data.folds, seed=run.seed)[k])
             tr, te = split_by_object(clips, test_objects)
             if len(tr) == 0:
                 raise ConfigError(
                     f"every object of {root} is held out ({', '.join(test_objects)}): nothing is left to train on"
                 )
         else:
-            raise ConfigError(f"--split must be objects, clips or all, got {req.split!r}")
+            raise ConfigError(f"--split must be objects, clips or all, got {data.split!r}")
         split_info = {
             "kind": self.kind,
             "recordings": portable_path(root),
             "clip_spec": asdict(spec),
-            "split": req.split,
+            "split": data.split,
             "test_objects": test_objects,
             "test_indices": [int(i) for i in te],
-            "on_error": req.on_error,
+            "on_error": data.on_error,
             # "default": the shipped hand labels of the shared recordings (data.label_runs); older
             # split files say null for "none", and evaluation rebuilds their clips that way
-            "overrides": portable_path(req.overrides) if req.overrides else "default",
+            "overrides": portable_path(data.overrides) if data.overrides else "default",
         }
-        train = ClipDataset(clips.subset(tr), AugmentConfig(enabled=req.augment), seed=req.seed)
+        train = ClipDataset(clips.subset(tr), AugmentConfig(enabled=data.augment), seed=run.seed)
         test = ClipDataset(clips.subset(te))
         size = tuple(clips.x.shape[2:4])
-        return train, test, split_info, {"frames": req.frames, "image_size": size, "sensor": sensor.to_dict()}
+        return train, test, split_info, {"frames": data.frames, "image_size": size, "sensor": sensor.to_dict()}
 
     def replays(self, split_info: dict[str, Any]) -> bool:
         """Whether the training runs can be replayed whole (to choose where the model alarms)."""
@@ -179,33 +180,34 @@ class MarkerClips:
     describes = "marker sequence"
     pictures = False
 
-    def training_data(self, req) -> tuple[Any, Any, dict[str, Any], dict[str, Any]]:
-        """As :meth:`VideoClips.training_data`, for ``req.markers``."""
-        if req.markers is None:
-            raise ConfigError(f"model {req.model!r} takes marker sequences: give --markers FILE.npz")
-        x, y, groups = load_markers(req.markers)
+    def training_data(self, run, progress: bool) -> tuple[Any, Any, dict[str, Any], dict[str, Any]]:
+        """As :meth:`VideoClips.training_data`, for ``run.data.markers``."""
+        data = run.data
+        if data.markers is None:
+            raise ConfigError(f"model {run.name!r} takes marker sequences: give --markers FILE.npz")
+        x, y, groups = load_markers(data.markers)
         n_groups = len(np.unique(groups))
         if n_groups < 2:
             raise InputError(
-                req.markers,
+                data.markers,
                 f"all {len(groups)} samples are in one group: a split that never cuts a "
                 "group leaves nothing to train on (give groups with several values)",
             )
-        tr, te = split_groups(groups, 0.2 if req.test_fraction == 0.1 else req.test_fraction, req.seed)
-        train = MarkerDataset(x[tr], y[tr], copies=req.marker_copies if req.augment else 1, seed=req.seed)
+        tr, te = split_groups(groups, 0.2 if data.test_fraction == 0.1 else data.test_fraction, run.seed)
+        train = MarkerDataset(x[tr], y[tr], copies=data.marker_copies if data.augment else 1, seed=run.seed)
         split_info = {
             "kind": self.kind,
-            "markers": portable_path(req.markers),
+            "markers": portable_path(data.markers),
             "test_indices": [int(i) for i in te],
             "marker_copies": train.copies,  # as applied: 1 off a grid or without augment
         }
-        layout = marker_file_layout(req.markers, x)
+        layout = marker_file_layout(data.markers, x)
         if layout is not None:  # tracked in videos: a replay must take a camera's markers the same way
             split_info["clip_spec"] = {"marker_layout": layout}
         sizes = {
             "frames": int(x.shape[1]),
             "markers": int(x.shape[2]),
-            "sensor": _marker_sensor(req.markers, x, layout),
+            "sensor": _marker_sensor(data.markers, x, layout),
         }
         return train, MarkerDataset(x[te], y[te]), split_info, sizes
 

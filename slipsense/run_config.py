@@ -8,20 +8,28 @@ A run is described by a tree like ``configs/vivit-paper.yaml``::
 
 and built in layers, later ones winning: the command's defaults < ``--config FILE`` < the
 command's own options (``--epochs 3``) < ``--set section.key=value`` (a bare ``key=value`` goes to
-``model``). The resolved tree is stored whole in every checkpoint (``info["config"]``) and written
-as ``config.yaml`` beside it, so ``--config RUN/config.yaml`` repeats a run.
+``model``). A tree is checked once, into the frozen run that training reads
+(:class:`slipsense.training.config.RunConfig`); the run's resolved tree is stored whole in every
+checkpoint (``info["config"]``) and written as ``config.yaml`` beside it, so ``--config
+RUN/config.yaml`` repeats a run. This module is the torch-free part (``slipsense --help`` reads it).
 """
 
 from __future__ import annotations
 
 import copy
 import json
+from dataclasses import MISSING, fields
 from pathlib import Path
 from typing import Any, Iterable, Mapping
+
+import yaml
 
 from slipsense.errors import ConfigError, InputError
 
 SECTIONS = ("model", "data", "train")
+#: The model trained where none is named: the slip detector over whole grasps (here, below torch, so
+#: that ``slipsense --help`` can show it without starting torch).
+DEFAULT_MODEL = "motionnet"
 #: largest configuration file read (a tree is a few hundred bytes)
 MAX_BYTES = 1_000_000
 
@@ -32,8 +40,6 @@ def empty_tree() -> dict[str, dict[str, Any]]:
 
 def load_tree(path: str | Path) -> dict[str, dict[str, Any]]:
     """Read a YAML (or JSON) tree; InputError naming the file on anything but ``section: {key: value}``."""
-    import yaml
-
     path = Path(path)
     try:
         if path.stat().st_size > MAX_BYTES:
@@ -101,13 +107,11 @@ def parse_sets(sets: Iterable[str] | None, bare: str = "model") -> dict[str, dic
 
 
 def check_keys(
-    tree: Mapping[str, Mapping[str, Any]], allowed: Mapping[str, Iterable[str] | None], where: str = "configuration"
+    tree: Mapping[str, Mapping[str, Any]], allowed: Mapping[str, Iterable[str]], where: str = "configuration"
 ) -> None:
-    """ConfigError naming the first key a section does not know (``None``: any key)."""
+    """ConfigError naming the first key of a section of ``tree`` that ``allowed`` does not name."""
     for section, values in tree.items():
-        known = allowed.get(section)
-        if known is None:
-            continue
+        known = allowed[section]
         unknown = sorted(set(values) - set(known))
         if unknown:
             raise ConfigError(
@@ -120,8 +124,6 @@ def typed(cls: type, values: Mapping[str, Any], where: str) -> dict[str, Any]:
     float field takes numbers and numeric strings (YAML reads ``3e-4`` as a string); an int field
     whole numbers; a bool field true/false; None keeps the default where the default is not None.
     ConfigError names the key otherwise."""
-    from dataclasses import MISSING, fields
-
     defaults = {f.name: f.default for f in fields(cls) if f.default is not MISSING}
     out: dict[str, Any] = {}
     for key, value in values.items():
@@ -155,8 +157,6 @@ def to_plain(tree: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def dump_tree(tree: Mapping[str, Any]) -> str:
-    import yaml
-
     return yaml.safe_dump(to_plain(tree), sort_keys=False, default_flow_style=None)
 
 
@@ -172,6 +172,7 @@ def check_seed(seed: int, option: str = "--seed") -> int:
 
 
 __all__ = [
+    "DEFAULT_MODEL",
     "SECTIONS",
     "MAX_SEED",
     "check_keys",
@@ -183,4 +184,5 @@ __all__ = [
     "merge",
     "parse_sets",
     "to_plain",
+    "typed",
 ]

@@ -12,7 +12,7 @@ import typer.main
 from slipsense import api
 from slipsense.cli import app
 from slipsense.cli import train as train_cli
-from slipsense.training import recipe
+from slipsense import run_config
 
 MAX_COMMANDS = 12
 
@@ -42,8 +42,12 @@ def test_every_option_of_every_command_is_explained():
 
 
 def test_one_default_model_everywhere():
-    assert train_cli.DEFAULT_MODEL == recipe.DEFAULT_MODEL == "motionnet"
-    assert inspect.signature(api.fit).parameters["model"].default == recipe.DEFAULT_MODEL
+    from slipsense.training.config import RunConfig
+    from slipsense.training.grasps import GraspTrainConfig
+
+    assert train_cli.DEFAULT_MODEL is run_config.DEFAULT_MODEL == GraspTrainConfig().model == "motionnet"
+    assert inspect.signature(api.fit).parameters["model"].default == run_config.DEFAULT_MODEL
+    assert RunConfig.from_tree({}).name == run_config.DEFAULT_MODEL  # a tree that names none
 
 
 def test_help_does_not_start_torch_and_importing_sets_nothing_process_wide():

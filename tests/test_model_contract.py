@@ -158,14 +158,14 @@ def test_register_refuses_a_class_outside_the_contract():
         register("test-not-a-model")(torch.nn.Linear)
 
 
-#: The one place outside slipsense/models that asks how a model trains: the recipe's tables of
-#: trainers, folds and evaluators, keyed by the model's ``training_task``. Data is read by the
-#: model's own ``clip_reader``.
-ASKS_HOW_IT_TRAINS = {"training/recipe.py": 2}
+#: The places outside slipsense/models that ask how a model trains: the recipe's tables of trainers,
+#: folds and evaluators and the run configuration's table of training settings, keyed by the model's
+#: ``training_task``. Data is read by the model's own ``clip_reader``.
+ASKS_HOW_IT_TRAINS = {"training/recipe.py": 3, "training/config.py": 1}
 
 
 def test_nothing_outside_models_asks_the_kind():
-    """Outside slipsense/models code never asks a model's kind or its name, and asks how it trains (``training_task``) only in the recipe's tables (:data:`ASKS_HOW_IT_TRAINS`)."""
+    """Outside slipsense/models code never asks a model's kind or its name, and asks how it trains (``training_task``) only in those tables (:data:`ASKS_HOW_IT_TRAINS`)."""
     import ast
     from pathlib import Path
 

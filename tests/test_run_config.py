@@ -25,24 +25,21 @@ def test_the_shipped_configs_exist():
 
 @pytest.mark.parametrize("path", CONFIGS, ids=lambda p: p.stem)
 def test_every_shipped_config_builds(path):
-    """Each file names a registered model, settings it takes and training keys that exist."""
-    from slipsense.training.grasps import GraspTrainConfig, make_config
-    from slipsense.models import model_class
-    from slipsense.training.clips import TrainConfig, TrainRequest, build_model, paper_settings
-
-    tree = load_tree(path)
-    name = tree["model"]["name"]
-    if model_class(name).input_kind == "grasp":
-        settings = {**tree["train"], **{f"model.{k}": v for k, v in tree["model"].items() if k != "name"}}
-        assert isinstance(make_config(name, settings), GraspTrainConfig)
-        return
-    req = TrainRequest.from_tree(tree)
-    TrainConfig.from_dict({**paper_settings(req.model), **req.train_overrides, "seed": req.seed})
+    """Each file names a registered model, settings it takes and training keys that exist; the run it
+    describes, written as a tree (what checkpoints keep), is the same run again."""
     import torch
 
+    from slipsense.training.clips import build_model
+    from slipsense.training.config import RunConfig
+    from slipsense.training.grasps import GraspTrainConfig
+
+    run = RunConfig.from_tree(load_tree(path))  # a grasp detector's model is built there
+    assert RunConfig.from_tree(run.to_tree()) == run
+    if isinstance(run.train, GraspTrainConfig):
+        return
     with torch.device("meta"):  # no weights allocated (the paper STNet is 0.5 GB)
-        model = build_model(req.model, req.preset, req.model_overrides, {"frames": req.frames})
-    assert model.model_name == name
+        model = build_model(run.name, run.preset, run.settings, {"frames": run.data.frames})
+    assert model.model_name == run.name
 
 
 def test_layers_win_in_order_and_bare_keys_go_to_model():
@@ -188,23 +185,38 @@ def test_empty_tree_has_the_three_sections():
 
 def test_set_null_clears_and_yaml_spellings_are_typed(monkeypatch, tmp_path):
     from slipsense.config import DATA_ENV
-    from slipsense.training.clips import TrainConfig, TrainRequest
+    from slipsense.training.clips import TrainConfig
+    from slipsense.training.config import RunConfig
 
     tree = merge({"data": {"fold": 2}}, parse_sets(["data.fold=null"]))
     assert tree["data"]["fold"] is None
     monkeypatch.setenv(DATA_ENV, str(tmp_path))
-    req = TrainRequest.from_tree({"data": {"recordings": "$SLIPSENSE_DATA/gelsight-slip", "frames": None}})
-    assert req.recordings == tmp_path / "gelsight-slip" and req.frames == 5  # as checkpoints write paths
+    tree = {"model": {"name": "vivit"}, "data": {"recordings": "$SLIPSENSE_DATA/gelsight-slip", "frames": None}}
+    run = RunConfig.from_tree(tree)
+    assert run.data.recordings == tmp_path / "gelsight-slip" and run.data.frames == 5  # as checkpoints write paths
     assert TrainConfig.from_dict({"lr": "3e-4"}).lr == 3e-4  # YAML reads 3e-4 as a string
     with pytest.raises(ConfigError, match="epochs must be a whole number"):
         TrainConfig.from_dict({"epochs": "10"})
 
 
-def test_fit_leaves_the_tree_it_is_given_as_it_was(tmp_path):
+def test_a_bare_training_key_goes_to_train_and_grasp_models_refuse_clip_settings():
+    from slipsense.training.config import RunConfig
+
+    run = RunConfig.from_tree({"model": {"name": "motionnet", "width": 4, "epochs": 2}, "data": {"size": [12, 16]}})
+    assert run.train.epochs == 2 and run.model == {"name": "motionnet", "width": 4, "image_size": [12, 16]}
+    assert RunConfig.from_tree({"model": {"name": "temnet", "epochs": 2}}).train.epochs == 2
+    with pytest.raises(ConfigError, match="frames, train.device only apply to clip models"):
+        RunConfig.from_tree({"model": {"name": "motionnet"}, "data": {"frames": 5}, "train": {"device": "cpu"}})
+    with pytest.raises(ConfigError, match="data.size must be"):
+        RunConfig.from_tree({"model": {"name": "motionnet"}, "data": {"size": [12]}})
+
+
+def test_the_run_and_its_tree_are_left_as_they_were_given(tmp_path):
     import copy
+    import dataclasses
 
     from slipsense.errors import SlipsenseError
-    from slipsense.training.recipe import cross_validate, fit
+    from slipsense.training.recipe import RunConfig, cross_validate, fit
 
     tree = {
         "model": {"name": "motionnet", "width": 4},
@@ -212,11 +224,16 @@ def test_fit_leaves_the_tree_it_is_given_as_it_was(tmp_path):
         "train": {"epochs": 1, "inner_folds": 0},
     }
     before = copy.deepcopy(tree)
+    run = RunConfig.from_tree(tree)
+    assert tree == before
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        run.data = None
+    same = copy.deepcopy(run)
     with pytest.raises(SlipsenseError):  # no recordings there: after the trainer has read the settings
-        fit(tree, tmp_path / "out", progress=False)
-    assert tree == before
-    del tree["data"]["test_objects"]
-    before = copy.deepcopy(tree)
+        fit(run, tmp_path / "out", progress=False)
+    assert run == same
+    run = RunConfig.from_tree({**tree, "data": {k: v for k, v in tree["data"].items() if k != "test_objects"}})
+    same = copy.deepcopy(run)
     with pytest.raises(SlipsenseError):
-        cross_validate(tree, tmp_path / "folds", 2, progress=False)
-    assert tree == before
+        cross_validate(run, tmp_path / "folds", 2, progress=False)
+    assert run == same

@@ -8,13 +8,8 @@ from typing import List, Optional
 
 import typer
 
-from slipsense.atomic import check_output_dir
-from slipsense.cli.common import check_seed, command_line, friendly, parse_hw
-from slipsense.run_config import empty_tree, given, load_tree, merge, parse_sets
-
-#: The model trained where none is named (:data:`slipsense.training.recipe.DEFAULT_MODEL`, which a
-#: test holds equal): named here so that ``slipsense --help`` does not start torch (4 s) to show it.
-DEFAULT_MODEL = "motionnet"
+from slipsense.cli.common import command_line, friendly, parse_hw
+from slipsense.run_config import DEFAULT_MODEL, empty_tree, given, load_tree, merge, parse_sets
 
 SET_HELP = (
     "section.key=value, section model, data or train, e.g. train.lr=0.001, model.width=16, "
@@ -25,10 +20,9 @@ SET_HELP = (
 
 def _tree(config: Optional[Path], options: dict, sets: Optional[List[str]]) -> dict:
     """The configuration tree: defaults < --config < options < --set. A bare ``--set KEY=VALUE`` goes
-    to the model section; the recipe moves it to training where it names a training setting."""
-    tree = merge(load_tree(config) if config else empty_tree(), given(options), parse_sets(sets))
-    tree["model"]["name"] = tree["model"].get("name") or DEFAULT_MODEL
-    return tree
+    to the model section; :meth:`~slipsense.training.config.RunConfig.from_tree` moves it to training
+    where it names a training setting."""
+    return merge(load_tree(config) if config else empty_tree(), given(options), parse_sets(sets))
 
 
 def report_training(res: dict, echo=typer.echo) -> None:
@@ -133,7 +127,6 @@ def register(app: typer.Typer) -> None:
         resolved tree is kept in every checkpoint and written to OUT/config.yaml."""
         from slipsense.training import recipe
 
-        check_output_dir(out, "--out")
         options = {
             "model": {"name": model, "preset": preset},
             "data": dict(
@@ -154,18 +147,14 @@ def register(app: typer.Typer) -> None:
                 epochs=epochs, batch_size=batch_size, lr=lr, device=device, seed=seed, inner_folds=inner_folds
             ),
         }
-        tree = _tree(config, options, sets)
-        check_seed(tree["train"].get("seed", 0))
+        run = recipe.RunConfig.from_tree(_tree(config, options, sets))  # every check, once
         if cross_validate:
-            n = tree["data"].pop("folds", None) or 5
             rep = recipe.cross_validate(
-                tree, out, n, progress=progress, workers=workers, threads=threads, command=command_line()
+                run, out, run.data.folds, progress=progress, workers=workers, threads=threads, command=command_line()
             )
             report_folds(rep, out)
             return
-        if tree["data"].get("fold") is not None:
-            tree["data"].setdefault("folds", 5)
         res = recipe.fit(
-            tree, out, progress=progress, resume=resume, workers=workers, threads=threads, command=command_line()
+            run, out, progress=progress, resume=resume, workers=workers, threads=threads, command=command_line()
         )
         report_training(res)

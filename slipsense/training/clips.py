@@ -1,5 +1,6 @@
 """Clips and marker sequences for the one training loop (:class:`ClipTask`), and ``slipsense train``
-for clip models: from a request (:class:`TrainRequest`) to a run folder (:func:`run_training`).
+for clip models: from a run configuration (:class:`~slipsense.training.config.RunConfig`) to a run
+folder (:func:`run_training`).
 
 The loop (:mod:`slipsense.training.trainer`) gives the run its checkpoints, metrics, resume and
 DDP. ``world_size x batch_size x accumulate`` is the global batch: 2 processes with ``--batch-size
@@ -14,7 +15,8 @@ import copy
 import json
 import math
 import random
-from dataclasses import asdict, dataclass, field, fields
+import warnings
+from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -22,17 +24,23 @@ import numpy as np
 import torch
 import torch.nn as nn
 import torch.nn.functional as F
+from safetensors.torch import load_file
 from torch.utils.data import DataLoader, Dataset, default_collate
 
 from slipsense.atomic import write_text
-from slipsense.models import available, model_class, settings_of
-from slipsense.checkpoint import load_resume_state
-from slipsense.errors import ConfigError, InputError
-from slipsense.training.distributed import Dist, RankBatches, StepPlan, setup  # noqa: F401
-from slipsense.training.trainer import LoopSettings, Step, restore, rng_state, set_rng_state, train
-from slipsense.evaluation.evaluate import predict
+from slipsense.checkpoint import load_model, load_resume_state, read_info, update_info
+from slipsense.config import resolve_path
+from slipsense.errors import ConfigError, InputError, SlipsenseError
+from slipsense.evaluation.evaluate import evaluate_model, predict
 from slipsense.evaluation.metrics import metrics_from
+from slipsense.models import available, build, model_class, settings_of
 from slipsense.readers import check_same_split
+from slipsense.recordings.folders import find_recordings
+from slipsense.run_config import dump_tree, typed
+from slipsense.sensors.spec import sensor_of
+from slipsense.training.distributed import Dist, RankBatches, StepPlan, setup  # noqa: F401
+from slipsense.training.operating_point import choose_on_training_runs
+from slipsense.training.trainer import LoopSettings, Step, restore, rng_state, set_rng_state, train
 
 
 @dataclass
@@ -74,14 +82,13 @@ class TrainConfig:
 
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> "TrainConfig":
-        from slipsense.run_config import typed
-
+        """From ``train`` settings by name (YAML spellings typed: :func:`slipsense.run_config.typed`);
+        ConfigError naming an unknown key or a bad value."""
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(values) - known)
         if unknown:
             raise ConfigError(f"train config: unknown keys {unknown}; known: {sorted(known)}")
-        values = typed(cls, values, "train config")
-        return cls(**values)
+        return cls(**typed(cls, values, "train config"))
 
 
 def paper_settings(name: str, preset: str | None = None) -> dict[str, Any]:
@@ -245,125 +252,11 @@ def fit(
     )
 
 
-# --------------------------------------------------------------------------- from a request to a run
-@dataclass
-class TrainRequest:
-    """Everything ``slipsense train`` was asked: model, data, split and optimisation overrides."""
-
-    model: str = "vivit"
-    recordings: Path | None = None
-    markers: Path | None = None
-    out: Path = Path("runs/latest")
-    preset: str | None = None
-    model_overrides: dict[str, Any] = field(default_factory=dict)
-    frames: int = 5
-    horizon: int = 0
-    size: tuple[int, int] | None = None
-    wiggle_per_video: int = 2
-    split: str = "objects"
-    test_objects: list[str] = field(default_factory=list)
-    fold: int | None = None
-    folds: int = 5
-    test_fraction: float = 0.1
-    augment: bool = True
-    marker_copies: int = 4  # with augment, marker windows: itself and copies-1 mirrored, shifted copies
-    seed: int = 0
-    on_error: str = "raise"
-    overrides: Path | None = None  # CSV of hand labels replacing automatic moments of slip
-    sensor: str | None = None  # a registered sensor's name (its recordings layout); None: the GelSight Mini
-    progress: bool = True
-    train_overrides: dict[str, Any] = field(default_factory=dict)
-
-    #: ``data`` keys of the configuration tree (:mod:`slipsense.run_config`)
-    DATA_KEYS = (
-        "recordings",
-        "markers",
-        "frames",
-        "horizon",
-        "size",
-        "wiggle_per_video",
-        "split",
-        "test_objects",
-        "fold",
-        "folds",
-        "test_fraction",
-        "augment",
-        "marker_copies",
-        "on_error",
-        "overrides",
-        "sensor",
-    )
-
-    @classmethod
-    def from_tree(
-        cls, tree: dict[str, dict[str, Any]], out: Path | str = Path("runs/latest"), progress: bool = True
-    ) -> "TrainRequest":
-        """A request from a configuration tree (``model``/``data``/``train`` sections); missing keys keep
-        the defaults above, unknown keys are refused naming them."""
-        from slipsense.run_config import check_keys
-
-        train_keys = {f.name for f in fields(TrainConfig)} - {"progress"}
-        check_keys(tree, {"data": cls.DATA_KEYS, "train": train_keys, "model": None})
-        model = dict(tree.get("model") or {})
-        data = dict(tree.get("data") or {})
-        train = dict(tree.get("train") or {})
-        from slipsense.config import resolve_path
-
-        for key in ("recordings", "markers", "overrides"):
-            if data.get(key) not in (None, False):  # overrides False: no hand labels at all
-                data[key] = resolve_path(data[key])  # "$SLIPSENSE_DATA/..." as checkpoints write it
-        if data.get("size") is not None:
-            size = data["size"]
-            if not (isinstance(size, (list, tuple)) and len(size) == 2 and all(isinstance(v, int) for v in size)):
-                raise ConfigError(f"data.size must be [height, width] in pixels, got {size!r}")
-            data["size"] = (int(size[0]), int(size[1]))
-        if isinstance(data.get("test_objects"), str):
-            data["test_objects"] = [o for o in data["test_objects"].split(",") if o]
-        from slipsense.datasets import check_marker_copies
-
-        check_marker_copies(data.get("marker_copies", 1), "data.marker_copies")
-        optional = {f.name for f in fields(cls) if f.default is None}  # None is their default anyway
-        data = {k: v for k, v in data.items() if v is not None or k in optional}
-        seed = train.pop("seed", 0)
-        return cls(
-            model=model.pop("name", cls.model),
-            preset=model.pop("preset", None),
-            model_overrides=model,
-            out=Path(out),
-            progress=progress,
-            seed=seed,
-            train_overrides=train,
-            **data,
-        )
-
-    def to_tree(self) -> dict[str, dict[str, Any]]:
-        """The whole request as a configuration tree (what checkpoints store and ``config.yaml`` holds)."""
-        from slipsense.config import portable_path
-        from slipsense.run_config import to_plain
-
-        data = {k: getattr(self, k) for k in self.DATA_KEYS}
-        for key in ("recordings", "markers", "overrides"):
-            if data[key] is not None:
-                data[key] = portable_path(data[key])
-        model = {"name": self.model, **({"preset": self.preset} if self.preset else {}), **self.model_overrides}
-        return to_plain({"model": model, "data": data, "train": {**self.train_overrides, "seed": self.seed}})
-
-
-def _store_operating_point(out: Path, split_info: dict[str, Any], req: "TrainRequest") -> None:
-    """Choose the alarm operating point on the training objects' runs and write it into the run's
-    checkpoints (:mod:`slipsense.training.operating_point`)."""
-    from slipsense.checkpoint import read_info, update_info
-    from slipsense.config import resolve_path
-    from slipsense.recordings.folders import find_recordings
-    from slipsense.sensors.spec import sensor_of
-    from slipsense.training.operating_point import choose_on_training_runs
-
-    import warnings
-
-    from safetensors.torch import load_file
-
-    from slipsense.errors import SlipsenseError
-
+# --------------------------------------------------------------------------- from a run configuration to a run
+def _store_operating_point(out: Path, split_info: dict[str, Any], overrides, progress: bool) -> None:
+    """Choose the alarm operating point on the training objects' runs (labels: ``overrides``, as
+    :func:`slipsense.data.label_runs` takes them) and write it into the run's checkpoints
+    (:mod:`slipsense.training.operating_point`)."""
     root = resolve_path(split_info["recordings"])
     held = set(split_info.get("test_objects") or ())
     sensor = sensor_of(read_info(out / "last.safetensors"))
@@ -377,7 +270,7 @@ def _store_operating_point(out: Path, split_info: dict[str, Any], req: "TrainReq
         op = next((o for w, o in chosen if w.keys() == weights.keys() and all(w[k].equal(weights[k]) for k in w)), None)
         if op is None:
             try:
-                op = choose_on_training_runs(path, root, objects, req.overrides, req.progress)
+                op = choose_on_training_runs(path, root, objects, overrides, progress)
             except SlipsenseError as exc:  # the training stands; the checkpoint alarms at 0.5 with a warning
                 warnings.warn(f"{path}: no operating point chosen ({exc})", stacklevel=2)
                 continue
@@ -388,8 +281,6 @@ def _store_operating_point(out: Path, split_info: dict[str, Any], req: "TrainReq
 
 def build_model(name: str, preset: str | None, overrides: dict[str, Any], data_config: dict[str, Any]):
     """Build a model: preset (if any) < data-implied sizes < explicit overrides."""
-    from slipsense.models import build
-
     config: dict[str, Any] = {}
     cls = model_class(name)
     if preset is not None:
@@ -406,31 +297,18 @@ def build_model(name: str, preset: str | None, overrides: dict[str, Any], data_c
     return build(name, **config)
 
 
-def run_training(req: TrainRequest, resume: bool = False) -> dict[str, Any]:
-    """Prepare data, build and train the model, then evaluate ``last.safetensors`` on the held-out
-    part. Returns (rank 0; ``{}`` on other ranks) ``{"checkpoint", "operating_point" (None unless one
-    was chosen), "history" (a row per epoch), "clips" (the held-out part's metrics, None without one)}``."""
-    from slipsense.evaluation.evaluate import evaluate_model
-
-    cls = model_class(req.model)
-    accepted = settings_of(cls)
-    unknown = sorted(set(req.model_overrides) - accepted)
-    if unknown:  # before any data is decoded
-        raise ConfigError(
-            f"model {req.model!r} has no setting {', '.join(unknown)}; settings: {', '.join(sorted(accepted))}"
-        )
-    settings = {
-        **paper_settings(req.model, req.preset),
-        "seed": req.seed,
-        "progress": req.progress,
-        **req.train_overrides,
-    }
-    cfg = TrainConfig.from_dict(settings)
-    train_data, test_data, split_info, data_config = cls.clip_reader.training_data(req)
+def run_training(run, out: Path, progress: bool = True, resume: bool = False) -> dict[str, Any]:
+    """Prepare ``run``'s data (a :class:`~slipsense.training.config.RunConfig` of a clip model: its
+    model's reader cuts the clips), build and train the model into ``out``, then evaluate
+    ``last.safetensors`` on the held-out part. Returns (rank 0; ``{}`` on other ranks)
+    ``{"checkpoint", "operating_point" (None unless one was chosen), "history" (a row per epoch),
+    "clips" (the held-out part's metrics, None without one)}``."""
+    cls = model_class(run.name)
+    cfg = replace(run.train, progress=progress)
+    train_data, test_data, split_info, data_config = cls.clip_reader.training_data(run, progress)
     sensor = data_config.pop("sensor")
-    seed_everything(req.seed)
-    model = build_model(req.model, req.preset, req.model_overrides, data_config)
-    out = Path(req.out)
+    seed_everything(run.seed)
+    model = build_model(run.name, run.preset, run.settings, data_config)
     d = setup(cfg.device)
     state = None
     if resume and (out / "resume.pt").exists():
@@ -447,31 +325,24 @@ def run_training(req: TrainRequest, resume: bool = False) -> dict[str, Any]:
             set_rng_state(rng)
         del probe
         check_same_split(out / "split.json", split_info)
+    tree = run.to_tree()  # every optimisation setting, defaults included
     if d.main:
         out.mkdir(parents=True, exist_ok=True)
         write_text(out / "split.json", json.dumps(split_info, indent=1))
-    tree = req.to_tree()
-    resolved = {k: v for k, v in asdict(cfg).items() if k != "progress"}
-    tree["train"] = {**resolved, **tree["train"]}  # every optimisation setting, defaults included
-    if d.main:
-        from slipsense.run_config import dump_tree
-
         write_text(out / "config.yaml", dump_tree(tree))
     info = {
         "data": {k: v for k, v in split_info.items() if k != "test_indices"},
         "sensor": sensor,
-        "preset": req.preset,
+        "preset": run.preset,
         "config": tree,
     }
     history = fit(model, train_data, test_data, cfg, out, info=info, resume=resume, resume_state=state)
     # a model reading frames is replayed over its training objects' runs to choose where it alarms
     replayable = cls.clip_reader.replays(split_info)
     if d.main and cfg.operating_point and replayable:
-        _store_operating_point(out, split_info, req)
+        _store_operating_point(out, split_info, run.data.overrides, progress)
     if not d.main:
         return {}
-    from slipsense.checkpoint import load_model, read_info
-
     result = {
         "checkpoint": out / "last.safetensors",
         "operating_point": read_info(out / "last.safetensors").get("operating_point"),
@@ -494,7 +365,7 @@ def run_training(req: TrainRequest, resume: bool = False) -> dict[str, Any]:
             "split": split_info.get("split"),
             "test_objects": split_info.get("test_objects"),
         },
-        progress=req.progress,
+        progress=progress,
     )
     print(json.dumps({k: metrics[k] for k in ("accuracy", "precision", "recall", "f1", "n_clips")}))
     return {**result, "clips": metrics}

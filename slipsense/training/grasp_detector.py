@@ -10,24 +10,32 @@ run; :func:`plan_training` / :func:`fit_job` / :func:`finish_training` are its p
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
+from safetensors.torch import load_file
 
+from slipsense import atomic
+from slipsense.checkpoint import save_checkpoint, update_info
 from slipsense.errors import ConfigError
 from slipsense.evaluation import pergrasp
+from slipsense.evaluation.calibrate import calibrated_threshold
 from slipsense.evaluation.grasp_scores import evaluate_held_out
+from slipsense.evaluation.outcome import peak_alarm_score, roc_auc
+from slipsense.models import build
+from slipsense.parallel import run_jobs
+from slipsense.recordings.clips import object_folds
 from slipsense.recordings.runs import GraspRun
+from slipsense.sensors.spec import GELSIGHT_MINI
+from slipsense.training.distributed import setup
 from slipsense.training.grasps import GraspTrainConfig, candidates, fit_runs, predict_runs, with_settings
 
 
 def object_split(runs: Sequence[GraspRun], folds: int, seed: int = 0) -> list[list[str]]:
     """Objects of ``runs`` in ``folds`` folds (:func:`slipsense.recordings.clips.object_folds`); another
     data set's grasps (``extra``) are never held out."""
-    from slipsense.recordings.clips import object_folds
-
     return object_folds({r.object for r in runs if not r.extra}, folds, seed)
 
 
@@ -107,8 +115,6 @@ def finish_training(
     Of several candidates (``cfg.choose``) the one whose operating point scores best on those
     traces is returned (ties: the better ROC AUC of the grasps' peaks); its operating point names
     its ``settings`` and every candidate's score."""
-    from slipsense.models import build
-
     best, tried = None, []
     for settings, js, rs in _candidate_parts(jobs, results):
         c = with_settings(cfg, settings)
@@ -149,8 +155,6 @@ def chosen_part(jobs: Sequence[FitJob], results: Sequence[Any], op: dict[str, An
 
 def _peak_auc(probs: Sequence[np.ndarray], runs: Sequence[GraspRun], startup: int) -> float:
     """ROC AUC of the grasps' peak P(slip), slipped against held (0 where one kind is missing)."""
-    from slipsense.evaluation.outcome import peak_alarm_score, roc_auc
-
     slipped = np.array([r.slipped for r in runs], bool)
     if slipped.all() or not slipped.any():
         return 0.0
@@ -187,16 +191,12 @@ def train_with_operating_point(
     resume state there (``job<k>.state``) and continues from one it finds (:func:`fit_runs`).
     ``out``: the detector's own training writes ``last``/``best.safetensors`` (with ``info``),
     ``metrics.csv`` and ``curves.png`` there after every epoch."""
-    import dataclasses
-
-    from slipsense.parallel import run_jobs
-
     jobs = plan_training(runs, held, cfg)
     if state_dir is not None:
         Path(state_dir).mkdir(parents=True, exist_ok=True)
-        jobs = [dataclasses.replace(j, state_path=str(Path(state_dir) / f"job{k}.state")) for k, j in enumerate(jobs)]
+        jobs = [replace(j, state_path=str(Path(state_dir) / f"job{k}.state")) for k, j in enumerate(jobs)]
     if out is not None and len(candidates(cfg)) == 1:  # of several, the one chosen is known only at the end
-        jobs[0] = dataclasses.replace(jobs[0], out=str(out), info=info)
+        jobs[0] = replace(jobs[0], out=str(out), info=info)
     if not jobs[0].train:
         raise ConfigError("no usable training runs (every run excluded, or slip runs without a moment)")
     results = run_jobs(
@@ -224,9 +224,6 @@ def _chosen_operating_point(probs: Sequence[np.ndarray], runs: Sequence[GraspRun
     all but ``max_held_alarm`` (default 5%) of the held grasps' peaks
     (:func:`~slipsense.evaluation.calibrate.calibrated_threshold`), debounce 1."""
     if any(r.whole for r in runs):
-        from slipsense.evaluation.calibrate import calibrated_threshold
-        from slipsense.evaluation.outcome import peak_alarm_score
-
         budget = 0.05 if cfg.max_held_alarm is None else cfg.max_held_alarm
         peak = np.array([peak_alarm_score(p, 1, cfg.startup) for p in probs])
         slipped = np.array([r.slipped for r in runs], bool)
@@ -263,8 +260,6 @@ def _checkpoint_info(
     data: dict[str, Any],
     history: list[dict[str, Any]],
 ) -> dict[str, Any]:
-    from slipsense.sensors.spec import GELSIGHT_MINI
-
     data = dict(data)
     tree = data.pop("config", None)  # the whole configuration tree, where every checkpoint keeps it
     sensor = data.pop("sensor", None) or GELSIGHT_MINI.to_dict()  # the sensor whose recordings it read
@@ -300,11 +295,6 @@ def train_detector(
 
     Every training keeps its state in ``out/resume/`` after each epoch; ``resume=True`` continues
     from there (a killed run ends with the weights of an uninterrupted one), else it starts afresh."""
-    from slipsense import atomic
-    from slipsense.checkpoint import save_checkpoint, update_info
-
-    from slipsense.training.distributed import setup
-
     out = Path(out)
     d = setup("cpu")  # under torchrun: every training runs on all ranks in turn, each step shared out
     if d.world > 1:
@@ -350,7 +340,5 @@ def train_detector(
 
 
 def _same_weights(a, b) -> bool:
-    from safetensors.torch import load_file
-
     wa, wb = load_file(str(a)), load_file(str(b))
     return wa.keys() == wb.keys() and all(wa[k].equal(wb[k]) for k in wa)

@@ -18,9 +18,10 @@ and negative frames get equal total weight in the loss.
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -28,9 +29,16 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
+from slipsense.checkpoint import load_model, read_info
+from slipsense.config import portable_path, resolve_path
+from slipsense.data import label_runs
+from slipsense.errors import ConfigError, InputError
 from slipsense.evaluation import pergrasp
-from slipsense.errors import ConfigError
-from slipsense.recordings.runs import GraspRun
+from slipsense.models import build
+from slipsense.recordings.folders import camera_counts, find_recordings, validate_recordings
+from slipsense.recordings.runs import GraspRun, load_runs
+from slipsense.run_config import DEFAULT_MODEL, typed
+from slipsense.sensors.spec import GELSIGHT_MINI
 from slipsense.streaming.clock import resample
 from slipsense.training.trainer import LoopSettings, Step, train
 
@@ -39,7 +47,7 @@ from slipsense.training.trainer import LoopSettings, Step, train
 class GraspTrainConfig:
     """Settings of :func:`fit_runs` (stored whole in every checkpoint)."""
 
-    model: str = "motionnet"
+    model: str = DEFAULT_MODEL
     model_config: dict = field(default_factory=dict)
     epochs: int = 20
     lr: float = 2e-3
@@ -384,8 +392,6 @@ def fit_runs(
     ends with the weights an uninterrupted training gives, bit for bit. ``out``: where
     ``last.safetensors``, ``best.safetensors`` (with ``info``), ``metrics.csv`` and ``curves.png``
     go after every epoch."""
-    from slipsense.models import build
-
     torch.manual_seed(cfg.seed)
     model = build(cfg.model, **cfg.model_config) if cfg.init is None else _initial_model(cfg)
     if cfg.epochs == 0:
@@ -401,10 +407,6 @@ def fit_runs(
 def _initial_model(cfg: GraspTrainConfig):
     """The model of ``cfg.init`` (its own settings), to be trained further; InputError naming the file
     for a checkpoint of another model than ``cfg.model``."""
-    from slipsense.checkpoint import load_model
-
-    from slipsense.config import resolve_path
-
     model, _ = load_model(resolve_path(cfg.init), expect_model=cfg.model)
     return model.train()
 
@@ -438,20 +440,13 @@ def make_config(model: str, settings: dict[str, Any]) -> GraspTrainConfig:
         else:
             model_cfg[key] = value
     if train.get("init") is not None:  # fine-tuning: the model is the checkpoint's, settings and all
-        from slipsense.checkpoint import read_info
-        from slipsense.config import portable_path, resolve_path
-
         train["init"] = portable_path(resolve_path(train["init"]))  # kept as the checkpoint says it, resolvable
         theirs = dict(read_info(resolve_path(train["init"]))["model_config"])
         other = sorted(k for k, v in model_cfg.items() if theirs.get(k) != v)
         if other:
             raise ConfigError(f"model settings ({', '.join(other)}) come from train.init's checkpoint")
         model_cfg = theirs
-    from slipsense.run_config import typed
-
     cfg = GraspTrainConfig(model=model, model_config=model_cfg, **typed(GraspTrainConfig, train, "grasp training"))
-    from slipsense.models import build
-
     for settings in candidates(cfg):  # unknown or out-of-range model settings fail here, before any work
         build(cfg.model, **{**cfg.model_config, **settings})
     return cfg
@@ -459,17 +454,13 @@ def make_config(model: str, settings: dict[str, Any]) -> GraspTrainConfig:
 
 def candidates(cfg: GraspTrainConfig) -> list[dict[str, Any]]:
     """Every combination of ``cfg.choose``'s model settings (``[{}]`` when it chooses none)."""
-    import itertools
-
     keys = sorted(cfg.choose)
     return [dict(zip(keys, values)) for values in itertools.product(*(cfg.choose[k] for k in keys))]
 
 
 def with_settings(cfg: GraspTrainConfig, settings: dict[str, Any]) -> GraspTrainConfig:
     """``cfg`` training the model with ``settings`` (one of :func:`candidates`) and choosing nothing more."""
-    import dataclasses
-
-    return dataclasses.replace(cfg, model_config={**cfg.model_config, **settings}, choose={})
+    return replace(cfg, model_config={**cfg.model_config, **settings}, choose={})
 
 
 def load_grasp_data(
@@ -483,16 +474,9 @@ def load_grasp_data(
     """Labelled whole runs of a recordings folder (``(runs, labels)``), labels with overrides;
     ``sensor`` (a :class:`~slipsense.sensors.spec.SensorSpec`, default the GelSight Mini) names the
     folder layout."""
-    from slipsense.data import label_runs
-    from slipsense.recordings.folders import camera_counts, find_recordings, validate_recordings
-    from slipsense.recordings.runs import load_runs
-    from slipsense.sensors.spec import GELSIGHT_MINI
-
     found = find_recordings(recordings, on_error=on_error, sensor=sensor or GELSIGHT_MINI)
     recs = validate_recordings(found, on_error=on_error, expected_size=None)
     if not recs:
-        from slipsense.errors import InputError
-
         raise InputError(recordings, "no usable recordings")
     labels = label_runs(recs, overrides, on_error=on_error, progress=progress)
     recs = [r for r in recs if r.key in labels]  # runs left out by on_error="skip"

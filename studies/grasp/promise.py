@@ -15,7 +15,7 @@ from slipsense.recordings.runs import GraspRun
 from slipsense.training.grasp_detector import fit_job, held_alarm_of, job_weight, plan_training
 from slipsense.training.grasps import GraspTrainConfig
 from slipsense.training.grasps import with_settings
-from slipsense.training.recipe import prepare_grasps
+from slipsense.training.recipe import RunConfig, grasp_data
 
 
 def inner_fold_traces(usable: Sequence[GraspRun], cfg: GraspTrainConfig, workers=1, progress=False) -> list[np.ndarray]:
@@ -41,8 +41,9 @@ def restate_promise(checkpoint, workers: int | None = 1, progress: bool = False)
     tree["data"] = {**tree.get("data", {}), "recordings": info["data"]["recordings"]}
     if info["data"].get("also"):
         tree["data"]["also"] = info["data"]["also"]
-    tree.setdefault("train", {})
-    cfg, runs, _, _ = prepare_grasps(tree, progress=progress)
+    run = RunConfig.from_tree(tree)
+    runs, _, _ = grasp_data(run, progress)
+    cfg = run.train
     trained = set(info["data"]["objects"])
     usable = [r for r in runs if r.usable and r.object in trained]
     op = dict(info["operating_point"])
