@@ -273,9 +273,9 @@ def test_capture_keeps_the_source_rate_with_a_30ms_consumer():
     stats = th.stats()
     th.close()
     assert stats["fps"] == pytest.approx(25.0, rel=0.02)
-    # the consumer keeps up: every frame (a busy machine may delay one past the next, which is then
-    # counted as dropped, as it should be)
-    assert stats["delivered"] >= 0.98 * 75 and stats["dropped"] == 75 - len(seen) and seen == sorted(seen)
+    # the consumer keeps up: every frame (a busy machine may delay a few past the next, which are then
+    # counted as dropped, as they should be; the slow consumer below loses more than 20)
+    assert stats["delivered"] >= 0.95 * 75 and stats["dropped"] == 75 - len(seen) and seen == sorted(seen)
 
 
 def test_capture_reports_drops_truthfully_with_a_slow_consumer():
