@@ -463,9 +463,9 @@ def adapt_derived(root: Path) -> str:
     return adapt_table(_json(root, "reports/adapt-derived/adapt.json"))
 
 
-def rates_folds(root: Path) -> str:
-    """The recipe's folds at other frame rates on their held-out objects, and gelsight-lift at half rate."""
-    doc = _json(root, "reports/rates-folds/rates.json")
+def rates_folds(root: Path, report: str = "reports/rates-folds") -> str:
+    """A recipe's folds at other frame rates on their held-out objects, and gelsight-lift at half rate."""
+    doc = _json(root, f"{report}/rates.json")
     return folds_table(doc) + ("\n" + lift_table(doc["lift"]) if doc.get("lift") else "")
 
 
@@ -491,6 +491,9 @@ FIGURES: dict[str, Figure] = {
     "looks": Figure(("reports/looks",), looks),
     "adapt": Figure(("reports/adapt-derived",), adapt_derived),
     "rates-folds": Figure(("reports/rates-folds",), rates_folds),
+    "rates-folds-slower": Figure(
+        ("reports/rates-folds-slower",), lambda root: rates_folds(root, "reports/rates-folds-slower")
+    ),
     "looks-folds": Figure(("reports/looks-folds",), lambda root: looks(root, "reports/looks-folds")),
 }
 
