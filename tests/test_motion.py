@@ -284,3 +284,8 @@ def test_training_across_rates_sees_runs_as_a_slower_camera_and_the_live_detecto
     assert len(hist) == 2 and np.isfinite(hist[-1]["train_loss"])
     with pytest.raises(ConfigError, match="slower"):
         GraspTrainConfig(slower=[1.5])
+    model, hist = fit_runs(runs, GraspTrainConfig(**TINY, epochs=1, gain=[0.7, 1.3]), progress=False)
+    assert np.isfinite(hist[-1]["train_loss"])
+    for bad in ([1.3, 0.7], [0.7], [0, 1]):
+        with pytest.raises(ConfigError, match="gain"):
+            GraspTrainConfig(gain=bad)

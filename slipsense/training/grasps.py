@@ -78,6 +78,9 @@ class GraspTrainConfig:
     # (0.6: 15 of 25 frames/s), resampled to the model's clock as the live detector does; each run of a
     # step takes the recorded rate or one of these at random (empty: the recorded rate only)
     slower: list = field(default_factory=list)
+    # train on each run of a step as a unit of another exposure would see it: its grey levels times a
+    # gain drawn uniformly from [low, high] (e.g. [0.7, 1.3]; empty: as recorded)
+    gain: list = field(default_factory=list)
 
     def __post_init__(self):
         checks = {
@@ -122,6 +125,12 @@ class GraspTrainConfig:
             isinstance(f, (int, float)) and not isinstance(f, bool) and 0.1 <= f < 1 for f in self.slower
         ):
             raise ConfigError(f"slower must list fractions of the recorded rate in [0.1, 1), got {self.slower!r}")
+        g = self.gain
+        if g and not (
+            isinstance(g, list) and len(g) == 2 and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in g)
+            and 0.1 <= g[0] <= g[1] <= 10
+        ):  # fmt: skip
+            raise ConfigError(f"gain must be [low, high] with 0.1 <= low <= high <= 10, got {g!r}")
         k = self.max_held_alarm
         if k is not None and (isinstance(k, bool) or not isinstance(k, (int, float)) or not 0 <= k <= 1):
             raise ConfigError(f"max_held_alarm must be a fraction in [0, 1] (0.05: at most 5%), got {k!r}")
@@ -301,10 +310,14 @@ class GraspTask:
                     x = []
                     for i, ends, _ in runs:
                         g = self.data.items[i][0]  # uint8 (S, N, h, w): flipped before 4x larger
-                        rate = rates[np.random.default_rng([self.cfg.seed, epoch, k, i]).integers(len(rates))]
+                        rng = np.random.default_rng([self.cfg.seed, epoch, k, i])
+                        rate = rates[rng.integers(len(rates))]
                         if rate < 1:  # the same seconds as a slower camera gives them, on the model's clock
                             g = as_slower_camera(g, rate)
                             ends = [min(e, g.shape[1] - 1) for e in ends]
+                        if self.cfg.gain:  # another unit's exposure
+                            gain = rng.uniform(*self.cfg.gain)
+                            g = np.clip(g.astype(np.float32) * gain + 0.5, 0, 255).astype(np.uint8)
                         g = torch.from_numpy(g)
                         x.append(((g.flip(dims) if dims else g).float().div_(255.0), ends))
                     yield x, torch.from_numpy(np.concatenate([c[2] for c in runs])), weight
