@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -202,7 +203,9 @@ def adapt(
         return _finish(doc, out, None, why, echo)
     path = out / "detector.safetensors"
     if chosen.name == "recalibrated":
-        calibrate(path, shipped, root, budget=budget, progress=progress)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # the same grasps again: their warnings were given above
+            calibrate(path, shipped, root, budget=budget, progress=progress)
     else:
         trained = _fine_tune(root, out / "fine-tuned", shipped, epochs, seed, progress, held_out=())
         shutil.copyfile(trained, path.with_suffix(".partial"))
