@@ -17,16 +17,14 @@ from slipsense.config import portable_path
 from slipsense.data import label_runs
 from slipsense.evaluation import pergrasp
 from slipsense.evaluation.early_warning import RunTrace
-from slipsense.progress import progress_bar
 from slipsense.recordings.folders import find_recordings
 from slipsense.recordings.frame_cache import video_products
-from slipsense.recordings.types import by_run
 from slipsense.recordings.video import read_video
 from slipsense.sensors.marker_detection import detect_markers
 from slipsense.recordings.contact import STARTUP_FRAMES
 from slipsense.errors import InputError
 from slipsense.streaming.detector import SlipDetector
-from studies.grasp.rates import trained_by_command
+from studies.grasp.rates import fold_detectors, judged_runs, trained_by_command
 from studies.pages import looks_table
 from studies.provenance import provenance
 
@@ -82,14 +80,7 @@ def _replayed(det: SlipDetector, recs: list, labels: dict, looks: dict, progress
     """``{look: [GraspOutcome]}`` of ``det`` on every run of ``recs`` under each look (slips without a
     moment of slip left out: nothing to warn of)."""
     outcomes: dict[str, list] = {name: [] for name in looks}
-    for (obj, exp), cams in progress_bar(list(by_run(recs).items()), progress, "replaying runs"):
-        labs = [labels[r.key] for r in cams if r.key in labels]
-        if len(labs) != len(cams) or len(cams) != det.sensors:
-            continue
-        moment = next((lab.moment_of_slip for lab in labs if lab.moment_of_slip is not None), None)
-        slipped = any(lab.slipped for lab in labs)
-        if slipped and moment is None:
-            continue
+    for obj, exp, cams, slipped, moment in judged_runs(recs, labels, det.sensors, progress):
         videos = [read_video(r.path, expected_size=None) for r in cams]
         rest = pergrasp.rest_mask(np.stack([video_products(r.path, ["contact"])["contact"] for r in cams]))
         for name, change in looks.items():
@@ -126,13 +117,10 @@ def looks_folds_study(recordings: Path, detectors: Path, progress: bool = True) 
     recs = find_recordings(recordings, on_error="skip")
     labels = label_runs(recs, progress=progress)
     pooled: dict[str, list] = {name: [] for name in LOOKS}
-    for fold in sorted(p for p in Path(detectors).glob("fold*") if p.is_dir()):
-        held = set(json.loads((fold / "held_out.json").read_text())["objects"])
-        det = SlipDetector.from_checkpoint(fold / "detector.safetensors", backend="torch")
+    for _, held, det in fold_detectors(detectors):
         mine = [r for r in recs if r.object in held]
         for name, outs in _replayed(det, mine, labels, LOOKS, progress).items():
             pooled[name].extend(outs)
-        det.close()
     return {
         "checkpoint": f"the folds of {portable_path(detectors)}, each on its held-out objects",
         "trained_by": trained_by_command(detectors),

@@ -71,23 +71,38 @@ CONDITIONS = [at_rate(25.0), at_rate(15.0), at_rate(12.5), dropped(0.10)]
 CONDITIONS[0] = Condition("as recorded (25 frames/s)", CONDITIONS[0].frames, 25.0)
 
 
-def _replayed(
-    det: SlipDetector, recordings: Path, labels: dict, objects, rng_for, modes=("clock", "plain"), progress=True
-):
-    """``{condition: {mode: [GraspOutcome]}}`` of ``det`` on every run of ``objects`` (all: None)
-    under each of :data:`CONDITIONS`, ``rng_for(object, experiment)`` drawing the dropped frames.
-    Slips without a moment of slip are left out (nothing to warn of)."""
-    product = det.cache_product
-    recs = [r for r in find_recordings(recordings, on_error="skip") if objects is None or r.object in objects]
-    outcomes: dict[str, dict[str, list]] = {c.name: {m: [] for m in modes} for c in CONDITIONS}
+def judged_runs(recs: list, labels: dict, sensors: int, progress: bool = True):
+    """``(object, experiment, cameras, slipped, moment of slip)`` of every run of ``recs`` a per-grasp
+    replay judges: labelled, with ``sensors`` cameras, and not a slip without a moment (nothing to warn of)."""
     for (obj, exp), cams in progress_bar(list(by_run(recs).items()), progress, "replaying runs"):
         labs = [labels[r.key] for r in cams if r.key in labels]
-        if len(labs) != len(cams) or len(cams) != det.sensors:
+        if len(labs) != len(cams) or len(cams) != sensors:
             continue
         moment = next((lab.moment_of_slip for lab in labs if lab.moment_of_slip is not None), None)
         slipped = any(lab.slipped for lab in labs)
-        if slipped and moment is None:
-            continue
+        if not (slipped and moment is None):
+            yield obj, exp, cams, slipped, moment
+
+
+def fold_detectors(folds: Path):
+    """``(fold folder, held-out objects, detector)`` of each ``fold<k>/`` training of ``folds``
+    (``slipsense train --fold k``: ``detector.safetensors``, ``held_out.json``), closed after use."""
+    for fold in sorted(p for p in Path(folds).glob("fold*") if p.is_dir()):
+        held = json.loads((fold / "held_out.json").read_text())["objects"]
+        det = SlipDetector.from_checkpoint(fold / "detector.safetensors", backend="torch")
+        try:
+            yield fold, held, det
+        finally:
+            det.close()
+
+
+def _replayed(det: SlipDetector, recs: list, labels: dict, rng_for, modes=("clock", "plain"), progress=True):
+    """``{condition: {mode: [GraspOutcome]}}`` of ``det`` on the runs of ``recs`` it judges
+    (:func:`judged_runs`) under each of :data:`CONDITIONS`, ``rng_for(object, experiment)`` drawing the
+    dropped frames."""
+    product = det.cache_product
+    outcomes: dict[str, dict[str, list]] = {c.name: {m: [] for m in modes} for c in CONDITIONS}
+    for obj, exp, cams, slipped, moment in judged_runs(recs, labels, det.sensors, progress):
         cached = [video_products(r.path, ["contact", product]) for r in cams]
         gray, contact = np.stack([c[product] for c in cached]), np.stack([c["contact"] for c in cached])
         for cond in CONDITIONS:
@@ -113,9 +128,10 @@ def rates_study(recordings: Path, checkpoint: Path, seed: int = 0, progress: boo
     """Per-grasp outcomes of ``checkpoint`` on every run of ``recordings`` under each condition, on the
     detector's clock and without it."""
     det = SlipDetector.from_checkpoint(checkpoint, backend="torch")
-    labels = label_runs(find_recordings(recordings, on_error="skip"), progress=progress)
+    recs = find_recordings(recordings, on_error="skip")
+    labels = label_runs(recs, progress=progress)
     rng = np.random.default_rng(seed)
-    outcomes = _replayed(det, recordings, labels, None, lambda o, e: rng, progress=progress)
+    outcomes = _replayed(det, recs, labels, lambda o, e: rng, progress=progress)
     det.close()
     rows = [{"condition": c.name, **{m: _counts(o) for m, o in outcomes[c.name].items()}} for c in CONDITIONS]
     return {
@@ -134,7 +150,8 @@ def folds_study(
     ``slipsense train --fold k``) replays only its held-out objects (``held_out.json``) under each
     condition on its clock, at its own operating point; the outcomes are pooled over folds. The
     non-learned baseline's folds (``baselines``, e.g. ``motion-energy``) the same way beside it."""
-    labels = label_runs(find_recordings(recordings, on_error="skip"), progress=progress)
+    recs = find_recordings(recordings, on_error="skip")
+    labels = label_runs(recs, progress=progress)
 
     def rng_for(obj: str, exp: int) -> np.random.Generator:  # the same frames dropped for every model
         return np.random.default_rng([seed, zlib.crc32(obj.encode()), exp])
@@ -142,11 +159,9 @@ def folds_study(
     pooled: dict[str, dict[str, list]] = {c.name: {} for c in CONDITIONS}
     folds = []
     for name, root in (("detector", detectors), ("baseline", baselines)):
-        for fold in sorted(p for p in Path(root).glob("fold*") if p.is_dir()) if root is not None else ():
-            held = json.loads((fold / "held_out.json").read_text())["objects"]
-            det = SlipDetector.from_checkpoint(fold / "detector.safetensors", backend="torch")
-            outs = _replayed(det, recordings, labels, set(held), rng_for, modes=("clock",), progress=progress)
-            det.close()
+        for fold, held, det in fold_detectors(root) if root is not None else ():
+            mine = [r for r in recs if r.object in held]
+            outs = _replayed(det, mine, labels, rng_for, modes=("clock",), progress=progress)
             for cond in CONDITIONS:
                 pooled[cond.name].setdefault(name, []).extend(outs[cond.name]["clock"])
             folds.append({"model": name, "fold": fold.name, "objects": held, "threshold": det.threshold})
