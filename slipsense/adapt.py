@@ -182,7 +182,7 @@ def adapt(
         recal[mine] = scores[mine] >= calibrated_threshold(scores[other & ~slipped], scores[other & slipped], budget)
     candidates.append(Candidate("recalibrated", scores, recal, slipped, objects))
     tuned_scores, tuned_alarmed = _fine_tuned_out_of_fold(
-        as_is, root, out / "folds", shipped, epochs, folds, seed, progress, echo
+        as_is, root, out / "folds", shipped, epochs, folds, seed, progress
     )
     candidates.append(Candidate("fine-tuned", tuned_scores, tuned_alarmed, slipped, objects))
     doc["candidates"] = [c.to_dict() for c in candidates]
@@ -269,16 +269,16 @@ def _fine_tune(
 
 
 def _fine_tuned_out_of_fold(
-    as_is: Evaluation, root: Path, out: Path, shipped: Path, epochs: int, folds: int, seed: int, progress: bool, echo
+    as_is: Evaluation, root: Path, out: Path, shipped: Path, epochs: int, folds: int, seed: int, progress: bool
 ) -> tuple[np.ndarray, np.ndarray]:
     """Each grasp's peak score and alarm from the fine-tuned detector of the fold that held its object out."""
     keys = _keys(as_is)
+    where = {key: i for i, key in enumerate(keys)}
     scores, alarmed = np.full(len(keys), -np.inf), np.zeros(len(keys), bool)
     parts = _object_folds([k[0] for k in keys], folds, seed)
     for k, held in enumerate(progress_bar(parts, progress, "fine-tuning, one fold at a time")):
         ckpt = _fine_tune(root, out / f"fold{k}", shipped, epochs, seed + k, False, held)
         ev = evaluate(ckpt, root, objects=held, progress=False)
-        where = {key: i for i, key in enumerate(keys)}
         for key, s in zip(_keys(ev), ev.peak_scores()):
             scores[where[key]], alarmed[where[key]] = s, s >= ev.threshold
     return scores, alarmed
