@@ -35,6 +35,8 @@ from slipsense.models.base import GraspModel, ModelPart, OnnxPart, register
 from slipsense.models.grasp_stream import GraspStream, slip_probability
 
 #: Bounds on settings a checkpoint may carry (refused before anything is allocated).
+#: A frame's mean grey level is taken as at least this when ``level`` scales it (a black frame stays black).
+_DARK = 1.0 / 255.0
 _LIMITS = {"width": 256, "features": 512, "temporal": 512, "sensors": 8, "max_lag": 250, "pixels": 512 * 512}
 
 
@@ -59,6 +61,9 @@ class MotionNet(GraspModel):
         dilations: of the causal temporal convolutions (kernel 3 each).
         dropout: before the classifier.
         diff_scale: differences are multiplied by this (grey levels in [0, 1]; motion is a few %).
+        level: each frame of each sensor is scaled to a mean grey level of 0.5 before the differences
+            are taken, so a unit of brighter or dimmer exposure gives the same differences (False:
+            the grey levels as the camera gives them, as detectors trained before it).
     """
 
     def __init__(
@@ -72,6 +77,7 @@ class MotionNet(GraspModel):
         dilations: Sequence[int] = (1, 2, 4, 8),
         dropout: float = 0.1,
         diff_scale: float = 10.0,
+        level: bool = False,
     ):
         super().__init__()
         image_size = tuple(int(v) for v in image_size)
@@ -94,6 +100,9 @@ class MotionNet(GraspModel):
         self.sensors, self.image_size, self.lags = int(sensors), image_size, lags
         self.width, self.features, self.temporal = int(width), int(features), int(temporal)
         self.dilations, self.dropout_p, self.diff_scale = dilations, float(dropout), float(diff_scale)
+        if not isinstance(level, bool):
+            raise ConfigError(f"motionnet: level must be true or false, got {level!r}")
+        self.level = level
         self._in_place = True  # differences written in place (False in the copy ONNX export traces)
         w = self.width
         self.encoder = nn.Sequential(_conv(len(lags), w, 5, 2), _conv(w, 2 * w, 3, 2), _conv(2 * w, 2 * w, 3, 2))
@@ -114,6 +123,7 @@ class MotionNet(GraspModel):
             "dilations": list(self.dilations),
             "dropout": self.dropout_p,
             "diff_scale": self.diff_scale,
+            "level": self.level,
         }
 
     @property
@@ -128,10 +138,19 @@ class MotionNet(GraspModel):
 
     # per-frame part
 
+    def levelled(self, gray: Tensor) -> Tensor:
+        """``(..., h, w)`` grey frames scaled to a mean of 0.5 each when ``level`` is set (exposure is a
+        gain on the grey levels; dividing by the frame's own mean takes it out, frame by frame, so
+        streaming needs no state for it). Unchanged otherwise."""
+        if not self.level:
+            return gray
+        return gray * (0.5 / gray.mean(dim=(-2, -1), keepdim=True).clamp(min=_DARK))
+
     def differences(self, gray: Tensor) -> Tensor:
         """``(B, S, N, h, w)`` -> ``(B, S, N, L, h, w)``: frame minus the frame ``lag`` back (the first
         frame standing in before the start), scaled."""
         at = torch.arange(gray.shape[2], device=gray.device)
+        gray = self.levelled(gray)
         return self._lagged(gray, at, self._pasts(at), dim=2).movedim(5, 3)  # positive axes: ONNX Transpose
 
     def _pasts(self, at: Tensor) -> list[Tensor]:
@@ -206,6 +225,7 @@ class MotionNet(GraspModel):
             gathers.append(where + distinct)
             frames, distinct = frames + gray.shape[1], distinct + len(at)
         gray = torch.cat(grays, dim=1) if len(grays) > 1 else grays[0]  # the runs' frames one after another
+        gray = self.levelled(gray)
         by_lag = [torch.cat(p) for p in zip(*pasts)]
         diffs = self._lagged(gray, torch.cat(now), by_lag, dim=1)  # (S, U, h, w, L)
         feats = self.encode(diffs.movedim(-1, 2)[None])[0]  # (U, 2F)
@@ -306,6 +326,8 @@ class MotionStream(GraspStream):
         """``gray``: uint8 ``(S, h, w)``, one frame per sensor at the model's size. Returns P(slip)."""
         m = self.model
         frame = gray.astype(np.float32) / np.float32(255.0)
+        if m.level:  # as MotionNet.levelled
+            frame *= np.float32(0.5) / np.maximum(frame.mean(axis=(1, 2), keepdims=True, dtype=np.float32), _DARK)
         fresh = not self._frames
         if fresh:
             self._frames.extend([frame] * (m.max_lag + 1))
