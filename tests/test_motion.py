@@ -311,22 +311,3 @@ def test_levelled_frames_stream_like_the_whole_run_and_take_out_exposure():
     black = m.stream()
     assert np.isfinite(black.push_gray(np.zeros((2, 16, 20), np.uint8)))
 
-
-def test_the_operating_point_chosen_across_rates_pools_the_slower_cameras_runs():
-    """``choose_on_slower``: the inner folds replay their runs also as each slower camera gives them,
-    and the threshold is chosen on all of them (a run shortened at the end keeps its moment inside)."""
-    from slipsense.training.grasp_detector import finish_training, fit_job, plan_training
-    from slipsense.training.grasps import as_slower_run
-
-    runs = _runs(n_runs=12)
-    run = as_slower_run(runs[0], 0.5)
-    assert run.n_frames <= runs[0].n_frames and run.moment_of_slip < run.n_frames
-    cfg = GraspTrainConfig(**{**TINY, "inner_folds": 2}, epochs=1, slower=[0.6, 0.5], choose_on_slower=True)
-    jobs = plan_training(runs, ["obj3"], cfg)
-    results = [fit_job((runs, cfg), j) for j in jobs]
-    assert results[0]["slower"] == [] and all(len(r["slower"]) == 2 for r in results[1:])
-    assert all(len(s) == len(j.predict) for j, r in zip(jobs[1:], results[1:]) for s in r["slower"])
-    model, _, op, _ = finish_training(runs, jobs, results, cfg)
-    assert 0 <= op["threshold"] <= 1
-    with pytest.raises(ConfigError, match="choose_on_slower"):
-        GraspTrainConfig(choose_on_slower=True)

@@ -30,14 +30,7 @@ from slipsense.recordings.clips import object_folds
 from slipsense.recordings.runs import GraspRun
 from slipsense.sensors.spec import GELSIGHT_MINI
 from slipsense.training.distributed import setup
-from slipsense.training.grasps import (
-    GraspTrainConfig,
-    as_slower_run,
-    candidates,
-    fit_runs,
-    predict_runs,
-    with_settings,
-)
+from slipsense.training.grasps import GraspTrainConfig, candidates, fit_runs, predict_runs, with_settings
 
 
 def object_split(runs: Sequence[GraspRun], folds: int, seed: int = 0) -> list[list[str]]:
@@ -78,14 +71,8 @@ def fit_job(shared: tuple[Sequence[GraspRun], GraspTrainConfig], job: FitJob, ti
     )
     probs = predict_runs(model, [runs[i] for i in job.predict], cfg.startup)
     judged = predict_runs(model, [runs[i] for i in job.judge], cfg.startup) if job.judge else []
-    # the runs that choose the operating point, also as each slower camera gives them (choose_on_slower)
-    choosing = job.judge or (job.predict if not job.keep_model else ())
-    slower = [
-        predict_runs(model, [as_slower_run(runs[i], f) for i in choosing], cfg.startup)
-        for f in (cfg.slower if cfg.choose_on_slower and choosing else [])
-    ]
     state = {k: v.detach().clone() for k, v in model.state_dict().items()} if job.keep_model else None
-    return {"history": history, "probs": probs, "judged": judged, "slower": slower, "state": state}
+    return {"history": history, "probs": probs, "judged": judged, "state": state}
 
 
 def job_weight(job: FitJob, cfg: GraspTrainConfig) -> float:
@@ -136,9 +123,6 @@ def finish_training(
         model.eval()
         judged = [runs[i] for i in judged_indices(runs, js)]
         probs = inner_traces(runs, js, rs) if c.inner_folds else rs[0]["judged"]
-        for k in range(len(c.slower) if c.choose_on_slower else 0):  # the same grasps at each slower rate
-            slow = inner_traces(runs, js, rs, k) if c.inner_folds else rs[0]["slower"][k]
-            probs, judged = [*probs, *slow], [*judged, *map(_shortened, judged[: len(slow)], slow)]
         op = _chosen_operating_point(probs, judged, c)
         rank = (op.get("score_on_training_runs", 0.0), _peak_auc(probs, judged, c.startup))
         tried.append({"settings": settings, "score": rank[0], "roc_auc": rank[1]})
@@ -183,24 +167,12 @@ def judged_indices(runs: Sequence[GraspRun], jobs: Sequence[FitJob]) -> list[int
 
 
 def inner_traces(
-    runs: Sequence[GraspRun], jobs: Sequence[FitJob], results: Sequence[dict[str, Any]], slower: int | None = None
+    runs: Sequence[GraspRun], jobs: Sequence[FitJob], results: Sequence[dict[str, Any]]
 ) -> list[np.ndarray]:
     """The out-of-fold P(slip) traces of the detector's judged training runs (:func:`judged_indices`,
-    in that order), each from the inner-fold model that did not train on its object; ``slower``: as
-    the ``train.slower[slower]`` camera gives them (``choose_on_slower``)."""
-    by_index = {
-        i: p
-        for job, res in zip(jobs[1:], results[1:])
-        for i, p in zip(job.predict, res["probs"] if slower is None else res["slower"][slower])
-    }
+    in that order), each from the inner-fold model that did not train on its object."""
+    by_index = {i: p for job, res in zip(jobs[1:], results[1:]) for i, p in zip(job.predict, res["probs"])}
     return [by_index[i] for i in judged_indices(runs, jobs)]
-
-
-def _shortened(run: GraspRun, trace: np.ndarray) -> GraspRun:
-    """``run``'s labels for a trace of it as a slower camera gives it (:func:`as_slower_run`: a few
-    ticks shorter at the end), for choosing the operating point."""
-    m = run.moment_of_slip
-    return replace(run, moment_of_slip=None if m is None else min(m, len(trace) - 1))
 
 
 def train_with_operating_point(

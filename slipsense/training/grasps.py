@@ -81,9 +81,6 @@ class GraspTrainConfig:
     # train on each run of a step as a unit of another exposure would see it: its grey levels times a
     # gain drawn uniformly from [low, high] (e.g. [0.7, 1.3]; empty: as recorded)
     gain: list = field(default_factory=list)
-    # choose the operating point also on the inner folds' runs as each `slower` camera gives them: one
-    # threshold whose held grasps' alarms and warnings hold at every rate trained on
-    choose_on_slower: bool = False
 
     def __post_init__(self):
         checks = {
@@ -134,8 +131,6 @@ class GraspTrainConfig:
             and 0.1 <= g[0] <= g[1] <= 10
         ):  # fmt: skip
             raise ConfigError(f"gain must be [low, high] with 0.1 <= low <= high <= 10, got {g!r}")
-        if not isinstance(self.choose_on_slower, bool) or (self.choose_on_slower and not self.slower):
-            raise ConfigError(f"choose_on_slower must be true or false, and true only with slower rates, got {self.choose_on_slower!r}")
         k = self.max_held_alarm
         if k is not None and (isinstance(k, bool) or not isinstance(k, (int, float)) or not 0 <= k <= 1):
             raise ConfigError(f"max_held_alarm must be a fraction in [0, 1] (0.05: at most 5%), got {k!r}")
@@ -223,15 +218,6 @@ def as_slower_camera(gray: np.ndarray, fraction: float) -> np.ndarray:
     taken = np.floor(k / fraction + 1e-9).astype(np.int64)
     ticks, _ = resample(list(gray[:, taken]), k / (nominal * fraction), nominal)
     return np.ascontiguousarray(np.stack(ticks))
-
-
-def as_slower_run(run: GraspRun, fraction: float) -> GraspRun:
-    """``run`` as a camera at ``fraction`` of the recorded rate gives it (:func:`as_slower_camera`), on
-    the model's clock: the moment of slip stays the same tick (the last one, where the slower camera
-    ends before it)."""
-    gray = as_slower_camera(run.gray, fraction)
-    n, m = gray.shape[1], run.moment_of_slip
-    return replace(run, gray=gray, contact=run.contact[:, :n], moment_of_slip=None if m is None else min(m, n - 1))
 
 
 def _chunk_targets(y: np.ndarray, ends: Sequence[int], chunk: int) -> np.ndarray:
