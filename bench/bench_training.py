@@ -84,6 +84,7 @@ def _reference_logits(model, gray, n_out):
         raise ValueError("non-finite input")
     need = n_out + model.receptive_field - 1
     t = gray.shape[2]
+    gray = model.levelled(gray)  # the recipe's frame levelling, as the current step does
     cur = gray[:, :, t - need :]
     diffs = torch.stack([cur - gray[:, :, t - need - lag : t - lag] for lag in model.lags], dim=3)
     return model.classify(model.encode(diffs * model.diff_scale))

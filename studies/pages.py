@@ -491,14 +491,7 @@ FIGURES: dict[str, Figure] = {
     "looks": Figure(("reports/looks",), looks),
     "adapt": Figure(("reports/adapt-derived",), adapt_derived),
     "rates-folds": Figure(("reports/rates-folds",), rates_folds),
-    "rates-folds-slower": Figure(
-        ("reports/rates-folds-slower",), lambda root: rates_folds(root, "reports/rates-folds-slower")
-    ),
     "looks-folds": Figure(("reports/looks-folds",), lambda root: looks(root, "reports/looks-folds")),
-    "rates-folds-units": Figure(
-        ("reports/rates-folds-units",), lambda root: rates_folds(root, "reports/rates-folds-units")
-    ),
-    "looks-folds-units": Figure(("reports/looks-folds-units",), lambda root: looks(root, "reports/looks-folds-units")),
 }
 
 

@@ -20,7 +20,7 @@ from slipsense.config import gelsight_recordings
 from slipsense.ros_node import ALARM_TOPIC, READING_TOPIC, ReadingLoop, StampPairer
 from slipsense.streaming.detector import SlipDetector
 
-RUN = gelsight_recordings() / "ball_white_thread" / "exp_num_9"  # it slips, and the shipped detector warns
+RUN = gelsight_recordings() / "blue_mug" / "exp_num_9"  # it slips, and the shipped detector warns
 
 
 def test_frames_are_paired_by_stamp_and_the_unpaired_are_counted():

@@ -42,4 +42,4 @@ if __name__ == "__main__":
     here = Path(__file__).resolve().parents[2]
     data = Path(os.environ.get("SLIPSENSE_DATA", here.parent / "shared" / "data"))
     doc = outputs(data, here / "slipsense" / "resources" / "models")
-    Path(sys.argv[1]).write_text(json.dumps(doc, indent=0) + "\n")
+    Path(sys.argv[1]).write_text(json.dumps(doc, separators=(",", ":")) + "\n")
