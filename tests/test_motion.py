@@ -295,7 +295,7 @@ def test_levelled_frames_stream_like_the_whole_run_and_take_out_exposure():
     """``level``: each frame scaled to a mean grey of 0.5 -- pushed, whole and in training chunks alike,
     and a unit with 0.7x the exposure gives (up to uint8 rounding) the same probabilities."""
     m = _model(level=True)
-    g = (torch.randint(60, 200, (1, 2, 40, 16, 20)).float() / 255)
+    g = torch.randint(60, 200, (1, 2, 40, 16, 20)).float() / 255
     with torch.no_grad():
         full = torch.softmax(m(g), -1)[0, :, 1].numpy()
         chunks = torch.softmax(m.chunk_logits([(g[0], [39])], 6), -1)[0, :, 1].numpy()
@@ -310,4 +310,3 @@ def test_levelled_frames_stream_like_the_whole_run_and_take_out_exposure():
         build("motionnet", level="yes")
     black = m.stream()
     assert np.isfinite(black.push_gray(np.zeros((2, 16, 20), np.uint8)))
-
