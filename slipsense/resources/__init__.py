@@ -13,7 +13,7 @@ from __future__ import annotations
 from importlib.resources import files
 from pathlib import Path
 
-#: The default detector: motionnet trained on all 29 shared objects (see docs/detector.md).
+#: The default detector: motionnet trained on every shared run with a known outcome (see docs/models.md).
 DEFAULT_MODEL = "motionnet-gelsight"
 #: The default for one finger: the same recipe trained on each camera alone (configs/motionnet-1sensor.yaml).
 ONE_SENSOR_MODEL = "motionnet-gelsight-1"
