@@ -34,9 +34,10 @@ from slipsense.errors import ConfigError
 from slipsense.models.base import GraspModel, ModelPart, OnnxPart, register
 from slipsense.models.grasp_stream import GraspStream, slip_probability
 
+#: ``level`` scales each frame to this mean grey level, its mean taken as at least ``_DARK`` (a black
+#: frame stays black).
+_LEVEL, _DARK = 0.5, 1.0 / 255.0
 #: Bounds on settings a checkpoint may carry (refused before anything is allocated).
-#: A frame's mean grey level is taken as at least this when ``level`` scales it (a black frame stays black).
-_DARK = 1.0 / 255.0
 _LIMITS = {"width": 256, "features": 512, "temporal": 512, "sensors": 8, "max_lag": 250, "pixels": 512 * 512}
 
 
@@ -144,7 +145,7 @@ class MotionNet(GraspModel):
         streaming needs no state for it). Unchanged otherwise."""
         if not self.level:
             return gray
-        return gray * (0.5 / gray.mean(dim=(-2, -1), keepdim=True).clamp(min=_DARK))
+        return gray * (_LEVEL / gray.mean(dim=(-2, -1), keepdim=True).clamp(min=_DARK))
 
     def differences(self, gray: Tensor) -> Tensor:
         """``(B, S, N, h, w)`` -> ``(B, S, N, L, h, w)``: frame minus the frame ``lag`` back (the first
@@ -327,7 +328,7 @@ class MotionStream(GraspStream):
         m = self.model
         frame = gray.astype(np.float32) / np.float32(255.0)
         if m.level:  # as MotionNet.levelled
-            frame *= np.float32(0.5) / np.maximum(frame.mean(axis=(1, 2), keepdims=True, dtype=np.float32), _DARK)
+            frame *= np.float32(_LEVEL) / np.maximum(frame.mean(axis=(1, 2), keepdims=True, dtype=np.float32), _DARK)
         fresh = not self._frames
         if fresh:
             self._frames.extend([frame] * (m.max_lag + 1))

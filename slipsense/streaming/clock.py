@@ -94,6 +94,14 @@ class ModelClock:
         return due
 
 
+def slower_camera_frames(n: int, fraction: float) -> np.ndarray:
+    """``(K,)`` indices of the frames of an ``n``-frame recording that a camera at ``fraction`` of its
+    rate takes over the same span: the recorded frame at or just before each of its moments (its
+    frame ``k`` is the moment ``k / (fraction * rate)``)."""
+    k = np.arange(int(np.floor((n - 1) * fraction)) + 1)
+    return np.floor(k / fraction + 1e-9).astype(np.int64)
+
+
 def resample(streams: Sequence[np.ndarray], stamps: np.ndarray, fps: float) -> tuple[list[np.ndarray], np.ndarray]:
     """Whole recordings on the model's clock: what :class:`ModelClock` gives frame by frame.
 
@@ -117,4 +125,4 @@ def resample(streams: Sequence[np.ndarray], stamps: np.ndarray, fps: float) -> t
     return [np.stack(o) for o in out], last_tick
 
 
-__all__ = ["MAX_FPS", "MIN_FPS", "ModelClock", "blend", "check_fps", "resample"]
+__all__ = ["MAX_FPS", "MIN_FPS", "ModelClock", "blend", "check_fps", "resample", "slower_camera_frames"]

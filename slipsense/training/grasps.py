@@ -39,7 +39,7 @@ from slipsense.recordings.folders import camera_counts, find_recordings, validat
 from slipsense.recordings.runs import GraspRun, load_runs
 from slipsense.run_config import DEFAULT_MODEL, typed
 from slipsense.sensors.spec import GELSIGHT_MINI
-from slipsense.streaming.clock import resample
+from slipsense.streaming.clock import resample, slower_camera_frames
 from slipsense.training.trainer import LoopSettings, Step, train
 
 
@@ -213,10 +213,8 @@ def as_slower_camera(gray: np.ndarray, fraction: float) -> np.ndarray:
     recorded rate's clock (:func:`~slipsense.streaming.clock.resample`): what the live detector feeds
     the model from such a camera. ``(S, N', h, w)``, ``N' <= N``; frame k is still the moment k/rate."""
     nominal = 25.0  # the clock's unit only: the result depends on the fraction, not on this rate
-    n = gray.shape[1]
-    k = np.arange(int(np.floor((n - 1) * fraction)) + 1)
-    taken = np.floor(k / fraction + 1e-9).astype(np.int64)
-    ticks, _ = resample(list(gray[:, taken]), k / (nominal * fraction), nominal)
+    taken = slower_camera_frames(gray.shape[1], fraction)
+    ticks, _ = resample(list(gray[:, taken]), np.arange(len(taken)) / (nominal * fraction), nominal)
     return np.ascontiguousarray(np.stack(ticks))
 
 

@@ -29,6 +29,7 @@ from slipsense.progress import progress_bar
 from slipsense.recordings.folders import find_recordings
 from slipsense.recordings.frame_cache import video_products
 from slipsense.recordings.types import by_run
+from slipsense.streaming.clock import slower_camera_frames
 from slipsense.streaming.detector import SlipDetector
 from studies.grasp.derive import slower_frame_folders
 from studies.pages import folds_table, lift_table
@@ -49,8 +50,8 @@ def at_rate(fps: float, recorded: float = 25.0) -> Condition:
     """Frames taken at ``fps``: the recorded frame at or just before each of the slower sensor's moments."""
 
     def frames(n, rng):
-        k = np.arange(int(np.floor((n - 1) * fps / recorded)) + 1)
-        return np.floor(k * recorded / fps + 1e-9).astype(np.int64), k / fps
+        taken = slower_camera_frames(n, fps / recorded)
+        return taken, np.arange(len(taken)) / fps
 
     return Condition(f"frames taken at {fps:g} per second", frames, fps)
 
