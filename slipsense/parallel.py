@@ -11,6 +11,11 @@ DDP's job, :mod:`slipsense.training.distributed`).
 The pool is :class:`concurrent.futures.ProcessPoolExecutor` with forked workers on Linux (the data
 every job reads is inherited, not copied; jobs name what they need of it) and spawned ones
 elsewhere (the data is then sent to each worker once).
+
+Workers end with the process that started them, whatever ended it: a worker asks the kernel for
+SIGKILL when its parent dies (Linux's ``PR_SET_PDEATHSIG``) and, everywhere, watches for a new parent
+(a killed parent's children are handed to another). Workers ignore SIGINT, so a Ctrl-C at the
+terminal reaches the parent alone, which ends them and stops with one line (the command line's).
 """
 
 from __future__ import annotations
@@ -20,7 +25,9 @@ import gc
 import multiprocessing
 import os
 import queue as queue_mod
+import signal
 import sys
+import threading
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from typing import Any, Callable, Sequence
@@ -53,8 +60,37 @@ def _context():
     return multiprocessing.get_context(method)
 
 
-def _init_worker(shared: Any, ticks: Any) -> None:
+def end_with_parent(parent: int) -> None:
+    """Make this worker process end when ``parent`` (the pid that started it) ends, and leave Ctrl-C
+    to the parent. Called first thing in every worker (pool workers here, data loader workers).
+
+    A worker blocked on its job queue would otherwise outlive a parent killed with SIGKILL (which no
+    handler of the parent sees), asleep and holding its memory, reparented to init.
+    """
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent ends its workers itself on Ctrl-C
+    if hasattr(signal, "pthread_sigmask"):  # blocked by the parent while it forked: see _sigint_held
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+    if sys.platform == "linux":
+        import ctypes
+
+        pr_set_pdeathsig = 1
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(pr_set_pdeathsig, signal.SIGKILL, 0, 0, 0)
+    if os.getppid() != parent:  # the parent died before the request above took effect
+        os._exit(1)
+    threading.Thread(target=_watch_parent, args=(parent,), daemon=True, name="slipsense-parent-watch").start()
+
+
+def _watch_parent(parent: int, every_s: float = 0.5) -> None:
+    """Where the platform has no parent-death signal: a dead parent's children get a new parent."""
+    while os.getppid() == parent:
+        time.sleep(every_s)
+    os._exit(1)
+
+
+def _init_worker(shared: Any, ticks: Any, parent: int) -> None:
     global _SHARED, _TICKS
+    end_with_parent(parent)
     os.environ["OMP_NUM_THREADS"] = "1"  # before torch starts its thread pool, if a job imports it
     _SHARED, _TICKS = shared, ticks
 
@@ -83,6 +119,21 @@ def _opencv_without_pool():
         yield
     finally:
         cv2.setNumThreads(before)
+
+
+@contextlib.contextmanager
+def _sigint_held():
+    """SIGINT blocked in this thread while it starts workers: a worker inherits the block and
+    unblocks only once it ignores SIGINT (a Ctrl-C between its start and then would end it with a
+    traceback). A Ctrl-C meanwhile stays pending here and is raised when the block ends."""
+    if not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    before = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, before)
 
 
 def _in_worker(fn: Callable, index: int, job: Any) -> Any:
@@ -163,10 +214,13 @@ def run_jobs(
         with (
             _opencv_without_pool(),
             _heap_frozen_for_fork(),
-            ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker, initargs=(shared, ticks)) as pool,
+            ProcessPoolExecutor(
+                workers, mp_context=ctx, initializer=_init_worker, initargs=(shared, ticks, os.getpid())
+            ) as pool,
         ):
-            pending = {pool.submit(_in_worker, fn, i, jobs[i]): i for i in range(n)}
             try:
+                with _sigint_held():  # the pool starts its workers at the first submit
+                    pending = {pool.submit(_in_worker, fn, i, jobs[i]): i for i in range(n)}
                 while pending:
                     done, _ = wait(pending, timeout=0.5, return_when=FIRST_COMPLETED)
                     _drain(ticks, bar)
@@ -177,12 +231,20 @@ def run_jobs(
                             on_done(i, results[i])
             except BaseException:
                 pool.shutdown(wait=False, cancel_futures=True)
+                _end_workers(pool)  # else leaving the pool waits for the jobs they are running
                 raise
             time.sleep(0.05)
             _drain(ticks, bar)
         return results
     finally:
         bar.close()
+
+
+def _end_workers(pool: ProcessPoolExecutor) -> None:
+    """Kill the pool's worker processes now (on an error or Ctrl-C here: their jobs are not wanted)."""
+    for proc in list((getattr(pool, "_processes", None) or {}).values()):
+        if proc.is_alive():
+            proc.kill()
 
 
 def _drain(ticks: Any, bar: _Progress) -> None:

@@ -19,8 +19,14 @@ def one_line_warning(message, category, filename, lineno, file=None, line=None) 
     return f"warning: {message}\n"
 
 
+#: Exit code after Ctrl-C (SIGINT), as shells report a command that SIGINT ended: 128 + 2.
+INTERRUPTED = 130
+
+
 def friendly(fn):
-    """Print SlipsenseErrors as ``error: <file>: <problem>`` and exit 2 instead of a traceback."""
+    """Print SlipsenseErrors as ``error: <file>: <problem>`` and exit 2 instead of a traceback; end
+    on Ctrl-C with one line and exit code 130 (worker processes end with the command:
+    :mod:`slipsense.parallel`)."""
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
@@ -29,6 +35,9 @@ def friendly(fn):
         except SlipsenseError as exc:
             typer.echo(f"error: {exc}", err=True)
             raise typer.Exit(2)
+        except KeyboardInterrupt:
+            typer.echo("interrupted: stopped with its worker processes (what was saved is kept)", err=True)
+            raise typer.Exit(INTERRUPTED)
 
     return wrapper
 

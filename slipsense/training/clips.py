@@ -12,8 +12,10 @@ process that draws them).
 from __future__ import annotations
 
 import copy
+import functools
 import json
 import math
+import os
 import random
 import warnings
 from dataclasses import asdict, dataclass, fields, replace
@@ -34,6 +36,7 @@ from slipsense.errors import ConfigError, InputError, SlipsenseError
 from slipsense.evaluation.evaluate import evaluate_model, predict
 from slipsense.evaluation.metrics import metrics_from
 from slipsense.models import available, build, model_class, settings_of
+from slipsense.parallel import end_with_parent
 from slipsense.readers import check_same_split
 from slipsense.recordings.folders import find_recordings
 from slipsense.run_config import dump_tree, typed
@@ -41,6 +44,11 @@ from slipsense.sensors.spec import sensor_of
 from slipsense.training.distributed import Dist, RankBatches, StepPlan, setup  # noqa: F401
 from slipsense.training.operating_point import choose_on_training_runs
 from slipsense.training.trainer import LoopSettings, Step, restore, rng_state, set_rng_state, train
+
+
+def _loader_worker_start(parent: int, worker_id: int) -> None:
+    """A data loader worker ends with this process, as every worker does (:mod:`slipsense.parallel`)."""
+    end_with_parent(parent)
 
 
 @dataclass
@@ -141,7 +149,11 @@ class ClipTask:
             self._rank_batches = RankBatches(self._plan, d.rank)
             workers = self.cfg.num_workers
             self._loader = DataLoader(
-                self.train_data, batch_sampler=self._rank_batches, num_workers=workers, persistent_workers=workers > 0
+                self.train_data,
+                batch_sampler=self._rank_batches,
+                num_workers=workers,
+                persistent_workers=workers > 0,
+                worker_init_fn=functools.partial(_loader_worker_start, os.getpid()) if workers > 0 else None,
             )
         return [Step(micro, float(sum(len(m) for m in micro))) for micro in self._plan.steps(epoch)]
 
