@@ -28,7 +28,7 @@ from slipsense.errors import ConfigError, InputError
 from slipsense.recordings.augment import AugmentConfig
 from slipsense.recordings.clips import ClipSpec, object_folds, split_by_clip, split_by_object
 from slipsense.sensors.markers import layout_name, marker_layout
-from slipsense.sensors.spec import BINOCULAR_MARKERS, GELSIGHT_MINI, sensor_named, sensor_of
+from slipsense.sensors.spec import BINOCULAR_MARKERS, GELSIGHT_MINI, fps_problem, sensor_named, sensor_of
 
 
 @dataclass
@@ -284,7 +284,7 @@ def _marker_sensor(path, x: np.ndarray, layout: str | None) -> dict[str, Any]:
         return replace(GELSIGHT_MINI, output="markers", markers=int(x.shape[2])).to_dict()
     fps = BINOCULAR_MARKERS.fps
     with np.load(path, allow_pickle=False) as z:
-        if "fps" in z.files and np.ndim(z["fps"]) == 0 and 0 < float(z["fps"]) <= 10_000:
+        if "fps" in z.files and np.ndim(z["fps"]) == 0 and fps_problem(float(z["fps"])) is None:
             fps = float(z["fps"])
     return replace(BINOCULAR_MARKERS, name="markers", fps=fps, markers=int(x.shape[2])).to_dict()
 

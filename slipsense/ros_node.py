@@ -1,24 +1,45 @@
-"""A ROS 2 node: a slip detector on one or two image topics, its readings and alarms out.
+"""A ROS 2 node: a slip detector on one or two image topics; its readings, its alarms and an account of
+every frame pair out.
 
-    slipsense ros --topic /left/image_raw --topic /right/image_raw
-    python -m slipsense.ros_node --ros-args -p topics:="['/left/image_raw', '/right/image_raw']"
+    slipsense ros --topic /left/image_raw --topic /right/image_raw --threads 1
+    python -m slipsense.ros_node --ros-args -p topics:="['/left/image_raw', '/right/image_raw']" -p threads:=1
 
 Install with ``pip install "slipsense[ros]"`` (rclpy and the messages from the package registry; no
 ROS installation needed). Parameters: ``topics`` (one image topic per sensor, ``sensor_msgs/Image``
 or, with ``compressed:=true``, ``CompressedImage``), ``checkpoint`` (default: the shipped detector
-for that many sensors), ``backend`` (auto, torch or onnx), ``tolerance`` (seconds between the stamps
-of a pair; default half a frame period of the detector's sensor). Subscriptions use the sensor-data
-QoS a camera driver publishes with.
+for that many sensors), ``backend`` (auto, torch or onnx), ``threshold`` (the alarm threshold;
+negative, the default: the checkpoint's operating point), ``hold`` (seconds an alarm stays on once
+raised; negative, the default: the checkpoint's), ``tolerance`` (seconds between the stamps
+of a pair; 0, the default: half a frame period of the detector's sensor), ``max_lag`` (seconds, default
+0.1: a pair this much older than the newest pair waiting is skipped, so readings do not fall behind
+the cameras), ``threads`` (intra-op threads of torch and ONNX Runtime; 0, the default: torch's; use 1
+on a busy machine).
 
-Out: ``/slipsense/reading`` (``std_msgs/String``, one JSON reading per judged frame pair, the record
-of ``slipsense watch --jsonl``) and ``/slipsense/alarm`` (``std_msgs/Header``, stamped with the frame's
-header stamp, published for every judged frame while the alarm is on). The detector runs on its own
-clock from the header stamps (:meth:`~slipsense.streaming.detector.SlipDetector.push` with stamps),
-so a camera at another rate gives it what it was trained on.
+QoS. In: each image topic best effort, volatile, keep last :data:`QUEUE_DEPTH` (10), the sensor-data
+QoS a camera driver publishes with (a reliable publisher matches it too). Out, all reliable (a best
+effort subscriber matches too): ``/slipsense/reading`` (``std_msgs/String``, volatile, keep last 10):
+one JSON reading per judged frame pair, the record of ``slipsense watch --jsonl`` and of the readings
+``slipsense watch --bag-out`` writes on that topic, with ``frame`` the pair's index as received and
+``stamp`` its header stamp (s); ``/slipsense/alarm`` (``std_msgs/Header``, volatile, keep last 10),
+stamped with the frame's header stamp, published for every judged frame while the alarm is on;
+``/slipsense/status`` (``std_msgs/String``, transient local, keep last 1, so a late subscriber gets
+the latest): every second, the JSON account below. The detector runs on its own clock from the
+header stamps (:meth:`~slipsense.streaming.detector.SlipDetector.push` with stamps), so a camera at
+another rate gives it what it was trained on.
 
-Faults are logged in one line each and the node keeps running: a message that cannot be decoded
-(wrong encoding or size) or whose stamp goes backwards is left out and no reading is published for
-it; a topic silent for a second, a sensor that starts late and unpaired messages are reported.
+Every frame pair is accounted for. Pair ``frame`` is the ``frame``-th message of the first topic since
+the node heard its first one, counting those that never arrived (gaps in their publisher's sequence
+numbers), so a gap in the readings' ``frame`` is a pair without a reading. A pair without a reading is
+left out for one cause: ``lost`` (the first topic's message never reached the node: dropped from
+the subscription's queue or on the way), ``unpaired`` (no message of every other topic within the
+tolerance), ``undecodable`` (an image of the wrong encoding or size), ``late`` (its stamp is not
+after the last judged pair's) or ``behind`` (the detector was busy and a pair more than ``max_lag``
+newer was waiting). The status: ``{"pairs", "judged", "left_out": {cause: count}, "pending",
+"topics": [{"topic", "received", "lost", "unpaired"}]}`` with ``pairs == judged + sum(left_out) +
+pending`` (``pending``: waiting for a partner or for the detector); ``topics`` counts messages per
+topic. It is logged in one line whenever a count of frames left out grew (at most once a second)
+and when the node stops; undecodable and late pairs are also logged one line each, and a topic
+silent for a second (or a sensor that starts late) and its return. The node keeps running.
 """
 
 from __future__ import annotations
@@ -26,23 +47,34 @@ from __future__ import annotations
 import collections
 import json
 import sys
+import threading
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
 
 from slipsense.checkpoint import read_info
-from slipsense.errors import SlipsenseError
+from slipsense.errors import ConfigError, SlipsenseError
 from slipsense.evaluation.pergrasp import promise_text
 from slipsense.recordings.bags import COMPRESSED, IMAGE, decode_image
 from slipsense.resources import default_model_name, shipped_model
 from slipsense.streaming.detector import SlipDetector
 from slipsense.streaming.readings import reading_record
 
-READING_TOPIC, ALARM_TOPIC = "/slipsense/reading", "/slipsense/alarm"
+READING_TOPIC, ALARM_TOPIC, STATUS_TOPIC = "/slipsense/reading", "/slipsense/alarm", "/slipsense/status"
+#: Why a frame pair got no reading (see the module's docstring), in the order the status lists them.
+CAUSES = ("lost", "unpaired", "undecodable", "late", "behind")
 #: A topic without a message for this long (seconds) is reported as stopped.
 SILENT_S = 1.0
+#: Seconds between status messages (and at most between status log lines).
+STATUS_S = 1.0
+#: Default ``max_lag`` (seconds).
+MAX_LAG_S = 0.1
+#: Messages each image subscription holds while the node is busy; older ones are dropped (and counted).
+QUEUE_DEPTH = 10
+#: Frames of one topic kept waiting for partners before the oldest is given up (counted as unpaired).
+PAIRER_DEPTH = 64
 
 
 @dataclass
@@ -51,18 +83,29 @@ class StampPairer:
 
     ``add(k, stamp, frame)`` queues topic ``k``'s frame and returns the pairs now complete: the oldest
     frame of every topic, when their stamps lie within ``tolerance_ns`` of each other; an older frame
-    that can no longer find partners is dropped and counted in ``unpaired[k]``."""
+    that can no longer find partners (or one pushed out of a queue of ``depth`` waiting frames) is
+    dropped, counted in ``unpaired[k]`` and handed to ``on_unpaired(k, frame)``."""
 
     topics: int
     tolerance_ns: int
     unpaired: list[int] = field(default_factory=list)
+    on_unpaired: Optional[Callable[[int, Any], None]] = None
+    depth: int = PAIRER_DEPTH
 
     def __post_init__(self):
-        self._queues: list[collections.deque] = [collections.deque(maxlen=64) for _ in range(self.topics)]
+        self._queues: list[collections.deque] = [collections.deque() for _ in range(self.topics)]
         self.unpaired = [0] * self.topics
+
+    def _drop(self, k: int) -> None:
+        _, frame = self._queues[k].popleft()
+        self.unpaired[k] += 1
+        if self.on_unpaired is not None:
+            self.on_unpaired(k, frame)
 
     def add(self, k: int, stamp: int, frame: Any) -> list[tuple[int, list[Any]]]:
         self._queues[k].append((stamp, frame))
+        if len(self._queues[k]) > self.depth:  # a partner topic is silent: give the oldest up, counted
+            self._drop(k)
         pairs = []
         while all(self._queues):
             heads = [q[0][0] for q in self._queues]
@@ -70,63 +113,187 @@ class StampPairer:
                 frames = [q.popleft() for q in self._queues]
                 pairs.append((frames[0][0], [f for _, f in frames]))
                 continue
-            oldest = int(np.argmin(heads))  # it can pair with nothing that is still to come
-            self._queues[oldest].popleft()
-            self.unpaired[oldest] += 1
+            self._drop(int(np.argmin(heads)))  # it can pair with nothing that is still to come
         return pairs
 
 
-class ReadingLoop:
-    """What the node does with paired frames, apart from ROS: decode, push on the detector's clock,
-    and hand each judged frame's record to ``publish``; faults go to ``log`` in one line each."""
+class SequenceGaps:
+    """Messages of one topic that never reached the node: the gaps in each publisher's publication
+    sequence numbers (``MessageInfo`` of rclpy; a middleware that gives none counts nothing)."""
 
-    def __init__(self, detector: SlipDetector, topics: Sequence[str], msgtype: str, publish: Callable, log: Callable):
+    def __init__(self):
+        self._last: dict[Any, int] = {}
+
+    def missed(self, info: Optional[dict]) -> int:
+        """Messages of this message's publisher sent between the previous one heard and this one."""
+        seq = (info or {}).get("publication_sequence_number")
+        if not isinstance(seq, int) or seq <= 0 or seq >= 2**63:  # unsupported: none, 0 or the max
+            return 0
+        gid = info.get("publisher_gid")
+        key = bytes(gid["data"]) if isinstance(gid, dict) and "data" in gid else repr(gid)
+        last = self._last.get(key)
+        self._last[key] = seq if last is None else max(last, seq)
+        return 0 if last is None or seq <= last else seq - last - 1
+
+
+def stamp_ns(msg: Any) -> int:
+    return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+
+
+class ReadingLoop:
+    """What the node does with image messages, apart from ROS: count them, pair them by stamp, decode
+    each pair, push it on the detector's clock and hand the judged frame's record to
+    ``publish(record, stamp_ns, alarm)``; faults go to ``log`` in one line each, and every pair that
+    gets no reading is counted by cause (:meth:`status`).
+
+    ``on_message`` (the subscriptions' callback) only counts and pairs. With ``inline`` the pairs are
+    judged there and then; else by :meth:`judge_pending`, which :meth:`start` runs on a thread of its
+    own, so the subscriptions' queues are emptied while the detector works."""
+
+    def __init__(
+        self,
+        detector: SlipDetector,
+        topics: Sequence[str],
+        msgtype: str,
+        publish: Callable,
+        log: Callable,
+        tolerance_s: float | None = None,
+        max_lag_s: float = MAX_LAG_S,
+        inline: bool = True,
+    ):
         self.detector, self.topics, self.msgtype = detector, list(topics), msgtype
-        self.publish, self.log = publish, log
-        tolerance_ns = int(round(0.5e9 / detector.sensor.fps))
-        self.pairer = StampPairer(len(self.topics), tolerance_ns)
+        self.publish, self.log, self.inline = publish, log, inline
+        tolerance = 0.5 / detector.sensor.fps if tolerance_s is None else float(tolerance_s)
+        self.max_lag_ns = int(round(max_lag_s * 1e9))
+        self.pairer = StampPairer(len(self.topics), int(round(tolerance * 1e9)), on_unpaired=self._unpaired)
+        self.gaps = [SequenceGaps() for _ in self.topics]
+        self.received = [0] * len(self.topics)  # messages per topic
+        self.lost = [0] * len(self.topics)  # messages per topic that never arrived
+        self.pairs = 0  # pair indices given out: messages of the first topic, arrived or lost
+        self.judged = 0
+        self.left_out = dict.fromkeys(CAUSES, 0)
         self.first_ns: int | None = None
+        self.last_judged_ns: int | None = None
         self.last_seen = [0.0] * len(self.topics)
         self.silent = [False] * len(self.topics)
-        self.judged = self.refused = 0
         self.rate_told = False
+        self.error: BaseException | None = None
         self._stamps: list[int] = []
+        self._ready: collections.deque = collections.deque()  # (index, stamp_ns, messages) to judge
+        self._cond = threading.Condition()  # guards the counts and _ready
+        self._stopping = False
+        self._thread: threading.Thread | None = None
 
-    def on_message(self, k: int, msg: Any) -> None:
+    # -- the subscriptions' side ---------------------------------------------------------------
+    def on_message(self, k: int, msg: Any, info: Optional[dict] = None) -> None:
         self.last_seen[k] = time.monotonic()
         if self.silent[k]:
             self.log(f"{self.topics[k]}: messages again")
             self.silent[k] = False
-        stamp = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
-        try:
-            frame = decode_image(msg, self.msgtype, self.topics[k])
-        except SlipsenseError as exc:
-            self.refused += 1
-            self.log(f"left out: {exc}")
-            return
-        for pair_stamp, frames in self.pairer.add(k, stamp, frame):
-            self.judge(pair_stamp, frames)
+        stamp = stamp_ns(msg)
+        with self._cond:
+            missed = self.gaps[k].missed(info)
+            self.received[k] += 1
+            self.lost[k] += missed
+            index = None
+            if k == 0:  # the first topic numbers the pairs, the lost ones included
+                self.left_out["lost"] += missed
+                index = self.pairs + missed
+                self.pairs = index + 1
+            for pair_stamp, items in self.pairer.add(k, stamp, (index, msg)):
+                self._ready.append((items[0][0], pair_stamp, [m for _, m in items]))
+            while len(self._ready) > 1 and self._ready[-1][1] - self._ready[0][1] > self.max_lag_ns:
+                self._ready.popleft()  # stale already: the queue holds no more than max_lag of frames
+                self.left_out["behind"] += 1
+            if self._ready:
+                self._cond.notify()
+        if self.inline:
+            self.judge_pending()
 
-    def judge(self, stamp_ns: int, frames: list[np.ndarray]) -> None:
+    def _unpaired(self, k: int, item: tuple[int | None, Any]) -> None:
+        if k == 0:  # called by the pairer, under the lock
+            self.left_out["unpaired"] += 1
+
+    # -- the detector's side ---------------------------------------------------------------------
+    def judge_pending(self) -> None:
+        """Judge the pairs waiting, oldest first; one more than ``max_lag`` older than the newest
+        waiting is left out as ``behind``."""
+        while True:
+            with self._cond:
+                if not self._ready or self._stopping:
+                    return
+                index, stamp, msgs = self._ready.popleft()
+                if self._ready and self._ready[-1][1] - stamp > self.max_lag_ns:
+                    self.left_out["behind"] += 1
+                    continue
+            self.judge(index, stamp, msgs)
+
+    def _leave_out(self, cause: str, why: str | None = None) -> None:
+        with self._cond:
+            self.left_out[cause] += 1
+        if why is not None:
+            self.log(f"left out ({cause}): {why}")
+
+    def judge(self, index: int, stamp: int, msgs: Sequence[Any]) -> None:
+        where = f"{', '.join(self.topics)} at {stamp * 1e-9:.6f} s"
+        if self.last_judged_ns is not None and stamp <= self.last_judged_ns:
+            before = self.last_judged_ns * 1e-9
+            return self._leave_out("late", f"{where}: the stamp goes backwards (the last judged: {before:.6f} s)")
+        try:
+            frames = [decode_image(m, self.msgtype, t) for m, t in zip(msgs, self.topics)]
+        except SlipsenseError as exc:
+            return self._leave_out("undecodable", str(exc))
         if self.first_ns is None:
-            self.first_ns = stamp_ns
-        t = (stamp_ns - self.first_ns) * 1e-9  # seconds since the first pair: exact, whatever the epoch
+            self.first_ns = stamp
+        t = (stamp - self.first_ns) * 1e-9  # seconds since the first pair: exact, whatever the epoch
         t0 = time.perf_counter()
         try:
             reading = self.detector.push(*frames, stamp=t)
-        except SlipsenseError as exc:  # stamps that go backwards, a frame of another size
-            self.refused += 1
-            self.log(f"left out: {', '.join(self.topics)} at {stamp_ns * 1e-9:.6f} s: {exc}")
-            return
+        except SlipsenseError as exc:  # a frame of another size than the detector's first
+            return self._leave_out("undecodable", f"{where}: {exc}")
         latency_ms = (time.perf_counter() - t0) * 1e3
-        self.judged += 1
-        self._tell_rate(stamp_ns)
-        self.publish(reading_record(reading, stamp_ns * 1e-9, latency_ms), stamp_ns, reading.alarm)
+        self.last_judged_ns = stamp
+        record = reading_record(reading, stamp * 1e-9, latency_ms, frame=index)  # the pair as received
+        with self._cond:
+            self.judged += 1
+        self._tell_rate(stamp)
+        self.publish(record, stamp, reading.alarm)
 
-    def _tell_rate(self, stamp_ns: int) -> None:
+    def start(self, on_error: Callable[[], None] | None = None) -> None:
+        """Judge on a thread of its own until :meth:`stop`; an unexpected error is kept in ``error``,
+        logged, and ``on_error`` called (the node stops)."""
+
+        def work():
+            try:
+                while True:
+                    with self._cond:
+                        self._cond.wait_for(lambda: self._ready or self._stopping)
+                        if self._stopping:
+                            return
+                    self.judge_pending()
+            except BaseException as exc:  # noqa: BLE001  (handed to the node, which stops on it)
+                self.error = exc
+                self.log(f"the detector stopped: {type(exc).__name__}: {exc}")
+                if on_error is not None:
+                    on_error()
+
+        self.inline = False
+        self._thread = threading.Thread(target=work, name="slipsense-detector", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        """Stop judging after the pair in hand; pairs still waiting stay pending."""
+        with self._cond:
+            self._stopping = True
+            self._cond.notify_all()
+        if self._thread is not None:
+            self._thread.join(timeout=10)
+
+    # -- reports -----------------------------------------------------------------------------------
+    def _tell_rate(self, stamp: int) -> None:
         if self.rate_told:
             return
-        self._stamps.append(stamp_ns)
+        self._stamps.append(stamp)
         if len(self._stamps) == 10:
             fps = 1e9 / float(np.median(np.diff(self._stamps)))
             self.log(
@@ -143,19 +310,52 @@ class ReadingLoop:
                 what = "no message yet" if seen == 0.0 else f"no message for {now - seen:.1f} s"
                 self.log(f"{self.topics[k]}: {what}")
 
-    def summary(self) -> str:
-        unpaired = ", ".join(f"{t} {n}" for t, n in zip(self.topics, self.pairer.unpaired))
-        return f"{self.judged} frame pairs judged, {self.refused} left out, unpaired messages: {unpaired}"
+    def status(self) -> dict[str, Any]:
+        """Every pair so far: ``pairs == judged + sum(left_out.values()) + pending``; and per topic the
+        messages received, lost on the way and left without partners."""
+        with self._cond:
+            left = dict(self.left_out)
+            return {
+                "pairs": self.pairs,
+                "judged": self.judged,
+                "left_out": left,
+                "pending": self.pairs - self.judged - sum(left.values()),
+                "topics": [
+                    {"topic": t, "received": r, "lost": lo, "unpaired": u}
+                    for t, r, lo, u in zip(self.topics, self.received, self.lost, self.pairer.unpaired)
+                ],
+            }
+
+    def summary(self, status: dict[str, Any] | None = None) -> str:
+        s = status or self.status()
+        causes = ", ".join(f"{c} {n}" for c, n in s["left_out"].items())
+        topics = "; ".join(
+            f"{t['topic']} {t['received']} ({t['lost']} lost, {t['unpaired']} unpaired)" for t in s["topics"]
+        )
+        return (
+            f"frame pairs judged {s['judged']} of {s['pairs']}, left out {sum(s['left_out'].values())} ({causes}), "
+            f"pending {s['pending']}; messages received: {topics}"
+        )
+
+
+def _number(node: Any, name: str, default: float) -> float:
+    """A numeric parameter that takes an integer too (``-p threshold:=1``)."""
+    from rcl_interfaces.msg import ParameterDescriptor
+
+    value = node.declare_parameter(name, default, ParameterDescriptor(dynamic_typing=True)).value
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ConfigError(f"parameter {name} must be a number, got {value!r}")
+    return float(value)
 
 
 def main(argv: Sequence[str] | None = None, overrides: dict[str, Any] | None = None) -> None:
     """Run the node until it is stopped (Ctrl-C, SIGTERM); ``overrides``: parameters set in code
     (what ``slipsense ros`` passes), over the ``--ros-args`` ones."""
     import rclpy  # the ROS extra: imported where the node runs, so the library imports without it
-    from rclpy.executors import ExternalShutdownException
+    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
     from rclpy.node import Node
     from rclpy.parameter import Parameter
-    from rclpy.qos import qos_profile_sensor_data
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import CompressedImage, Image
     from std_msgs.msg import Header, String
 
@@ -167,38 +367,91 @@ def main(argv: Sequence[str] | None = None, overrides: dict[str, Any] | None = N
     compressed = bool(node.declare_parameter("compressed", False).value)
     checkpoint = str(node.declare_parameter("checkpoint", "").value)
     backend = str(node.declare_parameter("backend", "auto").value)
+    threshold = _number(node, "threshold", -1.0)
+    hold = _number(node, "hold", -1.0)
+    tolerance = _number(node, "tolerance", 0.0)
+    max_lag = _number(node, "max_lag", MAX_LAG_S)
+    threads = int(node.declare_parameter("threads", 0).value)
     kind, msgtype = (CompressedImage, COMPRESSED) if compressed else (Image, IMAGE)
-    if checkpoint:
-        detector = SlipDetector.from_checkpoint(checkpoint, sensors=len(topics), backend=backend)
-    else:
-        detector = SlipDetector.pretrained(sensors=len(topics), backend=backend)
-    log(f"{detector.model_name} on {detector.backend}, {len(topics)} sensor(s), alarm at {detector.threshold:g}")
-    log(promise_text(read_info(checkpoint or shipped_model(default_model_name(len(topics)))).get("operating_point")))
-    readings = node.create_publisher(String, READING_TOPIC, 10)
-    alarms = node.create_publisher(Header, ALARM_TOPIC, 10)
+    if threads < 0 or tolerance < 0 or max_lag < 0:
+        raise ConfigError(f"threads, tolerance and max_lag must be >= 0, got {threads}, {tolerance:g}, {max_lag:g}")
+    import torch  # the detector's; its thread count also sets ONNX Runtime's
 
-    def publish(record: dict, stamp_ns: int, alarm: bool) -> None:
+    if threads:
+        torch.set_num_threads(threads)
+    # the detector's alarm settings: the checkpoint's operating point unless set
+    alarm_settings: dict[str, Any] = {
+        "threshold": None if threshold < 0 else threshold,
+        "hold": None if hold < 0 else hold,
+    }
+    if checkpoint:
+        detector = SlipDetector.from_checkpoint(checkpoint, sensors=len(topics), backend=backend, **alarm_settings)
+    else:
+        detector = SlipDetector.pretrained(sensors=len(topics), backend=backend, **alarm_settings)
+    log(
+        f"{detector.model_name} on {detector.backend}, {len(topics)} sensor(s), alarm at {detector.threshold:g}"
+        f"{'' if threshold < 0 else ' (set)'}, held {detector.hold:g} s, {torch.get_num_threads()} thread(s)"
+    )
+    if threshold < 0:  # the checkpoint's own operating point: what it promises
+        log(
+            promise_text(read_info(checkpoint or shipped_model(default_model_name(len(topics)))).get("operating_point"))
+        )
+    out_qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+    readings = node.create_publisher(String, READING_TOPIC, out_qos)
+    alarms = node.create_publisher(Header, ALARM_TOPIC, out_qos)
+    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    statuses = node.create_publisher(String, STATUS_TOPIC, latched)
+    in_qos = QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=QUEUE_DEPTH,
+        reliability=ReliabilityPolicy.BEST_EFFORT,
+        durability=DurabilityPolicy.VOLATILE,
+    )
+
+    def publish(record: dict, stamp: int, alarm: bool) -> None:
         readings.publish(String(data=json.dumps(record)))
         if alarm:
             header = Header(frame_id="slip")
-            header.stamp.sec, header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
+            header.stamp.sec, header.stamp.nanosec = divmod(stamp, 1_000_000_000)
             alarms.publish(header)
 
-    loop = ReadingLoop(detector, topics, msgtype, publish, log)
+    loop = ReadingLoop(detector, topics, msgtype, publish, log, tolerance_s=tolerance or None, max_lag_s=max_lag)
+    told: list[Any] = [None]
+
+    def report() -> None:
+        status = loop.status()
+        statuses.publish(String(data=json.dumps(status)))
+        losses = [*status["left_out"].values(), *(n for t in status["topics"] for n in (t["lost"], t["unpaired"]))]
+        if any(losses) and losses != told[0]:  # a healthy node stays quiet
+            log(f"status: {loop.summary(status)}")
+        told[0] = losses
+
     for k, topic in enumerate(topics):
-        node.create_subscription(kind, topic, lambda msg, k=k: loop.on_message(k, msg), qos_profile_sensor_data)
+        node.create_subscription(kind, topic, lambda msg, info, k=k: loop.on_message(k, msg, info), in_qos)
     node.create_timer(0.5, loop.check_silence)
-    log(f"listening on {', '.join(topics)}; readings on {READING_TOPIC}, alarms on {ALARM_TOPIC}")
+    node.create_timer(STATUS_S, report)
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    loop.start(on_error=executor.wake)
+    log(
+        f"listening on {', '.join(topics)}; readings on {READING_TOPIC}, alarms on {ALARM_TOPIC}, "
+        f"the account of every frame pair on {STATUS_TOPIC}"
+    )
     try:
-        rclpy.spin(node)
+        while rclpy.ok() and loop.error is None:
+            executor.spin_once(timeout_sec=0.5)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        loop.stop()
         log(loop.summary())
         detector.close()
+        executor.shutdown(timeout_sec=1)
         node.destroy_node()
         if rclpy.ok():
             rclpy.shutdown()
+    if loop.error is not None:
+        raise loop.error
 
 
 if __name__ == "__main__":

@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 from typing import Any, Optional, Sequence
 
+from slipsense.alarm import shown_probability
 from slipsense.atomic import check_output_file
 from slipsense.checkpoint import load_model
 from slipsense.errors import ConfigError, InputError
@@ -23,9 +24,11 @@ from slipsense.streaming.annotate import AnnotatedWriter, Annotator
 from slipsense.streaming.capture import CaptureThread, PacedReader
 from slipsense.streaming.detector import (
     SlipDetector,
+    check_hold,
     check_settings,
     onnx_cache_dir,
     shipped_name,
+    stored_hold,
     stored_operating_point,
 )
 from slipsense.streaming.readings import BagWriter, JsonlWriter, reading_record
@@ -71,10 +74,10 @@ def watch_source(
     checkpoint: Optional[Path],
     threshold: Optional[float] = None,
     out: Optional[Path] = None,
-    combine: str = "max",
+    combine: Optional[str] = None,
     backend: str = "auto",
     max_frames: Optional[int] = None,
-    heatmap: bool = True,
+    heatmap: Optional[bool] = None,
     echo=echo,
     quiet: bool = False,
     dtype: str = "float32",
@@ -84,6 +87,7 @@ def watch_source(
     bag_out: Optional[Path] = None,
     realtime: bool = False,
     fps: Optional[float] = None,
+    hold: Optional[float] = None,
 ) -> dict[str, Any]:
     """Stream ``source`` through the detector; print a line per frame; optionally write an annotated
     GIF/video, the readings as JSON lines (``jsonl``, ``"-"`` for standard output) and into a new bag
@@ -91,8 +95,12 @@ def watch_source(
     source's rate through the live capture path; ``fps``: the source's rate where it states none (a
     folder of frames without ``sensor.json``) or states it wrongly. The detector runs on its own clock
     (:meth:`SlipDetector.push` with the source's stamps), so any source rate gives the model what it was
-    trained on; readings are one per source frame, stamped on the source's clock. Returns ``{"frames", "alarm_onsets", "first_alarm",
-    "out", "source"}`` (``source``: what the source reports of its delivery)."""
+    trained on; readings are one per source frame, stamped on the source's clock. ``combine``: max or
+    mean of the sensors' probabilities, for models that judge each apart (refused for models that
+    fuse them); ``heatmap``: None draws the model's heat map in ``out`` where it has one, True asks for
+    it (refused for a model without one), False leaves it out; ``hold``: seconds an alarm holds
+    (default: the checkpoint's). Returns ``{"frames", "alarm_onsets", "first_alarm", "out",
+    "source"}`` (``source``: what the source reports of its delivery)."""
     if max_frames is not None and max_frames < 0:
         raise ConfigError(f"--max-frames must be 0 or more, got {max_frames}")
     if out is not None:
@@ -102,6 +110,8 @@ def watch_source(
         raise InputError(bag_out, "exists; --bag-out writes a new bag folder")
     # the user's own settings are checked before any source is opened or checkpoint blamed
     check_settings(0.5 if threshold is None else threshold, 1, combine, backend, dtype)
+    if hold is not None:
+        check_hold(hold)
     if checkpoint is None:  # the shipped detectors read videos: one for one finger, one for both
         src = _open(source, None, GELSIGHT_MINI, topics, tolerance, realtime, fps=fps)  # they take pictures
         try:
@@ -129,22 +139,33 @@ def watch_source(
             onnx_dir=onnx_cache_dir(ckpt) if backend == "onnx" else None,
             dtype=dtype,
             debounce=debounce,
+            hold=stored_hold(info, hold),
         )
+        if heatmap and not det.has_heatmap:
+            det.close()
+            raise ConfigError(f"{det.model_name} has no heat map to draw (--heatmap is for ViViT, STNet and TemNet)")
     except ConfigError as exc:  # e.g. one camera given to a two-finger model: name the checkpoint
         src.close()
         raise InputError(ckpt, str(exc)) from None
     if not quiet:
         runs_on = "ONNX Runtime" if det.backend == "onnx" else "PyTorch"
-        echo(f"{Path(ckpt).stem} on {runs_on}, {det.sensors} sensor(s), alarm at {det.threshold:g}", err=jsonl == "-")
+        fused = "" if det.per_sensor or det.sensors == 1 else " fused into one probability"
+        echo(
+            f"{Path(ckpt).stem} on {runs_on}, {det.sensors} sensor(s){fused}, alarm at {det.threshold:g}"
+            + (f", held {det.hold:g} s" if det.hold else ""),
+            err=jsonl == "-",
+        )
         if own_point:  # the checkpoint's own operating point: what it promises
             echo(promise_text(info.get("operating_point")), err=jsonl == "-")
     echo(rate_line(src, det), err=jsonl == "-")
     annot = Annotator(det.threshold, det.sensors, fps=src.fps) if out is not None else None
+    draw_heat = det.has_heatmap and heatmap is not False
     writer = AnnotatedWriter(out, fps=src.fps) if out is not None else None  # plays at the source's speed
     sinks = _sinks(jsonl, bag_out, src, det)
     onsets: list[int] = []
     previous = False
     n = 0
+    losses = _LossReport(src, lambda line: echo(line, err=True))
     try:
         for step in itertools.islice(src.frames(), max_frames):  # takes no frame beyond the last pushed
             display, inputs = step.display, step.inputs
@@ -156,18 +177,19 @@ def watch_source(
             latency_ms = (time.perf_counter() - t0) * 1e3
             n += 1
             if sinks:
-                record = reading_record(r, step.stamp, latency_ms)
+                record = reading_record(r, step.stamp, latency_ms, frame=step.frame)
                 for sink in sinks:
                     sink.write(record)
             if r.alarm and not previous:
                 onsets.append(r.index)
             previous = r.alarm
             if jsonl != "-" and (not quiet or (r.alarm and onsets and onsets[-1] == r.index)):
-                echo(reading_line(r))
+                echo(reading_line(r, det.threshold))
             if writer is not None:
-                heat = [det.heatmap(s) for s in range(det.sensors)] if heatmap else []
+                heat = [det.heatmap(s) for s in range(det.sensors)] if draw_heat else []
                 clouds = list(inputs) if src.converted else []
                 writer.add(annot.draw(display, r, heat, clouds))
+            losses.every(LOSS_REPORT_S)
     except KeyboardInterrupt:  # a live camera is stopped with Ctrl-C: still write what was seen
         pass
     except BrokenPipeError:  # `--jsonl - | head`: the reader has gone; stop as if stopped by hand
@@ -196,13 +218,44 @@ def watch_source(
         + (f" -> {written}" if written else ""),
         err=jsonl == "-",  # standard output carries the readings then
     )
-    for cam in summary["source"].get("cameras", []):
-        echo(
-            f"{cam['camera']}: {cam['fps']:.2f} frames/s captured, {cam['delivered']} of {cam['grabbed']} "
-            f"pushed, {cam['dropped']} dropped, {cam['repeated']} repeated",
-            err=jsonl == "-",
-        )
+    for line in camera_lines(summary["source"]):
+        echo(line, err=jsonl == "-")
     return summary
+
+
+#: Seconds between the lines a live source's losses are reported in while it runs (only when they grow).
+LOSS_REPORT_S = 5.0
+
+
+def camera_lines(stats: dict[str, Any]) -> list[str]:
+    """What live cameras delivered, a line per camera: every frame captured is pushed or counted."""
+    return [
+        f"{cam['camera']}: {cam['fps']:.2f} frames/s captured, {cam['delivered']} of {cam['grabbed']} "
+        f"pushed, {cam['dropped']} dropped (replaced before the detector took them), {cam['repeated']} repeated"
+        for cam in stats.get("cameras", [])
+    ]
+
+
+class _LossReport:
+    """While a live source runs: its cameras' lines on standard error every ``seconds``, when frames
+    were dropped since the last (a controller's log sees losses as they happen, not only at exit)."""
+
+    def __init__(self, src, say):
+        self.src, self.say = src, say
+        self.next = time.monotonic()
+        self.dropped = 0
+
+    def every(self, seconds: float) -> None:
+        now = time.monotonic()
+        if now < self.next:
+            return
+        self.next = now + seconds
+        stats = self.src.stats()
+        dropped = sum(cam["dropped"] for cam in stats.get("cameras", []))
+        if dropped > self.dropped:
+            self.dropped = dropped
+            for line in camera_lines(stats):
+                self.say(line)
 
 
 def _open(source, model, sensor, topics, tolerance, realtime, geometry=None, fps=None):
@@ -275,11 +328,18 @@ def rate_line(src, det) -> str:
     )
 
 
-def reading_line(r) -> str:
+def reading_line(r, threshold: float) -> str:
+    """One reading in words: its probability never printed across ``threshold`` (a value under it
+    never rounds up to it), per-sensor values only where the model has them."""
     if r.probability is None:
         return f"frame {r.index:5d}  p=  -    (filling window)"
-    sensors = " ".join(f"{p:.3f}" for p in r.per_sensor)
-    return f"frame {r.index:5d}  p={r.probability:.3f}  [{sensors}]" + ("  ALARM" if r.alarm else "")
+    sensors = (
+        "" if r.per_sensor is None else "  [" + " ".join(shown_probability(p, threshold) for p in r.per_sensor) + "]"
+    )
+    state = ""
+    if r.alarm:
+        state = "  ALARM" if not r.probability < threshold else "  ALARM (held)"
+    return f"frame {r.index:5d}  p={shown_probability(r.probability, threshold)}{sensors}{state}"
 
 
 __all__ = ["checkpoint_or_shipped", "echo", "reading_line", "watch_source"]

@@ -269,8 +269,19 @@ def stnet_real(root: Path) -> str:
     )
 
 
+def _promise(name: str) -> str:
+    """A shipped detector's promise about held grasps, as every command prints it: read from the
+    checkpoint (its one source), in the one wording of :func:`slipsense.evaluation.pergrasp.promise_text`."""
+    from slipsense.checkpoint import read_info
+    from slipsense.evaluation.pergrasp import promise_text
+    from slipsense.resources import shipped_model
+
+    return promise_text(read_info(shipped_model(name)).get("operating_point"))
+
+
 def readme(root: Path) -> str:
-    """README's one table: a line per question a user asks, each from its report."""
+    """README's one table: a line per question a user asks, each from its report; the shipped
+    detectors' promise about held grasps from the checkpoints themselves."""
     k5 = _pooled(root, "reports/grasp-motionnet-k5")["grasp"]
     one = _pooled(root, "reports/grasp-motionnet-1sensor-k5")["grasp"]
     base = _pooled(root, "reports/grasp-motion-energy")["grasp"]
@@ -282,14 +293,14 @@ def readme(root: Path) -> str:
             "GelSight Mini, both fingers, unseen objects",
             "`motionnet` (shipped)",
             f"warns of {_count(k5['warned'], k5['slip_runs'])} slips in time (median lead {_lead(k5)}), "
-            f"{k5['premature']} too early; {_count(k5['false_positive_grasps'], k5['held_runs'])} held grasps alarm",
+            f"{k5['premature']} too early. Its promise: {_promise('motionnet-gelsight')}",
             "`reports/grasp-motionnet-k5`",
         ],
         [
             "GelSight Mini, one finger, unseen objects",
             "`motionnet-gelsight-1` (shipped)",
-            f"{_count(one['warned'], one['slip_runs'])} camera-slips in time, {one['premature']} too early; "
-            f"{_count(one['false_positive_grasps'], one['held_runs'])} held camera-grasps alarm",
+            f"{_count(one['warned'], one['slip_runs'])} camera-slips in time, {one['premature']} too early. "
+            f"Its promise: {_promise('motionnet-gelsight-1')}",
             "`reports/grasp-motionnet-1sensor-k5`",
         ],
         [
@@ -303,8 +314,7 @@ def readme(root: Path) -> str:
             "another lab's GelSight (`gelsight-lift`), unseen objects",
             "`shear-retention-gelsight-lift` (shipped)",
             f"right on {_interval(shear['operating_point']['accuracy'])} of grasps, ROC AUC "
-            f"{_interval(shear['roc_auc'], percent=False)}; {shear['held_alarming']} of {shear['grasps'] - shear['slipped']} "
-            "held grasps alarm",
+            f"{_interval(shear['roc_auc'], percent=False)}. Its promise: {_promise('shear-retention-gelsight-lift')}",
             "`reports/adaptation`",
         ],
         [

@@ -456,7 +456,7 @@ def test_calibrate_says_so_and_what_to_do_next_when_it_catches_no_slip():
     "sensor, problem",
     [
         (None, "states no frame rate: state it in a sensor.json"),
-        ({"name": "mine", "output": "video", "fps": 0}, "sensor fps must be a number"),
+        ({"name": "mine", "output": "video", "fps": 0}, "a frame rate must be 1 to 240 frames per second, got 0"),
         ({"name": "mine", "output": "video", "fps": 1000}, "a frame rate must be 1 to 240 frames per second"),
     ],
 )

@@ -136,15 +136,10 @@ def adapt(
 @app.command()
 @friendly
 def models():
-    """List the registered models and their parameter counts at default settings."""
-    import torch
+    """List the registered models and the shipped detectors (sensor, cameras, frame rate, promise)."""
+    from slipsense.cli.listing import models_text
 
-    from slipsense.models import available, build, count_parameters
-
-    for name in available():
-        with torch.device("meta"):  # counted without allocating (STNet at the paper's size: 127 M)
-            n = count_parameters(build(name))
-        typer.echo(f"{name:12s} {n:>12,d} parameters")
+    typer.echo(models_text())
 
 
 def _register_extensions() -> None:

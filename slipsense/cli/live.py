@@ -52,11 +52,23 @@ def register(app: typer.Typer) -> None:
             None, help="alarm when the slip probability is >= this (default: the checkpoint's operating point)"
         ),
         out: Optional[Path] = typer.Option(None, help="annotated output: .gif, .mp4 or .avi"),
-        combine: str = typer.Option("max", help="two sensors: max or mean of their probabilities"),
+        combine: Optional[str] = typer.Option(
+            None,
+            help="two sensors, for a model that judges each apart (ViViT, 3D ResNet, STNet): max (default) or "
+            "mean of their probabilities; refused for a model that fuses them (the shipped detectors)",
+        ),
         backend: str = typer.Option("auto", help="auto (ONNX Runtime where installed, else PyTorch), torch or onnx"),
         dtype: str = typer.Option("float32", help="float32, or int8 with --backend onnx (quantized products)"),
         max_frames: Optional[int] = typer.Option(None, help="stop after this many frames"),
-        heatmap: bool = typer.Option(True, help="draw the attention / saliency heat map in --out"),
+        heatmap: Optional[bool] = typer.Option(
+            None,
+            "--heatmap/--no-heatmap",
+            help="draw the model's heat map in --out (default: where the model has one: ViViT's attention, "
+            "STNet's marker saliency; --heatmap is refused for a model without one)",
+        ),
+        hold: Optional[float] = typer.Option(
+            None, help="seconds an alarm stays on once raised (default: the checkpoint's; 0: none)"
+        ),
         quiet: bool = typer.Option(False, help="print only alarm onsets and the summary"),
         threads: Optional[int] = typer.Option(None, help=THREADS_HELP),
         topic: list[str] = typer.Option(
@@ -70,7 +82,7 @@ def register(app: typer.Typer) -> None:
         ),
         bag_out: Optional[Path] = typer.Option(
             None,
-            help="write every reading to a new ROS 2 bag (topic /slipsense/reading, slipsense_msgs/msg/SlipReading)",
+            help="write every reading to a new ROS 2 bag (topic /slipsense/reading, std_msgs/msg/String JSON records)",
         ),
         fps: Optional[float] = typer.Option(
             None,
@@ -102,6 +114,7 @@ def register(app: typer.Typer) -> None:
             bag_out=bag_out,
             realtime=realtime,
             fps=fps,
+            hold=hold,
         )
 
     @app.command("ros")
@@ -111,22 +124,53 @@ def register(app: typer.Typer) -> None:
             [], help="an image topic, once per sensor, in order (default /left/image_raw and /right/image_raw)"
         ),
         checkpoint: Optional[Path] = typer.Option(None, help="checkpoint (default: the shipped detector)"),
+        threshold: Optional[float] = typer.Option(
+            None, help="alarm when the slip probability is >= this (default: the checkpoint's operating point)"
+        ),
+        hold: Optional[float] = typer.Option(
+            None, help="seconds an alarm stays on once raised (default: the checkpoint's; 0: none)"
+        ),
         backend: str = typer.Option("auto", help="auto (ONNX Runtime where installed, else PyTorch), torch or onnx"),
+        threads: Optional[int] = typer.Option(None, help=THREADS_HELP),
         compressed: bool = typer.Option(False, help="the topics carry sensor_msgs/CompressedImage"),
+        tolerance: Optional[float] = typer.Option(
+            None, help="seconds: the largest stamp difference of paired frames (default half a frame period)"
+        ),
+        max_lag: float = typer.Option(
+            0.1,
+            help="seconds: while the detector is busy, a frame pair this much older than the newest one waiting "
+            "is skipped (counted as behind), so readings keep up with the cameras",
+        ),
     ):
-        """Run the detector as a ROS 2 node: image topics in, /slipsense/reading (JSON) and
-        /slipsense/alarm (stamped) out (needs: pip install "slipsense\\[ros]")."""
+        """Run the detector as a ROS 2 node: image topics in; /slipsense/reading (std_msgs/String, one JSON
+        reading per frame pair), /slipsense/alarm (stamped) and /slipsense/status (JSON, every second: every
+        frame pair judged or left out, by cause) out (needs: pip install "slipsense\\[ros]")."""
         try:
             import rclpy  # noqa: F401  (the ROS extra)
         except ImportError:
             raise ConfigError('the ROS 2 node needs rclpy: pip install "slipsense[ros]"') from None
         from slipsense.ros_node import main as run_node
 
-        overrides = {"backend": backend, "compressed": compressed}
+        set_threads(threads)
+        if threshold is not None and not 0.0 <= threshold <= 1.0:
+            raise ConfigError(f"--threshold must be in [0, 1], got {threshold:g}")
+        if (tolerance is not None and tolerance <= 0) or max_lag < 0:
+            raise ConfigError("--tolerance must be > 0 and --max-lag >= 0 (seconds)")
+        overrides = {"backend": backend, "compressed": compressed, "max_lag": float(max_lag)}
         if topic:
             overrides["topics"] = list(topic)
         if checkpoint is not None:
             overrides["checkpoint"] = str(checkpoint_path(checkpoint))
+        if threshold is not None:
+            overrides["threshold"] = float(threshold)
+        if hold is not None:
+            from slipsense.streaming.detector import check_hold
+
+            overrides["hold"] = check_hold(hold)
+        if threads is not None:
+            overrides["threads"] = int(threads)
+        if tolerance is not None:
+            overrides["tolerance"] = float(tolerance)
         run_node(argv=[], overrides=overrides)
 
     @app.command("export")
@@ -135,10 +179,16 @@ def register(app: typer.Typer) -> None:
         checkpoint: Optional[Path] = typer.Option(None, help="checkpoint (default: the shipped detector)"),
         out: Path = typer.Option(..., help="output .onnx file (streaming parts go beside it)"),
         batch: Optional[int] = typer.Option(None, help="fixed batch size (default: dynamic)"),
-        streaming: bool = typer.Option(True, help="also write <stem>.frame.onnx / <stem>.window.onnx"),
+        streaming: bool = typer.Option(
+            True,
+            help="also write the parts the live detector runs beside it, <stem>.<part>.onnx: "
+            "<stem>.frame.onnx and <stem>.step.onnx (motionnet, motion-energy, shear-retention), "
+            "<stem>.frame.onnx and <stem>.window.onnx (vivit, stnet, temnet); none for resnet3d50",
+        ),
         verify: bool = typer.Option(True, help="compare ONNX Runtime with PyTorch on a random input"),
     ):
-        """Export a checkpoint to ONNX (and the live detector's streaming parts)."""
+        """Export a checkpoint to ONNX: the whole model at --out (<stem>.onnx) and, with --streaming,
+        the parts the live detector runs beside it."""
         from slipsense.streaming.export import export_onnx
         from slipsense.watch import checkpoint_or_shipped
 

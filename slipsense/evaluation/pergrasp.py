@@ -26,7 +26,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from slipsense.alarm import debounce  # the alarm rule every outcome is judged by
+from slipsense.alarm import HOLD_S, debounce  # the alarm rule every outcome is judged by
 from slipsense.errors import ConfigError
 from slipsense.recordings.contact import MIN_CONTACT as REST_MARGIN  # touching: this far above the rest floor
 from slipsense.recordings.contact import STARTUP_FRAMES as STARTUP  # camera start-up transient, never scored
@@ -235,6 +235,7 @@ def choose_operating_point(
     return {
         "threshold": best["threshold"],
         "debounce": best["debounce"],
+        "hold_s": HOLD_S,
         "horizon": horizon,
         "startup": startup,
         "rule": rule,

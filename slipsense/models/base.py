@@ -83,15 +83,21 @@ class Stream(Protocol):
 
     ``push(frames, index)``: one raw frame per sensor (uint8 ``(H, W, 3)`` BGR images, or float
     ``(M, 3)`` marker clouds), checked (InputError naming frame ``index`` and the sensor; nothing
-    changes then) -> ``(S,)`` per-sensor slip probabilities, or None while the model cannot answer
-    yet (window not full, camera start-up). ``replay(streams)``: the same for whole recordings at
-    once, one ``(N, ...)`` array per sensor -> ``(N, S)`` with NaN where push would give None.
-    ``attention(sensor)``: a heat map of the latest window, or None. ``ready``: True once the model
+    changes then) -> ``(S,)`` per-sensor slip probabilities where the stream judges each sensor
+    apart (``per_sensor`` True), ``(1,)`` where the model fuses the sensors into one answer, or None
+    while the model cannot answer yet (window not full, camera start-up). ``replay(streams)``: the
+    same for whole recordings at once, one ``(N, ...)`` array per sensor -> ``(N, S)`` (or
+    ``(N, 1)``) with NaN where push would give None. ``attention(sensor)``: a heat map of the latest
+    window, or None (always None where ``has_attention`` is False). ``ready``: True once the model
     answers. ``describe()``: what one pushed frame must look like (``{"kind", "frames", ...}``).
     ``close()``: frees what the stream holds (a temporary folder of ONNX files).
     """
 
     sensors: int
+    #: True: one probability per sensor (each judged apart); False: one fused answer for all
+    per_sensor: bool
+    #: True where ``attention`` can draw a heat map (the model's :attr:`SlipModel.attention_map`)
+    has_attention: bool
 
     @property
     def ready(self) -> bool: ...
@@ -213,6 +219,9 @@ class SlipModel(nn.Module):
         network) and the :meth:`streaming_modules` with example inputs. ``batch`` None leaves the
         batch axis free, an int fixes it."""
         return clip_onnx_parts(self, geometry, batch)
+
+    #: what :meth:`attention` draws (e.g. "attention rollout"), None for a model that has no heat map
+    attention_map: str | None = None
 
     def attention(self, window: Tensor) -> np.ndarray | None:
         """Where the model looks in one window ``(1, T, ...)``, for heat maps; None when it cannot say."""

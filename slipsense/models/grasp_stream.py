@@ -25,7 +25,11 @@ class GraspStream:
     """``sensors``: frames per push; the model fuses any number of sensors symmetrically, but was
     trained on ``model.sensors`` and is refused others. The first ``startup`` frames (the camera's
     start-up transient, from the checkpoint's operating point) get no answer. The model's parts run on
-    PyTorch or, exported to ONNX, on ONNX Runtime (``backend``)."""
+    PyTorch or, exported to ONNX, on ONNX Runtime (``backend``). The sensors are fused inside the
+    model: one answer for all (``(1,)`` a push), no per-sensor probability, no heat map."""
+
+    per_sensor = False
+    has_attention = False
 
     def __init__(self, model, *, sensors=None, info=None, backend="torch", dtype="float32", onnx_dir=None):
         self.model = model.eval()
@@ -83,7 +87,7 @@ class GraspStream:
         self._pushed += 1
         if self._pushed <= self.startup:  # the camera's start-up transient is not the scene
             return None
-        return np.full(self.sensors, self.push_gray(gray))
+        return np.array([self.push_gray(gray)])
 
     def replay(self, streams) -> np.ndarray:
         streams = [check_video_stream(s, f"sensor {i}") for i, s in enumerate(streams)]
@@ -99,7 +103,8 @@ class GraspStream:
 
     def replay_gray(self, gray: np.ndarray) -> np.ndarray:
         """:meth:`replay` from grey frames already at the model's size: uint8 ``(S, N, h, w)``
-        (:func:`slipsense.recordings.runs.gray_frames`, as the frame cache keeps them) -> ``(N, S)``.
+        (:func:`slipsense.recordings.runs.gray_frames`, as the frame cache keeps them) -> ``(N, 1)``,
+        the fused answer.
         Runs the whole-run forward on PyTorch (the same numbers as pushing, faster)."""
         if (
             gray.dtype != np.uint8
@@ -119,7 +124,7 @@ class GraspStream:
                 x = torch.from_numpy(np.ascontiguousarray(gray[None, :, self.startup :])).float().div_(255.0)
                 logits = self.model(x)[0]
             p[self.startup :] = torch.softmax(logits, dim=-1)[:, 1].double().numpy()
-        return np.repeat(p[:, None], self.sensors, axis=1)
+        return p[:, None]
 
     def attention(self, sensor: int):
         return None

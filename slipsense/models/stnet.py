@@ -384,6 +384,8 @@ class STNet(MarkerModel):
 
         return MarkerFramePart(self), MarkerWindowPart(self)
 
+    attention_map = "marker saliency against the gel at rest"
+
     def attention(self, window: torch.Tensor):
         """Marker saliency of the window against the gel at rest, ``(M,)``, max 1 (:meth:`marker_saliency`)."""
         return self.marker_saliency(window, baseline="rest")[0].detach().numpy()

@@ -47,7 +47,10 @@ def slip_probability(logits: np.ndarray) -> np.ndarray:
 
 
 class WindowStream:
-    """The :class:`~slipsense.models.base.Stream` of a clip model (video or marker windows)."""
+    """The :class:`~slipsense.models.base.Stream` of a clip model (video or marker windows): each
+    sensor's window is judged apart, so it answers per sensor."""
+
+    per_sensor = True
 
     def __init__(
         self,
@@ -60,6 +63,7 @@ class WindowStream:
         onnx_dir: Any = None,
     ):
         self.model, self.sensors = model.eval(), int(sensors)
+        self.has_attention = model.attention_map is not None
         self.geometry = dict(geometry)
         self.kind: str = self.geometry["kind"]
         self.frames: int = self.geometry["frames"]

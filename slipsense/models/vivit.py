@@ -394,6 +394,8 @@ class ViViT(VideoModel):
         m.embed_patches = types.MethodType(conv_embed_patches, m)
         return m
 
+    attention_map = "attention rollout of the latest frame"
+
     def attention(self, window: Tensor):
         """Attention rollout of the window's latest frame on the patch grid, ``(Hp, Wp)``, sums to 1."""
         return self.cls_attention_map(window)[0, -1].numpy()

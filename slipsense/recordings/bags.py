@@ -33,6 +33,7 @@ import numpy as np
 from slipsense.atomic import atomic_path, write_text
 from slipsense.config import cache_root
 from slipsense.errors import ConfigError, InputError
+from slipsense.sensors.spec import check_fps
 
 IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED = "sensor_msgs/msg/CompressedImage"
@@ -50,9 +51,9 @@ class UnpairedFramesWarning(UserWarning):
 
 
 def check_timing(fps: float, tolerance_s: float | None = None) -> None:
-    """ConfigError unless ``fps`` is a finite number > 0 and ``tolerance_s`` (if given) finite and >= 0."""
-    if isinstance(fps, bool) or not isinstance(fps, (int, float)) or not math.isfinite(fps) or fps <= 0:
-        raise ConfigError(f"--fps must be a number > 0 (frames per second), got {fps!r}")
+    """ConfigError unless ``fps`` is a frame rate (:func:`~slipsense.sensors.spec.check_fps`) and
+    ``tolerance_s`` (if given) finite and >= 0."""
+    check_fps(fps, "--fps")
     if tolerance_s is not None and (
         isinstance(tolerance_s, bool)
         or not isinstance(tolerance_s, (int, float))

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from slipsense.errors import InputError
+from slipsense.sensors.spec import fps_problem
 
 #: The binocular sensor's objects and motion patterns (the STNet study's; a file may name others).
 OBJECTS: tuple[str, ...] = ("cherry_tomato", "earphone", "screw", "tape", "pen", "bottle")
@@ -91,8 +92,8 @@ def _fps(arr, path) -> float:
     if a.size != 1 or not (np.issubdtype(a.dtype, np.integer) or np.issubdtype(a.dtype, np.floating)):
         raise InputError(path, f"fps must be one number (frames per second), got {a.dtype} of shape {a.shape}")
     fps = float(a.reshape(()))
-    if not (np.isfinite(fps) and 0 < fps <= 1e6):
-        raise InputError(path, f"fps must be a positive finite number of frames per second, got {fps!r}")
+    if fps_problem(fps) is not None:
+        raise InputError(path, f"fps: {fps_problem(fps)}")
     return fps
 
 

@@ -10,10 +10,35 @@ A new sensor is one :class:`SensorSpec` here (and, for a new recording layout, a
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, fields
 from typing import Any, Mapping
 
 from slipsense.errors import ConfigError, InputError
+
+#: The frame rates a sensor, a recording or an option may state (frames per second): the one range
+#: every rate is checked against (:func:`fps_problem`), so every rate message names the same range.
+MIN_FPS, MAX_FPS = 1.0, 240.0
+
+
+def fps_problem(fps: Any) -> str | None:
+    """None if ``fps`` is a usable frame rate (a number of frames per second in ``[MIN_FPS, MAX_FPS]``),
+    else what is wrong with it, in words: the one rate check, whose words every rate message uses."""
+    ok = isinstance(fps, (int, float)) and not isinstance(fps, bool) and math.isfinite(fps)
+    if ok and MIN_FPS <= fps <= MAX_FPS:
+        return None
+    return f"a frame rate must be {MIN_FPS:g} to {MAX_FPS:g} frames per second, got {fps!r}"
+
+
+def check_fps(fps: Any, where: str | None = None) -> float:
+    """``fps`` as a float if :func:`fps_problem` finds nothing wrong; else one error naming ``where``
+    (a file: InputError; an option, ``"--fps"``, or nothing: ConfigError)."""
+    problem = fps_problem(fps)
+    if problem is None:
+        return float(fps)
+    if where is not None and not where.startswith("--"):
+        raise InputError(where, problem)
+    raise ConfigError(f"{where or 'fps'}: {problem}")
 
 
 @dataclass(frozen=True)
@@ -62,8 +87,8 @@ class SensorSpec:
         if not isinstance(d.get("name"), str) or d.get("output") not in ("video", "markers"):
             raise ValueError("sensor spec needs a name and output 'video' or 'markers'")
         fps = d.get("fps")
-        if isinstance(fps, bool) or not isinstance(fps, (int, float)) or not 0 < fps <= 10_000:
-            raise ValueError(f"sensor fps must be a number in (0, 10000], got {fps!r}")
+        if fps_problem(fps) is not None:
+            raise ValueError(f"sensor fps: {fps_problem(fps)}")
         size = d.get("image_size")
         if size is not None and not (
             isinstance(size, (list, tuple))
@@ -148,8 +173,12 @@ __all__ = [
     "BINOCULAR_MARKERS",
     "GELSIGHT_LIFT",
     "GELSIGHT_MINI",
+    "MAX_FPS",
+    "MIN_FPS",
     "SENSORS",
     "SensorSpec",
+    "check_fps",
+    "fps_problem",
     "register_sensor",
     "sensor_named",
     "sensor_of",

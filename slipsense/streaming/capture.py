@@ -12,9 +12,11 @@ more frames than they have).
 
 from __future__ import annotations
 
+import contextlib
+import os
 import threading
 import time
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Iterator, Sequence
 
 import cv2
 import numpy as np
@@ -144,7 +146,8 @@ class PacedReader:
 def paired(threads: Sequence[CaptureThread], tolerance_s: float, timeout: float = FRAME_TIMEOUT):
     """Steps of the newest frames of every camera, paired by capture time: while the stamps differ by
     more than ``tolerance_s`` the camera behind gives its next frame (at most 3 times a step).
-    Yields ``(frames, stamps)``; ends when a camera ends."""
+    Yields ``(frames, stamps, numbers)``, ``numbers`` each frame's 1-based number in its camera's
+    sequence (a gap: frames the camera gave that were never pushed); ends when a camera ends."""
     seen = [0] * len(threads)
     while True:
         got = []
@@ -164,21 +167,42 @@ def paired(threads: Sequence[CaptureThread], tolerance_s: float, timeout: float 
             threads[k].give_back()  # the frame replaced was never pushed
             got[k] = item
         seen = [g[0] for g in got]
-        yield [g[2] for g in got], [g[1] for g in got]
+        yield [g[2] for g in got], [g[1] for g in got], [g[0] for g in got]
+
+
+@contextlib.contextmanager
+def quiet_opencv() -> Iterator[None]:
+    """OpenCV's own log silenced for the duration: opening a camera index that is not there makes
+    each backend it tries print a line ("[ WARN:0@0.1] global cap_v4l.cpp:914 open VIDEOIO(V4L2:
+    /dev/video0): can't open camera by index", "... should be configured with libavdevice ...") and a
+    camera that refuses a setting prints another, all of which would drown the one line slipsense
+    prints for it. A level the user chose (``OPENCV_LOG_LEVEL``, to debug a camera) is kept."""
+    logging = getattr(getattr(cv2, "utils", None), "logging", None)
+    if logging is None or os.environ.get("OPENCV_LOG_LEVEL"):
+        yield
+        return
+    level = logging.getLogLevel()
+    logging.setLogLevel(logging.LOG_LEVEL_SILENT)
+    try:
+        yield
+    finally:
+        logging.setLogLevel(level)
 
 
 def open_camera(index: int, fps: float, capture_format: str | None, frame_size: tuple[int, int] | None):
     """An OpenCV camera asked for the sensor's format, frame size (height, width) and rate; InputError
-    if it cannot be opened. What the camera grants is its business: :meth:`CaptureThread.stats`
-    reports the rate achieved."""
-    cap = cv2.VideoCapture(index)
-    if not cap.isOpened():
-        raise InputError(None, f"camera {index}: cannot be opened")
-    if capture_format:
-        cap.set(cv2.CAP_PROP_FOURCC, cv2.VideoWriter_fourcc(*capture_format))
-    if frame_size:
-        cap.set(cv2.CAP_PROP_FRAME_HEIGHT, frame_size[0])
-        cap.set(cv2.CAP_PROP_FRAME_WIDTH, frame_size[1])
-    cap.set(cv2.CAP_PROP_FPS, fps)
-    cap.set(cv2.CAP_PROP_BUFFERSIZE, 1)  # the thread keeps the newest anyway; older ones only go stale
+    if it cannot be opened (OpenCV's own messages about it silenced: :func:`quiet_opencv`). What the
+    camera grants is its business: :meth:`CaptureThread.stats` reports the rate achieved."""
+    with quiet_opencv():
+        cap = cv2.VideoCapture(index)
+        if not cap.isOpened():
+            cap.release()
+            raise InputError(None, f"camera {index}: cannot be opened")
+        if capture_format:
+            cap.set(cv2.CAP_PROP_FOURCC, cv2.VideoWriter_fourcc(*capture_format))
+        if frame_size:
+            cap.set(cv2.CAP_PROP_FRAME_HEIGHT, frame_size[0])
+            cap.set(cv2.CAP_PROP_FRAME_WIDTH, frame_size[1])
+        cap.set(cv2.CAP_PROP_FPS, fps)
+        cap.set(cv2.CAP_PROP_BUFFERSIZE, 1)  # the thread keeps the newest anyway; older ones only go stale
     return cap

@@ -16,30 +16,17 @@ every tick falls on a frame, and the frames pass through untouched.
 from __future__ import annotations
 
 import math
-from typing import Any, Sequence
+from typing import Sequence
 
 import numpy as np
 
-from slipsense.errors import ConfigError, InputError
+from slipsense.errors import InputError
+from slipsense.sensors.spec import MAX_FPS, MIN_FPS, check_fps  # the one range of frame rates
 
-#: The frame rates a source may state (frames per second).
-MIN_FPS, MAX_FPS = 1.0, 240.0
 #: A pause longer than this (seconds) is not filled with blended frames: the clock restarts after it.
 MAX_GAP_S = 0.5
 #: Stamps closer than this (seconds) are the same moment (float rounding of ``k / fps``).
 SAME_MOMENT_S = 1e-6
-
-
-def check_fps(fps: Any, where: str | None = None) -> float:
-    """``fps`` as a float if it is a number of frames per second in [1, 240]; else one error naming
-    ``where`` (a file: InputError, an option: ConfigError)."""
-    ok = isinstance(fps, (int, float)) and not isinstance(fps, bool) and math.isfinite(fps)
-    if ok and MIN_FPS <= fps <= MAX_FPS:
-        return float(fps)
-    problem = f"a frame rate must be {MIN_FPS:g} to {MAX_FPS:g} frames per second, got {fps!r}"
-    if where is not None and not where.startswith("--"):
-        raise InputError(where, problem)
-    raise ConfigError(f"{where or 'fps'}: {problem}")
 
 
 def blend(a: np.ndarray, b: np.ndarray, w: float) -> np.ndarray:

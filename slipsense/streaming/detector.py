@@ -7,8 +7,8 @@
 The detector holds the model's stream (:meth:`slipsense.models.base.SlipModel.stream`): a clip
 model's sliding window over cached frame-part outputs (:mod:`slipsense.models.streams`), or a grasp
 model's own incremental state (:class:`slipsense.models.motion.MotionStream`). What is the
-detector's own: the operating point (threshold, debounce), combining sensors, frame numbering and
-the readings. Nothing here depends on the kind of model.
+detector's own: the operating point (threshold, debounce, hold), combining sensors where the model
+judges each apart, frame numbering and the readings. Nothing here depends on the kind of model.
 
 Backends: ``"torch"`` runs the stream's modules as PyTorch modules; ``"onnx"`` exports them once
 (:mod:`slipsense.streaming.export`, cached under ``<cache_root>/onnx``) and runs them on ONNX Runtime.
@@ -28,7 +28,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 from torch import nn
 
-from slipsense.alarm import debounce
+from slipsense.alarm import alarm_trace, hold_frames
 from slipsense.checkpoint import load_model, read_info
 from slipsense.errors import ConfigError, InputError
 from slipsense.models.base import SlipModel, window_geometry
@@ -42,6 +42,8 @@ FPS = GELSIGHT_MINI.fps
 #: The shipped default detector (package data: :mod:`slipsense.resources`).
 DEFAULT_CHECKPOINT = shipped_model()
 COMBINE = ("max", "mean")
+#: Longest alarm hold accepted (seconds).
+MAX_HOLD_S = 60.0
 
 
 # ---------------------------------------------------------------------------------------------
@@ -55,8 +57,11 @@ class Reading:
 
     ``index``: 0-based frame number since the start (or :meth:`SlipDetector.reset`);
     ``probability``: combined slip probability in [0, 1], None until the window is full;
-    ``per_sensor``: one probability per sensor (None until the window is full);
-    ``alarm``: ``probability >= threshold`` (False while None).
+    ``per_sensor``: one probability per sensor, for models that judge each sensor apart; None for
+    models that fuse the sensors into one answer (the shipped grasp detectors), and until the window
+    is full;
+    ``alarm``: the alarm rule (:mod:`slipsense.alarm`): ``probability >= threshold`` for ``debounce``
+    steps in a row, held for ``hold`` seconds after (False while None).
     """
 
     index: int
@@ -70,18 +75,22 @@ class Trace:
     """Probabilities of a whole replayed recording, frame by frame (what pushing every frame gives).
 
     ``probability``: ``(N,)`` combined, NaN for the first ``frames - 1`` frames (window not full);
-    ``per_sensor``: ``(N, S)``; ``threshold`` the detector's.
+    ``per_sensor``: ``(N, S)`` where the model judges each sensor apart, ``(N, 1)`` (the fused
+    answer) where it fuses them; ``threshold`` the detector's; ``hold``: frames of this trace an
+    alarm holds for.
     """
 
     probability: np.ndarray
     per_sensor: np.ndarray
     threshold: float
     debounce: int = 1
+    hold: int = 0
 
     @property
     def alarm(self) -> np.ndarray:
-        """``(N,)`` bool: probability >= threshold for ``debounce`` frames in a row (NaN: no answer yet)."""
-        return debounce(self.probability, self.threshold, self.debounce)
+        """``(N,)`` bool: probability >= threshold for ``debounce`` frames in a row, held for ``hold``
+        frames after (NaN: no answer yet): :func:`slipsense.alarm.alarm_trace`."""
+        return alarm_trace(self.probability, self.threshold, self.debounce, self.hold)
 
 
 def combine_probabilities(per_sensor: np.ndarray, combine: str) -> np.ndarray:
@@ -101,7 +110,12 @@ class SlipDetector:
         threshold: alarm when the combined probability is >= this, in [0, 1].
         sensors: frames per push (1, or 2 for both fingers); default: what a grasp model was
             trained on (both fingers for the shipped detector), else 1.
-        combine: ``"max"`` (default: alarm when either sensor sees slip) or ``"mean"``.
+        combine: for models that judge each sensor apart (clip models): ``"max"`` (default: alarm
+            when either sensor sees slip) or ``"mean"``. Models that fuse the sensors inside (the
+            grasp models) give one answer and no per-sensor probability: a combine is refused there.
+        hold: seconds an alarm, once raised, stays on (default 0; checkpoints store their own), so
+            that a probability dipping under the threshold for a moment does not make one slip two
+            alarm onsets.
         backend: ``"torch"``, ``"onnx"`` (ONNX Runtime; the parts are exported on first use) or
             ``"auto"`` (ONNX Runtime where it is installed). ``self.backend`` is the one running.
         dtype: ``"float32"`` (default) or, with ``backend="onnx"``, ``"int8"``: the exported parts'
@@ -124,29 +138,43 @@ class SlipDetector:
         *,
         threshold: float = 0.5,
         sensors: int | None = None,
-        combine: str = "max",
+        combine: str | None = None,
         backend: str = "torch",
         info: Mapping[str, Any] | None = None,
         onnx_dir: str | Path | None = None,
         dtype: str = "float32",
         debounce: int = 1,
+        hold: float = 0.0,
     ):
         if not isinstance(model, SlipModel):
             raise ConfigError(f"{type(model).__name__} is not a slipsense model (see slipsense.models.base)")
         if sensors is None:
             sensors = window_geometry(model, info).get("sensors", 1)
         check_settings(threshold, sensors, combine, backend, dtype)
+        check_hold(hold)
         backend = resolve_backend(backend, model)
         if isinstance(debounce, bool) or not isinstance(debounce, (int, np.integer)) or not 1 <= debounce <= 1000:
             raise ConfigError(f"debounce must be a whole number of frames in 1..1000, got {debounce!r}")
         self.model = model.eval()
         self.model_name = model.model_name
-        self.threshold, self.sensors, self.combine, self.backend = float(threshold), int(sensors), combine, backend
-        self.debounce, self.dtype = int(debounce), dtype
+        self.threshold, self.sensors, self.backend = float(threshold), int(sensors), backend
+        self.debounce, self.dtype, self.hold = int(debounce), dtype, float(hold)
 
         #: the sensor the model was trained on (:class:`~slipsense.sensors.spec.SensorSpec`, from the checkpoint)
         self.sensor = sensor_of(info)
         self._stream = model.stream(sensors=self.sensors, info=info, backend=backend, dtype=dtype, onnx_dir=onnx_dir)
+        #: True where each sensor gets its own probability (the model judges them apart)
+        self.per_sensor = bool(self._stream.per_sensor)
+        #: True where :meth:`heatmap` draws something (what: ``model.attention_map``)
+        self.has_heatmap = bool(self._stream.has_attention)
+        if combine is not None and not self.per_sensor and self.sensors > 1:
+            self._stream.close()
+            raise ConfigError(
+                f"{self.model_name} fuses its {self.sensors} sensors inside the model: it gives one probability, "
+                f"no per-sensor ones to combine (leave combine out)"
+            )
+        self.combine = combine or "max"
+        self._hold_ticks = hold_frames(self.hold, self.sensor.fps)  # the model's steps run at its sensor's rate
         self.reset()
 
     @classmethod
@@ -155,16 +183,18 @@ class SlipDetector:
         path: str | Path,
         threshold: float | None = None,
         sensors: int | None = None,
-        combine: str = "max",
+        combine: str | None = None,
         backend: str = "auto",
         onnx_dir: str | Path | None = None,
         dtype: str = "float32",
         debounce: int | None = None,
+        hold: float | None = None,
     ) -> "SlipDetector":
         """Load a checkpoint (:func:`slipsense.checkpoint.load_model`) into a detector.
 
-        ``threshold`` / ``debounce`` default to the operating point stored in the checkpoint (chosen
-        on its training objects only); a checkpoint without one gets 0.5 / 1 and a warning.
+        ``threshold`` / ``debounce`` / ``hold`` default to the operating point stored in the
+        checkpoint (chosen on its training objects only); a checkpoint without one gets 0.5 / 1 / 0 s
+        and a warning.
 
         ``backend="auto"`` (default) runs on ONNX Runtime where it is installed, else on PyTorch;
         :attr:`backend` says which. On ONNX Runtime the parts are cached under ``onnx_dir`` (default
@@ -173,6 +203,7 @@ class SlipDetector:
         model, info = load_model(path)
         sensor_of(info, path)  # a malformed sensor spec is named with its file
         threshold, debounce = stored_operating_point(path, info, threshold, debounce)
+        hold = stored_hold(info, hold)
         check_settings(threshold, 1 if sensors is None else sensors, combine, backend, dtype)
         backend = resolve_backend(backend, model)
         if backend == "onnx" and onnx_dir is None:
@@ -188,6 +219,7 @@ class SlipDetector:
                 onnx_dir=onnx_dir,
                 dtype=dtype,
                 debounce=debounce,
+                hold=hold,
             )
         except ConfigError as exc:  # name the checkpoint: it is what the user chose
             raise InputError(path, str(exc)) from None
@@ -225,6 +257,7 @@ class SlipDetector:
         self._index = 0  # pushes
         self._ticks = 0  # steps of the model: one a push, or one a tick of its clock for stamped pushes
         self._above = 0  # consecutive steps at or above the threshold (debounce)
+        self._since_alarm: int | None = None  # steps since the debounced rule last said alarm (hold)
         self._answer: tuple[float, tuple[float, ...]] | None = None  # the latest step's (combined, per sensor)
         self._clock = ModelClock(self.sensor.fps)
         self._stream.reset()
@@ -259,7 +292,8 @@ class SlipDetector:
         if self._answer is None:
             return Reading(index, None, None, False)
         p, per_sensor = self._answer
-        return Reading(index, p, per_sensor, self._above >= self.debounce)
+        alarm = self._since_alarm is not None and self._since_alarm <= self._hold_ticks
+        return Reading(index, p, per_sensor if self.per_sensor else None, alarm)
 
     def _step(self, frames: Sequence[Any]) -> None:
         """One step of the model on its clock: its answer and the debounce count."""
@@ -271,6 +305,10 @@ class SlipDetector:
         # NaN must never read as "safe": a model answer that is not a number raises the alarm
         above = not (p < self.threshold)
         self._above = self._above + 1 if above else 0
+        if self._above >= self.debounce:
+            self._since_alarm = 0
+        elif self._since_alarm is not None:
+            self._since_alarm += 1
         self._answer = (p, tuple(float(v) for v in per_sensor))
 
     def replay(self, *streams: np.ndarray, stamps: np.ndarray | None = None) -> Trace:
@@ -295,8 +333,9 @@ class SlipDetector:
             raise InputError(None, f"replay streams differ in length: {[len(s) for s in streams]}")
         if stamps is None:
             return self._trace(self._stream.replay(streams))
-        ticks, last = resample(streams, np.asarray(stamps, dtype=np.float64), self.sensor.fps)
-        return self._trace(self._stream.replay(ticks)[last])
+        stamps = np.asarray(stamps, dtype=np.float64)
+        ticks, last = resample(streams, stamps, self.sensor.fps)
+        return self._trace(self._stream.replay(ticks)[last], stamps)
 
     @property
     def cache_product(self) -> str | None:
@@ -312,15 +351,23 @@ class SlipDetector:
             raise ConfigError(f"{self.model_name} is replayed from decoded videos: use replay()")
         if stamps is None:
             return self._trace(self._stream.replay_cached(frames))
-        ticks, last = resample(list(frames), np.asarray(stamps, dtype=np.float64), self.sensor.fps)
-        return self._trace(self._stream.replay_cached(np.stack(ticks))[last])
+        stamps = np.asarray(stamps, dtype=np.float64)
+        ticks, last = resample(list(frames), stamps, self.sensor.fps)
+        return self._trace(self._stream.replay_cached(np.stack(ticks))[last], stamps)
 
     def replay_gray(self, gray: np.ndarray) -> Trace:
         """:meth:`replay_cached` of a grasp model: grey frames uint8 ``(S, N, h, w)`` at its size."""
         return self.replay_cached(gray)
 
-    def _trace(self, per_sensor: np.ndarray) -> Trace:
-        return Trace(combine_probabilities(per_sensor, self.combine), per_sensor, self.threshold, self.debounce)
+    def _trace(self, per_sensor: np.ndarray, stamps: np.ndarray | None = None) -> Trace:
+        """The trace of per-sensor (or fused) answers, one row per source frame; the hold in frames
+        of the source (at its median frame period where ``stamps`` are given, else the model's rate)."""
+        fps = self.sensor.fps
+        if stamps is not None and len(stamps) > 1:
+            period = float(np.median(np.diff(stamps)))
+            fps = 1.0 / period if period > 0 else fps
+        prob = combine_probabilities(per_sensor, self.combine)
+        return Trace(prob, per_sensor, self.threshold, self.debounce, hold_frames(self.hold, fps))
 
     def heatmap(self, sensor: int = 0) -> np.ndarray | None:
         """Where the model looks in the latest window of ``sensor`` (None until the window is full).
@@ -328,7 +375,7 @@ class SlipDetector:
         ViViT: attention rollout of the latest frame (:meth:`ViViT.cls_attention_map`),
         ``(Hp, Wp)`` on the patch grid, sums to 1. STNet/TemNet: marker saliency
         (:meth:`STNet.marker_saliency`) ``(M,)``, max 1. 3D ResNet and grasp models: None (no
-        attention to show).
+        attention to show: :attr:`has_heatmap` is False).
         """
         if not 0 <= sensor < self.sensors:
             return None
@@ -348,6 +395,27 @@ def shipped_name(sensors: int | None = None, image_size: tuple[int, int] | None 
             if size and tuple(size) == tuple(image_size) and info["model_config"].get("sensors") == (sensors or 2):
                 return name
     return default_model_name(sensors)
+
+
+def stored_hold(info: Mapping[str, Any] | None, hold: float | None) -> float:
+    """Seconds an alarm holds: the caller's where given, else the checkpoint's operating point's
+    ``hold_s``, else 0 (checkpoints from before the hold)."""
+    if hold is not None:
+        return check_hold(hold)
+    op = info.get("operating_point") if isinstance(info, Mapping) else None
+    value = op.get("hold_s") if isinstance(op, Mapping) else None
+    return check_hold(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else 0.0
+
+
+def check_hold(hold: Any) -> float:
+    """``hold`` as seconds in [0, MAX_HOLD_S], else ConfigError."""
+    try:
+        ok = 0.0 <= float(hold) <= MAX_HOLD_S
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise ConfigError(f"hold must be a number of seconds in [0, {MAX_HOLD_S:g}], got {hold!r}")
+    return float(hold)
 
 
 def stored_operating_point(
@@ -370,7 +438,7 @@ def stored_operating_point(
     return threshold, debounce
 
 
-def check_settings(threshold: Any, sensors: Any, combine: str, backend: str, dtype: str = "float32") -> None:
+def check_settings(threshold: Any, sensors: Any, combine: str | None, backend: str, dtype: str = "float32") -> None:
     try:
         ok = 0.0 <= float(threshold) <= 1.0
     except (TypeError, ValueError):
@@ -379,7 +447,7 @@ def check_settings(threshold: Any, sensors: Any, combine: str, backend: str, dty
         raise ConfigError(f"threshold must be a number in [0, 1], got {threshold!r}")
     if isinstance(sensors, bool) or not isinstance(sensors, (int, np.integer)) or sensors < 1:
         raise ConfigError(f"sensors must be a positive integer, got {sensors!r}")
-    if combine not in COMBINE:
+    if combine is not None and combine not in COMBINE:
         raise ConfigError(f"combine must be one of {COMBINE}, got {combine!r}")
     if backend not in BACKENDS:
         raise ConfigError(f"backend must be one of {BACKENDS}, got {backend!r}")
@@ -400,4 +468,6 @@ __all__ = [
     "shipped_name",
     "window_geometry",
     "stored_operating_point",
+    "stored_hold",
+    "check_hold",
 ]

@@ -6,13 +6,17 @@ One record per pushed frame::
     {"frame": 57, "stamp": 1700000002.28, "probability": 0.91, "per_sensor": [0.91, 0.40],
      "alarm": true, "latency_ms": 0.31}
 
-``frame``: 0-based index since the stream started; ``stamp``: when the frame was taken (s: a bag's
+``frame``: the frame's 0-based number in its source since the stream started, counting frames the
+source had but that were never judged (a live camera's frames replaced while the detector was busy,
+a ROS 2 node's pairs left out), so a gap in ``frame`` is a loss; ``stamp``: when the frame was taken (s: a bag's
 header stamp, a live camera's capture clock, ``index / fps`` for a file); ``probability``: null while
 the detector has not seen enough frames; ``latency_ms``: time the detector took for this frame.
 
-In a bag, the same fields go on a topic (``/slipsense/reading`` by default) of the project's message
-``slipsense_msgs/msg/SlipReading`` (:data:`SLIP_READING_MSG`), registered in the bag so any reader
-(``rosbags``, ``ros2 bag``, Foxglove) decodes it without the project.
+In a bag, the same record goes on a topic (``/slipsense/reading`` by default) as a ``std_msgs/msg/String``
+holding the JSON line: the very message the ROS 2 node (:mod:`slipsense.ros_node`) publishes on
+``/slipsense/reading``, so one topic name has one message type live and in a bag, and any reader
+(``rosbags``, ``ros2 bag``, Foxglove) decodes it without the project. Bags written before by
+``slipsense_msgs/msg/SlipReading`` (:data:`SLIP_READING_MSG`) are still read by :func:`read_bag_readings`.
 """
 
 from __future__ import annotations
@@ -23,11 +27,10 @@ import sys
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 
 from slipsense.errors import OutputError
 
-#: the ROS 2 message definition of one reading
+#: the ROS 2 message definition of one reading in bags of earlier versions (read, no longer written)
 SLIP_READING_MSG = """std_msgs/Header header
 uint32 frame
 float32 probability
@@ -36,16 +39,19 @@ bool alarm
 float32 latency_ms
 """
 SLIP_READING = "slipsense_msgs/msg/SlipReading"
+#: the message type of a reading on ``/slipsense/reading``, from the node and in a bag: the JSON record
+READING_MSGTYPE = "std_msgs/msg/String"
 
 
-def reading_record(reading, stamp: float, latency_ms: float) -> dict[str, Any]:
-    """A :class:`~slipsense.streaming.detector.Reading` as the JSON-ready record above."""
+def reading_record(reading, stamp: float, latency_ms: float, frame: int | None = None) -> dict[str, Any]:
+    """A :class:`~slipsense.streaming.detector.Reading` as the JSON-ready record above; ``frame``: the
+    frame's number in its source (default: the reading's, the count of pushes)."""
 
     def number(p):  # a NaN probability (it raises the alarm) has no JSON form: null, with the alarm on
         return None if p is None or math.isnan(p) else round(float(p), 6)
 
     return {
-        "frame": int(reading.index),
+        "frame": int(reading.index if frame is None else frame),
         "stamp": float(stamp),
         "probability": number(reading.probability),
         "per_sensor": None if reading.per_sensor is None else [number(p) for p in reading.per_sensor],
@@ -87,47 +93,36 @@ def _typestore():
 
 
 class BagWriter:
-    """Records as ``slipsense_msgs/msg/SlipReading`` messages on ``topic`` of a new rosbag2 folder
-    ``path`` (sqlite3 storage), each stamped with its frame's time."""
+    """Records as ``std_msgs/msg/String`` messages (the JSON record, as the ROS 2 node publishes it) on
+    ``topic`` of a new rosbag2 folder ``path`` (sqlite3 storage), each stamped with its frame's time."""
 
-    def __init__(self, path: str | Path, topic: str = "/slipsense/reading", frame_id: str = "slipsense"):
+    def __init__(self, path: str | Path, topic: str = "/slipsense/reading"):
         from rosbags.rosbag2 import Writer  # ~0.3 s to import: only for bags
 
-        self.path, self.topic, self.frame_id = Path(path), topic, frame_id
+        self.path, self.topic = Path(path), topic
         if self.path.exists():
             raise OutputError(self.path, "exists; a bag is written to a new folder")
         self.store = _typestore()
-        self._msg = self.store.types[SLIP_READING]
-        self._header = self.store.types["std_msgs/msg/Header"]
-        self._time = self.store.types["builtin_interfaces/msg/Time"]
+        self._msg = self.store.types[READING_MSGTYPE]
         try:
             self._writer = Writer(self.path, version=9)
             self._writer.open()
         except Exception as exc:  # rosbags' WriterError, an OSError
             raise OutputError(self.path, f"cannot be written ({exc})") from None
-        self._conn = self._writer.add_connection(self.topic, SLIP_READING, typestore=self.store)
+        self._conn = self._writer.add_connection(self.topic, READING_MSGTYPE, typestore=self.store)
 
     def write(self, record: dict[str, Any]) -> None:
         ns = int(round(record["stamp"] * 1e9))
-        p = record["probability"]
-        msg = self._msg(
-            header=self._header(
-                stamp=self._time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000), frame_id=self.frame_id
-            ),
-            frame=record["frame"],
-            probability=math.nan if p is None else p,
-            per_sensor=np.asarray([math.nan if v is None else v for v in record["per_sensor"] or []], np.float32),
-            alarm=record["alarm"],
-            latency_ms=record["latency_ms"],
-        )
-        self._writer.write(self._conn, ns, self.store.serialize_cdr(msg, SLIP_READING))
+        msg = self._msg(data=json.dumps(record, allow_nan=False))
+        self._writer.write(self._conn, ns, self.store.serialize_cdr(msg, READING_MSGTYPE))
 
     def close(self) -> None:
         self._writer.close()
 
 
 def read_bag_readings(path: str | Path, topic: str = "/slipsense/reading") -> list[dict[str, Any]]:
-    """The records a :class:`BagWriter` wrote (NaN probability back to None)."""
+    """The records a :class:`BagWriter` wrote (JSON strings; in bags of earlier versions
+    ``slipsense_msgs/msg/SlipReading`` messages, their NaN probability back to None)."""
     from rosbags.highlevel import AnyReader  # ~0.3 s to import: only for bags
 
     out = []
@@ -135,6 +130,9 @@ def read_bag_readings(path: str | Path, topic: str = "/slipsense/reading") -> li
         conns = [c for c in reader.connections if c.topic == topic]
         for conn, _, raw in reader.messages(connections=conns):
             m = reader.deserialize(raw, conn.msgtype)
+            if conn.msgtype == READING_MSGTYPE:
+                out.append(json.loads(m.data))
+                continue
             p = float(m.probability)
             out.append(
                 {

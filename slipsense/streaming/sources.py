@@ -21,18 +21,21 @@ from slipsense.recordings.folders import CAMERA_GLOB
 from slipsense.recordings.frame_folders import data_sensor
 from slipsense.recordings.frames import is_frame_folder
 from slipsense.recordings.video import probe_video, read_video
+from slipsense.sensors.spec import check_fps, fps_problem
 from slipsense.streaming.capture import CaptureThread, open_camera, paired
-from slipsense.streaming.clock import check_fps
 
 
 @dataclass
 class Step:
     """One push: ``display`` (a BGR image or None per sensor), ``inputs`` (what
-    :meth:`~slipsense.streaming.detector.SlipDetector.push` takes, one per sensor), ``stamp`` (s)."""
+    :meth:`~slipsense.streaming.detector.SlipDetector.push` takes, one per sensor), ``stamp`` (s),
+    ``frame``: the frame's 0-based number in its source, counting frames the source had but never
+    pushed (a live camera's frames replaced before they were taken), or None: the push's number."""
 
     display: list
     inputs: list
     stamp: float
+    frame: int | None = None
 
 
 @dataclass
@@ -143,8 +146,9 @@ def video_rate(path: Path, given: float | None = None, fix: str = GIVE_FPS) -> t
     if given:
         return given, "--fps"
     stated = probe_video(path, expected_size=None, min_frames=1).fps
-    if not 1.0 <= stated <= 240.0:
-        raise InputError(path, f"the video states no usable frame rate ({stated:g} frames/s): {fix}")
+    problem = fps_problem(stated)
+    if problem is not None:
+        raise InputError(path, f"the video states no usable frame rate ({problem}): {fix}")
     return float(stated), "the video's stated rate"
 
 
@@ -202,7 +206,7 @@ def capture_source(name: str, threads: Sequence[CaptureThread], fps: float, tole
     (``tolerance_s``: half a frame period by default); its ``stats`` are the threads'."""
     check_timing(fps, tolerance_s)
     tol = 0.5 / fps if tolerance_s is None else tolerance_s
-    steps = (Step(list(frames), list(frames), stamps[0]) for frames, stamps in paired(threads, tol))
+    steps = (Step(list(frames), list(frames), stamps[0], seqs[0] - 1) for frames, stamps, seqs in paired(threads, tol))
 
     def close():
         for th in threads:

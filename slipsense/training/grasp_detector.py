@@ -18,6 +18,7 @@ import numpy as np
 from safetensors.torch import load_file
 
 from slipsense import atomic
+from slipsense.alarm import HOLD_S
 from slipsense.checkpoint import save_checkpoint, update_info
 from slipsense.errors import ConfigError
 from slipsense.evaluation import pergrasp
@@ -234,6 +235,7 @@ def _chosen_operating_point(probs: Sequence[np.ndarray], runs: Sequence[GraspRun
             "threshold": threshold,
             "score_on_training_runs": float(((peak >= threshold) == slipped).mean()),  # per-grasp accuracy
             "debounce": 1,
+            "hold_s": HOLD_S,
             "horizon": cfg.horizon,
             "startup": cfg.startup,
             "rule": f"at most {100 * budget:g}% of held grasps alarming (grasps labelled as a whole)",

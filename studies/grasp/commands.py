@@ -21,6 +21,8 @@ from slipsense.training.grasps import load_grasp_data
 from studies.grasp.adaptation import adaptation_study, table, write
 from studies.grasp.ceiling import held_out_traces, one_threshold, per_fold, phases
 from studies.grasp.early_warning import DEFAULT_THRESHOLDS, run_early_warning
+from studies.grasp.hold import hold_study
+from studies.grasp.hold import table as hold_table
 from studies.grasp.precursors import aligned_means, precursor_table, summary, write_report
 from studies.grasp.looks import looks_folds_study, looks_study
 from studies.grasp.looks import table as looks_table
@@ -58,7 +60,9 @@ def early_warning(
     ),
     overrides: Optional[Path] = typer.Option(None, help="label overrides CSV (object,experiment,camera,moment)"),
     labels: Optional[Path] = typer.Option(None, help="labels CSV (slipsense label) instead of automatic labels"),
-    combine: str = typer.Option("max", help="max or mean of the two cameras' probabilities"),
+    combine: Optional[str] = typer.Option(
+        None, help="max or mean of the two cameras' probabilities (models that judge each camera apart)"
+    ),
     backend: str = typer.Option("torch", help="torch or onnx"),
     dtype: str = typer.Option("float32", help="float32, or int8 with --backend onnx"),
     limit: Optional[int] = typer.Option(None, help="replay only the first N runs"),
@@ -348,3 +352,31 @@ def looks_cmd(
     paths = write_looks(doc, out, command_line())
     typer.echo(looks_table(doc))
     typer.echo(f"-> {', '.join(str(p) for p in paths)}")
+
+
+@group.command("hold")
+@friendly
+def hold_cmd(
+    checkpoint: Optional[Path] = typer.Option(None, help="detector (default: the shipped one for the recordings)"),
+    recordings: Optional[Path] = typer.Option(None, help="recordings folder (default: $SLIPSENSE_DATA/gelsight-slip)"),
+    out: Path = typer.Option(Path("reports/hold"), help="report folder"),
+):
+    """How long an alarm should hold: alarm onsets per slip and per held grasp at several hold times."""
+    import json
+
+    from studies.provenance import provenance
+
+    check_output_dir(out, "--out")
+    doc = hold_study(checkpoint, recordings)
+    doc["command"] = command_line()
+    text = hold_table(doc)
+    out.mkdir(parents=True, exist_ok=True)
+    write_text(out / "hold.json", json.dumps(doc, indent=1))
+    write_text(
+        out / "README.md",
+        f"# How long an alarm holds\n\n`{doc['command']}`\n\n{provenance()}\n\n"
+        f"{doc['checkpoint']} at threshold {doc['operating_point']['threshold']:g} x{doc['operating_point']['debounce']}, "
+        f"replayed over {doc['runs']} runs (its own training objects among them: the dips are what is measured, "
+        f"not how often it warns). Onsets of slips count up to the moment contact is lost.\n\n{text}\n",
+    )
+    typer.echo(text + f"\n-> {out}")

@@ -22,7 +22,7 @@ from slipsense.evaluation.early_warning import RunTrace, plot_tradeoff, replay_r
 from slipsense.evaluation.replay import shipped_for
 from slipsense.recordings.folders import camera_counts, find_recordings
 from slipsense.recordings.label_csv import read_labels_csv
-from slipsense.sensors.spec import GELSIGHT_MINI, sensor_of
+from slipsense.sensors.spec import GELSIGHT_MINI, check_fps, sensor_of
 from slipsense.streaming.detector import SlipDetector
 from slipsense.watch import checkpoint_or_shipped
 
@@ -133,7 +133,7 @@ def run_early_warning(
     out: Path,
     thresholds: str | Sequence[float] = DEFAULT_THRESHOLDS,
     labels: Optional[Path] = None,
-    combine: str = "max",
+    combine: str | None = None,
     backend: str = "torch",
     limit: Optional[int] = None,
     fps: float | None = None,
@@ -148,8 +148,8 @@ def run_early_warning(
     ths = parse_thresholds(thresholds) if isinstance(thresholds, str) else [float(t) for t in thresholds]
     if limit is not None and limit < 1:
         raise ConfigError(f"--limit must be a positive integer, got {limit}")
-    if fps is not None and not fps > 0:
-        raise ConfigError(f"--fps must be positive, got {fps}")
+    if fps is not None:
+        check_fps(fps, "--fps")
     if isinstance(horizon, bool) or not isinstance(horizon, int) or not 1 <= horizon <= 100_000:
         raise ConfigError(f"--horizon must be a whole number of frames >= 1, got {horizon!r}")
     check_output_dir(out, "--out")
@@ -183,7 +183,7 @@ def run_early_warning(
         "checkpoint": str(ckpt),
         "model": det.model_name,
         "recordings": str(root),
-        "combine": combine,
+        "combine": det.combine if det.per_sensor else None,
         "backend": backend,
         "dtype": dtype,
         "sensors": det.sensors,

@@ -19,6 +19,7 @@ import numpy as np
 
 from slipsense.errors import ConfigError, InputError
 from slipsense.sensors.marker_npz import OBJECTS, PATTERNS
+from slipsense.sensors.spec import fps_problem
 from studies.stnet.stereo import SensorGeometry
 
 SLIP_PATTERN = "slipping"
@@ -134,7 +135,7 @@ class SimConfig:
             need(ok, f"{f.name} must be a range (low, high) with 0 <= low <= high, got {v!r}")
         need(self.markers_x >= 2 and self.markers_y >= 2, "markers_x and markers_y must be >= 2")
         need(self.gel_x_mm > 0 and self.gel_y_mm > 0, "gel_x_mm and gel_y_mm must be positive")
-        need(self.fps > 0, "fps must be positive")
+        need(fps_problem(self.fps) is None, f"fps: {fps_problem(self.fps)}")
         lo, hi = self.seq_len_range
         need(1 <= self.window <= lo and lo <= hi, f"seq_len {self.seq_len!r} must be >= window ({self.window})")
         need(self.stride >= 1, "stride must be >= 1")
