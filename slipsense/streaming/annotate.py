@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import collections
 import math
-import os
-import tempfile
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -14,7 +12,8 @@ import cv2
 import numpy as np
 from PIL import Image
 
-from slipsense.atomic import write_with
+from slipsense.alarm import shown_probability
+from slipsense.atomic import atomic_path, write_with
 from slipsense.errors import InputError
 from slipsense.streaming.detector import FPS, Reading
 
@@ -77,7 +76,7 @@ class Annotator:
             colours = cv2.applyColorMap(np.clip(sal * 255, 0, 255).astype(np.uint8)[:, None], cv2.COLORMAP_JET)[:, 0]
             for (x, y), c in zip(pix, colours):
                 cv2.circle(img, (int(x), int(y)), 3, tuple(int(v) for v in c), -1, cv2.LINE_AA)
-        label = f"sensor {sensor}" + ("" if p is None else f"  p={p:.2f}")
+        label = f"sensor {sensor}" + ("" if p is None else f"  p={shown_probability(p, self.threshold, 2)}")
         cv2.putText(img, label, (6, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1, cv2.LINE_AA)
         return img
 
@@ -88,10 +87,10 @@ class Annotator:
             state = "filling window"
         elif reading.alarm:
             bar[:] = (0, 0, 200)
-            state = f"SLIP ALARM  p={reading.probability:.2f}"
+            state = f"SLIP ALARM  p={shown_probability(reading.probability, self.threshold)}"
         else:
             bar[:] = (0, 120, 0)
-            state = f"no slip  p={reading.probability:.2f}"
+            state = f"no slip  p={shown_probability(reading.probability, self.threshold)}"
         text = f"frame {reading.index}  t={reading.index / self.fps:6.2f} s   {state}"
         cv2.putText(bar, text, (6, 19), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
         return bar
@@ -129,10 +128,147 @@ class Annotator:
         return img
 
 
-class AnnotatedWriter:
-    """Collects annotated BGR pictures and writes them as a GIF (Pillow) or a video (OpenCV), atomically.
+#: The colours the Annotator draws with (RGB), kept exact in every GIF palette whatever the sensor
+#: frames look like: banners, text, the trace and its threshold line.
+_DRAWN_COLOURS = (
+    (0, 0, 0),
+    (255, 255, 255),
+    (90, 90, 90),
+    (0, 120, 0),
+    (200, 0, 0),
+    (40, 40, 40),
+    (0, 60, 160),
+    (220, 0, 0),
+    (200, 200, 200),
+    (80, 80, 80),
+)
 
-    ``.gif``: 256-colour frames held in memory (1 byte per pixel) until :meth:`close`;
+
+class _GifFrames:
+    """BGR pictures as GIF frames on one shared palette, each frame holding only what changed.
+
+    The palette (255 colours: the drawn colours and an octree palette of a picture) is made from the
+    first picture and again whenever a picture fits it badly (a camera's exposure settling, a heat
+    map appearing): its mean error over :attr:`REFIT` times the error the palette was made with, plus
+    one level. Pictures are mapped through a table of the nearest palette entry of each 5-bit-per-channel
+    colour, filled in as colours first appear; no dithering. A pixel whose shown colour is within
+    :attr:`LOSSY` levels (largest channel difference) of its best palette colour keeps it and is
+    written transparent (index 255), so the sensors' still parts and the unchanged panels cost next
+    to nothing; a frame with a new palette is written whole. 1 byte a pixel is held per frame until
+    the GIF is written.
+    """
+
+    TRANSPARENT = 255
+    BITS = 5
+    LOSSY = 8
+    REFIT = 1.5
+
+    def __init__(self) -> None:
+        self.frames: list[Image.Image] = []
+        self._shown: np.ndarray | None = None  # palette index each pixel shows after the last frame
+        self._error = 0.0
+        self._last_empty = False
+
+    def _palette(self, picture: np.ndarray) -> None:
+        """A palette made from ``picture``, its nearest-entry table empty."""
+        n = self.TRANSPARENT - len(_DRAWN_COLOURS)
+        rgb = Image.fromarray(cv2.cvtColor(picture, cv2.COLOR_BGR2RGB))
+        own = rgb.quantize(colors=n, method=Image.Quantize.FASTOCTREE, dither=Image.Dither.NONE).getpalette() or []
+        pal = np.concatenate(
+            [np.asarray(_DRAWN_COLOURS, np.float32), np.asarray(own[: 3 * n], np.float32).reshape(-1, 3)]
+        )  # RGB, at most 255 entries: index 255 stays free for transparency
+        self._pal, self._norms = pal, (pal**2).sum(axis=1)
+        self._lut = np.full(1 << (3 * self.BITS), self.TRANSPARENT, np.uint8)  # 255: not looked up yet
+        table = np.zeros((256, 3), np.uint8)
+        table[: len(pal)] = pal
+        self._rgb = table.tobytes()
+        self._channels = [np.ascontiguousarray(table[:, c]) for c in (2, 1, 0)]  # B, G, R of each index
+
+    def _look_up(self, keys: np.ndarray) -> None:
+        """Fill the table for the colour cells ``keys`` (``r << 10 | g << 5 | b``, 5 bits each)."""
+        cells = np.flatnonzero(np.bincount(keys, minlength=self._lut.size))
+        mask, shift = (1 << self.BITS) - 1, 8 - self.BITS
+        rgb = np.stack([cells >> (2 * self.BITS), (cells >> self.BITS) & mask, cells & mask], axis=1)
+        centres = (rgb * (1 << shift) + ((1 << shift) - 1) / 2).astype(np.float32)
+        for i in range(0, len(cells), 8192):
+            near = (self._norms[None] - 2 * centres[i : i + 8192] @ self._pal.T).argmin(axis=1)
+            self._lut[cells[i : i + 8192]] = near
+
+    def _map(self, picture: np.ndarray, planes: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+        """Palette indices of ``picture`` (its B, G, R ``planes``) and each pixel's error."""
+        h, w = picture.shape[:2]
+        q = picture.reshape(-1, 3) >> (8 - self.BITS)
+        key = q[:, 2].astype(np.uint16)
+        key <<= self.BITS
+        key |= q[:, 1]
+        key <<= self.BITS
+        key |= q[:, 0]
+        idx = np.take(self._lut, key)
+        new = idx == self.TRANSPARENT
+        if new.any():
+            self._look_up(key[new])
+            idx = np.take(self._lut, key)
+        idx = idx.reshape(h, w)
+        return idx, self._error_of(planes, idx)
+
+    def _error_of(self, planes: Sequence[np.ndarray], idx: np.ndarray) -> np.ndarray:
+        """How far the colours of palette indices ``idx`` are from the picture: its largest channel difference."""
+        b, g, r = (cv2.absdiff(plane, cv2.LUT(idx, c)) for plane, c in zip(planes, self._channels))
+        return cv2.max(cv2.max(b, g), r)
+
+    def add(self, picture: np.ndarray) -> None:
+        picture = np.ascontiguousarray(picture)
+        planes = cv2.split(picture)
+        whole = self._shown is None
+        if not whole:
+            idx, err = self._map(picture, planes)
+            whole = cv2.mean(err)[0] > self.REFIT * self._error + 1
+        if whole:  # a new palette; the frame is written whole
+            self._palette(picture)
+            idx, err = self._map(picture, planes)
+            self._error = cv2.mean(err)[0]
+            out, self._last_empty = idx, False
+        else:
+            # a pixel keeps what it shows while that is nearly as close as the best palette colour
+            keep = cv2.compare(self._error_of(planes, self._shown), cv2.add(err, self.LOSSY), cv2.CMP_LE)
+            cv2.copyTo(self._shown, keep, idx)  # in place: idx is what each pixel shows now
+            out = cv2.bitwise_or(idx, keep)  # 255 (transparent) where kept
+            empty = cv2.countNonZero(keep) == keep.size
+            if empty and self._last_empty:  # two empty frames in a row would be merged into one
+                out[0, 0] = idx[0, 0]
+                empty = False
+            self._last_empty = empty
+        self._shown = idx
+        frame = Image.fromarray(out, "P")
+        frame.putpalette(self._rgb)
+        frame.info["transparency"] = self.TRANSPARENT
+        self.frames.append(frame)
+
+    def save(self, path: Path, fps: float) -> None:
+        first, rest = self.frames[0], self.frames[1:]
+        first.save(
+            path,
+            format="GIF",
+            save_all=True,
+            append_images=rest,
+            duration=int(round(1000 / fps)),
+            loop=0,
+            optimize=False,  # the frames are already differences on one palette
+            disposal=1,  # each frame is drawn over the last
+            transparency=self.TRANSPARENT,
+        )
+
+
+class _Aborted(Exception):
+    """Thrown into :func:`atomic_path` to drop its temporary file."""
+
+
+class AnnotatedWriter:
+    """Collects annotated BGR pictures and writes them as a GIF (Pillow) or a video (OpenCV), atomically,
+    with the mode a plain ``open()`` gives (0666 less the umask).
+
+    ``.gif``: frames on a shared 255-colour palette, each holding only what changed (see
+    :class:`_GifFrames`), 1 byte a pixel held in memory until :meth:`close`;
     ``.mp4`` (mp4v) / ``.avi`` (MJPG): streamed to a temporary file, renamed on :meth:`close`.
     """
 
@@ -143,9 +279,9 @@ class AnnotatedWriter:
         if suffix not in (".gif", ".mp4", ".avi"):
             raise InputError(self.path, "output must end in .gif, .mp4 or .avi")
         self.kind = suffix
-        self._frames: list[Any] = []
+        self._gif = _GifFrames() if suffix == ".gif" else None
         self._writer = None
-        self._tmp: Path | None = None
+        self._atomic: Any = None  # the open atomic_path of a video
         self._size: tuple[int, int] | None = None
 
     def add(self, picture: np.ndarray) -> None:
@@ -153,51 +289,41 @@ class AnnotatedWriter:
             self._size = (picture.shape[1], picture.shape[0])
         elif (picture.shape[1], picture.shape[0]) != self._size:
             picture = cv2.resize(picture, self._size, interpolation=cv2.INTER_AREA)
-        if self.kind == ".gif":
-            rgb = Image.fromarray(cv2.cvtColor(picture, cv2.COLOR_BGR2RGB))
-            self._frames.append(rgb.quantize(colors=256, method=Image.Quantize.MEDIANCUT))
+        if self._gif is not None:
+            self._gif.add(picture)
             return
         if self._writer is None:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(
-                prefix=f".{self.path.stem}.", suffix=f".tmp{self.path.suffix}", dir=self.path.parent
-            )
-
-            os.close(fd)
-            self._tmp = Path(tmp)
+            self._atomic = atomic_path(self.path)
+            tmp = self._atomic.__enter__()
             fourcc = cv2.VideoWriter_fourcc(*("mp4v" if self.kind == ".mp4" else "MJPG"))
-            self._writer = cv2.VideoWriter(str(self._tmp), fourcc, self.fps, self._size)
+            self._writer = cv2.VideoWriter(str(tmp), fourcc, self.fps, self._size)
             if not self._writer.isOpened():
-                self._tmp.unlink(missing_ok=True)
+                self.abort()
                 raise InputError(self.path, "OpenCV cannot write this video format here")
         self._writer.write(picture)
 
     def close(self) -> Path | None:
         """Finish the file; returns its path (None when no picture was added)."""
-        if self.kind == ".gif":
-            if not self._frames:
+        if self._gif is not None:
+            if not self._gif.frames:
                 return None
-
-            first, rest = self._frames[0], self._frames[1:]
-            write_with(
-                self.path,
-                lambda tmp: first.save(
-                    tmp, format="GIF", save_all=True, append_images=rest, duration=int(round(1000 / self.fps)), loop=0
-                ),
-            )
-            self._frames = []
+            write_with(self.path, lambda tmp: self._gif.save(tmp, self.fps))
+            self._gif = _GifFrames()
             return self.path
         if self._writer is None:
             return None
         self._writer.release()
         self._writer = None
-        os.replace(self._tmp, self.path)
+        atomic, self._atomic = self._atomic, None
+        atomic.__exit__(None, None, None)  # fsync, mode, rename
         return self.path
 
     def abort(self) -> None:
         if self._writer is not None:
             self._writer.release()
             self._writer = None
-        if self._tmp is not None and self._tmp.exists():
-            self._tmp.unlink()
-        self._frames = []
+        if self._atomic is not None:
+            atomic, self._atomic = self._atomic, None
+            atomic.__exit__(_Aborted, _Aborted(), None)  # removes the temporary file
+        if self._gif is not None:
+            self._gif = _GifFrames()
