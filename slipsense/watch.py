@@ -17,6 +17,8 @@ from slipsense.errors import ConfigError, InputError
 from slipsense.evaluation.pergrasp import promise_text
 from slipsense.models.base import window_geometry
 from slipsense.models.runners import resolve_backend
+from slipsense.recordings.frame_folders import camera_folders
+from slipsense.recordings.frames import frame_files
 from slipsense.recordings.video import probe_video
 from slipsense.resources import default_model_name, shipped_model
 from slipsense.sensors.spec import GELSIGHT_MINI, sensor_of
@@ -55,9 +57,12 @@ def _shipped_for_source(source: str, sensors: int) -> Path:
 
     size = None
     path = Path(source)
-    if path.is_file() and path.suffix.lower() != ".npy" or path.is_dir() and not any(path.glob("camera_*")):
+    frames = path if path.is_dir() and not any(path.glob("camera_*")) else None
+    if path.is_dir() and frames is None:  # a grasp of camera_* frame folders: the first camera's size
+        frames = next((p for p in camera_folders(path) if frame_files(p)), None)
+    if path.is_file() and path.suffix.lower() != ".npy" or frames is not None:
         try:
-            info = probe_video(path, expected_size=None, min_frames=1)
+            info = probe_video(frames or path, expected_size=None, min_frames=1)
             size = (info.height, info.width)
         except InputError:
             size = None  # opening the source reports what is wrong with it

@@ -1,13 +1,24 @@
-"""Grasps stored as folders of frames and labelled as a whole (slipped or held), one finger.
+"""Grasps stored as folders of frames and labelled as a whole (slipped or held), one finger or two.
 
 Layout (the shared ``gelsight-lift`` data is the first instance; lay out your own the same way)::
 
     <root>/<object>/<grasp>/<frames>       the frames of one grasp: .jpg/.png/.bmp files numbered
                                            without gaps (see :mod:`slipsense.recordings.frames`)
+      or <root>/<object>/<grasp>/camera_<i>/<frames>
+                                           one folder of frames per camera (finger) of the grasp,
+                                           named as the video layout names its videos (camera_0,
+                                           camera_2), each with the same number of frames
     <root>/<object>_result.dat             one line per grasp, naming its folder and outcome; or,
                                            without it, <grasp>/slip.txt when the object slipped
     <root>/sensor.json                     optional: the sensor (name, fps, image_size, ...), e.g.
                                            {"name": "my-gelsight", "output": "video", "fps": 30}
+
+A grasp with frames in its own folder is one camera, ``Recording.camera`` :data:`CAMERA`; a grasp of
+``camera_*`` folders is a run of that many cameras, ``Recording.camera`` the folder's name (as
+``camera_0.avi`` gives ``camera_0``), so two fingers' frames read as two-camera runs, as their videos
+would. Every grasp of a data set must hold the same cameras; a grasp whose cameras differ in frame
+count, that holds frames beside its camera folders, or a camera folder without frames is an
+:class:`~slipsense.errors.InputError` naming the folder.
 
 A line of ``<object>_result.dat`` (Li, Dong and Adelson's format, space-separated), e.g.
 ``68 fail 0 160 450 398 068_00 _s09_``: column 2 is the outcome (``fail`` or ``slip``: the object
@@ -30,13 +41,15 @@ from typing import Callable
 from ..errors import InputError
 from ..sensors.spec import GELSIGHT_LIFT, SensorSpec
 from .frames import FRAME_SUFFIXES, frame_files
-from .types import Recording
+from .types import Recording, by_run
 
 Report = Callable[[Path, str], None]
 
 RESULT_SUFFIX = "_result.dat"
 #: The camera name of a frame folder's recording (one finger per grasp).
 CAMERA = "gelsight"
+#: Per-camera frame folders of a grasp are named as the video layout's videos: ``camera_0``, ``camera_2``.
+CAMERA_FOLDER_PREFIX = "camera_"
 SLIPPED_WORDS = ("fail", "slip")
 HELD_WORDS = ("ok", "success")
 
@@ -45,9 +58,16 @@ def _dirs(folder: Path) -> list[Path]:
     return sorted(p for p in folder.iterdir() if p.is_dir() and not p.name.startswith("."))
 
 
+def camera_folders(grasp: str | Path) -> list[Path]:
+    """The per-camera frame folders of a grasp folder (its ``camera_*`` sub-folders), by name; empty
+    for a grasp of one camera whose frames lie in the grasp folder itself (or for a run of videos)."""
+    return [p for p in _dirs(Path(grasp)) if p.name.startswith(CAMERA_FOLDER_PREFIX)]
+
+
 def is_frame_layout(root: str | Path) -> bool:
     """Whether ``root`` holds grasps as frame folders: it has ``*_result.dat`` files, or its first
-    object's first grasp folder holds image files."""
+    object's first grasp folder holds image files or ``camera_*`` folders of them (not
+    ``camera_*`` videos)."""
     root = Path(root)
     if not root.is_dir():
         return False
@@ -55,7 +75,40 @@ def is_frame_layout(root: str | Path) -> bool:
         return True
     objects = _dirs(root)
     grasps = _dirs(objects[0]) if objects else []
-    return bool(grasps) and bool(frame_files(grasps[0])) and not any(grasps[0].glob("camera_*"))
+    if not grasps or any(p.is_file() for p in grasps[0].glob(f"{CAMERA_FOLDER_PREFIX}*")):
+        return False
+    return bool(frame_files(grasps[0])) or any(frame_files(c) for c in camera_folders(grasps[0]))
+
+
+def grasp_cameras(folder: Path) -> list[tuple[str, Path]]:
+    """``[(camera, frame folder)]`` of one grasp folder: its ``camera_*`` folders by name, or the grasp
+    folder itself as :data:`CAMERA`. InputError naming the folder where it holds frames beside camera
+    folders, a camera folder holds no frames, or the cameras differ in frame count (listed, not
+    decoded: a gap or an undecodable frame is found when the frames are read)."""
+    cameras = camera_folders(folder)
+    if not cameras:
+        return [(CAMERA, folder)]
+    if frame_files(folder):
+        raise InputError(folder, "holds frames beside its camera_* folders: put every frame into its camera's folder")
+    counts = {}
+    for cam in cameras:
+        counts[cam.name] = len(frame_files(cam))
+        if not counts[cam.name]:
+            raise InputError(cam, f"camera folder holds no image files ({', '.join(FRAME_SUFFIXES)})")
+    if len(set(counts.values())) != 1:
+        listed = ", ".join(f"{name} {n}" for name, n in counts.items())
+        raise InputError(
+            folder, f"the cameras of this grasp differ in frame count ({listed}): each camera needs every frame"
+        )
+    return [(cam.name, cam) for cam in cameras]
+
+
+def _grasp_folder(rec: Recording) -> Path:
+    return rec.path if rec.camera == CAMERA else rec.path.parent
+
+
+def _cameras_words(cameras: tuple[str, ...]) -> str:
+    return "its frames in itself (one camera)" if cameras == (CAMERA,) else " and ".join(cameras)
 
 
 def data_sensor(root: str | Path) -> SensorSpec | None:
@@ -135,12 +188,17 @@ def _object_grasps(root: Path, obj: Path, report: Report, with_results: bool) ->
         if number in seen:
             report(folder, f"grasp {number} also found as {seen[number].name}")
             continue
+        try:
+            cameras = grasp_cameras(folder)
+        except InputError as exc:
+            report(exc.path, exc.problem)
+            continue
         seen[number] = folder
         if outcomes is not None:
             slipped = outcomes.get(folder.name, outcomes.get(folder.name.removesuffix("_mm")))
         else:
             slipped = (folder / "slip.txt").exists()
-        found.append(Recording(obj.name, number, CAMERA, folder, bool(slipped), per_grasp=True))
+        found.extend(Recording(obj.name, number, cam, path, bool(slipped), per_grasp=True) for cam, path in cameras)
     if not folders:
         report(obj, f"object folder holds no grasp folders of frames ({', '.join(FRAME_SUFFIXES)})")
     return found
@@ -160,4 +218,26 @@ def find_frame_recordings(root: str | Path, report: Report) -> list[Recording]:
     with_results = any(root.glob(f"*{RESULT_SUFFIX}"))
     for obj in objects:
         found.extend(_object_grasps(root, obj, report, with_results))
-    return sorted(found, key=lambda r: r.key)
+    return _same_cameras(sorted(found, key=lambda r: r.key), report)
+
+
+def _same_cameras(found: list[Recording], report: Report) -> list[Recording]:
+    """``found`` without the grasps whose cameras are not the first grasp's, each reported: a data
+    set is one camera per grasp or the same ``camera_*`` folders in every grasp."""
+    runs = by_run(found)
+    if not runs:
+        return found
+    first = next(iter(runs.values()))
+    expected = tuple(r.camera for r in first)
+    kept: list[Recording] = []
+    for recs in runs.values():
+        cameras = tuple(r.camera for r in recs)
+        if cameras != expected:
+            report(
+                _grasp_folder(recs[0]),
+                f"holds {_cameras_words(cameras)}, where {_grasp_folder(first[0])} holds "
+                f"{_cameras_words(expected)}: every grasp needs the same cameras",
+            )
+            continue
+        kept.extend(recs)
+    return sorted(kept, key=lambda r: r.key)

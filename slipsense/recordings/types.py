@@ -17,7 +17,7 @@ class Recording:
 
     object: str
     experiment: int
-    camera: str  # file stem, e.g. "camera_0"
+    camera: str  # file stem, e.g. "camera_0" (a camera's folder of frames: its name)
     path: Path
     slipped: bool  # slip.txt present in the experiment folder
     per_grasp: bool = False

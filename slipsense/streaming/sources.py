@@ -18,7 +18,7 @@ import numpy as np
 from slipsense.errors import InputError
 from slipsense.recordings.bags import check_timing, is_bag, read_bag
 from slipsense.recordings.folders import CAMERA_GLOB
-from slipsense.recordings.frame_folders import data_sensor
+from slipsense.recordings.frame_folders import CAMERA_FOLDER_PREFIX, data_sensor, grasp_cameras
 from slipsense.recordings.frames import is_frame_folder
 from slipsense.recordings.video import probe_video, read_video
 from slipsense.sensors.spec import check_fps, fps_problem
@@ -76,7 +76,8 @@ def open_source(
     camera_fps: float = 25.0,
 ) -> Source:
     """A video file, a folder of one sensor's frames (:mod:`slipsense.recordings.frames`), a recordings
-    experiment folder (its ``camera_*.avi`` videos as sensors), a ROS 2
+    experiment folder (its ``camera_*.avi`` videos as sensors), a grasp folder of ``camera_*`` frame
+    folders (each camera a sensor), a ROS 2
     bag (``topics``: one image topic per sensor), a marker ``.npy`` (``(T, M, 3)`` or
     ``(S, T, M, 3)`` mm) or a camera index (``0``, ``1``, ...; several as ``0,2``).
 
@@ -109,6 +110,8 @@ def open_source(
         return _array_source(str(path), [video], [path], model, np.arange(len(video)) / rate, geometry, rate, clock)
     if path.is_dir():
         cams = sorted(p for p in path.glob(camera_glob) if p.is_file())
+        if not cams and any(p.is_dir() for p in path.glob(f"{CAMERA_FOLDER_PREFIX}*")):
+            return _camera_folders_source(path, model, given, geometry)
         if not cams:
             raise InputError(path, f"folder holds no {camera_glob} videos (expected a recordings experiment folder)")
         rates = {video_rate(p, given) for p in cams}
@@ -134,6 +137,17 @@ def open_source(
     raise InputError(path, "no such file or folder (nor a camera index)")
 
 
+def _camera_folders_source(path: Path, model: Any, given: float | None, geometry) -> Source:
+    """A grasp folder of ``camera_*`` frame folders (:mod:`slipsense.recordings.frame_folders`): each
+    camera a sensor, stamped at the rate of the data's ``sensor.json`` (or ``--fps``)."""
+    cams = [folder for _, folder in grasp_cameras(path)]  # the same frame count, else one line naming the grasp
+    rate, clock = (given, "--fps") if given else frame_folder_rate(cams[0])
+    videos = [read_video(p, expected_size=None, min_frames=1) for p in cams]
+    if len({len(v) for v in videos}) != 1:
+        raise InputError(path, f"the cameras of this grasp differ in frame count: {[len(v) for v in videos]}")
+    return _array_source(str(path), videos, cams, model, np.arange(len(videos[0])) / rate, geometry, rate, clock)
+
+
 #: What to do about a source whose rate cannot be known, where the command takes ``--fps``.
 GIVE_FPS = "give --fps"
 #: ... and where it reads whole recordings folders (``evaluate``, ``calibrate``, training).
@@ -156,9 +170,13 @@ def frame_folder_rate(
     folder: Path, fix: str = f'put a sensor.json ({{"fps": 25}}) in its recordings folder or {GIVE_FPS}'
 ) -> tuple[float, str]:
     """A folder of frames' rate: the ``sensor.json`` of its recordings folder (the folder itself or up
-    to two above it: ``<root>/<object>/<grasp>``), or the known layout of the ``gelsight-lift`` data;
+    to two above it: ``<root>/<object>/<grasp>``; three for a camera's folder of a grasp,
+    ``<root>/<object>/<grasp>/camera_<i>``), or the known layout of the ``gelsight-lift`` data;
     else refused, naming the folder and ``fix``: frames in a folder carry no time of their own."""
-    for root in (folder, folder.parent, folder.parent.parent):
+    above = [folder, folder.parent, folder.parent.parent]
+    if folder.name.startswith(CAMERA_FOLDER_PREFIX):
+        above.append(folder.parent.parent.parent)
+    for root in above:
         spec = data_sensor(root)
         if spec is not None:
             where = root / "sensor.json"
