@@ -6,9 +6,11 @@ A run is described by a tree like ``configs/vivit-paper.yaml``::
     data:  {frames: 5, size: [240, 320], split: objects, fold: 0}
     train: {epochs: 75, batch_size: 16, lr: 3.0e-4, seed: 0}
 
-and built in layers, later ones winning: the command's defaults < ``--config FILE`` < the
-command's own options (``--epochs 3``) < ``--set section.key=value`` (a bare ``key=value`` goes to
-``model``). A tree is checked once, into the frozen run that training reads
+and built in layers, later ones winning: the command's defaults < the model's recipe and what the
+recordings are (:meth:`slipsense.models.base.SlipModel.training_defaults`, applied by
+:meth:`~slipsense.training.config.RunConfig.from_tree`) < ``--config FILE`` < the command's own
+options (``--epochs 3``) < ``--set section.key=value`` (a bare ``key=value`` goes to ``model``). A
+tree is checked once, into the frozen run that training reads
 (:class:`slipsense.training.config.RunConfig`); the run's resolved tree is stored whole in every
 checkpoint (``info["config"]``) and written as ``config.yaml`` beside it, so ``--config
 RUN/config.yaml`` repeats a run. This module is the torch-free part (``slipsense --help`` reads it).

@@ -11,7 +11,9 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from slipsense.checkpoint import read_info
 from slipsense.cli import app
+from slipsense.models import model_class
 from studies.__main__ import app as studies_app
 from slipsense.recordings.folders import find_recordings
 from slipsense.recordings.video import read_video
@@ -435,6 +437,58 @@ def test_a_recipe_chooses_model_settings_on_the_training_grasps(tmp_path, cache,
     res = runner.invoke(app, ["train", "--recordings", str(root), "--model", "shear-retention",
         "--set", f"train.choose={big}", "--out", str(tmp_path / "big"), "--no-progress"])  # fmt: skip
     assert "65 combinations" in _error(res)
+
+
+#: the long command docs/new-sensor.md gave before `train --model` took the model's recipe
+SHEAR_FLAGS = ["--set", "model.sensors=1", "--set", "model.softness=0", "--set", "train.startup=0",
+               "--set", "train.epochs=0", "--set", "train.inner_folds=0"]  # fmt: skip
+
+
+def _shear_train(root: Path, out: Path, *extra: str):
+    res = runner.invoke(app, ["train", "--recordings", str(root), "--model", "shear-retention", *extra,
+                              "--out", str(out), "--no-progress"])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    return res.output.replace(str(out), "OUT"), json.loads(json.dumps(read_info(out / "detector.safetensors")))
+
+
+def test_train_model_shear_retention_takes_its_recipe_and_the_datas_cameras(tmp_path, cache, one_thread, monkeypatch):
+    """`train --model shear-retention --recordings MINE` with no --set: the model's recipe (no gradient,
+    sharp steps, gate and letgo chosen on the grasps), one sensor per one-camera grasp and no camera
+    start-up for grasps labelled as a whole: the operating point and printed figures of the long
+    command with the six flags; slipsense.fit(model=...) is the same; a setting given still wins."""
+    import slipsense
+
+    _two_shear_candidates(monkeypatch)
+    root = _lift_data(tmp_path / "lift")
+    choose = json.dumps(model_class("shear-retention").recipe["choose"])
+    plain_out, plain = _shear_train(root, tmp_path / "plain")
+    long_out, long = _shear_train(root, tmp_path / "long", *SHEAR_FLAGS, "--set", f"train.choose={choose}")
+    assert plain_out == long_out and "chosen on the training runs themselves" in plain_out
+    assert plain["operating_point"] == long["operating_point"] and plain["model_config"] == long["model_config"]
+    assert plain["train_config"] == long["train_config"] and plain["history"] == long["history"] == []
+    op, model = plain["operating_point"], plain["model_config"]
+    assert model["sensors"] == 1 and model["softness"] == 0 and model["image_size"] == [120, 160]
+    assert op["startup"] == 0 and len(op["tried"]) == 2 and plain["train_config"]["inner_folds"] == 0
+    assert (tmp_path / "plain" / "config.yaml").is_file()
+    # the Python entry takes the same path
+    trained = slipsense.fit(root, tmp_path / "api", model="shear-retention", progress=False)
+    assert json.loads(json.dumps(trained.operating_point)) == plain["operating_point"]
+    # what the user gives wins over the recipe and over what the data implies
+    _, over = _shear_train(root, tmp_path / "over", "--set", "train.startup=2", "--set", "model.softness=1")
+    assert over["train_config"]["startup"] == over["operating_point"]["startup"] == 2
+    assert over["model_config"]["softness"] == 1 and over["train_config"]["epochs"] == 0  # the rest: the recipe
+
+
+def test_a_model_built_for_other_cameras_than_the_grasps_have_is_refused_in_words(tmp_path, cache):
+    """Two sensors asked of one-camera grasps: one line saying what the data has and what the model
+    expects, exit code 2, no traceback, before any frame is decoded."""
+    root = _lift_data(tmp_path / "lift")
+    res = runner.invoke(app, ["train", "--recordings", str(root), "--model", "shear-retention",
+                              "--set", "model.sensors=2", "--out", str(tmp_path / "x"), "--no-progress"])  # fmt: skip
+    line = _error(res)
+    assert isinstance(res.exception, SystemExit) and not (cache / "frames").exists()
+    assert f"the recordings ({root}): 1 camera per grasp, read as 120x160 grey frames" in line
+    assert "shear-retention was built for 2 sensors (model.sensors=2)" in line and "model.sensors=1" in line
 
 
 def test_calibrate_says_so_and_what_to_do_next_when_it_catches_no_slip():

@@ -164,6 +164,44 @@ def test_register_refuses_a_class_outside_the_contract():
 ASKS_HOW_IT_TRAINS = {"training/recipe.py": 3, "training/config.py": 1}
 
 
+@pytest.mark.parametrize("name", BUILT_IN)
+def test_contract_training_defaults_are_the_recipe_and_what_the_grasps_are(name):
+    """What `train --model NAME` starts from: the class's recipe; for a grasp model also one sensor
+    per one-camera grasp and no camera start-up for grasps labelled as a whole; from a checkpoint
+    (train.init) no recipe and no model setting. A model without a recipe on the two-finger video
+    recordings keeps the trainer's defaults."""
+    from slipsense.models.base import RecordingsShape, settings_of
+
+    cls = model_class(name)
+    video, frames = RecordingsShape(cameras=2, per_grasp=False), RecordingsShape(cameras=1, per_grasp=True)
+    assert cls.training_defaults(None) == cls.recipe and cls.training_defaults(video, init=True) == {}
+    if "sensors" not in settings_of(cls):  # a clip model: its recipe alone
+        assert cls.training_defaults(frames) == cls.recipe
+        return
+    assert cls.training_defaults(video) == cls.recipe  # 2 sensors: every grasp model's own default
+    assert cls.training_defaults(frames) == {**cls.recipe, "model.sensors": 1, "startup": 0}
+    assert cls.training_defaults(frames, init=True) == {"startup": 0}
+
+
+def test_the_run_takes_the_recipe_under_what_the_tree_gives(grasp_recordings, tmp_path):
+    """RunConfig.from_tree: the model's recipe and the data's cameras under every setting given;
+    motionnet on two-finger videos is the run it always was; recordings that are not there leave the
+    trainer's defaults (reading them names the problem)."""
+    from slipsense.evaluation.pergrasp import STARTUP
+    from slipsense.training.config import RunConfig
+
+    run = RunConfig.from_tree({"model": {"name": "motionnet"}, "data": {"recordings": str(grasp_recordings)}})
+    assert run.model == {"name": "motionnet"} and run.train.startup == STARTUP and run.train.epochs == 20
+    tree = {"model": {"name": "shear-retention", "gate": 1.0}, "train": {"inner_folds": 2}}
+    run = RunConfig.from_tree({**tree, "data": {"recordings": str(grasp_recordings)}})
+    assert run.model == {"name": "shear-retention", "softness": 0.0, "gate": 1.0}  # 2 cameras: its default
+    assert run.train.epochs == 0 and run.train.inner_folds == 2 and run.train.startup == STARTUP
+    assert run.train.choose == model_class("shear-retention").recipe["choose"]
+    assert RunConfig.from_tree(run.to_tree()) == run
+    run = RunConfig.from_tree({**tree, "data": {"recordings": str(tmp_path / "none")}})
+    assert "sensors" not in run.model and run.train.epochs == 0
+
+
 def test_nothing_outside_models_asks_the_kind():
     """Outside slipsense/models code never asks a model's kind or its name, and asks how it trains (``training_task``) only in those tables (:data:`ASKS_HOW_IT_TRAINS`)."""
     import ast

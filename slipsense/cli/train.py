@@ -123,8 +123,10 @@ def register(app: typer.Typer) -> None:
         says otherwise. With --fold or --test-objects, judge it on objects it never saw; with
         --cross-validate, every fold in turn, pooled (leave objects out). Works under torchrun (DDP).
 
-        Settings come from the model's defaults, then --config, then these options, then --set; the
-        resolved tree is kept in every checkpoint and written to OUT/config.yaml."""
+        Settings come from the model's defaults and its own recipe (with the recordings' cameras per
+        grasp as model.sensors, and no camera start-up for grasps labelled as a whole), then --config,
+        then these options, then --set; the resolved tree is kept in every checkpoint and written to
+        OUT/config.yaml."""
         from slipsense.training import recipe
 
         options = {

@@ -27,7 +27,9 @@ a few named modules (:meth:`SlipModel.streaming_modules`), run on PyTorch or, ex
 Optional hooks, with defaults that suit a plain network: :meth:`SlipModel.streaming_parts`
 (what the live detector caches per frame), :meth:`SlipModel.exportable` (an ONNX-friendly copy),
 :meth:`SlipModel.attention` (a heat map for the live view), :meth:`SlipModel.reduced_precision`,
-:meth:`SlipModel.small_config` (the contract test's size) and :attr:`SlipModel.quick_epochs`.
+:meth:`SlipModel.small_config` (the contract test's size), :attr:`SlipModel.quick_epochs` and
+:attr:`SlipModel.recipe` with :meth:`SlipModel.training_defaults` (what ``slipsense train --model
+NAME`` starts from: the model's recipe and what the recordings are, under the user's settings).
 """
 
 from __future__ import annotations
@@ -144,6 +146,33 @@ class SlipModel(nn.Module):
     #: what ``slipsense train`` runs for it: ``"clips"`` (windows cut from recordings or marker
     #: sequences, :mod:`slipsense.training.clips`) or ``"grasps"`` (whole runs, :mod:`slipsense.training.grasps`)
     training_task: str = "clips"
+    #: how the model is made by default (``slipsense train --model NAME``, ``slipsense.fit(model=NAME)``):
+    #: training settings by name and model settings as ``model.KEY``, under whatever the user gives
+    #: (``--config``, the command's options, ``--set``); see :meth:`training_defaults`. Empty: the
+    #: trainer's own defaults.
+    recipe: dict[str, Any] = {}
+    #: ``slipsense adapt``: the relative cost of learning this family from a user's grasps (cheap
+    #: ones are judged first); the words a user reads of it
+    adapt_cost: float = 100.0
+    adapt_words: str = ""
+
+    @classmethod
+    def adapt_reason(cls, grasps: Any) -> str | None:
+        """Why ``slipsense adapt`` cannot make this family from ``grasps`` (a user's grasps: their
+        ``count``, ``objects``, ``cameras``, ``image_size``, ``fps``, and ``markers()``, which says
+        whether the gels carry a marker grid, with the evidence in words), one line; None where it can
+        (then it is trained on them with its own recipe, ``slipsense train --model NAME``)."""
+        return "a clip model (it learns from short clips with a moment of slip); adapt judges detectors of whole grasps"
+
+    @classmethod
+    def training_defaults(cls, data: "RecordingsShape | None", init: bool = False) -> dict[str, Any]:
+        """The settings a training of this model starts from, before the user's (``--config``,
+        options and ``--set`` win over every one): ``{"KEY": value}`` for a training setting,
+        ``{"model.KEY": value}`` for a model setting. ``data``: what the recordings are (None where
+        they could not be looked at: the trainer names the problem when it reads them); ``init``:
+        training starts from a checkpoint (``train.init``), whose own settings the model keeps, so
+        no recipe applies. A clip model: its :attr:`recipe`."""
+        return {} if init else dict(cls.recipe)
 
     def config(self) -> dict[str, Any]:
         """The keyword arguments that rebuild this model (JSON-ready; stored in checkpoints); by default
@@ -302,6 +331,40 @@ class GraspModel(SlipModel):
     input_kind = "grasp"
     training_task = "grasps"
 
+    @classmethod
+    def adapt_reason(cls, grasps: Any) -> str | None:
+        return None
+
+    @classmethod
+    def training_defaults(cls, data: "RecordingsShape | None", init: bool = False) -> dict[str, Any]:
+        """Its :attr:`recipe`, then what the grasps imply: ``model.sensors``, the cameras per grasp of
+        the recordings where that is not the model's own default (1: each camera a grasp of its own),
+        and ``startup`` 0 for grasps labelled as a whole (cut from a stream: no camera start-up to
+        skip). From a checkpoint (``init``) the model keeps its settings: start-up only."""
+        out = super().training_defaults(data, init)
+        if data is None:
+            return out
+        if not init and "sensors" in settings_of(cls) and data.cameras != setting_default(cls, "sensors"):
+            out["model.sensors"] = data.cameras
+        if data.per_grasp:
+            out["startup"] = 0
+        return out
+
+    def check_cameras(self, cameras: Sequence[int], where: str = "the recordings") -> None:
+        """ConfigError, one line in words, unless grasps of ``cameras`` cameras each train this model:
+        one sensor takes each camera of a grasp as a grasp of its own; more take that many at once."""
+        cameras = sorted({int(c) for c in cameras})
+        if self.sensors == 1 or cameras == [self.sensors]:
+            return
+        have = "/".join(map(str, cameras))
+        h, w = self.image_size
+        raise ConfigError(
+            f"{where}: {have} camera{'' if cameras == [1] else 's'} per grasp, read as {h}x{w} grey frames; "
+            f"{self.model_name} was built for {self.sensors} sensors (model.sensors={self.sensors}), "
+            f"{self.sensors} cameras of a grasp at once: leave model.sensors out to take the data's, or set "
+            f"model.sensors=1 to train on each camera alone"
+        )
+
     def stream(self, *, sensors=None, info=None, backend="torch", dtype="float32", onnx_dir=None) -> Stream:
         """A fresh :class:`Stream` over whole grasps (a grasp model has no clip window to slide)."""
         raise NotImplementedError(f"{type(self).__name__} must define stream() (see MotionStream)")
@@ -351,6 +414,27 @@ def window_geometry(model: nn.Module, info: Mapping[str, Any] | None = None) -> 
     data = (info or {}).get("data")
     spec = (data.get("clip_spec") if isinstance(data, Mapping) else None) or {}
     return model.window_geometry(spec)
+
+
+@dataclass(frozen=True)
+class RecordingsShape:
+    """What a training knows of its recordings before decoding them
+    (:meth:`SlipModel.training_defaults`): the cameras per grasp (1: frame folders of one finger,
+    or one camera per run; 2: both fingers) and whether every grasp is labelled as a whole
+    (slipped or held, cut from a stream: no camera start-up in it)."""
+
+    cameras: int
+    per_grasp: bool
+
+
+def setting_default(cls: type, key: str) -> Any:
+    """The default of model class ``cls``'s keyword setting ``key`` (None where it has none)."""
+    for klass in cls.__mro__:
+        params = inspect.signature(klass.__init__).parameters
+        if key in params:
+            default = params[key].default
+            return None if default is inspect.Parameter.empty else default
+    return None
 
 
 def settings_of(cls: type) -> set[str]:

@@ -20,13 +20,16 @@ from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 from typing import Any, Mapping
 
-from slipsense.config import portable_path, resolve_path
+from slipsense.config import gelsight_recordings, portable_path, resolve_path
 from slipsense.datasets import check_marker_copies
-from slipsense.errors import ConfigError
+from slipsense.errors import ConfigError, SlipsenseError
 from slipsense.models import available, model_class, settings_of
+from slipsense.models.base import RecordingsShape
+from slipsense.recordings.frame_folders import data_sensor
 from slipsense.run_config import DEFAULT_MODEL, SECTIONS, check_keys, check_seed, to_plain
+from slipsense.sensors.spec import GELSIGHT_MINI, SensorSpec, sensor_named
 from slipsense.training.clips import TrainConfig, paper_settings
-from slipsense.training.grasps import GraspTrainConfig, make_config
+from slipsense.training.grasps import GraspTrainConfig, make_config, recordings_shape
 
 
 @dataclass(frozen=True)
@@ -69,6 +72,37 @@ class DataConfig:
         data["test_objects"] = tuple(o for o in held.split(",") if o) if isinstance(held, str) else tuple(held)
         check_marker_copies(data.get("marker_copies", 1), "data.marker_copies")
         return cls(**data)
+
+
+def recordings_root(data: DataConfig) -> Path:
+    """The recordings folder a run reads: ``data.recordings``, else the shared GelSight recordings."""
+    return data.recordings or gelsight_recordings()
+
+
+def recordings_sensor(data: DataConfig) -> SensorSpec:
+    """The sensor a grasp detector's recordings are read with: ``data.sensor`` by name, else the
+    data's own (a frame-folder set's ``sensor.json`` or layout), else the GelSight Mini."""
+    root = recordings_root(data)
+    return sensor_named(data.sensor) if data.sensor else data_sensor(root) or GELSIGHT_MINI
+
+
+def data_shape(data: DataConfig) -> RecordingsShape | None:
+    """The run's recordings as the model's :meth:`~slipsense.models.base.SlipModel.training_defaults`
+    take them (cameras per grasp, labelled as a whole), from the folder structure alone; None where
+    they cannot be looked at here (the trainer names the problem when it reads them)."""
+    try:
+        sensor = recordings_sensor(data)
+    except SlipsenseError:
+        return None
+    return recordings_shape(recordings_root(data), sensor, data.on_error)
+
+
+def under(defaults: Mapping[str, Any], model: dict, train: dict) -> tuple[dict, dict]:
+    """``model`` and ``train`` sections over a model's :meth:`~slipsense.models.base.SlipModel.training_defaults`
+    (``model.KEY`` to the model, any other key to training): what the tree gives wins."""
+    below_model = {k[len("model.") :]: v for k, v in defaults.items() if k.startswith("model.")}
+    below_train = {k: v for k, v in defaults.items() if not k.startswith("model.")}
+    return {**below_model, **model}, {**below_train, **train}
 
 
 #: ``data`` keys of a clip model, in the order its stored tree lists them
@@ -121,7 +155,9 @@ class RunConfig:
         """Check a configuration tree and resolve it (the tree is left as it was given). The model is
         ``model.name`` (default :data:`~slipsense.run_config.DEFAULT_MODEL`); a ``model`` key that is
         not a setting of the model but a training setting goes to ``train`` (a bare ``--set KEY=VALUE``);
-        unknown keys and bad values are refused naming them."""
+        unknown keys and bad values are refused naming them. Every run starts from its model's
+        :meth:`~slipsense.models.base.SlipModel.training_defaults` (its recipe; a grasp detector's also
+        what the recordings are, :func:`data_shape`), under every setting the tree gives."""
         model, data, train = ({**(tree.get(s) or {})} for s in SECTIONS)
         name = model.pop("name", None) or DEFAULT_MODEL
         if name not in available():
@@ -133,6 +169,7 @@ class RunConfig:
         train["seed"] = check_seed(train.get("seed") or 0)
         if trainer is GraspTrainConfig:
             return cls._grasps(name, model, data, train)
+        model, train = under(model_class(name).training_defaults(None), model, train)  # its recipe, if any
         check_keys({"data": data, "train": train}, {"data": CLIP_DATA_KEYS, "train": train_keys(TrainConfig)})
         preset = model.pop("preset", None)
         unknown = sorted(set(model) - accepted)
@@ -169,6 +206,9 @@ class RunConfig:
         if data_config.size is not None:
             model["image_size"] = list(data_config.size)
             data_config = replace(data_config, size=None)
+        # the model's recipe and what the recordings imply, under every setting the tree gives
+        defaults = model_class(name).training_defaults(data_shape(data_config), init=train.get("init") is not None)
+        model, train = under(defaults, model, train)
         settings = make_config(name, {**train, **{f"model.{k}": v for k, v in model.items()}})
         return cls({"name": name, **settings.model_config}, data_config, settings)
 

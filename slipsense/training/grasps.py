@@ -21,6 +21,7 @@ from __future__ import annotations
 import itertools
 import json
 import math
+import warnings
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any, Callable, Sequence
 
@@ -32,9 +33,10 @@ import torch.nn.functional as F
 from slipsense.checkpoint import load_model, read_info
 from slipsense.config import portable_path, resolve_path
 from slipsense.data import label_runs
-from slipsense.errors import ConfigError, InputError
+from slipsense.errors import ConfigError, InputError, SlipsenseError
 from slipsense.evaluation import pergrasp
 from slipsense.models import build
+from slipsense.models.base import RecordingsShape
 from slipsense.recordings.folders import camera_counts, find_recordings, validate_recordings
 from slipsense.recordings.runs import GraspRun, load_runs
 from slipsense.run_config import DEFAULT_MODEL, typed
@@ -491,6 +493,27 @@ def load_grasp_data(
         raise InputError(recordings, "no usable recordings")
     labels = label_runs(recs, overrides, on_error=on_error, progress=progress)
     recs = [r for r in recs if r.key in labels]  # runs left out by on_error="skip"
-    counts = camera_counts(recs)  # one camera per grasp (frame folders) or both fingers
-    sensors = counts[0] if len(counts) == 1 else 2
+    sensors = cameras_per_grasp(recs)
     return load_runs(recs, labels, image_size, sensors=sensors, progress=progress), labels
+
+
+def cameras_per_grasp(recordings) -> int:
+    """The cameras a grasp of ``recordings`` has: one (frame folders of one finger, one-camera runs)
+    or both fingers; 2 where the runs differ (the one-camera runs are then refused by name)."""
+    counts = camera_counts(recordings)
+    return counts[0] if len(counts) == 1 else 2
+
+
+def recordings_shape(recordings, sensor=None, on_error: str = "raise") -> RecordingsShape | None:
+    """What the grasps of a recordings folder are, from its folder structure alone (nothing decoded):
+    the cameras per grasp and whether every grasp is labelled as a whole; None where the folder cannot
+    be read so (missing, empty, a bad layout: :func:`load_grasp_data` names the problem)."""
+    try:
+        with warnings.catch_warnings():  # what on_error="skip" leaves out is said when the data is read
+            warnings.simplefilter("ignore")
+            found = find_recordings(recordings, on_error=on_error, sensor=sensor or GELSIGHT_MINI)
+    except SlipsenseError:
+        return None
+    if not found:
+        return None
+    return RecordingsShape(cameras_per_grasp(found), all(r.per_grasp for r in found))

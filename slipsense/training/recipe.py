@@ -24,7 +24,7 @@ import torch
 
 from slipsense.atomic import check_output_dir, write_text
 from slipsense.checkpoint import load_model
-from slipsense.config import gelsight_recordings, portable_path
+from slipsense.config import portable_path
 from slipsense.errors import ConfigError
 from slipsense.evaluation.clip_folds import pool
 from slipsense.evaluation.evaluate import evaluate_clip_checkpoint, evaluate_grasp_checkpoint
@@ -33,11 +33,11 @@ from slipsense.models import build, model_class
 from slipsense.recordings.frame_folders import data_sensor
 from slipsense.recordings.runs import per_sensor
 from slipsense.run_config import dump_tree
-from slipsense.sensors.spec import GELSIGHT_MINI, sensor_named
+from slipsense.sensors.spec import GELSIGHT_MINI
 from slipsense.training.clips import run_training
-from slipsense.training.config import RunConfig
+from slipsense.training.config import RunConfig, recordings_root, recordings_sensor
 from slipsense.training.grasp_detector import object_split, train_detector
-from slipsense.training.grasps import load_grasp_data
+from slipsense.training.grasps import load_grasp_data, recordings_shape
 
 
 def fit(
@@ -168,21 +168,21 @@ def grasp_data(run: RunConfig, progress: bool = True):
     checkpoints and reports keep (``config``: the run's tree)."""
     d, cfg = run.data, run.train
     image_size = tuple(cfg.model_config.get("image_size") or build(run.name).image_size)
-    root = d.recordings or gelsight_recordings()
-    sensor = sensor_named(d.sensor) if d.sensor else data_sensor(root) or GELSIGHT_MINI
+    root = recordings_root(d)
+    sensor = recordings_sensor(d)
+    model = build(run.name, **cfg.model_config)
+    sensors = model.sensors
+    shape = recordings_shape(root, sensor, d.on_error)
+    if shape is not None:  # before any frame is decoded (else the reading below names the problem)
+        model.check_cameras([shape.cameras], f"the recordings ({root})")
     runs, labels = load_grasp_data(root, d.overrides, image_size, d.on_error, progress, sensor=sensor)
-    sensors = build(run.name, **cfg.model_config).sensors
+    model.check_cameras([r.gray.shape[0] for r in runs], f"the recordings ({root})")
     if d.also is not None:
         if d.also.resolve() == root.resolve():
             raise ConfigError(f"data.also ({d.also}) is the training recordings themselves")
         sensor_also = data_sensor(d.also) or GELSIGHT_MINI
         extra, _ = load_grasp_data(d.also, None, image_size, d.on_error, progress, sensor=sensor_also)
-        cameras = sorted({r.gray.shape[0] for r in extra})
-        if sensors != 1 and cameras != [sensors]:
-            raise ConfigError(
-                f"data.also ({d.also}) has grasps of {'/'.join(map(str, cameras))} camera(s); {run.name} takes "
-                f"{sensors} sensors together (model.sensors=1 trains on each camera alone)"
-            )
+        model.check_cameras([r.gray.shape[0] for r in extra], f"data.also ({d.also})")
         runs = runs + [dataclasses.replace(r, object=f"{d.also.name}/{r.object}", extra=True) for r in extra]
     if sensors == 1:  # a one-finger detector: each camera of a run is a grasp of its own
         runs = per_sensor(runs)
