@@ -1,27 +1,33 @@
 """Fit a detector to your own sensor from your own grasps: ``slipsense adapt``.
 
-One guided path from "the shipped detector never alarms on my sensor" to a detector you can trust,
-judged the way it will be used: on objects it never saw.
+One guided path from "the shipped detector never alarms on my sensor" to the best detector the
+library knows how to make for it, judged the way it will be used: on objects it never saw.
 
 1. **Read the grasps**: how many, of how many objects, slipped or held, cameras per grasp, frame size
    and rate. Too few to judge anything (:data:`MIN_OBJECTS`, :data:`MIN_EACH`) ends here, saying what
    to record next.
-2. **Candidates**, each judged leave-objects-out (every grasp scored by a detector whose threshold,
-   and weights where it learns, never saw that grasp's object):
+2. **Candidates**, cheap ones first, each judged leave-objects-out (every grasp scored by a detector
+   whose threshold, and weights where it learns, never saw that grasp's object):
 
    * ``as is``: the shipped detector for the sensor, its own operating point;
-   * ``recalibrated``: the same weights, the threshold chosen on the other objects' grasps (at most
-     ``budget`` of their held grasps alarming, :func:`~slipsense.evaluation.calibrate.calibrated_threshold`);
-   * ``fine-tuned``: the shipped weights trained further on the other objects' grasps (``folds``
-     object folds), the threshold chosen on those grasps;
-   * beside them the non-learned baselines (frame differences, thresholds chosen on the other objects).
+   * ``recalibrated``: the same weights, the threshold chosen on the other objects' grasps;
+   * every registered family that can learn from the grasps (the model says so itself,
+     :meth:`~slipsense.models.base.SlipModel.adapt_reason`: the shear-retention family where the
+     gels carry markers, MotionNet from scratch where there are enough grasps, the motion-energy
+     detector always, whatever a future model registers), trained with its own recipe on the other
+     objects' grasps (``folds`` object folds); a family that cannot prints why;
+   * ``fine-tuned``: the shipped weights trained further on the other objects' grasps;
+   * beside them the non-learned baselines of the evaluation (reference rows: not kept).
 
-3. **Choose** the candidate of best balanced accuracy at its own operating point (what a gripper
-   gets), and keep it only where it beats both the shipped detector as is and the best baseline;
-   then make it on every grasp (recalibrate, or fine-tune) into ``<out>/detector.safetensors``.
-   Otherwise nothing is written and the summary says why.
+3. **An honest figure**: the candidate of best balanced accuracy is chosen again without each object
+   in turn, on the other objects' grasps only, and that choice scores the object's grasps: the figure
+   for what is kept (:func:`nested_choice`), with 95% ranges over objects. The best of several
+   candidates on the same grasps would flatter the winner.
+4. **Keep** the best on all grasps, trained on every grasp with its family's recipe, where the
+   nested figure is better than chance; the shipped detector itself where it is the best (nothing is
+   written then). The advice says which, why, and when the figure is near chance.
 
-Every fold's training is kept under ``<out>/folds``, so a killed run resumes where it stopped.
+Every training is kept under ``<out>/folds``, so a killed run resumes where it stopped.
 """
 
 from __future__ import annotations
@@ -29,7 +35,7 @@ from __future__ import annotations
 import json
 import shutil
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
@@ -42,6 +48,7 @@ from slipsense.evaluation import outcome
 from slipsense.evaluation.calibrate import calibrate, calibrated_threshold
 from slipsense.evaluation.replay import Evaluation, evaluate, shipped_for
 from slipsense.evaluation.summary import BASELINE_WORDS, rate_lines
+from slipsense.models import available, model_class
 from slipsense.progress import progress_bar
 from slipsense.recordings.frame_folders import data_sensor
 
@@ -49,6 +56,62 @@ from slipsense.recordings.frame_folders import data_sensor
 #: judgement says anything (one object out leaves at least two to choose a threshold on).
 MIN_OBJECTS = 3
 MIN_EACH = 3
+#: A kept detector's nested balanced accuracy below this is no detector: nothing is kept.
+USEFUL = 0.6
+#: Grasps whose first frame is searched for gel markers, and the markers that make a grid.
+MARKER_GRASPS, MIN_MARKERS = 3, 20
+
+
+@dataclass
+class Grasps:
+    """What ``adapt`` knows of the user's grasps: what a family's ``adapt_reason`` reads."""
+
+    count: int
+    objects: list[str]
+    cameras: int
+    image_size: tuple[int, int] | None
+    fps: float | None
+    recordings: list = field(default_factory=list, repr=False)
+    _markers: tuple[bool, str] | None = field(default=None, repr=False)
+
+    def markers(self) -> tuple[bool, str]:
+        """Whether the gels carry a marker grid, and the evidence in words: the markers found on the
+        first frame of a few grasps (:func:`slipsense.sensors.marker_detection.detect_markers`)."""
+        if self._markers is None:
+            self._markers = find_markers(self.recordings[:MARKER_GRASPS])
+        return self._markers
+
+
+def find_markers(recordings: Sequence[Any]) -> tuple[bool, str]:
+    """``(found, evidence)``: a grid where at least :data:`MIN_MARKERS` evenly spaced dark dots are
+    found on the first frame of most of ``recordings``."""
+    from slipsense.errors import InputError
+    from slipsense.recordings.video import read_video
+    from slipsense.sensors.marker_detection import detect_markers
+
+    counts, spacings = [], []
+    for rec in recordings:
+        try:
+            frame = read_video(rec.path, expected_size=None)[0]
+            pts = detect_markers(frame)
+        except InputError:
+            counts.append(0)
+            continue
+        d = np.linalg.norm(pts[:, None] - pts[None], axis=-1) + np.eye(len(pts)) * 1e9
+        nearest = d.min(axis=1)
+        regular = np.std(nearest) < 0.35 * np.median(nearest)
+        counts.append(len(pts) if regular else 0)
+        spacings.append(float(np.median(nearest)))
+    found = sum(c >= MIN_MARKERS for c in counts) > len(counts) / 2
+    if found:
+        return True, (
+            f"a marker grid on {sum(c >= MIN_MARKERS for c in counts)} of {len(counts)} grasps checked "
+            f"({int(np.median([c for c in counts if c]))} markers, {np.median(spacings):.0f} px apart)"
+        )
+    return (
+        False,
+        f"no marker grid on the {len(counts)} grasps checked (at most {max(counts, default=0)} evenly spaced dots)",
+    )
 
 
 @dataclass
@@ -56,10 +119,11 @@ class Candidate:
     """One way to get a detector, judged leave-objects-out.
 
     Attributes:
-        name: ``"as is"``, ``"recalibrated"`` or ``"fine-tuned"``.
+        name: ``"as is"``, ``"recalibrated"``, ``"fine-tuned"`` or a registered family's name.
         scores: ``(N,)`` each grasp's peak alarm score (:func:`~slipsense.evaluation.outcome.peak_alarm_score`).
         alarmed: ``(N,)`` whether the grasp alarmed at the operating point chosen without its object.
-        slipped: ``(N,)`` the grasps' labels.
+        slipped, objects: ``(N,)`` the grasps' labels and objects.
+        words: what it is, in words.
     """
 
     name: str
@@ -67,6 +131,7 @@ class Candidate:
     alarmed: np.ndarray
     slipped: np.ndarray
     objects: np.ndarray
+    words: str = ""
 
     def __post_init__(self):
         self.measure = outcome.outcome_measure(self.scores, self.slipped, self.objects, self.alarmed)
@@ -80,18 +145,59 @@ class Candidate:
     def balanced_accuracy(self) -> float:
         return self.measure["operating_point"]["balanced_accuracy"]["value"]
 
+    def line(self) -> str:
+        caught, loud = int(self.alarmed[self.slipped].sum()), int(self.alarmed[~self.slipped].sum())
+        op = self.measure["operating_point"]
+        return (
+            f"{_pct(op['balanced_accuracy'])} balanced, right on {_pct(op['accuracy'], False)}; {caught} of "
+            f"{int(self.slipped.sum())} slips caught, {loud} of {int((~self.slipped).sum())} held grasps alarm"
+        )
+
     def to_dict(self) -> dict[str, Any]:
         return {
             "name": self.name,
+            "words": self.words,
             "measure": self.measure,
             "slips_caught": int(self.alarmed[self.slipped].sum()),
             "held_alarming": int(self.alarmed[~self.slipped].sum()),
         }
 
 
-def _pct(m: dict[str, Any]) -> str:
+def _pct(m: dict[str, Any], ranged: bool = True) -> str:
     lo, hi = m["interval"]
-    return f"{100 * m['value']:.0f}% (95% range {100 * lo:.0f}-{100 * hi:.0f}%)"
+    return f"{100 * m['value']:.0f}%" + (f" (95% range {100 * lo:.0f}-{100 * hi:.0f}%)" if ranged else "")
+
+
+def _rank(c: Candidate, mask: np.ndarray) -> tuple[float, float]:
+    """How a candidate ranks on the grasps of ``mask``: balanced accuracy, then ROC AUC."""
+    a, y, s = c.alarmed[mask], c.slipped[mask], c.scores[mask]
+    return tuple(float(np.nan_to_num(v, nan=-np.inf)) for v in (outcome.balanced_accuracy(a, y), outcome.roc_auc(s, y)))
+
+
+def best_of(candidates: Sequence[Candidate], mask: np.ndarray | None = None) -> Candidate:
+    """The candidate of best balanced accuracy on the grasps of ``mask`` (ties: ROC AUC, then the
+    one listed first, the cheaper)."""
+    mask = np.ones(len(candidates[0].slipped), bool) if mask is None else mask
+    ranks = [_rank(c, mask) for c in candidates]
+    top = max(range(len(candidates)), key=lambda i: (ranks[i], -i))
+    return candidates[top]
+
+
+def nested_choice(candidates: Sequence[Candidate]) -> tuple[Candidate, dict[str, str]]:
+    """The figure of choosing among ``candidates``: each object's grasps scored by the candidate
+    chosen (:func:`best_of`) on the other objects' grasps only. Returns that as a candidate and the
+    choice made without each object. Its scores are alarms (0/1): candidates' scores are on
+    different scales, so its ROC AUC is the alarms' own."""
+    first = candidates[0]
+    alarmed = np.zeros(len(first.slipped), bool)
+    chosen: dict[str, str] = {}
+    for o in sorted(set(first.objects)):
+        mine = first.objects == o
+        pick = best_of(candidates, ~mine)
+        alarmed[mine] = pick.alarmed[mine]
+        chosen[str(o)] = pick.name
+    kept = Candidate("chosen without each object", alarmed.astype(float), alarmed, first.slipped, first.objects)
+    return kept, chosen
 
 
 def _object_folds(objects: Sequence[str], folds: int, seed: int) -> list[list[str]]:
@@ -123,6 +229,18 @@ def _too_few(slipped: np.ndarray, objects: np.ndarray) -> str | None:
     )
 
 
+def families(grasps: Grasps) -> tuple[list[str], dict[str, str]]:
+    """The registered families that can learn from ``grasps``, cheapest first, and why the others cannot."""
+    fit_, why = [], {}
+    for name in available():
+        reason = model_class(name).adapt_reason(grasps)
+        if reason is None:
+            fit_.append(name)
+        else:
+            why[name] = reason
+    return sorted(fit_, key=lambda n: model_class(n).adapt_cost), why
+
+
 def adapt(
     recordings: str | Path,
     out: str | Path,
@@ -134,21 +252,21 @@ def adapt(
     progress: bool = True,
     echo: Callable[[str], None] = print,
 ) -> dict[str, Any]:
-    """Judge the shipped detector, a recalibrated and a fine-tuned one on ``recordings`` leave-objects-
-    out, and write the best into ``<out>/detector.safetensors`` where it beats the detector as is and
-    the best non-learned baseline (see the module notes).
+    """Judge the shipped detector, a recalibrated one, every registered family that can learn from
+    ``recordings`` and the shipped weights fine-tuned, leave-objects-out; keep the best (see the
+    module notes).
 
     Args:
         recordings: the user's grasps (any recordings layout; frame folders need a ``sensor.json``).
         out: a folder: ``detector.safetensors``, ``adapt.json`` (every figure), ``folds/`` (the trainings).
         budget: the fraction of held grasps allowed to alarm where a threshold is chosen on held grasps.
-        folds: object folds of the fine-tuning judgement (the objects are split into this many).
-        epochs: fine-tuning epochs.
+        folds: object folds of the trained candidates' judgement (the objects are split into this many).
+        epochs: fine-tuning epochs (a family trains with its own recipe).
         seed: of the object folds and the trainings.
         echo: where the plain-words summary goes, line by line.
 
-    Returns ``adapt.json``'s content: ``{"chosen": name or None, "why": ..., "candidates": [...],
-    "baselines": {...}, "checkpoint": path or None}``.
+    Returns ``adapt.json``'s content: ``{"chosen", "why", "advice", "candidates", "kept", "baselines",
+    "checkpoint", ...}``.
     """
     root, out = Path(recordings), Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -157,101 +275,185 @@ def adapt(
     slipped = np.array([r.slipped for r in as_is.runs], bool)
     objects = np.array([r.object for r in as_is.runs])
     sensor = data_sensor(root)
-    size = f"{sensor.image_size[1]}x{sensor.image_size[0]} px, " if sensor and sensor.image_size else ""
-    cameras = {len(r.cameras) for r in as_is.runs}
+    size = tuple(sensor.image_size) if sensor and sensor.image_size else None
+    cameras = max(len(r.cameras) for r in as_is.runs)
+    grasps = Grasps(
+        len(slipped), sorted(set(objects)), cameras, size, sensor.fps if sensor else None, as_is.recordings or []
+    )
     echo(
         f"your grasps: {len(slipped)} ({int(slipped.sum())} slipped, {int((~slipped).sum())} held) of "
-        f"{len(set(objects))} objects, {size}{'/'.join(map(str, sorted(cameras)))} camera(s) a grasp"
+        f"{len(set(objects))} objects, {f'{size[1]}x{size[0]} px, ' if size else ''}{cameras} camera(s) a grasp"
     )
     for line in rate_lines(as_is.frame_rates()):
         echo(line)
     doc: dict[str, Any] = {"recordings": str(root), "shipped": shipped.name, "budget": budget, "checkpoint": None}
     why = _too_few(slipped, objects)
     if why is not None:
-        return _finish(doc, out, None, why, echo)
+        return _finish(doc, out, None, why, [why], echo)
 
     measure = as_is.grasp_measure()
     baselines = measure["baselines"]
     best_name = max(baselines, key=lambda b: baselines[b]["leave_objects_out"]["balanced_accuracy"]["value"])
     best = baselines[best_name]["leave_objects_out"]["balanced_accuracy"]
+    echo("each judged on objects it never saw (balanced accuracy: the mean of slips caught and held grasps quiet):")
+    candidates: list[Candidate] = []
+
+    def add(c: Candidate) -> None:
+        candidates.append(c)
+        echo(f"  {c.name:16s} {c.line()}")
+
     scores = as_is.peak_scores()
-    candidates = [Candidate("as is", scores, scores >= as_is.threshold, slipped, objects)]
+    add(Candidate("as is", scores, scores >= as_is.threshold, slipped, objects, f"the shipped {shipped.stem}"))
     recal = np.zeros(len(scores), bool)
     for o in sorted(set(objects)):
         other, mine = objects != o, objects == o
         recal[mine] = scores[mine] >= calibrated_threshold(scores[other & ~slipped], scores[other & slipped], budget)
-    candidates.append(Candidate("recalibrated", scores, recal, slipped, objects))
-    tuned_scores, tuned_alarmed = _fine_tuned_out_of_fold(
-        as_is, root, out / "folds", shipped, epochs, folds, seed, progress
-    )
-    candidates.append(Candidate("fine-tuned", tuned_scores, tuned_alarmed, slipped, objects))
-    doc["candidates"] = [c.to_dict() for c in candidates]
-    doc["baselines"] = baselines
-    echo(
-        "judged on objects each detector never saw (balanced accuracy: the mean of slips caught and held grasps quiet):"
-    )
-    for c in candidates:
-        caught, quiet = int(c.alarmed[slipped].sum()), int(c.alarmed[~slipped].sum())
-        echo(
-            f"  {c.name:13s} {_pct(c.measure['operating_point']['balanced_accuracy'])}; {caught} of "
-            f"{int(slipped.sum())} slips caught, {quiet} of {int((~slipped).sum())} held grasps alarm"
+    add(
+        Candidate(
+            "recalibrated",
+            scores,
+            recal,
+            slipped,
+            objects,
+            f"the shipped {shipped.stem}, its threshold chosen on your grasps",
         )
-    echo(f"  best baseline {_pct(best)}: {best_name} ({BASELINE_WORDS.get(best_name, best_name)})")
+    )
+    names, not_tried = families(grasps)
+    for reason in dict.fromkeys(not_tried.values()):  # families alike in why said once
+        echo(f"  {', '.join(n for n, r in not_tried.items() if r == reason):16s} not tried: {reason}")
+    keys, parts = _keys(as_is), _object_folds(objects, folds, seed)
+    for name in names:
+        s, a = _out_of_fold(
+            keys,
+            parts,
+            lambda held, k, name=name: _train(root, out / "folds" / name / f"fold{k}", name, seed + k, held),
+            root,
+            f"{name}, one fold at a time",
+            progress,
+        )
+        add(Candidate(name, s, a, slipped, objects, model_class(name).adapt_words))
+    tuned = lambda held, k: _fine_tune(root, out / "folds" / "fine-tuned" / f"fold{k}", shipped, epochs, seed + k, held)  # noqa: E731
+    s, a = _out_of_fold(keys, parts, tuned, root, "fine-tuning, one fold at a time", progress)
+    add(
+        Candidate(
+            "fine-tuned", s, a, slipped, objects, f"the shipped {shipped.stem}'s weights trained further on your grasps"
+        )
+    )
+    echo(
+        f"  {'best baseline':16s} {_pct(best)} balanced: {best_name} ({BASELINE_WORDS.get(best_name, best_name)}; not kept)"
+    )
 
-    chosen, why = choose(candidates, best_name, best, shipped.stem)
-    if chosen is None:
-        return _finish(doc, out, None, why, echo)
+    kept_figure, per_object = nested_choice(candidates)
+    chosen = best_of(candidates)
+    doc.update(
+        candidates=[c.to_dict() for c in candidates],
+        not_tried=not_tried,
+        baselines=baselines,
+        kept={**kept_figure.to_dict(), "chosen_without_each_object": per_object},
+    )
+    keep, advice = advise(chosen, kept_figure, per_object, candidates[0], best_name, best)
+    if not keep or chosen.name == "as is":
+        return _finish(doc, out, None, advice[0], advice, echo)
     path = out / "detector.safetensors"
     if chosen.name == "recalibrated":
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # the same grasps again: their warnings were given above
             calibrate(path, shipped, root, budget=budget, progress=progress)
     else:
-        trained = _fine_tune(root, out / "fine-tuned", shipped, epochs, seed, progress, held_out=())
+        if chosen.name == "fine-tuned":
+            trained = _fine_tune(root, out / "fine-tuned", shipped, epochs, seed, ())
+        else:
+            trained = _train(root, out / "final" / chosen.name, chosen.name, seed, ())
         shutil.copyfile(trained, path.with_suffix(".partial"))
         path.with_suffix(".partial").replace(path)
     doc["checkpoint"] = str(path)
-    return _finish(doc, out, chosen.name, why, echo)
+    return _finish(doc, out, chosen.name, advice[0], advice, echo)
 
 
-def choose(
-    candidates: Sequence[Candidate], best_name: str, best: dict[str, Any], shipped: str
-) -> tuple[Candidate | None, str]:
-    """The candidate to keep (of those after ``candidates[0]``, the detector as is) and why, in words:
-    the best balanced accuracy at its own operating point, kept only where it is above both the
-    detector as is and the best baseline (``best``: its ``{"value", "interval"}``) and catches a slip."""
-    as_is = candidates[0]
-    chosen = max(candidates[1:], key=lambda c: (c.balanced_accuracy, c.measure["roc_auc"]["value"]))
-    if chosen.balanced_accuracy > max(as_is.balanced_accuracy, best["value"]) and chosen.catches:
-        ranges = chosen.measure["operating_point"]["balanced_accuracy"]["interval"][0] <= max(
-            as_is.measure["operating_point"]["balanced_accuracy"]["interval"][1], best["interval"][1]
-        )
-        return chosen, (
-            f"{chosen.name}: the best on objects it never saw, above the shipped detector as is and the best baseline"
-            + ("; their 95% ranges overlap, so more grasps would make the gain certain" if ranges else "")
-        )
-    if as_is.balanced_accuracy >= max(best["value"], chosen.balanced_accuracy):
-        return None, (
-            "the shipped detector as is does at least as well as recalibrating or fine-tuning it on objects it "
-            f"never saw: keep using it ({shipped}, slipsense watch picks it); no detector is written"
-        )
-    return None, (
-        f"no detector beats the best baseline ({best_name}, {best['value']:.2f} balanced accuracy) or catches a slip "
-        "on objects it never saw: no detector is written. Record more grasps, of more objects, slipped and held "
-        "alike, and adapt again"
+def advise(
+    chosen: Candidate,
+    kept: Candidate,
+    per_object: dict[str, str],
+    as_is: Candidate,
+    best_name: str,
+    best: dict[str, Any],
+) -> tuple[bool, list[str]]:
+    """Whether to keep ``chosen`` (the best on all grasps), and sentences each true of the figures:
+    ``kept`` is the nested figure of making that choice (:func:`nested_choice`)."""
+    op = kept.measure["operating_point"]
+    ba, acc = op["balanced_accuracy"], op["accuracy"]
+    picks = sorted(set(per_object.values()))
+    stable = (
+        f"chosen the same way without each object in turn, {picks[0]} won every time"
+        if len(picks) == 1
+        else f"chosen the same way without each object in turn, the choice went to {', '.join(picks)}"
     )
+    figure = (
+        f"what to expect on objects it never saw: {_pct(ba)} balanced accuracy, right on {_pct(acc)} of grasps "
+        f"({stable})"
+    )
+    if ba["value"] < USEFUL or not chosen.catches:
+        return False, [
+            f"nothing is kept: the best candidate ({chosen.name}) is near chance on objects it never saw "
+            f"({100 * ba['value']:.0f}% balanced accuracy when chosen without each object; the best baseline, "
+            f"{best_name}, {100 * best['value']:.0f}%). Record more grasps, of more objects, slipped and held alike, "
+            "and adapt again",
+            figure,
+        ]
+    near = ba["interval"][0] <= 0.5
+    caveat = "; near chance: its 95% range reaches 50%, so record more grasps before trusting it" if near else ""
+    if chosen.name == "as is":
+        return True, [
+            f"keep using the shipped detector as it is ({as_is.words.removeprefix('the shipped ')}, slipsense watch "
+            f"picks it): nothing made from your grasps did better on objects it never saw{caveat}; no detector is written",
+            figure,
+        ]
+    return True, [
+        f"kept {chosen.name} ({chosen.words}): the best of the candidates on objects it never saw, "
+        f"{100 * chosen.balanced_accuracy:.0f}% balanced accuracy against {100 * as_is.balanced_accuracy:.0f}% for "
+        f"the shipped detector as is{caveat}",
+        figure,
+    ]
 
 
-def _fine_tune(
-    root: Path, out: Path, shipped: Path, epochs: int, seed: int, progress: bool, held_out: Sequence[str]
-) -> Path:
-    """The shipped weights trained further on ``root``'s grasps but ``held_out``'s into ``out`` (kept:
-    a finished training is not repeated, a killed one resumes); the checkpoint's path."""
+def _out_of_fold(keys, parts, train, root, desc, progress) -> tuple[np.ndarray, np.ndarray]:
+    """Each grasp's peak score and alarm from the detector ``train(held, k)`` makes without its fold."""
+    where = {key: i for i, key in enumerate(keys)}
+    scores, alarmed = np.full(len(keys), -np.inf), np.zeros(len(keys), bool)
+    for k, held in enumerate(progress_bar(parts, progress, desc)):
+        ckpt = train(held, k)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # judged on its own held-out objects only
+            ev = evaluate(ckpt, root, objects=held, progress=False)
+        for key, s in zip(_keys(ev), ev.peak_scores()):
+            scores[where[key]], alarmed[where[key]] = s, s >= ev.threshold
+    return scores, alarmed
+
+
+def _kept_or_fresh(out: Path) -> Path | None:
+    """The detector a finished training left in ``out``; a half-done one's folder is cleared."""
     done = out / "detector.safetensors"
     if done.is_file():
         return done
     if out.exists():
         shutil.rmtree(out)  # a training killed half-way: its folder holds no checkpoint yet
+    return None
+
+
+def _train(root: Path, out: Path, name: str, seed: int, held_out: Sequence[str]) -> Path:
+    """Family ``name`` trained with its own recipe on ``root``'s grasps but ``held_out``'s."""
+    done = _kept_or_fresh(out)
+    if done is not None:
+        return done
+    res = fit(root, out, model=name, held_out=list(held_out), overrides=True, seed=seed, progress=False)
+    return res.checkpoint
+
+
+def _fine_tune(root: Path, out: Path, shipped: Path, epochs: int, seed: int, held_out: Sequence[str]) -> Path:
+    """The shipped weights trained further on ``root``'s grasps but ``held_out``'s into ``out``."""
+    done = _kept_or_fresh(out)
+    if done is not None:
+        return done
     info = read_info(shipped)
     res = fit(
         root,
@@ -260,7 +462,7 @@ def _fine_tune(
         held_out=list(held_out),
         overrides=True,
         seed=seed,
-        progress=progress,
+        progress=False,
         init=str(shipped),
         epochs=epochs,
         inner_folds=0,
@@ -268,26 +470,11 @@ def _fine_tune(
     return res.checkpoint
 
 
-def _fine_tuned_out_of_fold(
-    as_is: Evaluation, root: Path, out: Path, shipped: Path, epochs: int, folds: int, seed: int, progress: bool
-) -> tuple[np.ndarray, np.ndarray]:
-    """Each grasp's peak score and alarm from the fine-tuned detector of the fold that held its object out."""
-    keys = _keys(as_is)
-    where = {key: i for i, key in enumerate(keys)}
-    scores, alarmed = np.full(len(keys), -np.inf), np.zeros(len(keys), bool)
-    parts = _object_folds([k[0] for k in keys], folds, seed)
-    for k, held in enumerate(progress_bar(parts, progress, "fine-tuning, one fold at a time")):
-        ckpt = _fine_tune(root, out / f"fold{k}", shipped, epochs, seed + k, False, held)
-        ev = evaluate(ckpt, root, objects=held, progress=False)
-        for key, s in zip(_keys(ev), ev.peak_scores()):
-            scores[where[key]], alarmed[where[key]] = s, s >= ev.threshold
-    return scores, alarmed
-
-
-def _finish(doc: dict[str, Any], out: Path, chosen: str | None, why: str, echo) -> dict[str, Any]:
-    doc.update(chosen=chosen, why=why)
+def _finish(doc: dict[str, Any], out: Path, chosen: str | None, why: str, advice: list[str], echo) -> dict[str, Any]:
+    doc.update(chosen=chosen, why=why, advice=advice)
     write_text(out / "adapt.json", json.dumps(doc, indent=1, default=float))
-    echo(("kept " if chosen else "not adapted: ") + why)
+    for line in advice:
+        echo(line)
     if chosen:
         echo(f"-> {doc['checkpoint']} (slipsense watch --checkpoint {doc['checkpoint']} ...)")
     return doc

@@ -444,33 +444,103 @@ def lift_table(rows: list[dict[str, Any]]) -> str:
 
 
 def adapt_table(doc: dict) -> str:
-    """``adapt.json`` as a Markdown table: each candidate and baseline judged on objects it never saw."""
+    """``adapt.json`` as a Markdown table: each candidate and baseline judged on objects it never saw,
+    then the figure of what adapt keeps (the choice made without each object), the families it did not
+    try and why, and its advice."""
 
     def rng(m) -> str:
         lo, hi = m["interval"]
         return f"{100 * m['value']:.0f}% ({100 * lo:.0f}-{100 * hi:.0f}%)"
 
     lines = [
-        "| judged on objects it never saw | balanced accuracy (95% range) | ranking (ROC AUC) | slips caught "
-        "| held grasps alarming |",
-        "|---|---:|---:|---:|---:|",
+        "| judged on objects it never saw | balanced accuracy (95% range) | right on (95% range) | ranking (ROC AUC) "
+        "| slips caught | held grasps alarming |",
+        "|---|---:|---:|---:|---:|---:|",
     ]
-    for c in doc["candidates"]:
+    for c in doc.get("candidates", []):
         m = c["measure"]
+        op = m["operating_point"]
         lines.append(
-            f"| {c['name']} | {rng(m['operating_point']['balanced_accuracy'])} | {rng(m['roc_auc'])} | "
-            f"{c['slips_caught']} of {m['slipped']} | {c['held_alarming']} of {m['grasps'] - m['slipped']} |"
+            f"| {c['name']}{' (kept)' if c['name'] == doc['chosen'] else ''} | {rng(op['balanced_accuracy'])} | "
+            f"{rng(op['accuracy'])} | {rng(m['roc_auc'])} | {c['slips_caught']} of {m['slipped']} | "
+            f"{c['held_alarming']} of {m['grasps'] - m['slipped']} |"
         )
-    for name, m in doc["baselines"].items():
+    for name, m in doc.get("baselines", {}).items():
+        lo = m["leave_objects_out"]
         lines.append(
-            f"| baseline: {name} | {rng(m['leave_objects_out']['balanced_accuracy'])} | {rng(m['roc_auc'])} | | |"
+            f"| baseline: {name} | {rng(lo['balanced_accuracy'])} | {rng(lo['accuracy'])} | {rng(m['roc_auc'])} | | |"
         )
-    return "\n".join(lines) + f"\n\nKept: {doc['chosen'] or 'none'}. {doc['why']}.\n"
+    kept = doc.get("kept")
+    if kept:
+        m = kept["measure"]
+        op = m["operating_point"]
+        lines.append(
+            f"| **what adapt keeps, chosen without each object** | **{rng(op['balanced_accuracy'])}** | "
+            f"**{rng(op['accuracy'])}** | | {kept['slips_caught']} of {m['slipped']} | "
+            f"{kept['held_alarming']} of {m['grasps'] - m['slipped']} |"
+        )
+    notes = [f"Not tried: {', '.join(names)}: {why}." for why, names in _grouped(doc.get("not_tried", {})).items()]
+    advice = doc.get("advice") or [doc["why"]]
+    return (
+        "\n".join(lines)
+        + "\n\n"
+        + "".join(n + "\n" for n in notes)
+        + "\n"
+        + " ".join(a.rstrip(".") + "." for a in advice)
+        + "\n"
+    )
+
+
+def _grouped(reasons: dict[str, str]) -> dict[str, list[str]]:
+    out: dict[str, list[str]] = {}
+    for name, why in reasons.items():
+        out.setdefault(why, []).append(f"`{name}`")
+    return out
+
+
+def curve_table(doc: dict[str, Any]) -> str:
+    """The curve as a Markdown table: a row per number of objects trained on."""
+    lines = [
+        f"`{doc['family']}` made from the grasps of k of the {doc['objects']} objects, judged on the others' grasps "
+        f"(each k: up to 5 draws of objects, pooled; the range is the draws' lowest and highest).",
+        "",
+        "| objects trained on | grasps trained on (mean) | right on, other objects' grasps | balanced accuracy |",
+        "|---:|---:|---:|---:|",
+    ]
+    for p in doc["points"]:
+        accs = [r["accuracy"] for r in p["draws"]]
+        lines.append(
+            f"| {p['objects']} | {p['grasps']:.0f} | {100 * p['accuracy']:.0f}% ({100 * min(accs):.0f}-{100 * max(accs):.0f}%) "
+            f"| {100 * p['balanced_accuracy']:.0f}% |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+#: The derived sensors adapt is measured on: (title, report folder).
+ADAPT_REPORTS = (
+    ("the shared wiggle grasps as one camera, 160 x 120 px, 12.5 frames/s", "reports/adapt-derived"),
+    ("`gelsight-lift` resized to 300 x 400 px (frame folders, 30 frames/s)", "reports/adapt-lift-300x400"),
+    ("`gelsight-lift` resized to 240 x 320 px (frame folders, 30 frames/s)", "reports/adapt-lift-240x320"),
+)
 
 
 def adapt_derived(root: Path) -> str:
-    """slipsense adapt on the derived sensor: each candidate and baseline on objects it never saw."""
-    return adapt_table(_json(root, "reports/adapt-derived/adapt.json"))
+    """slipsense adapt on every derived sensor: each candidate and baseline on objects it never saw,
+    what it keeps; and the learning curve of the lift sensor's kept family."""
+    parts = []
+    for title, report in ADAPT_REPORTS:
+        doc = _json(root, f"{report}/adapt.json")
+        g = doc["kept"]["measure"] if doc.get("kept") else doc["candidates"][0]["measure"]
+        parts.append(
+            f"**{title}**: {g['grasps']} grasps of {g['objects']} objects; report `{report}`.\n\n" + adapt_table(doc)
+        )
+    curve = root / "reports/adapt-lift-300x400/learning-curve.json"
+    if curve.is_file():
+        parts.append(
+            "**How many objects to record** (`reports/adapt-lift-300x400`): "
+            + curve_table(json.loads(curve.read_text()))
+        )
+    return "\n".join(parts)
 
 
 def rates_folds(root: Path, report: str = "reports/rates-folds") -> str:
@@ -499,7 +569,7 @@ FIGURES: dict[str, Figure] = {
     "rates": Figure(("reports/rates",), rates),
     "ros": Figure(("reports/ros",), ros),
     "looks": Figure(("reports/looks",), looks),
-    "adapt": Figure(("reports/adapt-derived",), adapt_derived),
+    "adapt": Figure(tuple(r for _, r in ADAPT_REPORTS), adapt_derived),
     "rates-folds": Figure(("reports/rates-folds",), rates_folds),
     "looks-folds": Figure(("reports/looks-folds",), lambda root: looks(root, "reports/looks-folds")),
 }

@@ -105,14 +105,16 @@ def adapt(
     recordings: Path = typer.Option(..., help="your own grasps, slipped and held, of several objects"),
     out: Path = typer.Option(..., help="folder: detector.safetensors (where one is kept), adapt.json, folds/"),
     budget: float = typer.Option(0.05, help="fraction of the held grasps allowed to alarm"),
-    folds: int = typer.Option(5, help="object folds that judge the fine-tuned detector on objects it never saw"),
+    folds: int = typer.Option(5, help="object folds that judge the trained candidates on objects they never saw"),
     epochs: int = typer.Option(10, help="fine-tuning epochs"),
     seed: int = typer.Option(0, help="seed of the object folds and the trainings"),
     progress: bool = typer.Option(True, help="progress bars on long work (--no-progress: none)"),
 ):
-    """Fit a detector to your sensor: the shipped detector as is, recalibrated and fine-tuned from its
-    weights, each judged on objects it never saw beside non-learned baselines; the best is kept where
-    it beats them, and the summary says what was chosen and why. A killed run resumes."""
+    """Fit a detector to your sensor: the shipped detector as is and recalibrated, every registered
+    family that can learn from your grasps (shear retention where the gels carry markers, ...) and the
+    shipped weights fine-tuned, each judged on objects it never saw beside non-learned baselines; the
+    best is kept, with the figure of choosing it without each object, and the summary says what was
+    chosen and why. A killed run resumes."""
     from slipsense.adapt import adapt as run
     from slipsense.errors import ConfigError
     from slipsense.run_config import check_seed

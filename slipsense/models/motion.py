@@ -67,6 +67,20 @@ class MotionNet(GraspModel):
             the grey levels as the camera gives them, as detectors trained before it).
     """
 
+    adapt_cost = 50.0
+    adapt_words = "MotionNet trained from scratch on your grasps (grey frame differences, causal convolution)"
+    #: the fewest grasps and objects it is trained from scratch on (fewer: the fine-tuned shipped weights)
+    adapt_min_grasps, adapt_min_objects = 40, 5
+
+    @classmethod
+    def adapt_reason(cls, grasps) -> str | None:
+        if grasps.count < cls.adapt_min_grasps or len(grasps.objects) < cls.adapt_min_objects:
+            return (
+                f"trained from scratch only on {cls.adapt_min_grasps}+ grasps of {cls.adapt_min_objects}+ objects "
+                f"(you have {grasps.count} of {len(grasps.objects)}); the shipped weights fine-tuned stand in"
+            )
+        return None
+
     def __init__(
         self,
         sensors: int = 2,
@@ -353,6 +367,13 @@ class MotionEnergy(MotionNet):
     No appearance, no learned filters: what frame-difference slip detectors threshold, so users see
     what the network adds. Streams and trains like :class:`MotionNet`.
     """
+
+    adapt_cost = 5.0
+    adapt_words = "motion energy: how much the gels move, a threshold fitted on your grasps (non-learned)"
+
+    @classmethod
+    def adapt_reason(cls, grasps) -> str | None:
+        return None  # a few numbers fitted: any grasps that can be judged can fit it
 
     def __init__(
         self,

@@ -90,6 +90,14 @@ class ShearRetention(GraspModel):
         "choose": {"gate": [0.3, 0.5, 1.0, 1.5], "letgo": [0.2, 0.3, 0.4, 0.6]},
     }
 
+    adapt_cost = 10.0
+    adapt_words = "shear retention: the shear the gel's markers give up (settings chosen on your grasps)"
+
+    @classmethod
+    def adapt_reason(cls, grasps) -> str | None:
+        found, evidence = grasps.markers()
+        return None if found else f"needs a gel with markers: {evidence}"
+
     def __init__(
         self,
         sensors: int = 2,

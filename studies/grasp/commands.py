@@ -22,13 +22,14 @@ from studies.grasp.adaptation import adaptation_study, table, write
 from studies.grasp.ceiling import held_out_traces, one_threshold, per_fold, phases
 from studies.grasp.early_warning import DEFAULT_THRESHOLDS, run_early_warning
 from studies.grasp.hold import hold_study
+from studies.grasp.learning_curve import curve_table, learning_curve
 from studies.grasp.hold import table as hold_table
 from studies.grasp.precursors import aligned_means, precursor_table, summary, write_report
 from studies.grasp.looks import looks_folds_study, looks_study
 from studies.grasp.looks import table as looks_table
 from studies.grasp.looks import write as write_looks
 from studies.grasp.promise import restate_promise
-from studies.grasp.derive import adapt_report, derive_sensor, slower_frame_folders
+from studies.grasp.derive import adapt_report, derive_sensor, resized_frame_folders, slower_frame_folders
 from studies.grasp.rates import folds_study, lift_study, rates_study
 from studies.grasp.rates import folds_table as rates_folds_table
 from studies.grasp.rates import table as rates_table
@@ -305,12 +306,34 @@ def derive_cmd(
     typer.echo(f"{n} grasps -> {out}")
 
 
+@group.command("resize")
+@friendly
+def resize_cmd(
+    out: Path = typer.Option(..., help="folder for the resized grasps (frame folders, slip.txt, sensor.json)"),
+    recordings: Optional[Path] = typer.Option(None, help="frame-folder grasps (default: the shared gelsight-lift)"),
+    height: int = typer.Option(300, min=8, max=2048, help="frame height, pixels"),
+    width: int = typer.Option(400, min=8, max=2048, help="frame width, pixels"),
+    fps: float = typer.Option(30.0, help="the frame rate sensor.json states (gelsight-lift: 30 frames/s)"),
+    progress: bool = typer.Option(True, help="progress bars"),
+):
+    """Grasps as folders of frames (gelsight-lift) as a user's sensor of another frame size gives them:
+    every frame resized, slip.txt in each slipped grasp, a sensor.json stating the rate and size
+    (what `slipsense train --model shear-retention --recordings OUT` is checked on, docs/new-sensor.md)."""
+    n = resized_frame_folders(
+        resolve_path(recordings or data_root() / "gelsight-lift"), out, (height, width), fps, progress=progress
+    )
+    typer.echo(f"{n} grasps of {height} x {width} frames -> {out}")
+
+
 @group.command("adapt-report")
 @friendly
 def adapt_report_cmd(
     sensor: Path = typer.Option(..., help="the derived sensor's folder (python -m studies grasp derive --out ...)"),
     work: Path = typer.Option(..., help="slipsense adapt's --out (kept: a second run resumes from its folds)"),
     out: Path = typer.Option(Path("reports/adapt-derived"), help="report folder: README.md, adapt.json"),
+    derive: str = typer.Option(
+        "python -m studies grasp derive --out SENSOR", help="the command that made the sensor (for the report)"
+    ),
     progress: bool = typer.Option(True, help="progress bars"),
 ):
     """slipsense adapt on a derived sensor, timed, and its report: every candidate and baseline judged on
@@ -323,11 +346,11 @@ def adapt_report_cmd(
     adapt(sensor, work, progress=progress, echo=typer.echo)
     seconds = time.perf_counter() - t0
     commands = [
-        "python -m studies grasp derive --out SENSOR",
+        derive,
         f"slipsense adapt --recordings SENSOR --out WORK   # timed here: {seconds:.0f} s",
         f"{command_line()}",
     ]
-    typer.echo(f"-> {adapt_report(work, out, commands, seconds)}")
+    typer.echo(f"-> {adapt_report(work, out, commands, seconds, sensor)}")
 
 
 @group.command("looks")
@@ -380,3 +403,26 @@ def hold_cmd(
         f"not how often it warns). Onsets of slips count up to the moment contact is lost.\n\n{text}\n",
     )
     typer.echo(text + f"\n-> {out}")
+
+
+@group.command("learning-curve")
+@friendly
+def learning_curve_cmd(
+    sensor: Path = typer.Option(..., help="a user's sensor: grasps labelled per grasp (frame folders, sensor.json)"),
+    family: str = typer.Option("shear-retention", help="the registered family to make (what adapt keeps)"),
+    work: Path = typer.Option(..., help="folder for the trainings (kept: a second run resumes)"),
+    out: Path = typer.Option(..., help="report folder: learning-curve.json, learning-curve.md"),
+    progress: bool = typer.Option(True, help="progress bars"),
+):
+    """How many objects to record: the family made from k objects' grasps, judged on the others'."""
+    import json
+
+    from studies.provenance import provenance
+
+    doc = learning_curve(sensor, family, work, progress=progress)
+    doc["command"] = command_line()
+    text = curve_table(doc)
+    out.mkdir(parents=True, exist_ok=True)
+    write_text(out / "learning-curve.json", json.dumps(doc, indent=1))
+    write_text(out / "learning-curve.md", f"`{doc['command']}`\n\n{provenance()}\n\n{text}")
+    typer.echo(text + f"-> {out}")
