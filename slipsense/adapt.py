@@ -445,7 +445,8 @@ def _train(root: Path, out: Path, name: str, seed: int, held_out: Sequence[str])
     done = _kept_or_fresh(out)
     if done is not None:
         return done
-    res = fit(root, out, model=name, held_out=list(held_out), overrides=True, seed=seed, progress=False)
+    settings = model_class(name).adapt_settings
+    res = fit(root, out, model=name, held_out=list(held_out), overrides=True, seed=seed, progress=False, **settings)
     return res.checkpoint
 
 

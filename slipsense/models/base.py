@@ -155,6 +155,8 @@ class SlipModel(nn.Module):
     #: ones are judged first); the words a user reads of it
     adapt_cost: float = 100.0
     adapt_words: str = ""
+    #: settings adapt trains it with, over its recipe (e.g. fewer epochs where its own are many)
+    adapt_settings: dict[str, Any] = {}
 
     @classmethod
     def adapt_reason(cls, grasps: Any) -> str | None:

@@ -68,6 +68,7 @@ class MotionNet(GraspModel):
     """
 
     adapt_cost = 50.0
+    adapt_settings = {"epochs": 10}  # as the shipped weights are fine-tuned: a few minutes, not an hour
     adapt_words = "MotionNet trained from scratch on your grasps (grey frame differences, causal convolution)"
     #: the fewest grasps and objects it is trained from scratch on (fewer: the fine-tuned shipped weights)
     adapt_min_grasps, adapt_min_objects = 40, 5
@@ -369,6 +370,7 @@ class MotionEnergy(MotionNet):
     """
 
     adapt_cost = 5.0
+    adapt_settings: dict = {}  # its own training: a few numbers fitted
     adapt_words = "motion energy: how much the gels move, a threshold fitted on your grasps (non-learned)"
 
     @classmethod

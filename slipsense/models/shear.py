@@ -24,6 +24,7 @@ The first frame pushed is the reference: reset the stream at the start of each g
 
 from __future__ import annotations
 
+import hashlib
 from typing import Sequence
 
 import numpy as np
@@ -56,6 +57,18 @@ def running_max(x: Tensor, dim: int) -> Tensor:
     for k in (2**i for i in range(_DOUBLINGS)):  # the first frame stands in before the start
         x = torch.maximum(x, x.index_select(0, (at - k).clamp(min=0)))
     return x.movedim(0, dim)
+
+
+#: Tracked shifts of frames seen before (:meth:`ShearRetention.tracked`), by their frames' digest and
+#: the tracking settings; at most this many grasps (a grasp of 200 frames: 150 KB).
+_TRACKED: dict[tuple, Tensor] = {}
+_TRACKED_MAX = 512
+
+
+def _digest(x: Tensor) -> tuple:
+    """A key for a tensor's values: its shape, dtype and a BLAKE2 digest of its bytes."""
+    data = x.detach().contiguous().cpu().numpy()
+    return (tuple(data.shape), str(data.dtype), hashlib.blake2b(data.tobytes(), digest_size=16).hexdigest())
 
 
 @register("shear-retention")
@@ -223,12 +236,32 @@ class ShearRetention(GraspModel):
     def forward(self, gray: Tensor) -> Tensor:
         """``(B, S, N, h, w)`` grey frames in [0, 1] -> ``(B, N, 2)`` slip logits at every frame."""
         self.check_input(gray)
+        shift = self.tracked(gray)
+        return self.logits_of(shift, running_max(shift, dim=1))
+
+    def tracked(self, gray: Tensor) -> Tensor:
+        """``(B, S, N, h, w)`` -> every cell's shift from the first frame ``(B, N, S, C)``, pixels.
+
+        Outside gradient training the shifts of frames seen before are looked up, not tracked again:
+        they depend on the frames and the tracking settings only, not on ``gate``, ``letgo`` or the
+        logit, so choosing those on a user's grasps (``recipe["choose"]``: 16 pairs) tracks each grasp
+        once, not 16 times."""
+        if torch.is_grad_enabled():
+            return self._track(gray)
+        key = (_digest(gray), self.patch, self.blur, self.iterations, tuple(self.image_size))
+        shift = _TRACKED.get(key)
+        if shift is None:
+            shift = _TRACKED[key] = self._track(gray)
+            while len(_TRACKED) > _TRACKED_MAX:
+                _TRACKED.pop(next(iter(_TRACKED)))  # the oldest first
+        return shift
+
+    def _track(self, gray: Tensor) -> Tensor:
         b, s = gray.shape[:2]
         ref = self.markers(rearrange(gray[:, :, 0], "b s h w -> (b s) 1 h w"))
         cur = self.markers(rearrange(gray, "b s n h w -> (b s n) 1 h w"))
         shift = self.displacements(ref, rearrange(cur, "(r n) 1 h w -> r n h w", r=b * s))
-        shift = rearrange(shift, "(b s) n c -> b n s c", b=b)
-        return self.logits_of(shift, running_max(shift, dim=1))
+        return rearrange(shift, "(b s) n c -> b n s c", b=b)
 
     def chunk_logits(self, runs: Sequence[tuple[Tensor, Sequence[int]]], n_out: int) -> Tensor:
         """Logits of chunks of whole runs (each run's frames computed once); see
