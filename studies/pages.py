@@ -486,7 +486,7 @@ def adapt_table(doc: dict) -> str:
         + "\n\n"
         + "".join(n + "\n" for n in notes)
         + "\n"
-        + " ".join(a.rstrip(".") + "." for a in advice)
+        + " ".join(a[:1].upper() + a[1:].rstrip(".") + "." for a in advice)
         + "\n"
     )
 
