@@ -58,6 +58,10 @@ MIN_OBJECTS = 3
 MIN_EACH = 3
 #: A kept detector's nested balanced accuracy below this is no detector: nothing is kept.
 USEFUL = 0.6
+#: Inner object folds on which every family's operating point is chosen (its threshold, and the settings
+#: a recipe chooses among): on grasps of objects the model in question never saw, for the detectors
+#: judged and for the one kept alike.
+INNER_FOLDS = 2
 #: Grasps whose first frame is searched for gel markers, and the markers that make a grid.
 MARKER_GRASPS, MIN_MARKERS = 3, 20
 
@@ -441,11 +445,13 @@ def _kept_or_fresh(out: Path) -> Path | None:
 
 
 def _train(root: Path, out: Path, name: str, seed: int, held_out: Sequence[str]) -> Path:
-    """Family ``name`` trained with its own recipe on ``root``'s grasps but ``held_out``'s."""
+    """Family ``name`` trained with its own recipe on ``root``'s grasps but ``held_out``'s, its operating
+    point chosen on :data:`INNER_FOLDS` inner folds (over a recipe that chooses it on the grasps
+    themselves), then the family's own ``adapt_settings``."""
     done = _kept_or_fresh(out)
     if done is not None:
         return done
-    settings = model_class(name).adapt_settings
+    settings = {"inner_folds": INNER_FOLDS, **model_class(name).adapt_settings}
     res = fit(root, out, model=name, held_out=list(held_out), overrides=True, seed=seed, progress=False, **settings)
     return res.checkpoint
 

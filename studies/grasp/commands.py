@@ -409,7 +409,7 @@ def hold_cmd(
 @friendly
 def learning_curve_cmd(
     sensor: Path = typer.Option(..., help="a user's sensor: grasps labelled per grasp (frame folders, sensor.json)"),
-    family: str = typer.Option("shear-retention", help="the registered family to make (what adapt keeps)"),
+    family: str = typer.Option("shear-retention", help="the registered family to make, with its own recipe"),
     work: Path = typer.Option(..., help="folder for the trainings (kept: a second run resumes)"),
     out: Path = typer.Option(..., help="report folder: learning-curve.json, learning-curve.md"),
     progress: bool = typer.Option(True, help="progress bars"),

@@ -2,8 +2,8 @@
 judged on the grasps of the objects it never saw, for every ``k`` (``python -m studies grasp
 learning-curve``). What ``docs/new-sensor.md`` says about how much to record comes from here.
 
-Each point trains the family with its own recipe (``slipsense train --model NAME``, what ``adapt``
-keeps) on the grasps of ``k`` objects drawn from the set and judges it at its own operating point on
+Each point trains the family with its own recipe (``slipsense train --model NAME``; ``adapt``
+chooses the kept one's operating point on inner folds instead) on the grasps of ``k`` objects drawn from the set and judges it at its own operating point on
 all the others' grasps; up to ``draws`` draws of objects a point, each object drawn as evenly as the
 combinations allow.
 """
