@@ -215,3 +215,18 @@ def test_a_busy_detector_on_live_cameras_leaves_gaps_in_frame_numbers_that_the_c
     first = summary["source"]["cameras"][0]
     assert gaps > 10 and gaps == first["dropped"]  # every frame of the camera pushed or counted
     assert any("dropped (replaced before the detector took them)" in line for line in said)
+
+
+def test_ros_takes_the_options_the_docs_advise(monkeypatch):
+    """`slipsense ros --threads 1 --threshold 0.9 --hold 0.2` hands them to the node; bad values are one line."""
+    pytest.importorskip("rclpy")
+    import slipsense.ros_node as ros_node
+
+    seen = {}
+    monkeypatch.setattr(ros_node, "main", lambda argv=None, overrides=None: seen.update(overrides or {}))
+    res = _invoke(["ros", "--threads", "1", "--threshold", "0.9", "--hold", "0.2", "--max-lag", "0.05"])
+    assert res.exit_code == 0, res.output
+    assert seen["threads"] == 1 and seen["threshold"] == 0.9 and seen["hold"] == 0.2 and seen["max_lag"] == 0.05
+    for bad, words in ((["--threshold", "2"], "--threshold must be in [0, 1]"), (["--hold", "-1"], "hold must be")):
+        res = _invoke(["ros", *bad])
+        assert res.exit_code == 2 and res.output.count("error: ") == 1 and words in res.output, res.output
