@@ -100,10 +100,9 @@ def _cli(args) -> None:
     main()
 
 
-def killed_once(state, args) -> int:
+def sigkill_when(path: Path, args) -> None:
     """Run ``slipsense ARGS`` in a forked process (torch already imported: seconds saved per model) and
-    SIGKILL it as soon as ``state`` (its resume state after the first epoch) exists; returns the
-    epochs it had saved."""
+    SIGKILL it as soon as ``path`` exists (or it ends, or 120 s pass)."""
     import multiprocessing
     import os
     import signal
@@ -112,10 +111,16 @@ def killed_once(state, args) -> int:
     proc = multiprocessing.get_context("fork").Process(target=_cli, args=([str(a) for a in args],))
     proc.start()
     deadline = time.time() + 120
-    while not state.exists() and proc.is_alive() and time.time() < deadline:
+    while not path.exists() and proc.is_alive() and time.time() < deadline:
         time.sleep(0.002)
     os.kill(proc.pid, signal.SIGKILL)
     proc.join()
+
+
+def killed_once(state, args) -> int:
+    """:func:`sigkill_when` ``state`` (its resume state after the first epoch) exists; returns the
+    epochs it had saved."""
+    sigkill_when(state, args)
     assert state.exists(), f"no resume state at {state}"
     from slipsense.checkpoint import load_resume_state
 

@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 
 from slipsense.adapt import USEFUL, Candidate, advise, best_of, nested_choice
 from slipsense.cli import app
-from tests.conftest import REAL_RUN, needs_data
+from tests.conftest import REAL_RUN, needs_data, sigkill_when
 from tests.test_frame_folders import _lift_data
 
 runner = CliRunner()
@@ -112,11 +112,6 @@ def test_adapt_judges_every_family_that_fits_on_unseen_objects_and_resumes_after
     from scratch wants more grasps, motion-energy and a model registered here (nothing in adapt names
     it) are judged beside the shipped detector; killed after its first training, a rerun finishes
     without redoing it, and a third run trains nothing."""
-    import multiprocessing
-    import os
-    import signal
-    import time
-
     from slipsense.models import base, register
     from slipsense.models.motion import MotionEnergy
 
@@ -132,13 +127,7 @@ def test_adapt_judges_every_family_that_fits_on_unseen_objects_and_resumes_after
         out = tmp_path / "mine"
         args = ["adapt", "--recordings", str(root), "--out", str(out), "--epochs", "1", "--folds", "3", "--no-progress"]
         first = out / "folds" / "tiny-energy" / "fold0" / "detector.safetensors"
-        proc = multiprocessing.get_context("fork").Process(target=runner.invoke, args=(app, args))
-        proc.start()
-        deadline = time.time() + 120
-        while not first.exists() and proc.is_alive() and time.time() < deadline:
-            time.sleep(0.005)
-        os.kill(proc.pid, signal.SIGKILL)
-        proc.join()
+        sigkill_when(first, args)
         assert first.exists() and not (out / "adapt.json").exists()  # killed mid-run
         stamp = first.stat().st_mtime_ns
         res = runner.invoke(app, args)

@@ -192,6 +192,16 @@ def _wait_for_node(rclpy, me, pubs, node) -> None:
     time.sleep(0.5)  # the node's subscriptions matched ours both ways
 
 
+def _stop(me, node) -> str:
+    """Leave ROS (this test's node ``me``), end the slipsense node's process; its log."""
+    import rclpy
+
+    me.destroy_node()
+    rclpy.shutdown()
+    node.terminate()
+    return node.communicate(timeout=30)[0]
+
+
 @needs_data
 def test_the_node_reads_what_watch_reads_frame_for_frame(tmp_path):
     rclpy = pytest.importorskip("rclpy", reason='the ROS extra is not installed (pip install "slipsense[ros]")')
@@ -237,10 +247,7 @@ def test_the_node_reads_what_watch_reads_frame_for_frame(tmp_path):
         while len(readings) < len(reference) and time.monotonic() < deadline:
             rclpy.spin_once(me, timeout_sec=0.05)
     finally:
-        me.destroy_node()
-        rclpy.shutdown()
-        node.terminate()
-        log = node.communicate(timeout=30)[0]
+        log = _stop(me, node)
     assert len(readings) == len(reference), log
     assert [r["frame"] for r in readings] == [r["frame"] for r in reference]
     assert [r["alarm"] for r in readings] == [r["alarm"] for r in reference] and any(r["alarm"] for r in reference)
@@ -327,10 +334,7 @@ def test_a_slow_detector_given_a_burst_judges_or_counts_every_frame_pair():
         ):
             rclpy.spin_once(me, timeout_sec=0.05)
     finally:
-        me.destroy_node()
-        rclpy.shutdown()
-        node.terminate()
-        log = node.communicate(timeout=30)[0]
+        log = _stop(me, node)
     assert statuses, log
     status = statuses[-1]
     left_out = sum(status["left_out"].values())
