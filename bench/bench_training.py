@@ -47,7 +47,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 from slipsense.training import grasps as G  # noqa: E402
 from slipsense.training.grasp_detector import object_split  # noqa: E402
-from slipsense.evaluation import pergrasp  # noqa: E402
+from slipsense.measures import pergrasp  # noqa: E402
 from slipsense.config import gelsight_recordings  # noqa: E402
 from slipsense.models import build  # noqa: E402
 

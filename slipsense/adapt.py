@@ -44,10 +44,11 @@ import numpy as np
 from slipsense.api import fit
 from slipsense.atomic import write_text
 from slipsense.checkpoint import read_info
-from slipsense.evaluation import outcome
+from slipsense.measures import slipped_or_held
 from slipsense.evaluation.calibrate import calibrate, calibrated_threshold
-from slipsense.evaluation.replay import Evaluation, evaluate, shipped_for
-from slipsense.evaluation.summary import BASELINE_WORDS, rate_lines
+from slipsense.evaluation.judge import Evaluation, evaluate, shipped_for
+from slipsense.evaluation.summary import rate_lines
+from slipsense.measures.slipped_or_held import BASELINE_WORDS
 from slipsense.models import available, model_class
 from slipsense.progress import progress_bar
 from slipsense.recordings.frame_folders import data_sensor
@@ -106,16 +107,14 @@ def find_markers(recordings: Sequence[Any]) -> tuple[bool, str]:
         regular = np.std(nearest) < 0.35 * np.median(nearest)
         counts.append(len(pts) if regular else 0)
         spacings.append(float(np.median(nearest)))
-    found = sum(c >= MIN_MARKERS for c in counts) > len(counts) / 2
-    if found:
+    hits = sum(c >= MIN_MARKERS for c in counts)
+    if hits > len(counts) / 2:
         return True, (
-            f"a marker grid on {sum(c >= MIN_MARKERS for c in counts)} of {len(counts)} grasps checked "
+            f"a marker grid on {hits} of {len(counts)} grasps checked "
             f"({int(np.median([c for c in counts if c]))} markers, {np.median(spacings):.0f} px apart)"
         )
-    return (
-        False,
-        f"no marker grid on the {len(counts)} grasps checked (at most {max(counts, default=0)} evenly spaced dots)",
-    )
+    most = max(counts, default=0)
+    return False, f"no marker grid on the {len(counts)} grasps checked (at most {most} evenly spaced dots)"
 
 
 @dataclass
@@ -124,7 +123,7 @@ class Candidate:
 
     Attributes:
         name: ``"as is"``, ``"recalibrated"``, ``"fine-tuned"`` or a registered family's name.
-        scores: ``(N,)`` each grasp's peak alarm score (:func:`~slipsense.evaluation.outcome.peak_alarm_score`).
+        scores: ``(N,)`` each grasp's peak alarm score (:func:`~slipsense.measures.slipped_or_held.peak_alarm_score`).
         alarmed: ``(N,)`` whether the grasp alarmed at the operating point chosen without its object.
         slipped, objects: ``(N,)`` the grasps' labels and objects.
         words: what it is, in words.
@@ -138,7 +137,7 @@ class Candidate:
     words: str = ""
 
     def __post_init__(self):
-        self.measure = outcome.outcome_measure(self.scores, self.slipped, self.objects, self.alarmed)
+        self.measure = slipped_or_held.outcome_measure(self.scores, self.slipped, self.objects, self.alarmed)
 
     @property
     def catches(self) -> bool:
@@ -175,7 +174,10 @@ def _pct(m: dict[str, Any], ranged: bool = True) -> str:
 def _rank(c: Candidate, mask: np.ndarray) -> tuple[float, float]:
     """How a candidate ranks on the grasps of ``mask``: balanced accuracy, then ROC AUC."""
     a, y, s = c.alarmed[mask], c.slipped[mask], c.scores[mask]
-    return tuple(float(np.nan_to_num(v, nan=-np.inf)) for v in (outcome.balanced_accuracy(a, y), outcome.roc_auc(s, y)))
+    return tuple(
+        float(np.nan_to_num(v, nan=-np.inf))
+        for v in (slipped_or_held.balanced_accuracy(a, y), slipped_or_held.roc_auc(s, y))
+    )
 
 
 def best_of(candidates: Sequence[Candidate], mask: np.ndarray | None = None) -> Candidate:
@@ -235,14 +237,9 @@ def _too_few(slipped: np.ndarray, objects: np.ndarray) -> str | None:
 
 def families(grasps: Grasps) -> tuple[list[str], dict[str, str]]:
     """The registered families that can learn from ``grasps``, cheapest first, and why the others cannot."""
-    fit_, why = [], {}
-    for name in available():
-        reason = model_class(name).adapt_reason(grasps)
-        if reason is None:
-            fit_.append(name)
-        else:
-            why[name] = reason
-    return sorted(fit_, key=lambda n: model_class(n).adapt_cost), why
+    reasons = {name: model_class(name).adapt_reason(grasps) for name in available()}
+    fit_ = sorted((n for n, r in reasons.items() if r is None), key=lambda n: model_class(n).adapt_cost)
+    return fit_, {n: r for n, r in reasons.items() if r is not None}
 
 
 def adapt(
@@ -312,37 +309,20 @@ def adapt(
     for o in sorted(set(objects)):
         other, mine = objects != o, objects == o
         recal[mine] = scores[mine] >= calibrated_threshold(scores[other & ~slipped], scores[other & slipped], budget)
-    add(
-        Candidate(
-            "recalibrated",
-            scores,
-            recal,
-            slipped,
-            objects,
-            f"the shipped {shipped.stem}, its threshold chosen on your grasps",
-        )
-    )
+    words = f"the shipped {shipped.stem}, its threshold chosen on your grasps"
+    add(Candidate("recalibrated", scores, recal, slipped, objects, words))
     names, not_tried = families(grasps)
     for reason in dict.fromkeys(not_tried.values()):  # families alike in why said once
         echo(f"  {', '.join(n for n, r in not_tried.items() if r == reason):16s} not tried: {reason}")
     keys, parts = _keys(as_is), _object_folds(objects, folds, seed)
     for name in names:
-        s, a = _out_of_fold(
-            keys,
-            parts,
-            lambda held, k, name=name: _train(root, out / "folds" / name / f"fold{k}", name, seed + k, held),
-            root,
-            f"{name}, one fold at a time",
-            progress,
-        )
+        train = lambda held, k, name=name: _train(root, out / "folds" / name / f"fold{k}", name, seed + k, held)  # noqa: E731
+        s, a = _out_of_fold(keys, parts, train, root, f"{name}, one fold at a time", progress)
         add(Candidate(name, s, a, slipped, objects, model_class(name).adapt_words))
     tuned = lambda held, k: _fine_tune(root, out / "folds" / "fine-tuned" / f"fold{k}", shipped, epochs, seed + k, held)  # noqa: E731
     s, a = _out_of_fold(keys, parts, tuned, root, "fine-tuning, one fold at a time", progress)
-    add(
-        Candidate(
-            "fine-tuned", s, a, slipped, objects, f"the shipped {shipped.stem}'s weights trained further on your grasps"
-        )
-    )
+    words = f"the shipped {shipped.stem}'s weights trained further on your grasps"
+    add(Candidate("fine-tuned", s, a, slipped, objects, words))
     echo(
         f"  {'best baseline':16s} {_pct(best)} balanced: {best_name} ({BASELINE_WORDS.get(best_name, best_name)}; not kept)"
     )
@@ -434,47 +414,26 @@ def _out_of_fold(keys, parts, train, root, desc, progress) -> tuple[np.ndarray, 
     return scores, alarmed
 
 
-def _kept_or_fresh(out: Path) -> Path | None:
-    """The detector a finished training left in ``out``; a half-done one's folder is cleared."""
+def _train(root: Path, out: Path, name: str, seed: int, held_out: Sequence[str], **settings) -> Path:
+    """Family ``name`` trained on ``root``'s grasps but ``held_out``'s into ``out``, with ``settings``
+    where given, else with its own recipe, its operating point chosen on :data:`INNER_FOLDS` inner folds
+    (over a recipe that chooses it on the grasps themselves), then the family's own ``adapt_settings``.
+    The detector a finished training left in ``out`` is kept; a half-done one's folder is cleared."""
     done = out / "detector.safetensors"
     if done.is_file():
         return done
     if out.exists():
         shutil.rmtree(out)  # a training killed half-way: its folder holds no checkpoint yet
-    return None
-
-
-def _train(root: Path, out: Path, name: str, seed: int, held_out: Sequence[str]) -> Path:
-    """Family ``name`` trained with its own recipe on ``root``'s grasps but ``held_out``'s, its operating
-    point chosen on :data:`INNER_FOLDS` inner folds (over a recipe that chooses it on the grasps
-    themselves), then the family's own ``adapt_settings``."""
-    done = _kept_or_fresh(out)
-    if done is not None:
-        return done
-    settings = {"inner_folds": INNER_FOLDS, **model_class(name).adapt_settings}
-    res = fit(root, out, model=name, held_out=list(held_out), overrides=True, seed=seed, progress=False, **settings)
-    return res.checkpoint
+    settings = settings or {"inner_folds": INNER_FOLDS, **model_class(name).adapt_settings}
+    return fit(
+        root, out, model=name, held_out=list(held_out), overrides=True, seed=seed, progress=False, **settings
+    ).checkpoint
 
 
 def _fine_tune(root: Path, out: Path, shipped: Path, epochs: int, seed: int, held_out: Sequence[str]) -> Path:
     """The shipped weights trained further on ``root``'s grasps but ``held_out``'s into ``out``."""
-    done = _kept_or_fresh(out)
-    if done is not None:
-        return done
-    info = read_info(shipped)
-    res = fit(
-        root,
-        out,
-        model=info["model"],
-        held_out=list(held_out),
-        overrides=True,
-        seed=seed,
-        progress=False,
-        init=str(shipped),
-        epochs=epochs,
-        inner_folds=0,
-    )
-    return res.checkpoint
+    tuning = {"init": str(shipped), "epochs": epochs, "inner_folds": 0}
+    return _train(root, out, read_info(shipped)["model"], seed, held_out, **tuning)
 
 
 def _finish(doc: dict[str, Any], out: Path, chosen: str | None, why: str, advice: list[str], echo) -> dict[str, Any]:

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
 
-from slipsense.evaluation.replay import Evaluation, evaluate, label_overrides, recordings_folder
+from slipsense.evaluation.judge import Evaluation, evaluate, label_overrides, recordings_folder
 from slipsense.run_config import DEFAULT_MODEL
 
 

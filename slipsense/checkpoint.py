@@ -46,16 +46,29 @@ def save_checkpoint(path: str | Path, model: nn.Module, info: dict[str, Any]) ->
     return Path(path)
 
 
+def _contents(fh: Any) -> tuple[dict[str, str], dict[str, torch.Tensor]]:
+    """The metadata and tensors of an open safetensors file."""
+    return dict(fh.metadata() or {}), {k: fh.get_tensor(k) for k in fh.keys()}
+
+
 def update_info(path: str | Path, updates: dict[str, Any]) -> Path:
     """Rewrite a checkpoint's config with ``updates`` merged in (weights unchanged; atomic)."""
     path = Path(path)
     with safe_open(str(path), framework="pt") as fh:
-        meta = dict(fh.metadata() or {})
-        tensors = {k: fh.get_tensor(k) for k in fh.keys()}
+        meta, tensors = _contents(fh)
     info = {**json.loads(meta[META_KEY]), **updates}
     meta[META_KEY] = json.dumps(info)
     _save(path, tensors, meta)
     return path
+
+
+def _read(path: Path, problem: str, read: Any) -> Any:
+    """``read(fh)`` of the safetensors file ``path``; InputError "``problem`` (the error)" where it fails."""
+    try:
+        with safe_open(str(path), framework="pt") as fh:
+            return read(fh)
+    except Exception as exc:  # safetensors raises several error types for a damaged file
+        raise InputError(path, f"{problem} ({type(exc).__name__}: {exc})") from None
 
 
 def read_info(path: str | Path) -> dict[str, Any]:
@@ -63,11 +76,7 @@ def read_info(path: str | Path) -> dict[str, Any]:
     path = Path(path)
     if not path.is_file():
         raise InputError(path, "checkpoint not found")
-    try:
-        with safe_open(str(path), framework="pt") as fh:
-            meta = fh.metadata() or {}
-    except Exception as exc:  # safetensors raises several error types for a damaged header
-        raise InputError(path, f"not a readable safetensors checkpoint ({type(exc).__name__}: {exc})") from None
+    meta = _read(path, "not a readable safetensors checkpoint", lambda fh: fh.metadata() or {})
     if META_KEY not in meta:
         raise InputError(path, "safetensors file carries no slipsense config (not a slipsense checkpoint)")
     try:
@@ -90,15 +99,6 @@ def read_info(path: str | Path) -> dict[str, Any]:
 
 #: A model setting may exceed this only when the weights in the file are as large.
 CONFIG_FLOOR = 4096
-
-
-def _header_shapes(path: Path) -> dict[str, tuple[int, ...]]:
-    """Tensor shapes a safetensors file states, read from its header (no tensor is loaded)."""
-    try:
-        with safe_open(str(path), framework="pt") as fh:
-            return {k: tuple(fh.get_slice(k).get_shape()) for k in fh.keys()}
-    except Exception as exc:
-        raise InputError(path, f"checkpoint weights are unreadable ({type(exc).__name__}: {exc})") from None
 
 
 def _check_config_bounds(path: Path, config: dict[str, Any], shapes: dict[str, tuple[int, ...]]) -> None:
@@ -170,7 +170,10 @@ def load_model(path: str | Path, expect_model: str | None = None) -> tuple[nn.Mo
     info = read_info(path)
     if expect_model is not None and info["model"] != expect_model:
         raise InputError(path, f"checkpoint holds a {info['model']!r} model, expected {expect_model!r}")
-    shapes = _header_shapes(path)
+    # the tensor shapes the file's header states (no tensor is loaded)
+    shapes = _read(
+        path, "checkpoint weights are unreadable", lambda fh: {k: tuple(fh.get_slice(k).get_shape()) for k in fh.keys()}
+    )
     _check_config_bounds(path, info["model_config"], shapes)
     _check_shapes_on_meta(path, info["model"], info["model_config"], shapes)
     try:
@@ -300,15 +303,7 @@ def save_resume_state(path: str | Path, state: dict[str, Any]) -> None:
 
 
 #: What a resume state holds, and the type each entry must have.
-RESUME_ENTRIES = {
-    "model": dict,
-    "optimizer": dict,
-    "scheduler": dict,
-    "rng": dict,
-    "history": list,
-    "best": (int, float),
-    "epoch": int,
-}
+RESUME_ENTRIES = dict(model=dict, optimizer=dict, scheduler=dict, rng=dict, history=list, best=(int, float), epoch=int)
 
 
 def load_resume_state(path: str | Path) -> dict[str, Any]:
@@ -333,12 +328,7 @@ def load_resume_state(path: str | Path) -> dict[str, Any]:
                 "unpickling can run code; delete it and train again without --resume",
             )
         raise InputError(path, "resume state is not a slipsense resume file (not safetensors)")
-    try:
-        with safe_open(str(path), framework="pt") as fh:
-            meta = fh.metadata() or {}
-            tensors = {k: fh.get_tensor(k) for k in fh.keys()}
-    except Exception as exc:  # safetensors raises several error types for a damaged file
-        raise InputError(path, f"resume state is unreadable ({type(exc).__name__}: {exc})") from None
+    meta, tensors = _read(path, "resume state is unreadable", _contents)
     if RESUME_KEY not in meta:
         raise InputError(path, "safetensors file holds no slipsense resume state")
     try:

@@ -106,13 +106,9 @@ def label_runs(recordings, overrides=None, on_error: str = "raise", progress: bo
         except InputError as exc:
             warnings.warn(f"{exc}; run skipped", SkippedInputWarning, stacklevel=2)
             skipped.add(key)
-    if ov:
-        ov = (
-            ov.without_runs(skipped)
-            if isinstance(ov, Overrides)
-            else {k: v for k, v in ov.items() if k[:2] not in skipped}
-        )
-        labels = apply_overrides(labels, ov)
+    if ov:  # without the rows of the runs skipped
+        keep = {k: v for k, v in ov.items() if k[:2] not in skipped}
+        labels = apply_overrides(labels, Overrides(keep, ov.path, ov.lines) if isinstance(ov, Overrides) else keep)
     return dict(sorted(labels.items()))
 
 
@@ -121,11 +117,8 @@ def clip_spec_from(info: dict[str, Any]):
     raw = info.get("clip_spec") if isinstance(info, dict) else None
     if not isinstance(raw, dict):
         raise ConfigError(f"clip_spec must be a mapping of clip settings, got {type(raw).__name__}")
-    d = dict(raw)
-    if isinstance(d.get("size"), list):
-        d["size"] = tuple(d["size"])
     try:
-        return ClipSpec(**d)
+        return ClipSpec(**raw)  # a size list read from JSON becomes a tuple there
     except TypeError as exc:
         raise ConfigError(f"clip_spec: {exc}") from None
 

@@ -42,9 +42,6 @@ class ClipDataset(Dataset):
         n = len(self.clips)
         return 2 * n if self.augment is not None else n
 
-    def label(self, index: int) -> int:
-        return int(self.clips.y[index % len(self.clips)])
-
     def __getitem__(self, index: int):
         n = len(self.clips)
         clip = self.clips.x[index % n]
@@ -91,9 +88,6 @@ class MarkerDataset(Dataset):
 
     def __len__(self) -> int:
         return len(self.y) * self.copies
-
-    def label(self, index: int) -> int:
-        return int(self.y[index % len(self.y)])
 
     def __getitem__(self, index: int):
         n = len(self.y)

@@ -21,6 +21,7 @@ terminal reaches the parent alone, which ends them and stops with one line (the 
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import gc
 import multiprocessing
 import os
@@ -39,17 +40,14 @@ _SHARED: Any = None
 _TICKS: Any = None
 
 
-def available_cores() -> int:
-    """Cores this process may run on (the affinity mask where the OS has one)."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # not on Linux
-        return max(1, os.cpu_count() or 1)
-
-
 def default_workers(jobs: int) -> int:
-    """One worker per core, no more than there are jobs."""
-    return max(1, min(available_cores(), jobs))
+    """One worker per core this process may run on (its affinity mask where the OS has one), no more
+    than there are jobs."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        cores = os.cpu_count() or 1
+    return max(1, min(cores, jobs))
 
 
 def _context():
@@ -71,11 +69,7 @@ def end_with_parent(parent: int) -> None:
     if hasattr(signal, "pthread_sigmask"):  # blocked by the parent while it forked: see _sigint_held
         signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
     if sys.platform == "linux":
-        import ctypes
-
-        pr_set_pdeathsig = 1
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(pr_set_pdeathsig, signal.SIGKILL, 0, 0, 0)
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL, 0, 0, 0)  # 1: PR_SET_PDEATHSIG
     if os.getppid() != parent:  # the parent died before the request above took effect
         os._exit(1)
     threading.Thread(target=_watch_parent, args=(parent,), daemon=True, name="slipsense-parent-watch").start()
@@ -96,29 +90,21 @@ def _init_worker(shared: Any, ticks: Any, parent: int) -> None:
 
 
 @contextlib.contextmanager
-def _heap_frozen_for_fork():
-    """Collect this process's garbage, then freeze what is left, while workers are forked: a forked
-    worker that collected a cycle holding an ONNX Runtime session (a live detector's, garbage by then)
-    would wait forever in its destructor for threads that do not exist after a fork."""
+def _ready_to_fork():
+    """While workers are forked: this process's garbage collected and what is left frozen (a forked
+    worker that collected a cycle holding an ONNX Runtime session, a live detector's garbage by then,
+    would wait forever in its destructor for threads that do not exist after a fork), and OpenCV on
+    one thread (a forked child that finds OpenCV's thread pool, whose threads stay behind in the
+    parent, hangs in it; with no pool there is nothing to find). Both are undone afterwards."""
     gc.collect()
     gc.freeze()  # objects from before the fork: never collected in a worker (nor copied on write)
-    try:
-        yield
-    finally:
-        gc.unfreeze()
-
-
-@contextlib.contextmanager
-def _opencv_without_pool():
-    """OpenCV on one thread here while workers are forked: a forked child that finds OpenCV's
-    thread pool (whose threads stay behind in the parent) hangs in it; with no pool there is
-    nothing to find. The parent's setting is restored afterwards."""
     before = cv2.getNumThreads()
     cv2.setNumThreads(1)
     try:
         yield
     finally:
         cv2.setNumThreads(before)
+        gc.unfreeze()
 
 
 @contextlib.contextmanager
@@ -150,9 +136,7 @@ class _Progress:
         self.weights, self.groups = list(weights), list(groups) if groups is not None else None
         self.done = [0.0] * len(self.weights)
         self.t0 = time.perf_counter()
-        self.bar = None
-        if show:
-            self.bar = tqdm(total=sum(self.weights), desc=desc, unit="u")
+        self.bar = tqdm(total=sum(self.weights), desc=desc, unit="u") if show else None
 
     def tick(self, job: int, units: float) -> None:
         self.done[job] += units
@@ -202,21 +186,19 @@ def run_jobs(
     workers = default_workers(n) if workers is None else max(1, min(int(workers), max(n, 1)))
     bar = _Progress(weights, groups, f"{desc} ({n} jobs, {workers} worker{'s' * (workers > 1)})", progress)
     results: list[Any] = [None] * n
+    on_done = on_done or (lambda i, result: None)
     try:
         if workers == 1:
             for i, job in enumerate(jobs):
                 results[i] = fn(shared, job, lambda u, i=i: bar.tick(i, u))
-                if on_done is not None:
-                    on_done(i, results[i])
+                on_done(i, results[i])
             return results
         ctx = _context()
         ticks = ctx.Queue()
+        init = (shared, ticks, os.getpid())
         with (
-            _opencv_without_pool(),
-            _heap_frozen_for_fork(),
-            ProcessPoolExecutor(
-                workers, mp_context=ctx, initializer=_init_worker, initargs=(shared, ticks, os.getpid())
-            ) as pool,
+            _ready_to_fork(),
+            ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker, initargs=init) as pool,
         ):
             try:
                 with _sigint_held():  # the pool starts its workers at the first submit
@@ -227,8 +209,7 @@ def run_jobs(
                     for fut in done:
                         i = pending.pop(fut)
                         results[i] = fut.result()  # a worker's error is raised here
-                        if on_done is not None:
-                            on_done(i, results[i])
+                        on_done(i, results[i])
             except BaseException:
                 pool.shutdown(wait=False, cancel_futures=True)
                 _end_workers(pool)  # else leaving the pool waits for the jobs they are running

@@ -33,15 +33,9 @@ def plot_curves(history: Sequence[dict[str, Any]], path: str | Path, title: str 
     plt = _plt()
     epochs = [r["epoch"] for r in history]
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 3.6))
+    scored = {k.removesuffix("_accuracy") for r in history for k in r if k.endswith("_accuracy")}
+    splits = ["train", "val"] + sorted(scored - {"train", "val"})
     for key, ax in (("loss", a1), ("accuracy", a2)):
-        splits = ["train", "val"] + sorted(
-            {
-                k[: -len("_accuracy")]
-                for r in history
-                for k in r
-                if k.endswith("_accuracy") and k[: -len("_accuracy")] not in ("train", "val")
-            }
-        )
         for split in splits:
             vals = [r.get(f"{split}_{key}") for r in history]
             if any(v is not None for v in vals):

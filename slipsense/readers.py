@@ -27,7 +27,7 @@ from slipsense.datasets import ClipDataset, MarkerDataset
 from slipsense.errors import ConfigError, InputError
 from slipsense.recordings.augment import AugmentConfig
 from slipsense.recordings.clips import ClipSpec, object_folds, split_by_clip, split_by_object
-from slipsense.sensors.markers import layout_name, marker_layout
+from slipsense.recordings.markers import layout_name, marker_layout
 from slipsense.sensors.spec import BINOCULAR_MARKERS, GELSIGHT_MINI, fps_problem, sensor_named, sensor_of
 
 
@@ -159,13 +159,9 @@ class VideoClips:
             return EvaluationData(ClipDataset(clips.subset(idx), noise_std=noise_std, seed=0), extra, replay)
         if "clip_spec" not in data_info:
             raise InputError(checkpoint, "checkpoint has no clip settings (data.clip_spec)")
+        spec = clip_spec_from(data_info)
         clips, _ = gelsight_clips(
-            recordings,
-            clip_spec_from(data_info),
-            on_error=on_error,
-            overrides=overrides,
-            progress=progress,
-            sensor=sensor,
+            recordings, spec, on_error=on_error, overrides=overrides, progress=progress, sensor=sensor
         )
         extra = {"recordings": portable_path(recordings), "objects": sorted(set(clips.objects))}
         replay = dict(recordings=recordings, overrides=overrides, objects=None, on_error=on_error)
@@ -186,8 +182,7 @@ class MarkerClips:
         if data.markers is None:
             raise ConfigError(f"model {run.name!r} takes marker sequences: give --markers FILE.npz")
         x, y, groups = load_markers(data.markers)
-        n_groups = len(np.unique(groups))
-        if n_groups < 2:
+        if len(np.unique(groups)) < 2:
             raise InputError(
                 data.markers,
                 f"all {len(groups)} samples are in one group: a split that never cuts a "
@@ -246,7 +241,7 @@ MARKER_CLIPS = MarkerClips()
 
 def marker_file_layout(path, x: np.ndarray) -> str | None:
     """How a marker file's markers were taken from videos (its ``marker_layout``, written by
-    ``slipsense markers``: ``"7x9"``, ``"32"``; :func:`slipsense.sensors.markers.marker_layout`), or
+    ``slipsense markers``: ``"7x9"``, ``"32"``; :func:`slipsense.recordings.markers.marker_layout`), or
     None for markers that were not tracked in videos (simulated, a user's own)."""
     try:
         with np.load(path, allow_pickle=False) as z:

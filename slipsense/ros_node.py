@@ -1,45 +1,22 @@
 """A ROS 2 node: a slip detector on one or two image topics; its readings, its alarms and an account of
-every frame pair out.
+every frame pair out (docs/streaming.md: the topics, their QoS, the parameters and the account).
 
     slipsense ros --topic /left/image_raw --topic /right/image_raw --threads 1
     python -m slipsense.ros_node --ros-args -p topics:="['/left/image_raw', '/right/image_raw']" -p threads:=1
 
-Install with ``pip install "slipsense[ros]"`` (rclpy and the messages from the package registry; no
-ROS installation needed). Parameters: ``topics`` (one image topic per sensor, ``sensor_msgs/Image``
-or, with ``compressed:=true``, ``CompressedImage``), ``checkpoint`` (default: the shipped detector
-for that many sensors), ``backend`` (auto, torch or onnx), ``threshold`` (the alarm threshold;
-negative, the default: the checkpoint's operating point), ``hold`` (seconds an alarm stays on once
-raised; negative, the default: the checkpoint's), ``tolerance`` (seconds between the stamps
-of a pair; 0, the default: half a frame period of the detector's sensor), ``max_lag`` (seconds, default
-0.1: a pair this much older than the newest pair waiting is skipped, so readings do not fall behind
-the cameras), ``threads`` (intra-op threads of torch and ONNX Runtime; 0, the default: torch's; use 1
-on a busy machine).
+Install with ``pip install "slipsense[ros]"`` (no ROS installation needed). Parameters: ``topics`` (one
+``sensor_msgs/Image`` topic per sensor, ``CompressedImage`` with ``compressed:=true``), ``checkpoint``
+(default: the shipped detector for that many sensors), ``backend``, ``threshold`` and ``hold``
+(negative, the default: the checkpoint's operating point), ``tolerance`` (seconds between the stamps
+of a pair; 0: half a frame period of the detector's sensor), ``max_lag`` (seconds: a pair this much
+older than the newest one waiting is skipped) and ``threads`` (0: torch's).
 
-QoS. In: each image topic best effort, volatile, keep last :data:`QUEUE_DEPTH` (10), the sensor-data
-QoS a camera driver publishes with (a reliable publisher matches it too). Out, all reliable (a best
-effort subscriber matches too): ``/slipsense/reading`` (``std_msgs/String``, volatile, keep last 10):
-one JSON reading per judged frame pair, the record of ``slipsense watch --jsonl`` and of the readings
-``slipsense watch --bag-out`` writes on that topic, with ``frame`` the pair's index as received and
-``stamp`` its header stamp (s); ``/slipsense/alarm`` (``std_msgs/Header``, volatile, keep last 10),
-stamped with the frame's header stamp, published for every judged frame while the alarm is on;
-``/slipsense/status`` (``std_msgs/String``, transient local, keep last 1, so a late subscriber gets
-the latest): every second, the JSON account below. The detector runs on its own clock from the
-header stamps (:meth:`~slipsense.streaming.detector.SlipDetector.push` with stamps), so a camera at
-another rate gives it what it was trained on.
-
-Every frame pair is accounted for. Pair ``frame`` is the ``frame``-th message of the first topic since
-the node heard its first one, counting those that never arrived (gaps in their publisher's sequence
-numbers), so a gap in the readings' ``frame`` is a pair without a reading. A pair without a reading is
-left out for one cause: ``lost`` (the first topic's message never reached the node: dropped from
-the subscription's queue or on the way), ``unpaired`` (no message of every other topic within the
-tolerance), ``undecodable`` (an image of the wrong encoding or size), ``late`` (its stamp is not
-after the last judged pair's) or ``behind`` (the detector was busy and a pair more than ``max_lag``
-newer was waiting). The status: ``{"pairs", "judged", "left_out": {cause: count}, "pending",
-"topics": [{"topic", "received", "lost", "unpaired"}]}`` with ``pairs == judged + sum(left_out) +
-pending`` (``pending``: waiting for a partner or for the detector); ``topics`` counts messages per
-topic. It is logged in one line whenever a count of frames left out grew (at most once a second)
-and when the node stops; undecodable and late pairs are also logged one line each, and a topic
-silent for a second (or a sensor that starts late) and its return. The node keeps running.
+In: each image topic best effort, volatile, keep last :data:`QUEUE_DEPTH`. Out, reliable:
+``/slipsense/reading`` (a JSON reading per judged frame pair, the record of ``slipsense watch
+--jsonl``), ``/slipsense/alarm`` (a ``std_msgs/Header`` with the frame's stamp, every judged frame
+while the alarm is on) and ``/slipsense/status`` (transient local, every second: every frame pair
+judged or left out, by cause: :meth:`ReadingLoop.status`). The detector runs on its own clock from the
+header stamps. Faults are logged in one line each and the node keeps running.
 """
 
 from __future__ import annotations
@@ -56,14 +33,17 @@ import numpy as np
 
 from slipsense.checkpoint import read_info
 from slipsense.errors import ConfigError, SlipsenseError
-from slipsense.evaluation.pergrasp import promise_text
+from slipsense.measures.pergrasp import promise_text
 from slipsense.recordings.bags import COMPRESSED, IMAGE, decode_image
 from slipsense.resources import default_model_name, shipped_model
 from slipsense.streaming.detector import SlipDetector
 from slipsense.streaming.readings import reading_record
 
 READING_TOPIC, ALARM_TOPIC, STATUS_TOPIC = "/slipsense/reading", "/slipsense/alarm", "/slipsense/status"
-#: Why a frame pair got no reading (see the module's docstring), in the order the status lists them.
+#: Why a frame pair got no reading, in the order the status lists them: the first topic's message never
+#: arrived (lost), no message of every other topic within the tolerance (unpaired), an image of the wrong
+#: encoding or size (undecodable), its stamp not after the last judged pair's (late), or a pair more than
+#: ``max_lag`` newer was waiting while the detector was busy (behind).
 CAUSES = ("lost", "unpaired", "undecodable", "late", "behind")
 #: A topic without a message for this long (seconds) is reported as stopped.
 SILENT_S = 1.0
@@ -84,12 +64,11 @@ class StampPairer:
     ``add(k, stamp, frame)`` queues topic ``k``'s frame and returns the pairs now complete: the oldest
     frame of every topic, when their stamps lie within ``tolerance_ns`` of each other; an older frame
     that can no longer find partners (or one pushed out of a queue of ``depth`` waiting frames) is
-    dropped, counted in ``unpaired[k]`` and handed to ``on_unpaired(k, frame)``."""
+    dropped and counted in ``unpaired[k]``."""
 
     topics: int
     tolerance_ns: int
     unpaired: list[int] = field(default_factory=list)
-    on_unpaired: Optional[Callable[[int, Any], None]] = None
     depth: int = PAIRER_DEPTH
 
     def __post_init__(self):
@@ -97,10 +76,8 @@ class StampPairer:
         self.unpaired = [0] * self.topics
 
     def _drop(self, k: int) -> None:
-        _, frame = self._queues[k].popleft()
+        self._queues[k].popleft()
         self.unpaired[k] += 1
-        if self.on_unpaired is not None:
-            self.on_unpaired(k, frame)
 
     def add(self, k: int, stamp: int, frame: Any) -> list[tuple[int, list[Any]]]:
         self._queues[k].append((stamp, frame))
@@ -165,13 +142,13 @@ class ReadingLoop:
         self.publish, self.log, self.inline = publish, log, inline
         tolerance = 0.5 / detector.sensor.fps if tolerance_s is None else float(tolerance_s)
         self.max_lag_ns = int(round(max_lag_s * 1e9))
-        self.pairer = StampPairer(len(self.topics), int(round(tolerance * 1e9)), on_unpaired=self._unpaired)
+        self.pairer = StampPairer(len(self.topics), int(round(tolerance * 1e9)))  # its unpaired[0]: left out
         self.gaps = [SequenceGaps() for _ in self.topics]
         self.received = [0] * len(self.topics)  # messages per topic
         self.lost = [0] * len(self.topics)  # messages per topic that never arrived
         self.pairs = 0  # pair indices given out: messages of the first topic, arrived or lost
         self.judged = 0
-        self.left_out = dict.fromkeys(CAUSES, 0)
+        self.left_out = dict.fromkeys(CAUSES, 0)  # "unpaired" counted by the pairer
         self.first_ns: int | None = None
         self.last_judged_ns: int | None = None
         self.last_seen = [0.0] * len(self.topics)
@@ -209,10 +186,6 @@ class ReadingLoop:
                 self._cond.notify()
         if self.inline:
             self.judge_pending()
-
-    def _unpaired(self, k: int, item: tuple[int | None, Any]) -> None:
-        if k == 0:  # called by the pairer, under the lock
-            self.left_out["unpaired"] += 1
 
     # -- the detector's side ---------------------------------------------------------------------
     def judge_pending(self) -> None:
@@ -314,7 +287,7 @@ class ReadingLoop:
         """Every pair so far: ``pairs == judged + sum(left_out.values()) + pending``; and per topic the
         messages received, lost on the way and left without partners."""
         with self._cond:
-            left = dict(self.left_out)
+            left = {**self.left_out, "unpaired": self.pairer.unpaired[0]}
             return {
                 "pairs": self.pairs,
                 "judged": self.judged,
@@ -379,34 +352,23 @@ def main(argv: Sequence[str] | None = None, overrides: dict[str, Any] | None = N
 
     if threads:
         torch.set_num_threads(threads)
+    path = checkpoint or shipped_model(default_model_name(len(topics)))
     # the detector's alarm settings: the checkpoint's operating point unless set
-    alarm_settings: dict[str, Any] = {
-        "threshold": None if threshold < 0 else threshold,
-        "hold": None if hold < 0 else hold,
-    }
-    if checkpoint:
-        detector = SlipDetector.from_checkpoint(checkpoint, sensors=len(topics), backend=backend, **alarm_settings)
-    else:
-        detector = SlipDetector.pretrained(sensors=len(topics), backend=backend, **alarm_settings)
+    alarm_settings = {"threshold": None if threshold < 0 else threshold, "hold": None if hold < 0 else hold}
+    detector = SlipDetector.from_checkpoint(path, sensors=len(topics), backend=backend, **alarm_settings)
     log(
         f"{detector.model_name} on {detector.backend}, {len(topics)} sensor(s), alarm at {detector.threshold:g}"
         f"{'' if threshold < 0 else ' (set)'}, held {detector.hold:g} s, {torch.get_num_threads()} thread(s)"
     )
     if threshold < 0:  # the checkpoint's own operating point: what it promises
-        log(
-            promise_text(read_info(checkpoint or shipped_model(default_model_name(len(topics)))).get("operating_point"))
-        )
+        log(promise_text(read_info(path).get("operating_point")))
     out_qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
     readings = node.create_publisher(String, READING_TOPIC, out_qos)
     alarms = node.create_publisher(Header, ALARM_TOPIC, out_qos)
     latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
     statuses = node.create_publisher(String, STATUS_TOPIC, latched)
-    in_qos = QoSProfile(
-        history=HistoryPolicy.KEEP_LAST,
-        depth=QUEUE_DEPTH,
-        reliability=ReliabilityPolicy.BEST_EFFORT,
-        durability=DurabilityPolicy.VOLATILE,
-    )
+    best_effort = dict(reliability=ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.VOLATILE)
+    in_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=QUEUE_DEPTH, **best_effort)
 
     def publish(record: dict, stamp: int, alarm: bool) -> None:
         readings.publish(String(data=json.dumps(record)))

@@ -18,7 +18,6 @@ RUN/config.yaml`` repeats a run. This module is the torch-free part (``slipsense
 
 from __future__ import annotations
 
-import copy
 import json
 from dataclasses import MISSING, fields
 from pathlib import Path
@@ -86,9 +85,9 @@ def given(options: Mapping[str, Mapping[str, Any]]) -> dict[str, dict[str, Any]]
     return {s: {k: v for k, v in values.items() if v is not None} for s, values in options.items()}
 
 
-def parse_sets(sets: Iterable[str] | None, bare: str = "model") -> dict[str, dict[str, Any]]:
+def parse_sets(sets: Iterable[str] | None) -> dict[str, dict[str, Any]]:
     """``--set section.key=value`` pairs as a tree layer; values are JSON where they parse (numbers,
-    lists, true/false), else strings. A key without a known section goes to ``bare``."""
+    lists, true/false), else strings. A key without a known section goes to ``model``."""
     layer: dict[str, dict[str, Any]] = {}
     for item in sets or []:
         if "=" not in item:
@@ -97,7 +96,7 @@ def parse_sets(sets: Iterable[str] | None, bare: str = "model") -> dict[str, dic
         key = key.strip()
         section, _, name = key.partition(".")
         if section not in SECTIONS or not name:
-            section, name = bare, key
+            section, name = "model", key
         if not name:
             raise ConfigError(f"--set expects section.key=value, got {item!r}")
         try:
@@ -133,17 +132,14 @@ def typed(cls: type, values: Mapping[str, Any], where: str) -> dict[str, Any]:
         if value is None and default is not None:
             continue
         kind = type(default)
-        if value is None or default is None or kind not in (bool, int, float):
-            out[key] = value
-        elif kind is bool:
-            if not isinstance(value, bool):
-                raise ConfigError(f"{where}: {key} must be true or false, got {value!r}")
-            out[key] = value
-        elif kind is int:
-            if isinstance(value, bool) or not isinstance(value, int):
-                raise ConfigError(f"{where}: {key} must be a whole number, got {value!r}")
-            out[key] = value
-        else:
+        out[key] = value
+        if value is None or default is None:
+            continue
+        if kind is bool and not isinstance(value, bool):
+            raise ConfigError(f"{where}: {key} must be true or false, got {value!r}")
+        if kind is int and (isinstance(value, bool) or not isinstance(value, int)):
+            raise ConfigError(f"{where}: {key} must be a whole number, got {value!r}")
+        if kind is float:
             try:
                 if isinstance(value, bool):
                     raise ValueError
@@ -155,7 +151,7 @@ def typed(cls: type, values: Mapping[str, Any], where: str) -> dict[str, Any]:
 
 def to_plain(tree: Mapping[str, Any]) -> dict[str, Any]:
     """A JSON/YAML-safe deep copy (paths and tuples become strings and lists)."""
-    return json.loads(json.dumps(copy.deepcopy(dict(tree)), default=str))
+    return json.loads(json.dumps(dict(tree), default=str))
 
 
 def dump_tree(tree: Mapping[str, Any]) -> str:
@@ -171,20 +167,3 @@ def check_seed(seed: int, option: str = "--seed") -> int:
     if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= MAX_SEED:
         raise ConfigError(f"{option} must be an integer in 0..{MAX_SEED}, got {seed!r}")
     return seed
-
-
-__all__ = [
-    "DEFAULT_MODEL",
-    "SECTIONS",
-    "MAX_SEED",
-    "check_keys",
-    "check_seed",
-    "dump_tree",
-    "empty_tree",
-    "given",
-    "load_tree",
-    "merge",
-    "parse_sets",
-    "to_plain",
-    "typed",
-]

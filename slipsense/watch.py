@@ -14,7 +14,7 @@ from slipsense.alarm import shown_probability
 from slipsense.atomic import check_output_file
 from slipsense.checkpoint import load_model
 from slipsense.errors import ConfigError, InputError
-from slipsense.evaluation.pergrasp import promise_text
+from slipsense.measures.pergrasp import promise_text
 from slipsense.models.base import window_geometry
 from slipsense.models.runners import resolve_backend
 from slipsense.recordings.frame_folders import camera_folders
@@ -24,15 +24,8 @@ from slipsense.resources import default_model_name, shipped_model
 from slipsense.sensors.spec import GELSIGHT_MINI, sensor_of
 from slipsense.streaming.annotate import AnnotatedWriter, Annotator
 from slipsense.streaming.capture import CaptureThread, PacedReader
-from slipsense.streaming.detector import (
-    SlipDetector,
-    check_hold,
-    check_settings,
-    onnx_cache_dir,
-    shipped_name,
-    stored_hold,
-    stored_operating_point,
-)
+from slipsense.streaming.detector import SlipDetector, check_hold, check_settings, onnx_cache_dir, shipped_name
+from slipsense.streaming.detector import stored_hold, stored_operating_point
 from slipsense.streaming.readings import BagWriter, JsonlWriter, reading_record
 from slipsense.streaming.sources import Source, capture_source, open_source
 
@@ -44,7 +37,6 @@ def echo(message: str, err: bool = False) -> None:
 
 def checkpoint_or_shipped(path: Optional[Path], sensors: int | None = None) -> Path:
     """The checkpoint given, else the shipped detector for ``sensors`` (one finger or both)."""
-
     path = path or shipped_model(default_model_name(sensors))
     if not Path(path).is_file():
         raise InputError(path, "checkpoint not found (pass --checkpoint CKPT)")
@@ -54,7 +46,6 @@ def checkpoint_or_shipped(path: Optional[Path], sensors: int | None = None) -> P
 def _shipped_for_source(source: str, sensors: int) -> Path:
     """The shipped detector for what ``source`` holds: by its frame size where it is a video or a
     frame folder (a 480 x 640 GelSight gets the one calibrated to it), else by its sensor count."""
-
     size = None
     path = Path(source)
     frames = path if path.is_dir() and not any(path.glob("camera_*")) else None
@@ -67,11 +58,6 @@ def _shipped_for_source(source: str, sensors: int) -> Path:
         except InputError:
             size = None  # opening the source reports what is wrong with it
     return checkpoint_or_shipped(shipped_model(shipped_name(sensors, size)))
-
-
-# ---------------------------------------------------------------------------------------------
-# commands
-# ---------------------------------------------------------------------------------------------
 
 
 def watch_source(
@@ -133,18 +119,11 @@ def watch_source(
     own_point = threshold is None
     threshold, debounce = stored_operating_point(ckpt, info, threshold, None)
     backend = resolve_backend(backend, model)
+    settings = dict(threshold=threshold, sensors=src.sensors, combine=combine, dtype=dtype, debounce=debounce)
     try:
+        onnx_dir = onnx_cache_dir(ckpt) if backend == "onnx" else None
         det = SlipDetector(
-            model,
-            threshold=threshold,
-            sensors=src.sensors,
-            combine=combine,
-            backend=backend,
-            info=info,
-            onnx_dir=onnx_cache_dir(ckpt) if backend == "onnx" else None,
-            dtype=dtype,
-            debounce=debounce,
-            hold=stored_hold(info, hold),
+            model, backend=backend, info=info, onnx_dir=onnx_dir, hold=stored_hold(info, hold), **settings
         )
         if heatmap and not det.has_heatmap:
             det.close()
@@ -152,24 +131,24 @@ def watch_source(
     except ConfigError as exc:  # e.g. one camera given to a two-finger model: name the checkpoint
         src.close()
         raise InputError(ckpt, str(exc)) from None
+
+    def note(line: str) -> None:  # standard output carries the readings with --jsonl -
+        echo(line, err=jsonl == "-")
+
     if not quiet:
         runs_on = "ONNX Runtime" if det.backend == "onnx" else "PyTorch"
         fused = "" if det.per_sensor or det.sensors == 1 else " fused into one probability"
-        echo(
-            f"{Path(ckpt).stem} on {runs_on}, {det.sensors} sensor(s){fused}, alarm at {det.threshold:g}"
-            + (f", held {det.hold:g} s" if det.hold else ""),
-            err=jsonl == "-",
-        )
+        held = f", held {det.hold:g} s" if det.hold else ""
+        note(f"{Path(ckpt).stem} on {runs_on}, {det.sensors} sensor(s){fused}, alarm at {det.threshold:g}{held}")
         if own_point:  # the checkpoint's own operating point: what it promises
-            echo(promise_text(info.get("operating_point")), err=jsonl == "-")
-    echo(rate_line(src, det), err=jsonl == "-")
+            note(promise_text(info.get("operating_point")))
+    note(rate_line(src, det))
     annot = Annotator(det.threshold, det.sensors, fps=src.fps) if out is not None else None
     draw_heat = det.has_heatmap and heatmap is not False
     writer = AnnotatedWriter(out, fps=src.fps) if out is not None else None  # plays at the source's speed
     sinks = _sinks(jsonl, bag_out, src, det)
     onsets: list[int] = []
-    previous = False
-    n = 0
+    previous, n = False, 0
     losses = _LossReport(src, lambda line: echo(line, err=True))
     try:
         for step in itertools.islice(src.frames(), max_frames):  # takes no frame beyond the last pushed
@@ -209,22 +188,12 @@ def watch_source(
         for sink in sinks:
             sink.close()
     written = writer.close() if writer is not None else None
-    summary = {
-        "frames": n,
-        "alarm_onsets": onsets,
-        "first_alarm": onsets[0] if onsets else None,
-        "backend": det.backend,
-        "out": None if written is None else str(written),
-        "source": src.stats(),
-    }
-    echo(
-        f"{n} frames, {len(onsets)} alarm onset(s)"
-        + (f", first at frame {onsets[0]}" if onsets else "")
-        + (f" -> {written}" if written else ""),
-        err=jsonl == "-",  # standard output carries the readings then
-    )
+    summary = {"frames": n, "alarm_onsets": onsets, "first_alarm": onsets[0] if onsets else None}
+    summary.update(backend=det.backend, out=None if written is None else str(written), source=src.stats())
+    first = f", first at frame {onsets[0]}" if onsets else ""
+    note(f"{n} frames, {len(onsets)} alarm onset(s){first}" + (f" -> {written}" if written else ""))
     for line in camera_lines(summary["source"]):
-        echo(line, err=jsonl == "-")
+        note(line)
     return summary
 
 
@@ -267,17 +236,9 @@ def _open(source, model, sensor, topics, tolerance, realtime, geometry=None, fps
     """The source on its own clock (``fps``: the user's statement of its rate), with the sensor's camera
     files and capture settings (cameras are asked for the sensor's rate)."""
     size = tuple(sensor.image_size) if sensor.image_size else None
+    camera = dict(camera_fps=sensor.fps, capture_format=sensor.capture_format, frame_size=size)
     src = open_source(
-        source,
-        model,
-        sensor.camera_glob,
-        geometry,
-        topics=topics,
-        fps=fps,
-        camera_fps=sensor.fps,
-        tolerance_s=tolerance,
-        capture_format=sensor.capture_format,
-        frame_size=size,
+        source, model, sensor.camera_glob, geometry, topics=topics, fps=fps, tolerance_s=tolerance, **camera
     )
     if not realtime:
         return src
@@ -289,24 +250,16 @@ def _open(source, model, sensor, topics, tolerance, realtime, geometry=None, fps
     steps = list(src.frames())
     src.close()
     live: list = []
+    name, clock = f"{src.name} in real time", f"{src.clock}, played on the capture clock"
 
     def play():  # the clock starts at the first frame asked for, once the detector is ready
-        threads = [
-            CaptureThread(PacedReader([s.inputs[k] for s in steps], src.fps).read, f"{src.name}[{k}]")
-            for k in range(src.sensors)
-        ]
-        live.append(capture_source(f"{src.name} in real time", threads, src.fps, tolerance))
+        readers = [PacedReader([s.inputs[k] for s in steps], src.fps).read for k in range(src.sensors)]
+        threads = [CaptureThread(read, f"{src.name}[{k}]") for k, read in enumerate(readers)]
+        live.append(capture_source(name, threads, src.fps, tolerance))
         yield from live[0].frames()
 
-    return Source(
-        f"{src.name} in real time",
-        src.sensors,
-        play(),
-        closer=lambda: [s.close() for s in live],
-        stats=lambda: live[0].stats() if live else {},
-        fps=src.fps,
-        clock=f"{src.clock}, played on the capture clock",
-    )
+    stats = lambda: live[0].stats() if live else {}  # noqa: E731
+    return Source(name, src.sensors, play(), lambda: [s.close() for s in live], stats, fps=src.fps, clock=clock)
 
 
 def _sinks(jsonl, bag_out, src, det) -> list:
@@ -338,12 +291,9 @@ def reading_line(r, threshold: float) -> str:
     never rounds up to it), per-sensor values only where the model has them."""
     if r.probability is None:
         return f"frame {r.index:5d}  p=  -    (filling window)"
-    sensors = (
-        "" if r.per_sensor is None else "  [" + " ".join(shown_probability(p, threshold) for p in r.per_sensor) + "]"
-    )
-    state = ""
-    if r.alarm:
-        state = "  ALARM" if not r.probability < threshold else "  ALARM (held)"
+    shown = " ".join(shown_probability(p, threshold) for p in r.per_sensor or ())
+    sensors = "" if r.per_sensor is None else f"  [{shown}]"
+    state = ("  ALARM" if not r.probability < threshold else "  ALARM (held)") if r.alarm else ""
     return f"frame {r.index:5d}  p={shown_probability(r.probability, threshold)}{sensors}{state}"
 
 

@@ -9,7 +9,6 @@ from __future__ import annotations
 import typer
 
 from slipsense.cli import common
-
 from studies.experiments.commands import register as register_experiments
 from studies.grasp.commands import group as grasp_group
 from studies.stnet.commands import group as stnet_group

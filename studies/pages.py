@@ -105,7 +105,18 @@ def _pooled(root: Path, report: str) -> dict:
         "inner": data["train_config"].get("inner_folds"),
         "f1": pooled["clips_at_half"]["f1"],
         "folds": data.get("folds"),
+        "per_hour": pooled.get("false_alarms_per_hour"),  # reports pooled before that measure have none
     }
+
+
+def _per_hour(p: dict, sentence: bool = False) -> str:
+    """False alarms per hour of holding with its 95% range (``slipsense.measures.holding``)."""
+    h = p.get("per_hour")
+    if not h:
+        return "" if sentence else "-"
+    v, (lo, hi) = h["per_hour"]["value"], h["per_hour"]["interval"]
+    text = f"{v:.0f} ({lo:.0f}-{hi:.0f})" if lo is not None else f"{v:.0f}"
+    return f"; false alarms per hour of holding: {text}" if sentence else text
 
 
 def _rule(p: dict) -> str:
@@ -131,6 +142,7 @@ def per_grasp(root: Path) -> str:
                 str(g["missed"]),
                 _count(g["false_positive_grasps"], g["held_runs"]),
                 _lead(g),
+                _per_hour(p),
                 _pct(p["f1"]),
                 f"`{report}`",
             ]
@@ -143,6 +155,7 @@ def per_grasp(root: Path) -> str:
         "missed",
         "false-positive grasps",
         "median lead",
+        "false alarms per hour of holding",
         "clip F1 at 0.5",
         "report",
     ]
@@ -150,7 +163,7 @@ def per_grasp(root: Path) -> str:
         "Leave-objects-out, 5 folds by object, pooled; every run replayed from its first frame; each "
         "fold's alarm point chosen on its training objects only; 95% Wilson intervals over runs.\n\n"
     )
-    return note + _table(header, rows, ["---", "---", "---:", "---:", "---:", "---:", "---:", "---:", "---"])
+    return note + _table(header, rows, ["---", "---", "---:", "---:", "---:", "---:", "---:", "---:", "---:", "---"])
 
 
 def seed_spread(root: Path) -> str:
@@ -271,9 +284,9 @@ def stnet_real(root: Path) -> str:
 
 def _promise(name: str) -> str:
     """A shipped detector's promise about held grasps, as every command prints it: read from the
-    checkpoint (its one source), in the one wording of :func:`slipsense.evaluation.pergrasp.promise_text`."""
+    checkpoint (its one source), in the one wording of :func:`slipsense.measures.pergrasp.promise_text`."""
     from slipsense.checkpoint import read_info
-    from slipsense.evaluation.pergrasp import promise_text
+    from slipsense.measures.pergrasp import promise_text
     from slipsense.resources import shipped_model
 
     return promise_text(read_info(shipped_model(name)).get("operating_point"))
@@ -282,9 +295,11 @@ def _promise(name: str) -> str:
 def readme(root: Path) -> str:
     """README's one table: a line per question a user asks, each from its report; the shipped
     detectors' promise about held grasps from the checkpoints themselves."""
-    k5 = _pooled(root, "reports/grasp-motionnet-k5")["grasp"]
-    one = _pooled(root, "reports/grasp-motionnet-1sensor-k5")["grasp"]
-    base = _pooled(root, "reports/grasp-motion-energy")["grasp"]
+    pk5, pone, pbase = (
+        _pooled(root, f"reports/{r}")
+        for r in ("grasp-motionnet-k5", "grasp-motionnet-1sensor-k5", "grasp-motion-energy")
+    )
+    k5, one, base = pk5["grasp"], pone["grasp"], pbase["grasp"]
     lift = {r["row"]: r for r in _json(root, "reports/adaptation/adaptation.json")["rows"]}
     shear = next(v for k, v in lift.items() if k.startswith("shear retention"))
     sim = {r["model"]: r for r in _csv(root, "reports/stnet-sim-24seq/stnet.csv")}
@@ -293,21 +308,21 @@ def readme(root: Path) -> str:
             "GelSight Mini, both fingers, unseen objects",
             "`motionnet` (shipped)",
             f"warns of {_count(k5['warned'], k5['slip_runs'])} slips in time (median lead {_lead(k5)}), "
-            f"{k5['premature']} too early. Its promise: {_promise('motionnet-gelsight')}",
+            f"{k5['premature']} too early{_per_hour(pk5, True)}. Its promise: {_promise('motionnet-gelsight')}",
             "`reports/grasp-motionnet-k5`",
         ],
         [
             "GelSight Mini, one finger, unseen objects",
             "`motionnet-gelsight-1` (shipped)",
-            f"{_count(one['warned'], one['slip_runs'])} camera-slips in time, {one['premature']} too early. "
-            f"Its promise: {_promise('motionnet-gelsight-1')}",
+            f"{_count(one['warned'], one['slip_runs'])} camera-slips in time, {one['premature']} too early"
+            f"{_per_hour(pone, True)}. Its promise: {_promise('motionnet-gelsight-1')}",
             "`reports/grasp-motionnet-1sensor-k5`",
         ],
         [
             "the same, non-learned baseline",
             "`motion-energy`",
             f"{_count(base['warned'], base['slip_runs'])} in time, {base['premature']} too early; "
-            f"{_count(base['false_positive_grasps'], base['held_runs'])} held grasps alarm",
+            f"{_count(base['false_positive_grasps'], base['held_runs'])} held grasps alarm{_per_hour(pbase, True)}",
             "`reports/grasp-motion-energy`",
         ],
         [

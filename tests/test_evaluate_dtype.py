@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 from slipsense.checkpoint import save_checkpoint
 from slipsense.cli import app
 from slipsense.errors import ConfigError
-from slipsense.evaluation.evaluate import evaluate_clip_checkpoint
+from slipsense.evaluation.checkpoints import evaluate_checkpoint as evaluate_clip_checkpoint
 from slipsense.models import build, at_dtype
 
 runner = CliRunner()

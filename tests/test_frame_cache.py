@@ -1,16 +1,15 @@
 """The frame cache: a video is decoded once across labelling and loading whole runs; what it holds
-equals what decoding gives; a damaged entry is computed again with a CacheWarning."""
+equals what decoding gives (a damaged entry: tests/test_verified_cache.py)."""
 
 from __future__ import annotations
 
-import warnings
 
 import numpy as np
 import pytest
 
 from conftest import REAL_RUN, needs_data
 
-from slipsense.errors import CacheWarning, ConfigError, InputError
+from slipsense.errors import ConfigError, InputError
 from slipsense.recordings import video as video_mod
 from slipsense.recordings.contact import contact_signal, signal_of_blocks, video_blocks
 from slipsense.recordings.folders import find_recordings
@@ -59,21 +58,6 @@ def test_label_then_load_runs_decodes_each_video_once(grasp_recordings, cache, d
     assert len(decodes) == len(recs)
 
 
-def test_damaged_entry_is_recomputed(grasp_recordings, cache, decodes):
-    path = grasp_recordings / "obj1" / "exp_num_2" / "camera_2.avi"
-    first = np.array(video_products(path, ["gray:16x20"])["gray:16x20"])
-    (entry,) = (cache / "frames").glob("*.npy")
-    raw = bytearray(entry.read_bytes())
-    raw[-1] ^= 0xFF  # one grey level of the last frame
-    entry.write_bytes(bytes(raw))
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        again = video_products(path, ["gray:16x20"])["gray:16x20"]
-    assert any(issubclass(w.category, CacheWarning) and "failed its checks" in str(w.message) for w in caught)
-    np.testing.assert_array_equal(again, first)
-    assert len(decodes) == 2
-
-
 def test_bad_video_names_the_file(tmp_path, cache):
     bad = tmp_path / "camera_0.avi"
     bad.write_bytes(b"not a video")
@@ -107,9 +91,9 @@ def test_marker_model_replays_a_real_run_from_its_tracked_markers(cache, one_thr
     (once, cached) and the clouds its real training windows are cut from are replayed."""
     import torch
 
-    from slipsense.evaluation.early_warning import replay_recordings
+    from slipsense.evaluation.replay import replay_recordings
     from slipsense.models import build
-    from slipsense.sensors.markers import marker_sequences, track_recording
+    from slipsense.recordings.markers import marker_sequences, track_recording
     from slipsense.streaming.detector import SlipDetector
 
     torch.manual_seed(0)
@@ -126,7 +110,7 @@ def test_marker_model_replays_a_real_run_from_its_tracked_markers(cache, one_thr
     assert np.isfinite(expected[5:]).all() and np.isnan(expected[:5]).all()
     np.testing.assert_allclose(trace.probability, expected, rtol=0, atol=1e-6)
     # every marker on a 7 x 9 grid, as the experiment's real row trains on it
-    from slipsense.sensors.markers import grid_sequences
+    from slipsense.recordings.markers import grid_sequences
 
     on_grid = build("temnet", frames=6, markers=63, d_model=8, heads=2, blocks=1, ff_dim=8, head_hidden=0)
     det = SlipDetector(on_grid.eval(), sensors=2, info={"data": {"clip_spec": {"marker_layout": "7x9"}}})

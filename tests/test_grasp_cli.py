@@ -330,7 +330,7 @@ def test_a_fold_file_is_reused_only_under_the_key_of_todays_whole_settings(tmp_p
     trained again."""
     import hashlib
 
-    from slipsense.evaluation.folds import _config_key, _load_fold
+    from slipsense.training.folds import _config_key, _load_fold
     from slipsense.training.grasps import GraspTrainConfig
 
     cfg = GraspTrainConfig()

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import cv2
@@ -268,18 +267,6 @@ def test_label_recordings_caches_and_applies_overrides(synthetic_root, tmp_path,
     assert len(list((tmp_path / "cache" / "labels").glob("*.json"))) == 4
 
 
-def test_corrupt_cache_file_is_recomputed(synthetic_root, tmp_path, monkeypatch):
-    _root, recs = synthetic_root
-    monkeypatch.setenv("SLIPSENSE_CACHE", str(tmp_path / "cache"))
-    run = [r for r in recs if r.experiment == 2]
-    L.label_recordings(run, progress=False)
-    (cached,) = (tmp_path / "cache" / "labels").glob("*.json")
-    cached.write_text("{not json")
-    labels = L.label_recordings(run, progress=False)
-    assert labels[("ball", 2, "camera_0")].contact_end == 90
-    assert json.loads(cached.read_text())[0]["object"] == "ball"
-
-
 def test_override_errors_name_the_problem(synthetic_root, tmp_path, monkeypatch):
     _root, recs = synthetic_root
     monkeypatch.setenv("SLIPSENSE_CACHE", str(tmp_path / "cache"))
@@ -301,6 +288,8 @@ def _label(obj="ball", exp=1, cam="camera_0", moment=40, slipped=True) -> VideoL
 
 
 def test_write_labels_csv_columns_and_round_trip(tmp_path):
+    from studies.grasp.early_warning import read_labels_csv
+
     labels = {l.key: l for l in [_label(cam="camera_2"), _label(), _label("cup", 3, moment=None, slipped=False)]}
     path = tmp_path / "out" / "labels.csv"
     CSV.write_labels_csv(labels, path)
@@ -308,7 +297,7 @@ def test_write_labels_csv_columns_and_round_trip(tmp_path):
     assert lines[0] == "object,experiment,camera,n_frames,slipped,moment_of_slip,contact_start,contact_end,source"
     assert lines[1] == "ball,1,camera_0,130,true,40,12,40,auto"
     assert lines[3] == "cup,3,camera_0,130,false,,12,100,auto"
-    assert CSV.read_labels_csv(path) == labels
+    assert read_labels_csv(path) == labels  # what the early-warning study reads back
     # An edited labels file is a valid overrides file.
     assert CSV.read_overrides_csv(path) == {
         ("ball", 1, "camera_0"): 40,

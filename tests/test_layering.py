@@ -8,17 +8,21 @@ library imports the studies.
 Inside the library each floor imports only from its own floor and the floors below, and no module
 reaches itself through its imports (function-local imports count too).
 
-    base         errors, atomic, config, run_config, plots, resources, parallel, progress, alarm
-    data in      sensors, recordings, data, datasets, readers
+    base         errors, atomic, cache, config, run_config, plots, resources, parallel, progress, alarm
+    sensors      what a sensor is (specs) and the marker maths on one image
+    measures     how well a detector did, from replayed traces alone: no I/O, models or training
+    data in      recordings, data, datasets, readers, marker_sequences
     models       models (the contract, one file per network, streams, runners, ONNX parts), checkpoint
     streaming    the live detector, sources, capture, export: what runs on the robot
-    training / evaluation   the one training loop and its tasks; replay, per-grasp scores, folds
+    evaluation   the judge: a detector opened once, recordings read once, every run replayed once
+    training     the one training loop and its tasks; the operating point and cross-validation judge
     top          api, watch (a source watched through a detector: what ``slipsense watch`` runs),
-                 ros_node (the same detector as a ROS 2 node)
+                 ros_node (the same detector as a ROS 2 node), adapt
     cli          the ``slipsense`` command
 
 The live detector sits below evaluation on purpose: a detector is judged by replaying recordings
-through the very object that runs live, so the numbers are the same.
+through the very object that runs live, so the numbers are the same. Within a floor, no two packages
+or modules of ``slipsense/`` import each other.
 """
 
 from __future__ import annotations
@@ -30,11 +34,14 @@ ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "slipsense"
 STUDIES = ROOT / "studies"
 FLOORS = [
-    ["errors", "atomic", "config", "run_config", "plots", "resources", "parallel", "progress", "alarm", ""],
-    ["sensors", "recordings", "data", "datasets", "readers"],
+    ["errors", "atomic", "cache", "config", "run_config", "plots", "resources", "parallel", "progress", "alarm", ""],
+    ["sensors"],
+    ["measures"],
+    ["recordings", "data", "datasets", "readers", "marker_sequences"],
     ["models", "checkpoint"],
     ["streaming"],
-    ["training", "evaluation"],
+    ["evaluation"],
+    ["training"],
     ["api", "watch", "ros_node", "adapt"],
     ["cli"],
 ]
@@ -128,6 +135,26 @@ def find_cycles(edges: dict[str, set[str]]) -> list[list[str]]:
         if v not in index:
             visit(v)
     return groups
+
+
+def _top(module: str) -> str:
+    return module.split(".")[1] if "." in module else ""
+
+
+def test_the_measures_import_neither_training_models_recordings_nor_streaming():
+    edges = _imports(_modules())
+    banned = {"training", "models", "recordings", "streaming", "evaluation", "checkpoint", "data", "readers"}
+    bad = [f"{m} imports {t}" for m, ts in edges.items() if _top(m) == "measures" for t in ts if _top(t) in banned]
+    assert not bad, "\n".join(bad)
+
+
+def test_no_two_packages_import_each_other():
+    """Packages and modules of ``slipsense/`` taken whole: the arrows between them run one way only."""
+    edges = _imports(_modules())
+    tops: dict[str, set[str]] = {}
+    for m, ts in edges.items():
+        tops.setdefault(_top(m), set()).update(_top(t) for t in ts if _top(t) != _top(m))
+    assert find_cycles(tops) == []
 
 
 def test_no_import_cycles():

@@ -21,7 +21,7 @@ from slipsense.cli import app
 from studies.__main__ import app as studies_app
 from slipsense.config import gelsight_recordings
 from slipsense.errors import ConfigError, InputError
-from slipsense.evaluation.early_warning import RunTrace
+from slipsense.evaluation.replay import RunTrace
 from studies.grasp.early_warning import EARLY_WARNING_COLUMNS, early_warning_table
 from slipsense.models.streams import slip_probability
 from slipsense.streaming.detector import Reading, SlipDetector
@@ -469,7 +469,7 @@ def test_onnx_vivit_matches_torch_on_real_clips(tmp_path, real_clips):
 @needs_data
 def test_onnx_stnet_matches_torch_on_real_markers(tmp_path, real_clips):
     from slipsense.streaming.export import export_onnx
-    from slipsense.sensors.markers import marker_sequences, track_markers
+    from slipsense.recordings.markers import marker_sequences, track_markers
 
     clouds = np.stack([marker_sequences(track_markers(c, source="clip"), 20) for c in real_clips])[:, :4]
     model = _model("stnet", **STNET_SMALL)

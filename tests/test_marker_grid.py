@@ -61,7 +61,7 @@ def test_marker_copies_are_fixed_labelled_like_their_originals_and_only_on_a_gri
     assert torch.equal(data[1][0], torch.from_numpy(x[1])) and int(data[1][1]) == 1
     for i in range(4, 12):
         a, b = data[i], data[i]
-        assert torch.equal(a[0], b[0]) and int(a[1]) == y[i % 4] == data.label(i)
+        assert torch.equal(a[0], b[0]) and int(a[1]) == y[i % 4]
     assert any(not torch.allclose(data[i][0], data[i % 4][0]) for i in range(4, 12))
     assert not torch.equal(data[6][0], MarkerDataset(x, y, copies=3, seed=6)[6][0])  # the seed draws the moves
     scattered = x[:, :, rng.permutation(30)]

@@ -12,8 +12,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from slipsense.errors import InputError
-from slipsense.sensors import markers as M
-from slipsense.sensors.markers import (
+from slipsense.recordings import markers as M
+from slipsense.recordings.markers import (
     MarkerTrack,
     detect_markers,
     marker_sequences,
@@ -312,7 +312,7 @@ def real_video() -> Path:
 
 @pytest.mark.skipif(not real_video().is_file(), reason="shared GelSight recordings not available")
 def test_real_recording():
-    from slipsense.sensors.markers import track_recording
+    from slipsense.recordings.markers import track_recording
 
     track = track_recording(real_video())
     assert track.n_markers >= 60
@@ -336,7 +336,7 @@ def _uniform_track(rows: int, cols: int, spacing: float, shift=(3.0, -2.0), n_fr
 
 
 def test_grid_sequences_give_one_layout_for_pads_of_any_marker_count():
-    from slipsense.sensors.markers import grid_sequences
+    from slipsense.recordings.markers import grid_sequences
 
     fine, coarse = _uniform_track(7, 10, 32.0), _uniform_track(5, 7, 44.0)
     a, b = grid_sequences(fine, (3, 4)), grid_sequences(coarse, (3, 4))

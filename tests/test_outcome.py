@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from slipsense.evaluation import outcome, pergrasp
+from slipsense.measures import pergrasp, slipped_or_held
 
 
 def _data(seed=0, objects=6, per_object=8):
@@ -20,27 +20,27 @@ def _data(seed=0, objects=6, per_object=8):
 def test_always_on_or_off_scores_chance_whatever_the_balance(always):
     objs, slipped = _data()
     score = np.full(len(objs), 1.0 if always else 0.0)
-    m = outcome.outcome_measure(score, slipped, objs, alarmed=score > 0.5, draws=200)
+    m = slipped_or_held.outcome_measure(score, slipped, objs, alarmed=score > 0.5, draws=200)
     assert m["roc_auc"]["value"] == 0.5
     assert m["operating_point"]["balanced_accuracy"]["value"] == 0.5
     assert m["leave_objects_out"]["balanced_accuracy"]["value"] == 0.5
     # plain accuracy would flatter "always off" (the majority): the table shows the majority baseline beside it
-    majority = outcome.majority_measure(slipped, objs, draws=200)
+    majority = slipped_or_held.majority_measure(slipped, objs, draws=200)
     if not always:
         assert m["operating_point"]["accuracy"]["value"] == majority["leave_objects_out"]["accuracy"]["value"]
-    assert outcome.beats(m, {"majority_class": majority})  # said, not hidden
+    assert slipped_or_held.beats(m, {"majority_class": majority})  # said, not hidden
 
 
 def test_a_perfect_score_is_perfect_and_its_intervals_hold_it():
     objs, slipped = _data(1)
     score = slipped.astype(float) + 0.01 * np.arange(len(objs)) / len(objs)
-    m = outcome.outcome_measure(score, slipped, objs, alarmed=slipped, draws=300)
+    m = slipped_or_held.outcome_measure(score, slipped, objs, alarmed=slipped, draws=300)
     assert m["roc_auc"]["value"] == 1.0
     for part in ("operating_point", "leave_objects_out"):
         for key in ("accuracy", "balanced_accuracy"):
             v = m[part][key]
             assert v["value"] == 1.0 and v["interval"] == [1.0, 1.0]
-    assert outcome.beats(m, {"majority_class": outcome.majority_measure(slipped, objs)}) == []
+    assert slipped_or_held.beats(m, {"majority_class": slipped_or_held.majority_measure(slipped, objs)}) == []
 
 
 def test_bootstrap_draws_objects_not_grasps():
@@ -49,7 +49,7 @@ def test_bootstrap_draws_objects_not_grasps():
     objs = np.repeat(["a", "b"], 50)
     y = np.tile([True, False], 50)
     predicted = np.where(objs == "a", y, ~y)
-    m = outcome.outcome_measure(predicted.astype(float), y, objs, alarmed=predicted, draws=400)
+    m = slipped_or_held.outcome_measure(predicted.astype(float), y, objs, alarmed=predicted, draws=400)
     assert m["operating_point"]["accuracy"]["value"] == 0.5
     assert m["operating_point"]["accuracy"]["interval"] == [0.0, 1.0]
 
@@ -60,7 +60,7 @@ def test_leave_objects_out_thresholds_never_see_the_judged_object():
     objs = np.array(["odd"] * 4 + ["a"] * 4 + ["b"] * 4)
     y = np.array([False] * 4 + [True, False] * 4)
     score = np.where(objs == "odd", 10.0, np.where(y, 0.9, 0.1))
-    predicted = outcome.leave_objects_out(score, y, objs)
+    predicted = slipped_or_held.leave_objects_out(score, y, objs)
     assert predicted[objs == "odd"].all()
     assert (predicted[objs != "odd"] == y[objs != "odd"]).all()
 
@@ -71,13 +71,13 @@ def test_peak_alarm_score_is_where_the_debounced_alarm_fires():
         p = rng.random(30)
         p[:3] = np.nan
         k = int(rng.integers(1, 4))
-        s = outcome.peak_alarm_score(p, k, start=2)
+        s = slipped_or_held.peak_alarm_score(p, k, start=2)
         for t in (0.1, 0.3, 0.5, 0.7, 0.9, s):
             fires = bool(pergrasp.debounce(p, t, k)[2:].any())
             assert fires == (s >= t)
 
 
 def test_roc_auc_counts_ties_half_and_needs_both_classes():
-    assert outcome.roc_auc([1, 1], [True, False]) == 0.5
-    assert outcome.roc_auc([2, 1, 0], [True, False, False]) == 1.0
-    assert np.isnan(outcome.roc_auc([1, 2], [True, True]))
+    assert slipped_or_held.roc_auc([1, 1], [True, False]) == 0.5
+    assert slipped_or_held.roc_auc([2, 1, 0], [True, False, False]) == 1.0
+    assert np.isnan(slipped_or_held.roc_auc([1, 2], [True, True]))

@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from slipsense.evaluation import pergrasp
+from slipsense.measures import pergrasp
+from slipsense.recordings.contact import rest_mask
 
 
 def _runs(rng, n_slip=6, n_held=6, n=200):
@@ -64,7 +65,7 @@ def test_debounce_and_nan():
 def test_rest_alarms_counted():
     contact = np.full((2, 100), 1.0)
     contact[:, 40:90] = 20.0
-    rest = pergrasp.rest_mask(contact)
+    rest = rest_mask(contact)
     assert rest[20] and not rest[50]
     a = np.zeros(100, bool)
     a[20] = True

@@ -319,7 +319,7 @@ def test_a_marker_file_on_a_grid_makes_a_checkpoint_that_replays_on_that_grid(tm
     trained on that file keeps it, so its replay takes a camera's markers the same way. A file without
     one (simulated, a user's) makes a model that is not replayed over videos."""
     from slipsense.errors import ConfigError
-    from slipsense.evaluation.early_warning import replay_recordings
+    from slipsense.evaluation.replay import replay_recordings
     from slipsense.streaming.detector import SlipDetector
 
     path = _markers(tmp_path / "m.npz", markers=6)

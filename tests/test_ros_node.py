@@ -81,11 +81,9 @@ def test_every_frame_pair_is_judged_or_left_out_by_cause_and_its_number_shows_th
 
 def test_a_silent_partner_topic_leaves_its_frames_counted_not_queued_for_ever():
     p = StampPairer(2, tolerance_ns=20_000_000, depth=3)
-    dropped = []
-    p.on_unpaired = lambda k, f: dropped.append((k, f))
     for i in range(5):
         assert p.add(0, i * 40_000_000, f"a{i}") == []
-    assert p.unpaired == [2, 0] and dropped == [(0, "a0"), (0, "a1")]
+    assert p.unpaired == [2, 0] and p.add(1, 80_000_000, "b2") == [(80_000_000, ["a2", "b2"])]  # the oldest went
 
 
 def test_one_reading_type_on_the_topic_from_the_node_and_in_a_bag(tmp_path):

@@ -121,7 +121,7 @@ def test_train_config_rejects_bad_values():
 
 
 def test_pooling_folds_sums_confusions(tmp_path):
-    from slipsense.evaluation.clip_folds import pool
+    from slipsense.training.folds import pool
 
     for k, cm in enumerate(([[8, 0], [2, 2]], [[5, 1], [0, 3]])):
         (tmp_path / f"f{k}").mkdir()

@@ -73,7 +73,7 @@ def test_camera_folders_are_read_as_two_camera_runs_with_both_cameras_in_order(t
 def test_evaluate_judges_two_finger_frames_with_the_two_finger_detector(tmp_path, cache):
     """At the GelSight Mini's 240 x 320 the shipped two-finger detector is chosen and replays both
     cameras of every grasp; with one camera folder per grasp the one-finger detector is."""
-    from slipsense.evaluation.replay import evaluate, shipped_for
+    from slipsense.evaluation.judge import evaluate, shipped_for
 
     root = _two_finger_data(tmp_path / "mine", objects=2, n=6, size=(240, 320))
     assert shipped_for(root).stem == "motionnet-gelsight"
@@ -92,7 +92,7 @@ def test_evaluate_judges_two_finger_frames_with_the_two_finger_detector(tmp_path
 
 
 def test_small_two_finger_frames_replay_as_two_camera_runs(tmp_path, cache):
-    from slipsense.evaluation.replay import evaluate
+    from slipsense.evaluation.judge import evaluate
 
     root = _two_finger_data(tmp_path / "mine", objects=2, n=8)
     ev = evaluate(None, root, progress=False)
@@ -183,7 +183,7 @@ def test_the_shared_grasps_as_two_finger_frames_replay_as_their_videos(tmp_path,
     probabilities as its videos, so the detector's per-grasp figures (judged from the first frame, as
     frame folders are) are the same; the frame folders are labelled as a whole (no moment of slip)."""
     from slipsense.config import gelsight_recordings
-    from slipsense.evaluation.replay import evaluate
+    from slipsense.evaluation.judge import evaluate
     from studies.grasp.derive import two_finger_frame_folders
 
     objects = ["glass_box", "jute_basket"]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import json
 import os
 import warnings
@@ -35,7 +36,6 @@ def label(
     from slipsense.recordings.frame_folders import data_sensor
     from slipsense.recordings.label_csv import read_overrides_csv, write_labels_csv
     from slipsense.sensors.spec import GELSIGHT_MINI
-
     from slipsense.atomic import check_output_file
     from slipsense.config import gelsight_recordings
 
@@ -88,13 +88,7 @@ def calibrate(
         return
     check_output_file(out, "--out")
     result = calibration.calibrate(
-        out,
-        checkpoint,
-        recordings,
-        budget=budget,
-        overrides=True if overrides is None else overrides,
-        progress=progress,
-        on_error=on_error,
+        out, checkpoint, recordings, budget=budget, overrides=overrides, progress=progress, on_error=on_error
     )
     typer.echo("\n".join(result.lines()))
 
@@ -144,16 +138,9 @@ def models():
     typer.echo(models_text())
 
 
-def _register_extensions() -> None:
-    """Commands defined beside their subsystems (live detection, export, sensors, experiments)."""
-    import importlib
-
-    modules = ("train", "evaluate", "live", "sensors", "bags", "record")
-    for mod in modules:
-        importlib.import_module(f"slipsense.cli.{mod}").register(app)
-
-
-_register_extensions()
+# commands defined beside their subsystems (live detection, export, sensors, experiments)
+for _module in ("train", "evaluate", "live", "sensors", "bags", "record"):
+    importlib.import_module(f"slipsense.cli.{_module}").register(app)
 
 
 def main() -> None:

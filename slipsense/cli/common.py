@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import math
 import shlex
 import sys
 from typing import Optional
@@ -10,7 +11,7 @@ from typing import Optional
 import typer
 
 from slipsense.errors import ConfigError, SlipsenseError
-from slipsense.run_config import MAX_SEED, check_seed  # noqa: F401  (the commands' seed check)
+from slipsense.run_config import check_seed  # noqa: F401  (the commands' seed check)
 
 
 def one_line_warning(message, category, filename, lineno, file=None, line=None) -> str:
@@ -57,8 +58,6 @@ def parse_hw(text: Optional[str], option: str = "--size") -> Optional[tuple[int,
 
 def check_nonnegative(value: float, option: str) -> float:
     """``value`` if it is a finite number >= 0, else ConfigError."""
-    import math
-
     if not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
         raise ConfigError(f"{option} must be a finite number >= 0, got {value!r}")
     return value

@@ -1,6 +1,6 @@
 """``slipsense evaluate``: judge a checkpoint on labelled data (registered by slipsense.cli).
 
-The work is :func:`slipsense.training.recipe.evaluate`; what it prints is
+The work is :func:`slipsense.evaluation.checkpoints.evaluate_checkpoint`; what it prints is
 :func:`slipsense.evaluation.summary.summary_lines`, in words; the figures in full go to ``--json``.
 """
 
@@ -49,20 +49,16 @@ def register(app: typer.Typer) -> None:
         from slipsense.atomic import check_output_file
         from slipsense.evaluation.summary import summary_lines
         from slipsense.recordings.folders import check_on_error
-        from slipsense.training.recipe import evaluate as run
+        from slipsense.evaluation.checkpoints import evaluate_checkpoint
 
         check_on_error(on_error)
         check_nonnegative(noise_std, "--noise-std")
         check_output_file(json_out, "--json")
         check_output_file(png, "--png")
-        if checkpoint is None:
-            from slipsense.evaluation.replay import shipped_for
-
-            checkpoint = shipped_for(recordings)
-            typer.echo(f"evaluating the shipped detector {checkpoint.stem}", err=True)
-        metrics = run(
+        metrics = evaluate_checkpoint(
             checkpoint,
-            recordings=recordings,
+            recordings,
+            echo=lambda line: typer.echo(line, err=True),
             split=split_file,
             markers=markers,
             json_out=json_out,

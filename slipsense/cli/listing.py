@@ -1,9 +1,8 @@
 """What ``slipsense models`` prints: the registered models and the shipped detectors, as two tables.
 
-Fast on purpose (about 2 s, most of it importing torch): no model is initialised and no weight is
-loaded. A registered model's parameters are counted on a model built with its initialisation
-skipped (its weights are allocated, never written, so no memory is touched), and a shipped
-detector is described from its checkpoint's stored config (the safetensors header).
+Fast on purpose (about 2 s, most of it importing torch): no model is initialised
+(:func:`default_parameter_counts`) and no weight is loaded (a shipped detector is described from its
+checkpoint's stored config).
 """
 
 from __future__ import annotations
@@ -20,7 +19,7 @@ _VALUE_ONLY = frozenset(
 
 def detector_promise(info: Mapping[str, Any]) -> str:
     """What a shipped detector promises about held grasps, in one line: the one place that reads it."""
-    from slipsense.evaluation.pergrasp import promise_text
+    from slipsense.measures.pergrasp import promise_text
 
     return promise_text(info.get("operating_point"))
 
@@ -58,12 +57,11 @@ def cameras(info: Mapping[str, Any]) -> str:
     """Cameras a checkpoint's model takes per push: its ``sensors`` setting, else the model's default;
     "each" for a clip model, which judges every camera's clips on its own."""
     from slipsense.models import registered
+    from slipsense.models.base import setting_default
 
     sensors = info["model_config"].get("sensors")
-    if sensors is None:
-        cls = registered().get(info["model"])
-        param = inspect.signature(cls.__init__).parameters.get("sensors") if cls is not None else None
-        sensors = None if param is None or param.default is inspect.Parameter.empty else param.default
+    if sensors is None and info["model"] in registered():
+        sensors = setting_default(registered()[info["model"]], "sensors")
     return "each" if sensors is None else str(sensors)
 
 
@@ -98,16 +96,8 @@ def models_text() -> str:
         info = read_info(shipped_model(name))
         sensor = info.get("sensor") or {}
         fps = sensor.get("fps")
-        shipped_rows.append(
-            (
-                name,
-                info["model"],
-                sensor.get("name", "-"),
-                cameras(info),
-                "-" if fps is None else f"{fps:g}",
-                detector_promise(info),
-            )
-        )
+        row = (name, info["model"], sensor.get("name", "-"), cameras(info), "-" if fps is None else f"{fps:g}")
+        shipped_rows.append((*row, detector_promise(info)))
     return "\n".join(
         [
             "Registered models (`--model NAME`; parameters at default settings):",

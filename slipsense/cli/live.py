@@ -16,6 +16,17 @@ THREADS_HELP = (
 )
 
 
+# options ``watch`` and ``ros`` share
+THRESHOLD = typer.Option(
+    None, help="alarm when the slip probability is >= this (default: the checkpoint's operating point)"
+)
+HOLD = typer.Option(None, help="seconds an alarm stays on once raised (default: the checkpoint's; 0: none)")
+TOLERANCE = typer.Option(
+    None, help="seconds: the largest stamp difference of paired frames (default half a frame period)"
+)
+BACKEND = typer.Option("auto", help="auto (ONNX Runtime where installed, else PyTorch), torch or onnx")
+
+
 def set_threads(threads: Optional[int]) -> None:
     if threads is None:
         return
@@ -24,13 +35,6 @@ def set_threads(threads: Optional[int]) -> None:
     import torch
 
     torch.set_num_threads(threads)
-
-
-def checkpoint_path(path: Path) -> Path:
-    """``path`` if it is a file; else one error naming it."""
-    if not Path(path).is_file():
-        raise InputError(path, "checkpoint not found")
-    return Path(path)
 
 
 def register(app: typer.Typer) -> None:
@@ -48,16 +52,14 @@ def register(app: typer.Typer) -> None:
         checkpoint: Optional[Path] = typer.Option(
             None, help="checkpoint (default: the shipped detector, models/motionnet-gelsight.safetensors)"
         ),
-        threshold: Optional[float] = typer.Option(
-            None, help="alarm when the slip probability is >= this (default: the checkpoint's operating point)"
-        ),
+        threshold: Optional[float] = THRESHOLD,
         out: Optional[Path] = typer.Option(None, help="annotated output: .gif, .mp4 or .avi"),
         combine: Optional[str] = typer.Option(
             None,
             help="two sensors, for a model that judges each apart (ViViT, 3D ResNet, STNet): max (default) or "
             "mean of their probabilities; refused for a model that fuses them (the shipped detectors)",
         ),
-        backend: str = typer.Option("auto", help="auto (ONNX Runtime where installed, else PyTorch), torch or onnx"),
+        backend: str = BACKEND,
         dtype: str = typer.Option("float32", help="float32, or int8 with --backend onnx (quantized products)"),
         max_frames: Optional[int] = typer.Option(None, help="stop after this many frames"),
         heatmap: Optional[bool] = typer.Option(
@@ -66,17 +68,13 @@ def register(app: typer.Typer) -> None:
             help="draw the model's heat map in --out (default: where the model has one: ViViT's attention, "
             "STNet's marker saliency; --heatmap is refused for a model without one)",
         ),
-        hold: Optional[float] = typer.Option(
-            None, help="seconds an alarm stays on once raised (default: the checkpoint's; 0: none)"
-        ),
+        hold: Optional[float] = HOLD,
         quiet: bool = typer.Option(False, help="print only alarm onsets and the summary"),
         threads: Optional[int] = typer.Option(None, help=THREADS_HELP),
         topic: list[str] = typer.Option(
             [], help="a bag's image topic (sensor_msgs Image or CompressedImage), once per sensor, in order"
         ),
-        tolerance: Optional[float] = typer.Option(
-            None, help="seconds: the largest stamp difference of paired frames (default half a frame period)"
-        ),
+        tolerance: Optional[float] = TOLERANCE,
         jsonl: Optional[str] = typer.Option(
             None, help="write every reading as a JSON line to this file (- for standard output)"
         ),
@@ -97,25 +95,9 @@ def register(app: typer.Typer) -> None:
         from slipsense.watch import watch_source  # torch and OpenCV: when the command runs, not for --help
 
         set_threads(threads)
-        watch_source(
-            source,
-            checkpoint,
-            threshold,
-            out,
-            combine,
-            backend,
-            max_frames,
-            heatmap,
-            quiet=quiet,
-            dtype=dtype,
-            topics=topic,
-            tolerance=tolerance,
-            jsonl=jsonl,
-            bag_out=bag_out,
-            realtime=realtime,
-            fps=fps,
-            hold=hold,
-        )
+        options = dict(quiet=quiet, dtype=dtype, topics=topic, tolerance=tolerance, jsonl=jsonl, bag_out=bag_out)
+        options.update(realtime=realtime, fps=fps, hold=hold)
+        watch_source(source, checkpoint, threshold, out, combine, backend, max_frames, heatmap, **options)
 
     @app.command("ros")
     @friendly
@@ -124,18 +106,12 @@ def register(app: typer.Typer) -> None:
             [], help="an image topic, once per sensor, in order (default /left/image_raw and /right/image_raw)"
         ),
         checkpoint: Optional[Path] = typer.Option(None, help="checkpoint (default: the shipped detector)"),
-        threshold: Optional[float] = typer.Option(
-            None, help="alarm when the slip probability is >= this (default: the checkpoint's operating point)"
-        ),
-        hold: Optional[float] = typer.Option(
-            None, help="seconds an alarm stays on once raised (default: the checkpoint's; 0: none)"
-        ),
-        backend: str = typer.Option("auto", help="auto (ONNX Runtime where installed, else PyTorch), torch or onnx"),
+        threshold: Optional[float] = THRESHOLD,
+        hold: Optional[float] = HOLD,
+        backend: str = BACKEND,
         threads: Optional[int] = typer.Option(None, help=THREADS_HELP),
         compressed: bool = typer.Option(False, help="the topics carry sensor_msgs/CompressedImage"),
-        tolerance: Optional[float] = typer.Option(
-            None, help="seconds: the largest stamp difference of paired frames (default half a frame period)"
-        ),
+        tolerance: Optional[float] = TOLERANCE,
         max_lag: float = typer.Option(
             0.1,
             help="seconds: while the detector is busy, a frame pair this much older than the newest one waiting "
@@ -156,22 +132,16 @@ def register(app: typer.Typer) -> None:
             raise ConfigError(f"--threshold must be in [0, 1], got {threshold:g}")
         if (tolerance is not None and tolerance <= 0) or max_lag < 0:
             raise ConfigError("--tolerance must be > 0 and --max-lag >= 0 (seconds)")
-        overrides = {"backend": backend, "compressed": compressed, "max_lag": float(max_lag)}
-        if topic:
-            overrides["topics"] = list(topic)
-        if checkpoint is not None:
-            overrides["checkpoint"] = str(checkpoint_path(checkpoint))
-        if threshold is not None:
-            overrides["threshold"] = float(threshold)
+        if checkpoint is not None and not checkpoint.is_file():
+            raise InputError(checkpoint, "checkpoint not found")
         if hold is not None:
             from slipsense.streaming.detector import check_hold
 
-            overrides["hold"] = check_hold(hold)
-        if threads is not None:
-            overrides["threads"] = int(threads)
-        if tolerance is not None:
-            overrides["tolerance"] = float(tolerance)
-        run_node(argv=[], overrides=overrides)
+            hold = check_hold(hold)
+        given = dict(topics=list(topic) or None, checkpoint=checkpoint and str(checkpoint), threshold=threshold)
+        given.update(hold=hold, threads=threads, tolerance=tolerance)  # typer hands floats and an int
+        overrides = {"backend": backend, "compressed": compressed, "max_lag": float(max_lag)}
+        run_node(argv=[], overrides={**overrides, **{k: v for k, v in given.items() if v is not None}})
 
     @app.command("export")
     @friendly
@@ -195,8 +165,5 @@ def register(app: typer.Typer) -> None:
         result = export_onnx(checkpoint_or_shipped(checkpoint), out, batch=batch, streaming=streaming, verify=verify)
         for key, path in result.paths.items():
             diff = result.max_abs_diff.get(key)
-            typer.echo(
-                f"{key:6s} {path}  ({result.exporter[key]} exporter"
-                + ("" if diff is None else f", max |onnx - torch| = {diff:.2e}")
-                + ")"
-            )
+            shown = "" if diff is None else f", max |onnx - torch| = {diff:.2e}"
+            typer.echo(f"{key:6s} {path}  ({result.exporter[key]} exporter{shown})")

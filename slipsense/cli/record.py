@@ -24,10 +24,7 @@ def _stdin_commands():
     threading.Thread(target=read, name="slipsense-record-keys", daemon=True).start()
 
     def commands(index: int) -> list[str]:
-        out = []
-        while not lines.empty():
-            out.append(lines.get_nowait())
-        return out
+        return [lines.get_nowait() for _ in range(lines.qsize())]  # this thread alone takes from the queue
 
     return commands
 
@@ -74,17 +71,9 @@ def register(app: typer.Typer) -> None:
                 f"{src.name}: {src.sensors} camera(s) at {src.fps:g} frames/s ({src.clock}); {keys}, "
                 "s + Enter marks it slipped, q + Enter quits"
             )
-            done = run(
-                (step.display for step in src.frames()),
-                out,
-                object_name,
-                src.fps,
-                commands=_stdin_commands(),
-                by_contact=by_contact,
-                max_grasps=max_grasps,
-                echo=typer.echo,
-                source_slipped=source_slipped,
-            )
+            options = dict(by_contact=by_contact, max_grasps=max_grasps, echo=typer.echo, source_slipped=source_slipped)
+            steps = (step.display for step in src.frames())
+            done = run(steps, out, object_name, src.fps, commands=_stdin_commands(), **options)
         finally:
             src.close()
         typer.echo(f"{len(done)} grasp(s) recorded in {out}")

@@ -36,24 +36,16 @@ def register(app: typer.Typer) -> None:
         from slipsense.atomic import check_output_file
         from slipsense.cli.common import check_seed
         from slipsense.config import gelsight_recordings
-        from slipsense.sensors.markers import marker_layout
-        from slipsense.sensors.real import real_marker_dataset, save_marker_npz
+        from slipsense.recordings.markers import marker_layout
+        from slipsense.marker_sequences import real_marker_dataset, save_marker_npz
 
         check_seed(seed)
         marker_layout(n_markers)  # a bad layout is refused before anything is tracked
         check_output_file(out, "--out")
 
-        arrays = real_marker_dataset(
-            recordings or gelsight_recordings(),
-            frames=frames,
-            n_markers=n_markers,
-            horizon=horizon,
-            wiggle_per_video=wiggle_per_video,
-            seed=seed,
-            on_error=on_error,
-            progress=progress,
-            overrides=overrides,
-        )
+        options = dict(horizon=horizon, wiggle_per_video=wiggle_per_video, seed=seed, on_error=on_error)
+        options.update(progress=progress, overrides=overrides)
+        arrays = real_marker_dataset(recordings or gelsight_recordings(), frames=frames, n_markers=n_markers, **options)
         save_marker_npz(arrays, out)
         typer.echo(
             f"{len(arrays['y'])} windows ({int(arrays['y'].sum())} slip) from "

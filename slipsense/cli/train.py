@@ -18,13 +18,6 @@ SET_HELP = (
 )
 
 
-def _tree(config: Optional[Path], options: dict, sets: Optional[List[str]]) -> dict:
-    """The configuration tree: defaults < --config < options < --set. A bare ``--set KEY=VALUE`` goes
-    to the model section; :meth:`~slipsense.training.config.RunConfig.from_tree` moves it to training
-    where it names a training setting."""
-    return merge(load_tree(config) if config else empty_tree(), given(options), parse_sets(sets))
-
-
 def report_training(res: dict, echo=typer.echo) -> None:
     """What a training prints after it: the detector and its operating point where one was chosen,
     and the held-out objects' per-grasp outcomes when some were held out."""
@@ -149,7 +142,10 @@ def register(app: typer.Typer) -> None:
                 epochs=epochs, batch_size=batch_size, lr=lr, device=device, seed=seed, inner_folds=inner_folds
             ),
         }
-        run = recipe.RunConfig.from_tree(_tree(config, options, sets))  # every check, once
+        # defaults < --config < options < --set; a bare --set KEY=VALUE goes to the model section, and
+        # RunConfig.from_tree (every check, once) moves it to training where it names a training setting
+        tree = merge(load_tree(config) if config else empty_tree(), given(options), parse_sets(sets))
+        run = recipe.RunConfig.from_tree(tree)
         if cross_validate:
             rep = recipe.cross_validate(
                 run, out, run.data.folds, progress=progress, workers=workers, threads=threads, command=command_line()

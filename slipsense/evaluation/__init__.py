@@ -1,13 +1,12 @@
-"""Evaluation: replay -> per-frame traces -> scores.
+"""Judging a detector, one floor above the measures (:mod:`slipsense.measures`):
 
-* :mod:`slipsense.evaluation.pergrasp` — per-grasp verdicts on alarm traces (warned in time,
-  premature, missed, false-positive grasps), operating points and trade-off tables;
-* :mod:`slipsense.evaluation.grasp_scores` — the papers' clip protocol on the same traces, a fold's
-  result and folds pooled;
-* :mod:`slipsense.evaluation.early_warning` — whole recordings replayed through a live detector;
-* :mod:`slipsense.evaluation.folds` — leave objects out over whole grasps (``slipsense train --cross-validate``);
-* :mod:`slipsense.evaluation.evaluate` — ``slipsense evaluate``: a checkpoint on a data source,
-  per grasp for grasp detectors, per clip for clip and marker models;
-* :mod:`slipsense.evaluation.clip_folds` — pooling clip-model folds; :mod:`slipsense.evaluation.metrics`
-  — clip metrics from confusion counts.
+* :mod:`slipsense.evaluation.judge` — :func:`~slipsense.evaluation.judge.judge`: open a detector once,
+  read the recordings once, replay each run once, hand the traces to every registered measure;
+* :mod:`slipsense.evaluation.replay` — whole recordings replayed through a live detector;
+* :mod:`slipsense.evaluation.checkpoints` — ``slipsense evaluate``: a checkpoint judged the way its task is;
+* :mod:`slipsense.evaluation.predict` — clip and marker models judged per clip;
+* :mod:`slipsense.evaluation.calibrate` — a detector's operating point chosen on the user's grasps;
+* :mod:`slipsense.evaluation.summary` — what ``slipsense evaluate`` prints.
+
+Cross-validation, which trains, sits above in :mod:`slipsense.training.folds`.
 """

@@ -4,10 +4,10 @@ A detector trained on one GelSight can rank another sensor's grasps well and sti
 shipped detector's probabilities on the ``gelsight-lift`` grasps stay below its 0.995 threshold).
 Recording some grasps on one's own sensor, held ones at least, and choosing the threshold on them
 costs minutes, not a data set: :func:`calibrate` replays them through the detector as
-:func:`slipsense.evaluation.replay.evaluate` does, puts the threshold just above all but a
+:func:`slipsense.evaluation.judge.judge` does, puts the threshold just above all but a
 ``budget`` fraction of the held grasps' peak scores (:func:`calibrated_threshold`) and writes a copy
 of the checkpoint with that operating point, what it was chosen on and what it promises on new
-objects (:func:`slipsense.evaluation.pergrasp.held_alarm_promise`, objects as the unit). The weights
+objects (:func:`slipsense.measures.pergrasp.held_alarm_promise`, objects as the unit). The weights
 are not touched.
 """
 
@@ -24,9 +24,9 @@ import numpy as np
 from slipsense.atomic import atomic_path
 from slipsense.checkpoint import read_info, update_info
 from slipsense.errors import ConfigError, InputError
-from slipsense.evaluation import pergrasp
-from slipsense.evaluation.replay import evaluate, recordings_folder, shipped_for
+from slipsense.evaluation.judge import judge, recordings_folder
 from slipsense.evaluation.summary import rate_lines
+from slipsense.measures import pergrasp
 from slipsense.recordings.frame_folders import data_sensor
 from slipsense.sensors.spec import sensor_of
 
@@ -122,8 +122,8 @@ def calibrate(
     if isinstance(budget, bool) or not isinstance(budget, (int, float)) or not 0.0 <= budget < 1.0:
         raise ConfigError(f"--budget must be a fraction in [0, 1), got {budget!r}")
     root = recordings_folder(recordings)
-    source = Path(checkpoint) if checkpoint is not None else shipped_for(root)
-    ev = evaluate(source, root, overrides=overrides, progress=progress, objects=objects, on_error=on_error)
+    ev = judge(checkpoint, root, overrides=overrides, progress=progress, objects=objects, on_error=on_error)
+    source = ev.checkpoint
     scores = ev.peak_scores()
     slipped = np.array([r.slipped for r in ev.runs], bool)
     if not (~slipped).any():
@@ -181,8 +181,8 @@ def check_by_objects(
     alarming on the left-out objects against the largest bound the calibrations stated, slipped grasps
     caught, accuracy. ``on_error`` as :func:`calibrate` takes it."""
     root = recordings_folder(recordings)
-    source = Path(checkpoint) if checkpoint is not None else shipped_for(root)
-    ev = evaluate(source, root, overrides=overrides, progress=progress, on_error=on_error)
+    ev = judge(checkpoint, root, overrides=overrides, progress=progress, on_error=on_error)
+    source = ev.checkpoint
     scores = ev.peak_scores()
     slipped = np.array([r.slipped for r in ev.runs], bool)
     objects = np.array([r.object for r in ev.runs])

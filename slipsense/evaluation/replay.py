@@ -1,228 +1,140 @@
-"""Judge a detector as a gripper runs it: every run of a recordings folder replayed from its first
-frame through the live detector, each run one per-grasp outcome (:mod:`slipsense.evaluation.pergrasp`).
-``slipsense.evaluate`` is :func:`evaluate`."""
+"""Replay recordings through a streaming detector, every run from its first frame, for judging it per grasp.
+
+Every run is replayed from its first frame with all its cameras, exactly as the live detector
+would see it (:meth:`slipsense.streaming.detector.SlipDetector.replay`), then scored with
+:mod:`slipsense.measures.pergrasp`: slips warned in time (first alarm within ``horizon`` frames before the
+moment of slip), premature and missed; grasps that held yet alarmed; alarms while no gel is
+touched. One row per alarm threshold, at the detector's debounce.
+
+An earlier version of this report counted an alarm held since the grasp as a warning and counted
+false alarms as rising edges, so that a detector always on scored well; the tests now hold the
+opposite.
+"""
 
 from __future__ import annotations
 
-import json
 import math
-import warnings
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from slipsense.atomic import write_text
-from slipsense.checkpoint import read_info
-from slipsense.config import gelsight_recordings
 from slipsense.data import label_runs
 from slipsense.errors import InputError
-from slipsense.evaluation import outcome, pergrasp
-from slipsense.evaluation.baselines import baseline_scores
-from slipsense.evaluation.early_warning import replay_recordings
-from slipsense.evaluation.grasp_scores import clip_metrics, clip_scores
-from slipsense.recordings.folders import SkippedInputWarning, camera_counts, find_recordings, validate_recordings
-from slipsense.recordings.frame_folders import data_sensor
-from slipsense.recordings.video import probe_video
-from slipsense.resources import shipped_model
-from slipsense.sensors.spec import sensor_of
-from slipsense.streaming.detector import SlipDetector, shipped_name
+from slipsense.measures.pergrasp import RunTrace
+from slipsense.plots import _plt, save_figure
+from slipsense.progress import progress_bar
+from slipsense.recordings.contact import rest_mask
+from slipsense.recordings.frame_cache import video_products
+from slipsense.recordings.types import by_run
+from slipsense.recordings.video import read_video
+from slipsense.streaming.sources import recording_rate
 
 
-def recordings_folder(recordings: str | Path | None) -> Path:
-    return Path(recordings) if recordings is not None else gelsight_recordings()
-
-
-def label_overrides(overrides: str | Path | None | bool) -> Path | None | bool:
-    """As :func:`slipsense.data.label_runs` takes them: ``True`` (default) -> None (the shipped hand
-    labels for runs of the shared recordings), ``False``/None -> False (none), else the CSV's path."""
-    if overrides is True:
-        return None
-    return False if overrides is False or overrides is None else Path(overrides)
-
-
-def shipped_for(recordings: str | Path | None) -> Path:
-    """The shipped detector for a recordings folder (:func:`~slipsense.streaming.detector.shipped_name`):
-    the one of its sensor where one is shipped (the frame size its ``sensor.json`` or layout states,
-    else its first recording's), for one finger where its grasps have one camera each."""
-    root = recordings_folder(recordings)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # the evaluation that follows reports them
-        found = find_recordings(root, on_error="skip")
-    sensor = data_sensor(root)
-    size = sensor.image_size if sensor is not None else None
-    for rec in found if size is None else ():  # the first video that reads (the evaluation reports the others)
-        try:
-            info = probe_video(rec.path, expected_size=None)
-        except InputError:
-            continue
-        size = (info.height, info.width)
-        break
-    if size is None:
-        probe_video(found[0].path, expected_size=None)  # none reads: the first one's problem
-    return shipped_model(shipped_name(1 if camera_counts(found) == [1] else 2, size))
-
-
-@dataclass
-class Evaluation:
-    """What :func:`evaluate` returns: every run replayed as live use would, judged per grasp.
-
-    Attributes:
-        runs: one :class:`~slipsense.evaluation.early_warning.RunTrace` per replayed run (probabilities per frame).
-        threshold, debounce, horizon: the operating point and horizon (frames) the outcomes use.
-    """
-
-    runs: list[Any]
-    threshold: float
-    debounce: int
-    horizon: int = pergrasp.HORIZON
-    labels: dict | None = None  # {(object, experiment, camera): VideoLabel} of the replayed videos
-    recordings: list | None = None  # the replayed Recordings (their frames feed the baselines)
-    startup: int = pergrasp.STARTUP  # leading frames never scored (0 for grasps labelled as a whole)
-
-    def outcomes(self) -> list[pergrasp.GraspOutcome]:
-        return [r.outcome(self.threshold, self.debounce, self.horizon, self.startup) for r in self.runs]
-
-    def peak_scores(self) -> np.ndarray:
-        """``(runs,)`` each run's :func:`~slipsense.evaluation.outcome.peak_alarm_score` at this
-        debounce: it alarms somewhere at threshold t exactly when its score is >= t."""
-        return np.array([outcome.peak_alarm_score(r.probability, self.debounce, self.startup) for r in self.runs])
-
-    def grasp_measure(self, draws: int = outcome.BOOTSTRAP) -> dict[str, Any]:
-        """Slipped against held grasps (:mod:`slipsense.evaluation.outcome`): the detector's ROC AUC,
-        accuracy and balanced accuracy at its operating point and with thresholds chosen on the other
-        objects, 95% intervals over objects; beside it the non-learned baselines
-        (:mod:`slipsense.evaluation.baselines`) on the same frames, and where it does not beat them."""
-        slipped = [r.slipped for r in self.runs]
-        objects = [r.object for r in self.runs]
-        score = self.peak_scores()
-        alarmed = [v >= self.threshold for v in score]  # anywhere in the grasp, after the slip too
-        detector = outcome.outcome_measure(score, slipped, objects, alarmed, draws)
-        baselines = {"majority_class": outcome.majority_measure(slipped, objects, draws)}
-        if self.recordings is not None:
-            for name, s in baseline_scores(self.runs, self.recordings, self.labels or {}, self.startup).items():
-                baselines[name] = outcome.outcome_measure(s, slipped, objects, None, draws)
-        return {"detector": detector, "baselines": baselines, "not_beaten": outcome.beats(detector, baselines)}
-
-    def summary(self) -> dict[str, Any]:
-        """Slips warned in time / premature / missed, false-positive grasps, alarms at rest, lead times
-        (:func:`~slipsense.evaluation.pergrasp.summarise`), and ``slips_without_moment``: the slipped
-        runs whose moment of slip was not found, counted in neither ``slip_runs`` nor ``held_runs``
-        (``slip_runs + slips_without_moment`` is every run that slipped)."""
-        outcomes = self.outcomes()
-        return {
-            **pergrasp.summarise(outcomes),
-            "slips_without_moment": sum(o.outcome == "slip_without_moment" for o in outcomes),
-        }
-
-    def clips(self, frames: int = 5) -> dict[str, Any]:
-        """The papers' protocol on the same traces: every ``frames``-frame clip the project cuts from
-        these runs, scored by the probability at its last frame, at the operating point and at 0.5
-        (accuracy beside the always-wiggle baseline, balanced accuracy, precision, recall, F1)."""
-        p, y = clip_scores(self.runs, [r.probability for r in self.runs], self.labels or {}, frames)
-        return {"operating_point": clip_metrics(p, y, self.threshold), "at_0.5": clip_metrics(p, y, 0.5)}
-
-    def frame_rates(self) -> dict[str, Any]:
-        """The rate the detector runs at and the rates the runs were read at (frames per second),
-        each with where it was read and how many runs: ``{"detector": 25.0, "recordings": [{"fps": 12.5,
-        "from": ".../sensor.json", "runs": 26}]}``. Runs at another rate were resampled to the detector's clock."""
-        counts: dict[tuple[float, str], int] = {}
-        for r in self.runs:
-            counts[(r.fps, r.fps_from)] = counts.get((r.fps, r.fps_from), 0) + 1
-        detector = self.runs[0].model_fps if self.runs else math.nan
-        return {"detector": detector, "recordings": [{"fps": f, "from": w, "runs": n} for (f, w), n in counts.items()]}
-
-    def to_json(self, path: str | Path) -> Path:
-        doc = {
-            "threshold": self.threshold,
-            "debounce": self.debounce,
-            "horizon": self.horizon,
-            "summary": self.summary(),
-        }
-        write_text(path, json.dumps(doc, indent=1, default=float))
-        return Path(path)
-
-
-def _whole_runs(found: Sequence[Any], kept: Sequence[Any]) -> list[Any]:
-    """``kept`` without the runs that lost a camera video among ``found`` (skipped with
-    ``on_error="skip"``), each named in a :class:`~slipsense.recordings.folders.SkippedInputWarning`:
-    a detector on both fingers cannot judge a grasp from one."""
-    have = {r.key for r in kept}
-    broken = {}
-    for r in found:
-        if r.key not in have:
-            broken.setdefault((r.object, r.experiment), (r.path.parent, r.path.name))
-    for folder, name in broken.values():
-        warnings.warn(
-            f"{folder}: run left out, its video {name} was skipped and the detector needs every camera of a run",
-            SkippedInputWarning,
-            stacklevel=3,
-        )
-    return [r for r in kept if (r.object, r.experiment) not in broken]
-
-
-def evaluate(
-    checkpoint: str | Path | None = None,
-    recordings: str | Path | None = None,
-    *,
-    overrides: str | Path | None | bool = True,
-    horizon: int = pergrasp.HORIZON,
-    threshold: float | None = None,
-    debounce: int | None = None,
+def replay_recordings(
+    detector,
+    recordings: Iterable[Any],
+    labels: Mapping[tuple, Any] | None = None,
     progress: bool = True,
-    objects: Sequence[str] | None = None,
-    on_error: str = "raise",
-) -> Evaluation:
-    """Replay every run of a recordings folder through a detector, both sensors from the first frame.
+    limit: int | None = None,
+    overrides=None,
+    keep_without_moment: bool = False,
+) -> list[RunTrace]:
+    """Replay every run (all cameras of an experiment as the detector's sensors) through ``detector``.
 
     Args:
-        checkpoint: default: the shipped detector.
-        recordings: default: the shared GelSight recordings.
-        overrides: label overrides CSV; True = the shipped hand labels for runs of the shared
-            recordings; False = none.
-        horizon: frames before the moment of slip in which an alarm counts as a warning in time.
-        threshold, debounce: default: the checkpoint's operating point.
-        objects: only the runs of these objects (default: every run).
-        on_error: ``"raise"`` (default) or ``"skip"`` (leave out bad videos with a warning).
-
-    A model trained on a fixed number of sensors (the grasp detectors) sees that many cameras per run
-    (one: each camera is a grasp of its own); a clip model sees every camera of a run at once and
-    alarms on either.
+        detector: a :class:`~slipsense.streaming.detector.SlipDetector` on video frames or on the
+            cameras' tracked markers (a marker model); ``sensors`` = cameras per run.
+        recordings: :class:`~slipsense.recordings.types.Recording` s (``find_recordings``).
+        labels: ``{(object, experiment, camera): VideoLabel}``; default: the automatic labels with
+            ``overrides`` (:func:`slipsense.data.label_runs`).
+        limit: replay at most this many runs (in sorted order).
+        keep_without_moment: replay slipped runs without a moment of slip too (grasps labelled as a
+            whole, judged by :mod:`slipsense.measures.slipped_or_held`); by default they are left out
+            (nothing to warn of).
     """
-    root = recordings_folder(recordings)
-    path = checkpoint or shipped_for(root)
-    info = read_info(path)
-    calibrated = ((info.get("operating_point") or {}).get("calibrated") or {}).get("objects") or ()
-    # another data set's objects are stored as <folder>/<object> (data.also): they count by their own name
-    trained_on = {o.rsplit("/", 1)[-1] for o in ((info.get("data") or {}).get("objects")) or ()} | set(calibrated)
-    found = find_recordings(root, on_error=on_error, sensor=sensor_of(info, path))
-    recs = validate_recordings(found, on_error=on_error, expected_size=None)
-    sensors = info["model_config"].get("sensors")
-    if sensors != 1:  # a run replayed with all its cameras is left out whole where one was skipped
-        recs = _whole_runs(found, recs)
-    if objects is not None:
-        recs = [r for r in recs if r.object in set(objects)]
-    if not recs:
-        raise InputError(root, "no recording left to judge (every one was skipped)")
-    if not sensors:  # a clip model: every camera of a run at once
-        counts = camera_counts(recs)
-        if len(counts) != 1:
-            raise InputError(root, f"runs hold different numbers of camera videos ({counts}); a replay needs the same")
-        sensors = counts[0]
-    detector = SlipDetector.from_checkpoint(
-        path, sensors=sensors, threshold=threshold, debounce=debounce, backend="torch"
-    )
-    seen = sorted(trained_on & {r.object for r in recs})
-    if seen:
-        warnings.warn(
-            f"the detector was trained or calibrated on {len(seen)} of these objects ({', '.join(seen[:5])}"
-            f"{', ...' if len(seen) > 5 else ''}): their runs do not measure objects it never saw",
-            stacklevel=2,
-        )
+    detector.model.check_video_replay(detector.geometry)
+    runs = by_run(recordings)
+    keys = list(runs)[:limit] if limit is not None else list(runs)
+    if labels is None:
+        labels = label_runs([r for k in keys for r in runs[k]], overrides, progress=progress)
+    out = []
+    for key in progress_bar(keys, progress, "replaying runs"):
+        cams = runs[key]
+        if detector.sensors == 1 and len(cams) > 1:  # one finger: each camera is a grasp of its own
+            groups = [[c] for c in cams]
+        else:
+            groups = [cams]
+        for group in groups:
+            trace = _replay_run(detector, key, group, cams, labels, read_video, video_products, keep_without_moment)
+            if trace is not None:
+                out.append(trace)
+    return out
 
-    labels = label_runs(recs, label_overrides(overrides), on_error=on_error, progress=progress)
-    recs = [r for r in recs if r.key in labels]  # left out by on_error="skip"
-    runs = replay_recordings(detector, recs, labels, progress=progress, keep_without_moment=True)
-    startup = 0 if recs and all(r.per_grasp for r in recs) else pergrasp.STARTUP
-    return Evaluation(runs, detector.threshold, detector.debounce, horizon, labels, recs, startup)
+
+def _replay_run(detector, key, cams, run_cams, labels, read_video, video_products, keep=False) -> RunTrace | None:
+    """One run (or one camera of it) replayed; None for a slip without a moment of slip."""
+    if len(cams) != detector.sensors:
+        raise InputError(
+            cams[0].path.parent,
+            f"run has {len(cams)} camera video(s), the detector takes {detector.sensors} sensor(s)",
+        )
+    labs = []
+    for r in run_cams:  # the run's label is its cameras' (the grasp is lost for both fingers)
+        if r.key not in labels:
+            raise InputError(r.path, "no label for this video")
+        labs.append(labels[r.key])
+    moment = next((l.moment_of_slip for l in labs if l.moment_of_slip is not None), None)
+    slipped = any(l.slipped for l in labs)
+    if slipped and moment is None and not keep:
+        return None
+    # what the model reads (grey frames, tracked markers) and the contact signal come from the
+    # frame cache (no decode after labelling); a model on colour frames replays the decoded video
+    product = detector.cache_product
+    cached = [video_products(r.path, ["contact", *([product] if product else [])], min_frames=1) for r in cams]
+    n = len(cached[0]["contact"])
+    if any(len(c[k]) != n for c in cached for k in c):
+        counts = [{k: len(v) for k, v in c.items()} for c in cached]
+        raise InputError(cams[0].path.parent, f"the cameras of this run differ in frame count: {counts}")
+    # the detector runs on its own clock: frames taken at another rate are resampled to it
+    fps, fps_from = recording_rate(cams[0].path)
+    stamps = None if abs(fps - detector.sensor.fps) < 1e-6 * fps else np.arange(n) / fps
+    if product:
+        trace = detector.replay_cached(np.stack([c[product] for c in cached]), stamps=stamps)
+    else:
+        videos = [read_video(r.path, expected_size=None, min_frames=1) for r in cams]
+        trace = detector.replay(*videos, stamps=stamps)
+    rest = rest_mask(np.stack([c["contact"] for c in cached])) if n > 1 else None
+    cameras = tuple(c.camera for c in cams)
+    return RunTrace(
+        key[0], key[1], slipped, moment, n, trace.probability, rest, cameras, fps, detector.sensor.fps, fps_from
+    )
+
+
+def plot_tradeoff(rows: Sequence[Mapping[str, Any]], path: str | Path, title: str = "") -> None:
+    """Slips warned in time against grasps that held yet alarmed, one labelled point per threshold
+    (with 95% bootstrap intervals over runs where the rows carry them)."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(5.2, 4.2))
+    xs = [r["false_positive_rate"] for r in rows]
+    ys = [r["warned_rate"] for r in rows]
+    if all("warned_low" in r for r in rows):  # bootstrap intervals over runs (pergrasp.bootstrap_curve)
+        xerr = [[x - r["fp_low"] for x, r in zip(xs, rows)], [r["fp_high"] - x for x, r in zip(xs, rows)]]
+        yerr = [[y - r["warned_low"] for y, r in zip(ys, rows)], [r["warned_high"] - y for y, r in zip(ys, rows)]]
+        ax.errorbar(xs, ys, xerr=xerr, yerr=yerr, fmt="none", ecolor="tab:blue", alpha=0.25, lw=1)
+    ax.plot(xs, ys, marker="o")
+    points: dict[tuple[float, float], list[float]] = {}  # thresholds landing on one point share a label
+    for r, x, y in zip(rows, xs, ys):
+        if not (math.isnan(x) or math.isnan(y)):
+            points.setdefault((x, y), []).append(r["threshold"])
+    for xy, ths in points.items():
+        label = f"{ths[0]:g}" if len(ths) == 1 else f"{min(ths):g}-{max(ths):g}"
+        ax.annotate(label, xy, fontsize=7, xytext=(3, 3), textcoords="offset points")
+    ax.plot([0, 1], [0, 1], ls=":", color="gray", lw=0.8)
+    ax.set_xlabel("grasps that held yet alarmed (false-positive grasps)")
+    ax.set_ylabel("slips warned in time (first alarm within the horizon)")
+    ax.set_xlim(-0.02, 1.02)
+    ax.set_ylim(-0.02, 1.02)
+    ax.grid(alpha=0.3)
+    ax.set_title(title or "per-grasp early warning (labels: thresholds)", fontsize=9)
+    save_figure(fig, path)

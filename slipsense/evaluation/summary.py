@@ -17,42 +17,13 @@ always agree.
 
 from __future__ import annotations
 
-import math
 from typing import Any, Mapping
 
+from slipsense.measures import measure_lines
+from slipsense.measures.pergrasp import early_warning_lines
+from slipsense.measures.registry import pct as _pct
+from slipsense.measures.registry import plural as _plural
 from slipsense.sensors.spec import GELSIGHT_MINI
-
-#: Plain words for the baselines of :meth:`slipsense.evaluation.replay.Evaluation.grasp_measure`.
-BASELINE_WORDS = {
-    "majority_class": "always answers the outcome most grasps of the other objects had",
-    "frame_difference": "the largest change between consecutive frames",
-    "mean_frame_difference": "the mean change between consecutive frames",
-    "difference_to_contact": "the largest change from the first frame of contact",
-}
-
-
-def _pct(value: float) -> str:
-    return "n/a" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{100 * value:.0f}%"
-
-
-def _with_range(m: Mapping[str, Any] | None, percent: bool = True) -> str:
-    """``{"value", "interval"}`` -> ``"83% (95% range 70-95%)"``."""
-    if not m:
-        return "n/a"
-    v, (lo, hi) = m["value"], m["interval"]
-    if v is None or math.isnan(v):
-        return "n/a"
-    if percent:
-        if math.isnan(lo) or math.isnan(hi):
-            return _pct(v)
-        return f"{_pct(v)} (95% range {100 * lo:.0f}-{100 * hi:.0f}%)"
-    if math.isnan(lo) or math.isnan(hi):
-        return f"{v:.2f}"
-    return f"{v:.2f} (95% range {lo:.2f}-{hi:.2f})"
-
-
-def _plural(n: int, word: str) -> str:
-    return f"{n} {word}{'' if n == 1 else 's'}"
 
 
 def alarm_rule(threshold: float, debounce: int) -> str:
@@ -61,54 +32,9 @@ def alarm_rule(threshold: float, debounce: int) -> str:
     return f"slip probability at or above {threshold:.3g} for {frames}"
 
 
-def _telling_apart(measure: Mapping[str, Any]) -> list[str]:
-    """Slipped against held grasps: the detector's figures, then the baselines'."""
-    d = measure["detector"]
-    own = (d.get("operating_point") or {}).get("accuracy")
-    loo = (d.get("leave_objects_out") or {}).get("accuracy")
-    lines = [
-        "Telling slipped grasps from held ones (ranking: 50% = chance, 100% = every slipped grasp scored above "
-        "every held one; 95% ranges: objects drawn again at random):",
-        f"  detector: ranking {_with_range(d['roc_auc'])}; right on {_with_range(own)} of grasps at its own "
-        "alarm threshold",
-    ]
-    if loo:
-        lines.append(
-            f"            right on {_with_range(loo)} with each object's threshold chosen on the other objects only"
-        )
-    for name, b in measure.get("baselines", {}).items():
-        b_loo = (b.get("leave_objects_out") or {}).get("accuracy")
-        words = BASELINE_WORDS.get(name, "a rule that learns nothing")
-        lines.append(
-            f"  baseline {name} ({words}): ranking {_pct(b['roc_auc']['value'])}, right on "
-            f"{_pct(b_loo['value']) if b_loo else 'n/a'} with thresholds chosen on the other objects"
-        )
-    lines += _not_beaten(d, measure.get("baselines", {}))
-    return lines
-
-
-def _not_beaten(d: Mapping[str, Any], baselines: Mapping[str, Mapping[str, Any]]) -> list[str]:
-    """One line per baseline the detector does not beat, as :func:`slipsense.evaluation.outcome.beats`
-    judges it (the ``not_beaten`` sentences of the JSON)."""
-    lines = []
-    for name, b in baselines.items():
-        said = []
-        if not d["roc_auc"]["value"] > b["roc_auc"]["value"]:
-            said.append(f"ranking {_pct(d['roc_auc']['value'])} against {_pct(b['roc_auc']['value'])}")
-        mine, theirs = d.get("leave_objects_out"), b.get("leave_objects_out")
-        if mine and theirs and not mine["accuracy"]["value"] > theirs["accuracy"]["value"]:
-            said.append(
-                f"right on {_pct(mine['accuracy']['value'])} against {_pct(theirs['accuracy']['value'])} "
-                "with thresholds chosen on the other objects"
-            )
-        if said:
-            lines.append(f"  the detector does not beat {name}: {'; '.join(said)}")
-    return lines
-
-
 def rate_lines(rate: Mapping[str, Any] | None) -> list[str]:
     """The rates the runs were read at and the detector's, in words (:meth:`Evaluation.frame_rates
-    <slipsense.evaluation.replay.Evaluation.frame_rates>`)."""
+    <slipsense.evaluation.judge.Evaluation.frame_rates>`)."""
     if not rate or not rate.get("recordings"):
         return []
     model = rate["detector"]
@@ -121,69 +47,16 @@ def rate_lines(rate: Mapping[str, Any] | None) -> list[str]:
     return [f"Frame rate: read at {read}; the detector runs at {model:g} frames/s{tail}."]
 
 
-def _early_warning(g: Mapping[str, Any], slipped: int, horizon: int | None, fps: float) -> list[str]:
-    """Warned in time / too early / missed, on the slips with a moment of slip; false alarms on held grasps."""
-    lines = []
-    held = g["held_runs"]
-    fp = f"False alarms: {g['false_positive_grasps']} of {_plural(held, 'held grasp')} alarmed at some point."
-    without = g.get("slips_without_moment", 0)
-    if g["slip_runs"] == 0:
-        if slipped:
-            lines.append(
-                "No slipped grasp has a moment of slip in these labels (they say only whether a grasp slipped, not "
-                "when): the early-warning figures do not apply."
-            )
-        return lines + [fp]
-    window = f"{horizon} frames" if horizon is not None else "the warning window"
-    if horizon is not None and fps:
-        window += f" = {horizon / fps:.1f} s"
-    lead = g.get("median_lead_ms")
-    lead_text = "" if lead is None or math.isnan(lead) else f"; median warning {lead:.0f} ms before the slip"
-    lines.append(
-        f"Early warning on the {_plural(g['slip_runs'], 'slipped grasp')} whose moment of slip is known: "
-        f"{g['warned']} warned in time (first alarm at most {window} before the object slipped away), "
-        f"{g['premature']} too early (first alarm before that: the gripper would react to nothing), "
-        f"{g['missed']} missed{lead_text}."
-    )
-    if without:
-        lines.append(
-            f"  {_plural(without, 'more slipped grasp')} without a moment of slip found in the video: judged only as "
-            "slipped or held above."
-        )
-    return lines + [fp]
-
-
-def _clip_lines(c: Mapping[str, Any], frames: int = 5) -> list[str]:
-    """The papers' clip figures (:func:`slipsense.evaluation.grasp_scores.clip_metrics`), only where
-    both kinds of clip are there."""
-    n, slip = c["clips"], c["slip_clips"]
-    if slip == 0 or slip == n:
-        return [
-            f"Short clips: all {n} clips are {'slip' if slip else 'no-slip'} clips, so clip accuracy says nothing "
-            "here and is left out."
-        ]
-    return [
-        f"Short clips ({frames} frames, as published papers measure): {n} clips, {slip} ending just before a slip; "
-        f"right on {_pct(c['accuracy'])} (calling every clip no-slip would be right on "
-        f"{_pct(c['always_wiggle_accuracy'])}); mean of the rates on slip and no-slip clips {_pct(c['balanced_accuracy'])}; "
-        f"F1 {c['f1']:.2f} (balance of precision {_pct(c['precision'])}, recall {_pct(c['recall'])})."
-    ]
-
-
 def _grasp_detector_lines(m: Mapping[str, Any], fps: float) -> list[str]:
-    measure, g = m["grasp_measure"], m["per_grasp"]
-    d = measure["detector"]
-    lines = [
+    """The runs and the alarm rule, then every registered measure's sentences (:mod:`slipsense.measures`)."""
+    d = m["grasp_measure"]["detector"]
+    return [
         f"per grasp: {d['slipped']} of {d['grasps']} grasps slipped, {d['objects']} objects "
         f"({d['grasps'] - d['slipped']} held).",
         f"Alarm: {alarm_rule(m['threshold'], m['debounce'])}.",
         *rate_lines(m.get("frame_rate")),
-        *_telling_apart(measure),
-        *_early_warning(g, d["slipped"], m.get("horizon"), fps),
+        *measure_lines(m, {"horizon": m.get("horizon"), "fps": fps}),
     ]
-    if g["slip_runs"] > 0:
-        lines += _clip_lines(m["clips"]["operating_point"])
-    return lines
 
 
 def _clip_model_lines(m: Mapping[str, Any], fps: float) -> list[str]:
@@ -213,14 +86,14 @@ def _clip_model_lines(m: Mapping[str, Any], fps: float) -> list[str]:
         f"Alarm: {alarm_rule(g['threshold'], g['debounce'])}."
     )
     lines += rate_lines(g.get("frame_rate"))
-    return lines + _early_warning(g, slipped, g.get("horizon"), fps)
+    return lines + early_warning_lines(g, {"horizon": g.get("horizon"), "fps": fps})
 
 
 def summary_lines(metrics: Mapping[str, Any], fps: float | None = None) -> list[str]:
     """The evaluation's result as lines of plain text (no JSON), every count as the result holds it.
 
     Args:
-        metrics: what :func:`slipsense.training.recipe.evaluate` returns: a grasp detector's
+        metrics: what :func:`slipsense.evaluation.checkpoints.evaluate_checkpoint` returns: a grasp detector's
             (``per_grasp``, ``grasp_measure``, ``clips``, ``threshold``, ``debounce``, ``horizon``) or a clip
             or marker model's (``accuracy``, ``confusion``, ``n_clips``, ... and ``per_grasp`` where its
             runs were replayed).
@@ -234,4 +107,4 @@ def summary_lines(metrics: Mapping[str, Any], fps: float | None = None) -> list[
     return _clip_model_lines(metrics, fps)
 
 
-__all__ = ["BASELINE_WORDS", "alarm_rule", "rate_lines", "summary_lines"]
+__all__ = ["alarm_rule", "rate_lines", "summary_lines"]

@@ -3,11 +3,8 @@
     >>> from slipsense.models import build, available
     >>> model = build("vivit", frames=5)            # doctest: +SKIP
 
-Every model subclasses a kind of :mod:`slipsense.models.base` (``VideoModel``, ``MarkerModel``,
-``GraspModel``) and declares there what the rest of slipsense needs: ``input_kind``, ``config()``
-(the keyword arguments that rebuild it, stored in every checkpoint), ``check_input(x)``,
-``forward(x)`` -> logits with class 1 = slip, and optionally its streaming parts, ONNX form,
-attention heat map and reduced precision. Nothing outside this package names a model.
+Every model subclasses a kind of :mod:`slipsense.models.base`, whose contract is all the rest of
+slipsense knows of it: nothing outside this package names a model.
 """
 
 from __future__ import annotations

@@ -18,18 +18,11 @@ The kinds:
 * :class:`GraspModel` — whole grasps of all sensors at once, ``(B, S, N, h, w)`` grey in [0, 1],
   logits at every frame ``(B, N, 2)``; streams itself (:meth:`GraspModel.stream`).
 
-Every model streams: :meth:`SlipModel.stream` gives the live detector an object that takes one frame
-per sensor and answers per-sensor slip probabilities (:class:`Stream`); clip models get a window
-stream (:mod:`slipsense.models.streams`), a grasp model brings its own. What runs inside a stream is
-a few named modules (:meth:`SlipModel.streaming_modules`), run on PyTorch or, exported through
-:meth:`SlipModel.onnx_parts`, on ONNX Runtime (:mod:`slipsense.models.runners`).
-
-Optional hooks, with defaults that suit a plain network: :meth:`SlipModel.streaming_parts`
-(what the live detector caches per frame), :meth:`SlipModel.exportable` (an ONNX-friendly copy),
-:meth:`SlipModel.attention` (a heat map for the live view), :meth:`SlipModel.reduced_precision`,
-:meth:`SlipModel.small_config` (the contract test's size), :attr:`SlipModel.quick_epochs` and
-:attr:`SlipModel.recipe` with :meth:`SlipModel.training_defaults` (what ``slipsense train --model
-NAME`` starts from: the model's recipe and what the recordings are, under the user's settings).
+Every model streams (:meth:`SlipModel.stream`, :class:`Stream`): clip models get a window stream
+(:mod:`slipsense.models.streams`), a grasp model brings its own; the named modules inside run on
+PyTorch or, exported through :meth:`SlipModel.onnx_parts`, on ONNX Runtime
+(:mod:`slipsense.models.runners`). Every other hook of :class:`SlipModel` has a default that suits a
+plain network.
 """
 
 from __future__ import annotations
@@ -46,7 +39,7 @@ from torch import Tensor, nn
 from slipsense.errors import ConfigError, InputError
 from slipsense.models.streams import WindowStream
 from slipsense.readers import MARKER_CLIPS, VIDEO_CLIPS, ClipReader
-from slipsense.sensors.markers import layout_name, marker_clouds, marker_layout, marker_sequences, track_markers
+from slipsense.recordings.markers import layout_name, marker_clouds, marker_layout, marker_sequences, track_markers
 from slipsense.sensors.spec import GELSIGHT_MINI
 
 _REGISTRY: dict[str, type] = {}
@@ -96,10 +89,8 @@ class Stream(Protocol):
     """
 
     sensors: int
-    #: True: one probability per sensor (each judged apart); False: one fused answer for all
     per_sensor: bool
-    #: True where ``attention`` can draw a heat map (the model's :attr:`SlipModel.attention_map`)
-    has_attention: bool
+    has_attention: bool  #: the model's :attr:`SlipModel.attention_map` is not None
 
     @property
     def ready(self) -> bool: ...
@@ -206,15 +197,7 @@ class SlipModel(nn.Module):
         """An eval-mode copy set up for ONNX tracing."""
         return copy.deepcopy(self).eval()
 
-    def stream(
-        self,
-        *,
-        sensors: int = 1,
-        info: Mapping[str, Any] | None = None,
-        backend: str = "torch",
-        dtype: str = "float32",
-        onnx_dir: Any = None,
-    ) -> Stream:
+    def stream(self, *, sensors=1, info=None, backend="torch", dtype="float32", onnx_dir=None) -> Stream:
         """A fresh :class:`Stream` of this model over ``sensors`` sensors (default: a sliding window
         over the frame-part outputs, :class:`slipsense.models.streams.WindowStream`). ``info``: the
         checkpoint's config; ``backend``/``dtype``/``onnx_dir`` as :class:`slipsense.streaming.detector.SlipDetector`."""
@@ -271,6 +254,11 @@ class SlipModel(nn.Module):
 class VideoModel(SlipModel):
     input_kind = "video"
 
+    def check_input(self, x: Tensor) -> None:
+        """InputError unless ``x`` is a finite float tensor of the shape the model's ``_check_shape`` takes."""
+        self._check_shape(x)
+        check_video_values(x)
+
     def window_geometry(self, spec: Mapping[str, Any]) -> dict[str, Any]:
         frames = getattr(self, "frames", None) or spec.get("frames") or DEFAULT_FRAMES
         size = getattr(self, "image_size", None) or spec.get("size") or GELSIGHT_MINI.image_size
@@ -284,7 +272,7 @@ class MarkerModel(SlipModel):
     def inputs_from_videos(
         self, videos: Sequence[np.ndarray], paths: Sequence[Any], geometry: Mapping[str, Any] | None = None
     ) -> list[Any]:
-        """Markers tracked through each whole video (:mod:`slipsense.sensors.markers`), ``(N, M, 3)``:
+        """Markers tracked through each whole video (:mod:`slipsense.recordings.markers`), ``(N, M, 3)``:
         in the checkpoint's ``marker_layout`` (mm, as it was trained and as replays read them), or,
         for a model trained on markers not tracked in videos, the markers nearest the centre."""
         layout = (geometry or {}).get("marker_layout")
@@ -367,9 +355,13 @@ class GraspModel(SlipModel):
             f"model.sensors=1 to train on each camera alone"
         )
 
+    #: what :meth:`stream` runs: a :class:`~slipsense.models.grasp_stream.GraspStream` (see MotionStream)
+    stream_class: type
+
     def stream(self, *, sensors=None, info=None, backend="torch", dtype="float32", onnx_dir=None) -> Stream:
-        """A fresh :class:`Stream` over whole grasps (a grasp model has no clip window to slide)."""
-        raise NotImplementedError(f"{type(self).__name__} must define stream() (see MotionStream)")
+        """A fresh :class:`Stream` over whole grasps (a grasp model has no clip window to slide): its
+        :attr:`stream_class`, frame by frame (eval mode)."""
+        return self.stream_class(self, sensors=sensors, info=info, backend=backend, dtype=dtype, onnx_dir=onnx_dir)
 
     def check_input(self, x) -> None:
         """Grey frames ``(B, sensors, N >= 1, h, w)`` at the model's ``image_size``, finite floats."""
@@ -498,34 +490,23 @@ def build_registered(name: str, **config: Any) -> SlipModel:
         raise ConfigError(f"model {name!r}: {exc}") from None
 
 
-def clip_example_inputs(model: SlipModel, geometry: Mapping[str, Any], batch: int = 2) -> dict[str, Tensor]:
-    """Random example inputs ``{"model", "frame"?, "window"}`` of a clip model's files (seed 0)."""
-    g = torch.Generator().manual_seed(0)
-    t = geometry["frames"]
-    if geometry["kind"] == "video":
-        full = torch.rand(batch, t, 3, *geometry["image_size"], generator=g)
-    else:
-        full = torch.randn(batch, t, geometry["markers"], 3, generator=g)
-    out = {"model": full}
-    frame_part, _ = model.streaming_parts()
-    if frame_part is None:
-        out["window"] = full
-        return out
-    out["frame"] = full[:, 0]
-    with torch.no_grad():
-        tokens = frame_part(full.flatten(0, 1)).unflatten(0, (batch, t))
-    if model.slot_tokens:
-        tokens = tokens[:, torch.arange(t), torch.arange(t)]  # frame k at slot k
-    out["window"] = tokens.contiguous()
-    return out
-
-
 def clip_onnx_parts(model: SlipModel, geometry: Mapping[str, Any], batch: int | None) -> dict[str, OnnxPart]:
-    """The files of a clip model: the whole network and its frame/window parts, batch axis 0."""
-    examples = clip_example_inputs(model, geometry, batch=batch or 2)
-    if batch is not None:
-        examples = {k: v.repeat(-(-batch // v.shape[0]), *[1] * (v.dim() - 1))[:batch] for k, v in examples.items()}
+    """The files of a clip model: the whole network and its frame/window parts, batch axis 0, on
+    random example inputs (seed 0) of ``batch`` (default 2) items."""
+    g, t, b = torch.Generator().manual_seed(0), geometry["frames"], batch or 2
     video = geometry["kind"] == "video"
+    if video:
+        full = torch.rand(b, t, 3, *geometry["image_size"], generator=g)
+    else:
+        full = torch.randn(b, t, geometry["markers"], 3, generator=g)
+    examples = {"model": full, "window": full}
+    frame_part, _ = model.streaming_parts()
+    if frame_part is not None:
+        with torch.no_grad():
+            tokens = frame_part(full.flatten(0, 1)).unflatten(0, (b, t))
+        if model.slot_tokens:
+            tokens = tokens[:, torch.arange(t), torch.arange(t)]  # frame k at slot k
+        examples.update(frame=full[:, 0], window=tokens.contiguous())
     names = {
         "model": ("video" if video else "markers", "logits"),
         "frame": ("frames" if video else "clouds", "tokens"),

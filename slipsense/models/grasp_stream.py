@@ -2,10 +2,7 @@
 
 A grasp model (:class:`slipsense.models.base.GraspModel`) sees every frame from the start of the grasp,
 so its stream keeps the model's own state from push to push instead of a window. What every grasp
-stream shares lives here: the checks of pushed frames and of the sensor count, the camera start-up
-frames that get no answer, grey conversion at the model's size, whole-recording replay (the model's
-forward over all frames: the same numbers as pushing, faster) and the runner of its parts on
-PyTorch or ONNX Runtime. A model's stream adds :meth:`GraspStream.reset` (its state) and
+stream shares lives here; a model's stream adds :meth:`GraspStream.reset` (its state) and
 :meth:`GraspStream.push_gray` (one frame through its parts).
 """
 
@@ -16,12 +13,12 @@ import torch
 
 from slipsense.errors import ConfigError, InputError
 from slipsense.models.runners import make_runner
-from slipsense.models.streams import check_image, check_video_stream, slip_probability
+from slipsense.models.streams import StreamBase, check_image, check_video_stream
 from slipsense.recordings.contact import STARTUP_FRAMES as STARTUP
 from slipsense.recordings.video import gray_frames
 
 
-class GraspStream:
+class GraspStream(StreamBase):
     """``sensors``: frames per push; the model fuses any number of sensors symmetrically, but was
     trained on ``model.sensors`` and is refused others. The first ``startup`` frames (the camera's
     start-up transient, from the checkpoint's operating point) get no answer. The model's parts run on
@@ -35,11 +32,8 @@ class GraspStream:
         self.model = model.eval()
         self.sensors = model.sensors if sensors is None else int(sensors)
         if self.sensors != model.sensors:
-            hint = (
-                " (the shipped one-finger detector: SlipDetector.pretrained('motionnet-gelsight-1'))"
-                if self.sensors == 1
-                else ""
-            )
+            one = " (the shipped one-finger detector: SlipDetector.pretrained('motionnet-gelsight-1'))"
+            hint = one if self.sensors == 1 else ""
             raise ConfigError(
                 f"{model.model_name} was trained on {model.sensors} sensor(s) seen together; "
                 f"the detector was given sensors={self.sensors}{hint}"
@@ -50,16 +44,11 @@ class GraspStream:
         self.startup = int(((info or {}).get("operating_point") or {}).get("startup", STARTUP))
         self.geometry = {**model.window_geometry({}), "startup": self.startup}
         self._run, self.tmpdir = make_runner(model, self.geometry, backend, dtype, onnx_dir)
-        self._shapes: dict[int, tuple] = {}
-        self._pushed = 0
         self.reset()
-
-    def describe(self) -> dict:
-        return dict(self.geometry)
 
     def reset(self) -> None:
         """Forget the grasp: the next frame pushed is its first."""
-        self._shapes = {}
+        self._shapes: dict[int, tuple] = {}
         self._pushed = 0
 
     @property
@@ -128,11 +117,3 @@ class GraspStream:
 
     def attention(self, sensor: int):
         return None
-
-    def close(self) -> None:
-        if self.tmpdir is not None:
-            self.tmpdir.cleanup()
-            self.tmpdir = None
-
-
-__all__ = ["GraspStream", "slip_probability"]

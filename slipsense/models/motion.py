@@ -12,11 +12,8 @@ saw turns out to be the object and the session rather than slip. MotionNet sees 
 * both sensors fused symmetrically (mean and max over sensors: the fingers are interchangeable,
   slip is a loss of the grasp, not of one pad);
 * a causal temporal convolution (dilations 1, 2, 4, 8: 31 frames, 1.2 s of context) -> slip logits
-  for *every* frame: ``(B, N, 2)``. Nothing looks ahead, so the same numbers come out streaming.
-
-The left edge is handled by repeating the first frame (in the lags) and the first feature (in the
-temporal stack): running the whole sequence or pushing frame by frame (:class:`MotionStream`)
-gives equal results, which the tests check.
+  for *every* frame: ``(B, N, 2)``. Nothing looks ahead, so the same numbers come out streaming
+  (:class:`MotionStream`; the first frame and feature stand in before the start).
 """
 
 from __future__ import annotations
@@ -32,7 +29,8 @@ from torch import Tensor, nn
 
 from slipsense.errors import ConfigError
 from slipsense.models.base import GraspModel, ModelPart, OnnxPart, register
-from slipsense.models.grasp_stream import GraspStream, slip_probability
+from slipsense.models.grasp_stream import GraspStream
+from slipsense.models.streams import slip_probability
 
 #: ``level`` scales each frame to this mean grey level, its mean taken as at least ``_DARK`` (a black
 #: frame stays black).
@@ -45,6 +43,77 @@ def _conv(cin: int, cout: int, k: int, stride: int) -> nn.Sequential:
     return nn.Sequential(
         nn.Conv2d(cin, cout, k, stride, k // 2, bias=False), nn.BatchNorm2d(cout), nn.ReLU(inplace=True)
     )
+
+
+class MotionFrame(ModelPart):
+    """The per-frame part of :class:`MotionNet`: differences ``(1, S, L, h, w)`` -> features ``(1, 2F)``."""
+
+    def forward(self, diffs: Tensor) -> Tensor:
+        return self.model.encode(diffs[:, :, None])[:, 0]
+
+
+class MotionStep(ModelPart):
+    """One step of :class:`MotionNet`'s causal temporal stack, its state passed in and out.
+
+    Inputs: ``features (1, C0)``, ``fresh (1,)`` (1 on the first frame: every state is filled with
+    that frame's input, the way the whole-run forward repeats the first feature), and per temporal
+    layer ``state_i (1, C_i, 2 * dilation_i + 1)``, the inputs its newest output needs. Outputs:
+    ``logits (1, 2)`` and the next states. The kernel-3 convolution of dilation ``d`` over ``2d + 1``
+    inputs gives exactly the newest output.
+    """
+
+    def __init__(self, net: MotionNet):
+        super().__init__(net)
+        self.layers = list(getattr(net, "tcn", ()))
+        self.feature_size = 2 * net.features if self.layers else len(net.lags)
+        self.state_shapes = [(conv.in_channels, 2 * d + 1) for conv, d in zip(self.layers, net.dilations)]
+
+    def forward(self, feat: Tensor, fresh: Tensor, *states: Tensor):
+        x, nxt = feat, []
+        first = fresh.reshape(1, 1, 1) > 0.5
+        for i, (conv, buf) in enumerate(zip(self.layers, states)):
+            col = x[:, :, None]
+            buf = torch.where(first, col.expand_as(buf), torch.cat([buf[:, :, 1:], col], dim=2))
+            nxt.append(buf)
+            y = F.relu(conv(buf))[:, :, -1]
+            x = y + x if i > 0 else y
+        return (self.model.head(x), *nxt)
+
+
+class MotionStream(GraspStream):
+    """Push one frame per sensor, get the slip probability of that frame (fused over sensors).
+
+    Keeps the last ``max_lag + 1`` grey frames and the temporal stack's state, so each push encodes
+    one frame per sensor and computes one output per layer: the same numbers as
+    :meth:`MotionNet.forward` over the whole sequence (repeating the first input to the left of every
+    layer equals repeating the first feature to the left of the stack). The frame encoder and the
+    step run on PyTorch or ONNX Runtime (:class:`~slipsense.models.grasp_stream.GraspStream`).
+    """
+
+    def reset(self) -> None:
+        super().reset()
+        self._frames: deque[np.ndarray] = deque(maxlen=self.model.max_lag + 1)
+        self._states = [np.zeros((1, *shape), np.float32) for shape in MotionStep(self.model).state_shapes]
+
+    def push_gray(self, gray: np.ndarray) -> float:
+        """``gray``: uint8 ``(S, h, w)``, one frame per sensor at the model's size. Returns P(slip)."""
+        m = self.model
+        frame = gray.astype(np.float32) / np.float32(255.0)
+        if m.level:  # as MotionNet.levelled
+            frame *= np.float32(_LEVEL) / np.maximum(frame.mean(axis=(1, 2), keepdims=True, dtype=np.float32), _DARK)
+        fresh = not self._frames
+        if fresh:
+            self._frames.extend([frame] * (m.max_lag + 1))
+            self._first = frame
+        else:
+            self._frames.append(frame)
+        diffs = np.empty((1, gray.shape[0], len(m.lags), *gray.shape[1:]), np.float32)
+        for i, lag in enumerate(m.lags):
+            np.subtract(frame, self._first if lag == 0 else self._frames[-1 - lag], out=diffs[0, :, i])
+        diffs *= np.float32(m.diff_scale)
+        feat = self._run("frame", diffs)[0]
+        logits, *self._states = self._run("step", feat, np.array([float(fresh)], np.float32), *self._states)
+        return float(slip_probability(logits)[0])
 
 
 @register("motionnet")
@@ -67,6 +136,7 @@ class MotionNet(GraspModel):
             the grey levels as the camera gives them, as detectors trained before it).
     """
 
+    stream_class = MotionStream
     adapt_cost = 50.0
     adapt_settings = {"epochs": 10}  # as the shipped weights are fine-tuned: a few minutes, not an hour
     adapt_words = "MotionNet trained from scratch on your grasps (grey frame differences, causal convolution)"
@@ -129,18 +199,10 @@ class MotionNet(GraspModel):
         self.head = nn.Linear(self.temporal, 2)
 
     def config(self) -> dict:
-        return {
-            "sensors": self.sensors,
-            "image_size": list(self.image_size),
-            "lags": list(self.lags),
-            "width": self.width,
-            "features": self.features,
-            "temporal": self.temporal,
-            "dilations": list(self.dilations),
-            "dropout": self.dropout_p,
-            "diff_scale": self.diff_scale,
-            "level": self.level,
-        }
+        names = ("sensors", "image_size", "lags", "width", "features", "temporal", "dilations")
+        out = {k: getattr(self, k) for k in names}
+        out = {k: list(v) if isinstance(v, tuple) else v for k, v in out.items()}  # JSON-ready
+        return {**out, "dropout": self.dropout_p, "diff_scale": self.diff_scale, "level": self.level}
 
     @property
     def receptive_field(self) -> int:
@@ -247,10 +309,6 @@ class MotionNet(GraspModel):
         feats = self.encode(diffs.movedim(-1, 2)[None])[0]  # (U, 2F)
         return self.classify(feats[torch.cat(gathers)])
 
-    def stream(self, *, sensors=None, info=None, backend="torch", dtype="float32", onnx_dir=None) -> "MotionStream":
-        """A frame-by-frame runner of this model (eval mode); see :class:`MotionStream`."""
-        return MotionStream(self, sensors=sensors, info=info, backend=backend, dtype=dtype, onnx_dir=onnx_dir)
-
     def exportable(self) -> nn.Module:
         copy = super().exportable()
         copy._in_place = False
@@ -288,77 +346,6 @@ class MotionNet(GraspModel):
         }
 
 
-class MotionFrame(ModelPart):
-    """The per-frame part of :class:`MotionNet`: differences ``(1, S, L, h, w)`` -> features ``(1, 2F)``."""
-
-    def forward(self, diffs: Tensor) -> Tensor:
-        return self.model.encode(diffs[:, :, None])[:, 0]
-
-
-class MotionStep(ModelPart):
-    """One step of :class:`MotionNet`'s causal temporal stack, its state passed in and out.
-
-    Inputs: ``features (1, C0)``, ``fresh (1,)`` (1 on the first frame: every state is filled with
-    that frame's input, the way the whole-run forward repeats the first feature), and per temporal
-    layer ``state_i (1, C_i, 2 * dilation_i + 1)``, the inputs its newest output needs. Outputs:
-    ``logits (1, 2)`` and the next states. The kernel-3 convolution of dilation ``d`` over ``2d + 1``
-    inputs gives exactly the newest output.
-    """
-
-    def __init__(self, net: MotionNet):
-        super().__init__(net)
-        self.layers = list(getattr(net, "tcn", ()))
-        self.feature_size = 2 * net.features if self.layers else len(net.lags)
-        self.state_shapes = [(conv.in_channels, 2 * d + 1) for conv, d in zip(self.layers, net.dilations)]
-
-    def forward(self, feat: Tensor, fresh: Tensor, *states: Tensor):
-        x, nxt = feat, []
-        first = fresh.reshape(1, 1, 1) > 0.5
-        for i, (conv, buf) in enumerate(zip(self.layers, states)):
-            col = x[:, :, None]
-            buf = torch.where(first, col.expand_as(buf), torch.cat([buf[:, :, 1:], col], dim=2))
-            nxt.append(buf)
-            y = F.relu(conv(buf))[:, :, -1]
-            x = y + x if i > 0 else y
-        return (self.model.head(x), *nxt)
-
-
-class MotionStream(GraspStream):
-    """Push one frame per sensor, get the slip probability of that frame (fused over sensors).
-
-    Keeps the last ``max_lag + 1`` grey frames and the temporal stack's state, so each push encodes
-    one frame per sensor and computes one output per layer: the same numbers as
-    :meth:`MotionNet.forward` over the whole sequence (repeating the first input to the left of every
-    layer equals repeating the first feature to the left of the stack). The frame encoder and the
-    step run on PyTorch or ONNX Runtime (:class:`~slipsense.models.grasp_stream.GraspStream`).
-    """
-
-    def reset(self) -> None:
-        super().reset()
-        self._frames: deque[np.ndarray] = deque(maxlen=self.model.max_lag + 1)
-        self._states = [np.zeros((1, *shape), np.float32) for shape in MotionStep(self.model).state_shapes]
-
-    def push_gray(self, gray: np.ndarray) -> float:
-        """``gray``: uint8 ``(S, h, w)``, one frame per sensor at the model's size. Returns P(slip)."""
-        m = self.model
-        frame = gray.astype(np.float32) / np.float32(255.0)
-        if m.level:  # as MotionNet.levelled
-            frame *= np.float32(_LEVEL) / np.maximum(frame.mean(axis=(1, 2), keepdims=True, dtype=np.float32), _DARK)
-        fresh = not self._frames
-        if fresh:
-            self._frames.extend([frame] * (m.max_lag + 1))
-            self._first = frame
-        else:
-            self._frames.append(frame)
-        diffs = np.empty((1, gray.shape[0], len(m.lags), *gray.shape[1:]), np.float32)
-        for i, lag in enumerate(m.lags):
-            np.subtract(frame, self._first if lag == 0 else self._frames[-1 - lag], out=diffs[0, :, i])
-        diffs *= np.float32(m.diff_scale)
-        feat = self._run("frame", diffs)[0]
-        logits, *self._states = self._run("step", feat, np.array([float(fresh)], np.float32), *self._states)
-        return float(slip_probability(logits)[0])
-
-
 @register("motion-energy")
 class MotionEnergy(MotionNet):
     """The non-learned baseline: how much the gels move, with a fitted threshold.
@@ -384,28 +371,14 @@ class MotionEnergy(MotionNet):
         lags: Sequence[int] = (1, 5, 25),
         diff_scale: float = 10.0,
     ):
-        super().__init__(
-            sensors=sensors,
-            image_size=image_size,
-            lags=lags,
-            width=1,
-            features=1,
-            temporal=1,
-            dilations=(1,),
-            dropout=0.0,
-            diff_scale=diff_scale,
-        )
+        # a MotionNet of the smallest settings (width, features, temporal 1, one dilation, no dropout), then unmade
+        super().__init__(sensors, image_size, lags, 1, 1, 1, (1,), 0.0, diff_scale)
         del self.encoder, self.project, self.tcn, self.head
         self.head = nn.Linear(len(self.lags), 2)
         self.dilations = ()
 
     def config(self) -> dict:
-        return {
-            "sensors": self.sensors,
-            "image_size": list(self.image_size),
-            "lags": list(self.lags),
-            "diff_scale": self.diff_scale,
-        }
+        return {k: v for k, v in super().config().items() if k in ("sensors", "image_size", "lags", "diff_scale")}
 
     def encode(self, diffs: Tensor) -> Tensor:
         """``(B, S, N, L, h, w)`` -> ``(B, N, L)``: log1p of the mean absolute change, max over sensors."""

@@ -10,7 +10,6 @@ import contextlib
 import hashlib
 import inspect
 import io
-import json
 import logging
 import os
 import sys
@@ -24,8 +23,9 @@ import torch
 from torch import nn
 
 from slipsense import __version__
-from slipsense.atomic import atomic_path, file_sha256, write_text
-from slipsense.errors import CacheWarning, InputError
+from slipsense.atomic import atomic_path
+from slipsense.cache import Entry
+from slipsense.errors import InputError
 
 #: Opset for the TorchScript exporter (its newest well-tested one); the dynamo exporter picks its own.
 TORCHSCRIPT_OPSET = 17
@@ -224,55 +224,19 @@ def export_parts(
 
 
 # ------------------------------------------------------------------------------ verified parts cache
-#: Written last into a parts folder: format, what the parts were exported from, each file's sha256.
-PARTS_MANIFEST = "parts.json"
-PARTS_FORMAT = 1
-
-
 def _parts_key(model: nn.Module, geometry: Mapping[str, Any], dtype: str) -> dict[str, Any]:
     config = model.config() if hasattr(model, "config") else {}
     # the model's own code: parts exported before a change to it (their inputs, their maths) are stale
     code = hashlib.sha256(Path(inspect.getfile(type(model))).read_bytes()).hexdigest()[:16]
-    return json.loads(
-        json.dumps(
-            {
-                "model": getattr(model, "model_name", type(model).__name__),
-                "config": config,
-                "geometry": dict(geometry),
-                "dtype": dtype,
-                "slipsense": __version__,
-                "torch": torch.__version__,
-                "code": code,
-            },
-            default=str,
-        )
-    )
-
-
-def check_parts(folder: str | Path, names: list[str], key: Mapping[str, Any]) -> str | None:
-    """Why the cached parts ``names`` in ``folder`` cannot be used (None: they can): the manifest is
-    missing or unreadable, records other inputs than ``key``, or a file's sha256 differs."""
-    folder = Path(folder)
-    try:
-        manifest = json.loads((folder / PARTS_MANIFEST).read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        return "no manifest"
-    except (OSError, ValueError) as exc:
-        return f"manifest unreadable ({exc})"
-    if not isinstance(manifest, dict) or manifest.get("format") != PARTS_FORMAT:
-        return "manifest of another format"
-    if manifest.get("key") != key:
-        return "exported from another model or setting"
-    files = manifest.get("files")
-    if not isinstance(files, dict):
-        return "manifest lists no files"
-    for name in names:
-        path = folder / name
-        if name not in files or not path.is_file():
-            return f"{name} missing"
-        if file_sha256(path) != files[name]:
-            return f"{name}: checksum mismatch"
-    return None
+    return {
+        "model": getattr(model, "model_name", type(model).__name__),
+        "config": config,
+        "geometry": dict(geometry),
+        "dtype": dtype,
+        "slipsense": __version__,
+        "torch": torch.__version__,
+        "code": code,
+    }
 
 
 def cached_streaming_parts(
@@ -282,24 +246,20 @@ def cached_streaming_parts(
     there: ``{name: path}`` (``frame.onnx``, ``window.onnx`` / ``step.onnx``), their ``*.int8.onnx``
     copies for ``dtype="int8"``.
 
-    ``folder/parts.json`` (written last) records the model's name, config, geometry, dtype, the
-    library versions and each file's sha256; files that do not match it (damaged, half written,
-    from another checkpoint) are exported again with a :class:`~slipsense.errors.CacheWarning`.
+    The folder is a verified cache entry (:mod:`slipsense.cache`): ``folder/check.json`` (written
+    last) records the model's name, config, code, geometry, dtype, the library versions and each
+    file's sha256; files that do not match it (damaged, half written, from another checkpoint) are
+    exported again with a :class:`~slipsense.errors.CacheWarning`.
     """
-    folder = Path(folder)
     parts = streaming_names(model, geometry)
-    suffix = ".int8.onnx" if dtype == "int8" else ".onnx"
-    names = [p + suffix for p in parts]
-    key = _parts_key(model, geometry, dtype)
-    why = check_parts(folder, names, key)
-    if why is not None:
-        if why != "no manifest":
-            warnings.warn(f"{folder}: cached ONNX parts unusable ({why}); exporting again", CacheWarning, stacklevel=2)
-        (folder / PARTS_MANIFEST).unlink(missing_ok=True)
+    names = [p + (".int8.onnx" if dtype == "int8" else ".onnx") for p in parts]
+    entry = Entry(folder, _parts_key(model, geometry, dtype), "ONNX parts", names=names, keyed=False)
+
+    def export(folder: Path) -> None:
         export_parts(model, folder, parts, geometry=geometry, verify=False)
-        if dtype == "int8":
-            for p in parts:
-                quantize_int8(folder / f"{p}.onnx", folder / f"{p}.int8.onnx")
-        manifest = {"format": PARTS_FORMAT, "key": key, "files": {n: file_sha256(folder / n) for n in names}}
-        write_text(folder / PARTS_MANIFEST, json.dumps(manifest, indent=1))
-    return {p: folder / n for p, n in zip(parts, names)}
+        for p in parts if dtype == "int8" else []:
+            quantize_int8(folder / f"{p}.onnx", folder / f"{p}.int8.onnx")
+
+    if entry.load(lambda *files: files) is None:
+        entry.save(export)
+    return dict(zip(parts, entry.files))

@@ -26,6 +26,7 @@ averaged over the whole clip before the Linear — the same for inputs whose fin
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from typing import Any, Sequence
 
 import torch
@@ -34,7 +35,7 @@ from einops import rearrange
 from torch import Tensor, nn
 
 from slipsense.errors import ConfigError, InputError
-from slipsense.models.base import VideoModel, check_video_values, register
+from slipsense.models.base import VideoModel, register
 
 #: Parameter count the study reports for its VideoResNet50 with 2 classes (the default config here).
 PAPER_PARAMETERS = 31_657_410
@@ -138,45 +139,29 @@ class ResNet3D50(VideoModel):
 
         self.channels, self.frames, self.bgr_to_rgb = channels, frames, bool(bgr_to_rgb)
         self._config = dict(
-            layers=layers,
-            width=width,
-            stem_kernel=list(stem_kernel),
-            temporal_kernels=temporal_kernels,
-            num_classes=num_classes,
-            dropout=float(dropout),
-            channels=channels,
-            frames=frames,
-            bgr_to_rgb=bool(bgr_to_rgb),
-            mean=mean,
-            std=std,
+            layers=layers, width=width, stem_kernel=list(stem_kernel), temporal_kernels=temporal_kernels
         )
+        self._config.update(num_classes=num_classes, dropout=float(dropout), channels=channels, frames=frames)
+        self._config.update(bgr_to_rgb=bool(bgr_to_rgb), mean=mean, std=std)
         self.register_buffer("mean", torch.tensor(mean).view(1, channels, 1, 1, 1), persistent=False)
         self.register_buffer("std", torch.tensor(std).view(1, channels, 1, 1, 1), persistent=False)
 
         kt, kh, kw = stem_kernel
-        self.stem = nn.Sequential()
-        self.stem.add_module(
-            "conv",
-            nn.Conv3d(channels, width, stem_kernel, stride=(1, 2, 2), padding=(kt // 2, kh // 2, kw // 2), bias=False),
+        conv = nn.Conv3d(
+            channels, width, stem_kernel, stride=(1, 2, 2), padding=(kt // 2, kh // 2, kw // 2), bias=False
         )
-        self.stem.add_module("bn", nn.BatchNorm3d(width))
-        self.stem.add_module("relu", nn.ReLU(inplace=True))
-        self.stem.add_module("pool", nn.MaxPool3d((1, 3, 3), stride=(1, 2, 2), padding=(0, 1, 1)))
+        pool = nn.MaxPool3d((1, 3, 3), stride=(1, 2, 2), padding=(0, 1, 1))
+        self.stem = nn.Sequential(
+            OrderedDict(conv=conv, bn=nn.BatchNorm3d(width), relu=nn.ReLU(inplace=True), pool=pool)
+        )
 
-        stages = []
-        dim_in = width
+        stages, dim_in = [], width
         for i, (blocks, kt) in enumerate(zip(layers, temporal_kernels)):
-            dim_inner = width * 2**i
-            dim_out = 4 * dim_inner
-            stride = 1 if i == 0 else 2
-            stage = nn.Sequential(
-                *(
-                    Bottleneck(dim_in if j == 0 else dim_out, dim_inner, dim_out, kt, stride if j == 0 else 1)
-                    for j in range(blocks)
-                )
-            )
-            stages.append(stage)
-            dim_in = dim_out
+            inner = width * 2**i  # output 4x inner; spatial stride 2 in the first block of stages 2-4
+            stage = [Bottleneck(dim_in, inner, 4 * inner, kt, 1 if i == 0 else 2)]
+            stage += [Bottleneck(4 * inner, inner, 4 * inner, kt, 1) for _ in range(blocks - 1)]
+            stages.append(nn.Sequential(*stage))
+            dim_in = 4 * inner
         self.stages = nn.Sequential(*stages)
         self.dropout = nn.Dropout(dropout)
         self.fc = nn.Linear(dim_in, num_classes)
@@ -196,13 +181,6 @@ class ResNet3D50(VideoModel):
         nn.init.normal_(self.fc.weight, std=0.01)
         nn.init.zeros_(self.fc.bias)
 
-    # input checks
-
-    def check_input(self, x: Any) -> None:
-        """Raise :class:`InputError` unless ``x`` is a finite float tensor ``(B, T, channels, H, W)``."""
-        self._check_shape(x)
-        check_video_values(x)
-
     def _check_shape(self, x: Any) -> None:
         if not isinstance(x, Tensor):
             raise InputError(None, f"video must be a torch.Tensor, got {type(x).__name__}")
@@ -216,8 +194,6 @@ class ResNet3D50(VideoModel):
                 f"video must have shape (B, {t}, {self.channels}, H, W) "
                 f"(batch, frames, channels, height, width), got {tuple(x.shape)}",
             )
-
-    # network
 
     def features(self, x: Tensor) -> Tensor:
         """(B, T, C, H, W) -> (B, 2048 * width / 64) clip features (before dropout and the Linear)."""

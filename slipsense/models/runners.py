@@ -32,8 +32,19 @@ def resolve_backend(backend: str, model: nn.Module | None = None) -> str:
         return backend
     if getattr(model, "auto_backend", "onnx") == "torch":
         return "torch"
-
     return "onnx" if all(importlib.util.find_spec(m) is not None for m in ("onnxruntime", "onnx")) else "torch"
+
+
+def check_backend(backend: str, dtype: str, model: nn.Module | None = None) -> str:
+    """:func:`resolve_backend`, after ConfigError for an unknown backend or dtype, or int8 off ONNX Runtime."""
+    if backend not in BACKENDS:
+        raise ConfigError(f"backend must be one of {BACKENDS}, got {backend!r}")
+    if dtype not in DTYPES:
+        raise ConfigError(f"dtype must be one of {DTYPES}, got {dtype!r}")
+    backend = resolve_backend(backend, model)
+    if dtype != "float32" and backend != "onnx":
+        raise ConfigError("dtype 'int8' needs backend 'onnx' (ONNX Runtime dynamic quantization)")
+    return backend
 
 
 class TorchRunner:
@@ -81,14 +92,7 @@ def make_runner(
     """The runner of ``model``'s streaming modules on ``backend``; returns ``(runner, tmpdir)``,
     ``tmpdir`` a :class:`tempfile.TemporaryDirectory` to clean up when no ``onnx_dir`` was given for
     ONNX (else None). ONNX parts already in ``onnx_dir`` are reused when their manifest matches."""
-    if backend not in BACKENDS:
-        raise ConfigError(f"backend must be one of {BACKENDS}, got {backend!r}")
-    if dtype not in DTYPES:
-        raise ConfigError(f"dtype must be one of {DTYPES}, got {dtype!r}")
-    backend = resolve_backend(backend, model)
-    if backend == "torch":
-        if dtype != "float32":
-            raise ConfigError("dtype 'int8' needs backend 'onnx' (ONNX Runtime dynamic quantization)")
+    if check_backend(backend, dtype, model) == "torch":
         return TorchRunner(model.streaming_modules(geometry)), None
     tmpdir = None
     if onnx_dir is None:

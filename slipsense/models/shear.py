@@ -35,7 +35,8 @@ from torch import Tensor, nn
 
 from slipsense.errors import ConfigError
 from slipsense.models.base import GraspModel, ModelPart, OnnxPart, register
-from slipsense.models.grasp_stream import GraspStream, slip_probability
+from slipsense.models.grasp_stream import GraspStream
+from slipsense.models.streams import slip_probability
 
 #: Doublings of the running maximum's window: peaks are exact over up to 2**20 frames (13 h at 20 fps).
 _DOUBLINGS = 20
@@ -71,6 +72,37 @@ def _digest(x: Tensor) -> tuple:
     return (tuple(data.shape), str(data.dtype), hashlib.blake2b(data.tobytes(), digest_size=16).hexdigest())
 
 
+class _Frame(ModelPart):
+    def forward(self, reference: Tensor, gray: Tensor):
+        return self.model.frame_shift(reference, gray)
+
+
+class _Step(ModelPart):
+    def forward(self, shift: Tensor, fresh: Tensor, peak: Tensor):
+        peak = torch.where(fresh.reshape(1, 1, 1) > 0.5, shift, torch.maximum(peak, shift))
+        return self.model.logits_of(shift, peak), peak
+
+
+class ShearStream(GraspStream):
+    """Keeps the marker map of the grasp's first frame and every cell's peak displacement: each push
+    runs the frame part once (the current frame against that map) and one step, the same numbers as
+    :meth:`ShearRetention.forward` (the first frame runs the frame part twice: once for its map)."""
+
+    def reset(self) -> None:
+        super().reset()
+        self._reference = None
+        self._peak = np.zeros((1, self.sensors, self.model.cells), np.float32)
+
+    def push_gray(self, gray: np.ndarray) -> float:
+        frame = (gray.astype(np.float32) / np.float32(255.0))[None]
+        fresh = self._reference is None
+        if fresh:
+            self._reference = self._run("frame", np.zeros_like(frame), frame)[1]
+        shift = self._run("frame", self._reference, frame)[0]
+        logits, self._peak = self._run("step", shift, np.array([float(fresh)], np.float32), self._peak)
+        return float(slip_probability(logits)[0])
+
+
 @register("shear-retention")
 class ShearRetention(GraspModel):
     """Slip as shear given up: see the module notes.
@@ -92,6 +124,7 @@ class ShearRetention(GraspModel):
     """
 
     auto_backend = "torch"
+    stream_class = ShearStream
     #: How it is made for a new sensor (training settings, ``slipsense train --set train.KEY``):
     #: no gradient training; ``gate`` and ``letgo`` are chosen among these on the user's grasps, then
     #: the threshold. Learning the four numbers by gradient on the 36 grasps of four objects ranked
@@ -146,11 +179,9 @@ class ShearRetention(GraspModel):
         if not 0 <= float(softness) <= 10:
             raise ConfigError(f"shear-retention: softness must be in 0..10, got {softness}")
         self.blur, self.iterations, self.softness = float(blur), iterations, float(softness)
-        self.gate = nn.Parameter(torch.tensor(float(gate)))
-        self.letgo = nn.Parameter(torch.tensor(float(letgo)))
-        self.slope = nn.Parameter(torch.tensor(float(slope)))
-        self.bias = nn.Parameter(torch.tensor(float(bias)))
         self._init = {"gate": float(gate), "letgo": float(letgo), "slope": float(slope), "bias": float(bias)}
+        for name, value in self._init.items():  # the four numbers gradient training can learn
+            setattr(self, name, nn.Parameter(torch.tensor(value)))
         self.register_buffer("_fine", _gaussian(self.blur), persistent=False)
         self.register_buffer("_coarse", _gaussian(4 * self.blur), persistent=False)
         h, w = image_size
@@ -164,15 +195,8 @@ class ShearRetention(GraspModel):
         return {"image_size": [40, 60]}
 
     def config(self) -> dict:
-        return {
-            "sensors": self.sensors,
-            "image_size": list(self.image_size),
-            "patch": self.patch,
-            "blur": self.blur,
-            "iterations": self.iterations,
-            "softness": self.softness,
-            **self._init,
-        }
+        out = {"sensors": self.sensors, "image_size": list(self.image_size), "patch": self.patch, "blur": self.blur}
+        return {**out, "iterations": self.iterations, "softness": self.softness, **self._init}
 
     @property
     def cells(self) -> int:
@@ -245,8 +269,9 @@ class ShearRetention(GraspModel):
         Outside gradient training the shifts of frames seen before are looked up, not tracked again:
         they depend on the frames and the tracking settings only, not on ``gate``, ``letgo`` or the
         logit, so choosing those on a user's grasps (``recipe["choose"]``: 16 pairs) tracks each grasp
-        once, not 16 times."""
-        if torch.is_grad_enabled():
+        once, not 16 times. Never while an export traces the model: a looked-up shift would be baked
+        into the graph as a constant of that input's frame count."""
+        if torch.is_grad_enabled() or torch.jit.is_tracing() or torch.onnx.is_in_onnx_export():
             return self._track(gray)
         key = (_digest(gray), self.patch, self.blur, self.iterations, tuple(self.image_size))
         shift = _TRACKED.get(key)
@@ -274,10 +299,6 @@ class ShearRetention(GraspModel):
 
     # streaming
 
-    def stream(self, *, sensors=None, info=None, backend="torch", dtype="float32", onnx_dir=None) -> "ShearStream":
-        """A frame-by-frame runner of this model (eval mode); see :class:`ShearStream`."""
-        return ShearStream(self, sensors=sensors, info=info, backend=backend, dtype=dtype, onnx_dir=onnx_dir)
-
     def streaming_modules(self, geometry=None) -> dict[str, nn.Module]:
         """``frame``: the first frame's marker map and the current frame ``(1, S, h, w)`` -> cell
         displacements ``(1, S, C)`` and the frame's marker map;
@@ -300,34 +321,3 @@ class ShearRetention(GraspModel):
                 _Step(self), (shift, torch.zeros(1), shift * 2), ["shift", "fresh", "peak"], ["logits", "peak_next"], {}
             ),
         }
-
-
-class _Frame(ModelPart):
-    def forward(self, reference: Tensor, gray: Tensor):
-        return self.model.frame_shift(reference, gray)
-
-
-class _Step(ModelPart):
-    def forward(self, shift: Tensor, fresh: Tensor, peak: Tensor):
-        peak = torch.where(fresh.reshape(1, 1, 1) > 0.5, shift, torch.maximum(peak, shift))
-        return self.model.logits_of(shift, peak), peak
-
-
-class ShearStream(GraspStream):
-    """Keeps the marker map of the grasp's first frame and every cell's peak displacement: each push
-    runs the frame part once (the current frame against that map) and one step, the same numbers as
-    :meth:`ShearRetention.forward` (the first frame runs the frame part twice: once for its map)."""
-
-    def reset(self) -> None:
-        super().reset()
-        self._reference = None
-        self._peak = np.zeros((1, self.sensors, self.model.cells), np.float32)
-
-    def push_gray(self, gray: np.ndarray) -> float:
-        frame = (gray.astype(np.float32) / np.float32(255.0))[None]
-        fresh = self._reference is None
-        if fresh:
-            self._reference = self._run("frame", np.zeros_like(frame), frame)[1]
-        shift = self._run("frame", self._reference, frame)[0]
-        logits, self._peak = self._run("step", shift, np.array([float(fresh)], np.float32), self._peak)
-        return float(slip_probability(logits)[0])

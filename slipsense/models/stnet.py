@@ -53,15 +53,11 @@ Reading of the paper and the choices it leaves open
 
 Speed (CPU inference)
 ---------------------
-Training uses the plain modules below. For inference, :func:`optimize_for_inference` makes a copy
-in which every ``nn.Linear`` is a :class:`PackedLinear` (weight pre-packed once into oneDNN's
-blocked layout: at batch 1 the network is 12 rows x ~94 M weights, a shape where the default BLAS
-call reaches ~1/3 of the machine's matmul speed and the packed oneDNN kernel ~3/4 of it) and the
-19872 -> 1656 classifier layer a :class:`FrameSumLinear` (a 132 MB matrix-vector product that BLAS
-runs on one core, split by frame so both cores stream it). ``dtype=torch.bfloat16`` packs bf16
-weights (half the bytes, AVX512-BF16 dot products); :func:`quantize_dynamic_int8` is the int8
-alternative. Attention is one fused qkv Linear + ``F.scaled_dot_product_attention``; the S-codec
-decoder's one-channel convolution over the upsampled signal is computed on the short signal
+Training uses the plain modules below; inference copies with oneDNN-packed, bf16 or int8 weights are
+made by :mod:`slipsense.models.stnet_fast` (at batch 1 the packed oneDNN kernel reaches ~3/4 of the
+machine's matmul speed on the network's 12 rows x ~94 M weights, the default BLAS call ~1/3).
+Attention is one fused qkv Linear + ``F.scaled_dot_product_attention``; the S-codec decoder's
+one-channel convolution over the upsampled signal is computed on the short signal
 (:class:`UpsampleConv1d`). Measurements: ``bench/bench_stnet.py``.
 
 Heat maps
@@ -96,34 +92,13 @@ ACTIVATIONS = {"relu": nn.ReLU, "gelu": nn.GELU}
 #: docstring); "paper-ff4096": the other reading that reaches ~129 M (128,319,891); "compact":
 #: trains in minutes on 2 CPU cores (~0.7 M parameters, most in the fusion layer that reads the
 #: raw 1656 values; beyond the paper, it reads positions against the gel at rest, ``centred``).
-_PAPER: dict[str, Any] = dict(
-    frames=12,
-    markers=552,
-    d_model=1656,
-    heads=8,
-    blocks=5,
-    ff_dim=2048,
-    head_hidden=1656,
-    dropout=0.1,
-    codec_channels=16,
-    codec_kernel=3,
-    codec_layers=4,
-    pool="flatten",
-    activation="relu",
-)
+_PAPER: dict[str, Any] = dict(frames=12, markers=552, d_model=1656, heads=8, blocks=5, ff_dim=2048, head_hidden=1656)
+_PAPER.update(dropout=0.1, codec_channels=16, codec_kernel=3, codec_layers=4, pool="flatten", activation="relu")
+_COMPACT = dict(_PAPER, d_model=128, heads=4, blocks=2, ff_dim=256, head_hidden=0, codec_channels=8, centred=True)
 PRESETS: dict[str, dict[str, Any]] = {
     "paper": _PAPER,
     "paper-ff4096": {**_PAPER, "ff_dim": 4096, "head_hidden": 0},
-    "compact": {
-        **_PAPER,
-        "d_model": 128,
-        "heads": 4,
-        "blocks": 2,
-        "ff_dim": 256,
-        "head_hidden": 0,
-        "codec_channels": 8,
-        "centred": True,
-    },
+    "compact": _COMPACT,
 }
 
 
@@ -174,9 +149,6 @@ class SCodecs(nn.Module):
         return rearrange(x, "(b t) 1 d -> b t d", b=b)
 
 
-# MSA block
-
-
 class Attention(nn.Module):
     def __init__(self, dim, heads=8, dropout=0.0):
         super().__init__()
@@ -209,9 +181,6 @@ class Block(nn.Module):
     def forward(self, x):
         x = self.norm1(x + self.drop(self.attn(x)))
         return self.norm2(x + self.drop(self.ff(x)))
-
-
-# the network
 
 
 @register("stnet")
@@ -249,23 +218,10 @@ class STNet(MarkerModel):
         d_in = markers * 3
         d_model = d_in if d_model is None else d_model
         head_hidden = d_model if head_hidden is None else head_hidden
-        self._config = dict(
-            frames=frames,
-            markers=markers,
-            d_model=d_model,
-            heads=heads,
-            blocks=blocks,
-            ff_dim=ff_dim,
-            head_hidden=head_hidden,
-            dropout=dropout,
-            codec_channels=codec_channels,
-            codec_kernel=codec_kernel,
-            codec_layers=codec_layers,
-            pool=pool,
-            activation=activation,
-            num_classes=num_classes,
-            use_codecs=use_codecs,
-        )
+        c = self._config = dict(frames=frames, markers=markers, d_model=d_model, heads=heads, blocks=blocks)
+        c.update(ff_dim=ff_dim, head_hidden=head_hidden, dropout=dropout, codec_channels=codec_channels)
+        c.update(codec_kernel=codec_kernel, codec_layers=codec_layers, pool=pool, activation=activation)
+        c.update(num_classes=num_classes, use_codecs=use_codecs)
         _validate(self._config)
         if relative:  # only stored when set, so checkpoints of the paper's network keep their config
             self._config["relative"] = True
@@ -311,8 +267,6 @@ class STNet(MarkerModel):
                     nn.init.zeros_(m.bias)
         nn.init.normal_(self.pos_embedding, std=0.02)
 
-    # input checks
-
     def check_input(self, x) -> None:
         """Raise InputError unless ``x`` is a finite float tensor (B, frames, markers, 3)."""
         want = f"(B, {self.frames}, {self.markers}, 3)"
@@ -330,8 +284,6 @@ class STNet(MarkerModel):
             i, f, k, _ = (int(v) for v in bad.nonzero()[0])
             value = x[i, f, k][bad[i, f, k]][0].item()
             raise InputError(None, f"non-finite marker position ({value}) at sample {i}, frame {f}, marker {k}")
-
-    # forward
 
     def _tokens(self, x):  # (b, t, m, 3) -> a: (b, t, d)
         x = x.to(self.pos_embedding.dtype)
@@ -427,9 +379,6 @@ class TemNet(STNet):
             raise TypeError("TemNet has no S codecs; use_codecs is not a TemNet setting")
         super().__init__(use_codecs=False, **kwargs)
         del self._config["use_codecs"]
-
-
-# configurations
 
 
 #: Settings that count something: positive integers.

@@ -1,9 +1,5 @@
-"""STNet/TemNet streaming parts: the per-frame layers the live detector caches, and the rest.
-
-A window's frames pass the S codecs and the fusion layer one by one, so the live detector runs
-:class:`MarkerFramePart` once per pushed frame and :class:`MarkerWindowPart` on the cached window
-(:mod:`slipsense.streaming.export` writes both as ONNX). With relative input every frame is seen against its
-window's first frame and nothing can be cached.
+"""STNet/TemNet streaming parts: the per-frame layers the live detector caches (S codecs, fusion:
+each frame alone), and the rest; and the marker saliency behind their heat maps.
 """
 
 from __future__ import annotations

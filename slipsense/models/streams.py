@@ -8,18 +8,10 @@ repeated as the window slides:
   for every window the frame will be part of;
 * a **window part**, run on each push over the T cached frame outputs.
 
-ViViT. With the paper's position embedding (``positions="slot"``) a frame's token belongs to its
-*slot* in the window (0 = oldest), so it changes as the frame slides back. Its frame part encodes a
-new frame at *every* slot at once (the patch embedding once, nearly all of the cost, then the spatial
-transformer on T copies): ``(3, H, W) -> (T, dim)``. A frame sits in slot T-1 when it arrives, T-2
-on the next push, ..., so the window reads the diagonal (frame ``i - T + 1 + s`` at slot ``s``)
-(:attr:`SlipModel.slot_tokens`). The numbers equal ``model(window)`` to float rounding.
-
-STNet / TemNet. The S codecs and the fusion layer act on each frame alone: that is the frame part
-``(M, 3) -> (d_model,)``; the window part adds the frame embedding and runs the MSA blocks and the head.
-
-3D ResNet-50. Convolutions over time, zero-padded at the window's edges: nothing carries from one
-window to the next; there is no frame part and the window part is the network.
+A model with :attr:`SlipModel.slot_tokens` (ViViT's slot position embedding) encodes a new frame at
+*every* window slot at once, ``(T, dim)``; it sits in slot T-1 when it arrives, T-2 on the next push,
+..., so the window reads the diagonal (frame ``i - T + 1 + s`` at slot ``s``). A model with no frame
+part (the 3D ResNet-50: nothing carries from one window to the next) gets the raw window.
 """
 
 from __future__ import annotations
@@ -46,21 +38,26 @@ def slip_probability(logits: np.ndarray) -> np.ndarray:
     return e[:, 1] / e.sum(axis=1)
 
 
-class WindowStream:
+class StreamBase:
+    """What every stream shares: the geometry it describes and the runner's temporary folder."""
+
+    def describe(self) -> dict[str, Any]:
+        return dict(self.geometry)
+
+    def close(self) -> None:
+        if self.tmpdir is not None:
+            self.tmpdir.cleanup()
+            self.tmpdir = None
+
+
+class WindowStream(StreamBase):
     """The :class:`~slipsense.models.base.Stream` of a clip model (video or marker windows): each
     sensor's window is judged apart, so it answers per sensor."""
 
     per_sensor = True
 
     def __init__(
-        self,
-        model,
-        geometry: Mapping[str, Any],
-        *,
-        sensors: int = 1,
-        backend: str = "torch",
-        dtype: str = "float32",
-        onnx_dir: Any = None,
+        self, model, geometry: Mapping[str, Any], *, sensors=1, backend="torch", dtype="float32", onnx_dir=None
     ):
         self.model, self.sensors = model.eval(), int(sensors)
         self.has_attention = model.attention_map is not None
@@ -73,9 +70,6 @@ class WindowStream:
         self._has_frame_part = model.streaming_parts()[0] is not None
         self._run, self.tmpdir = make_runner(model, self.geometry, backend, dtype, onnx_dir)
         self.reset()
-
-    def describe(self) -> dict[str, Any]:
-        return dict(self.geometry)
 
     def reset(self) -> None:
         self._cache: collections.deque[np.ndarray] = collections.deque(maxlen=self.frames)  # frame-part outputs
@@ -135,7 +129,7 @@ class WindowStream:
     def cache_product(self) -> str | None:
         """What of a recording a marker model is replayed from, as the frame cache names it: each
         camera's tracked markers in the layout its checkpoint records (``"markers:7x9"``, ``"markers:32"``:
-        :func:`slipsense.sensors.markers.marker_clouds`, the values its real training windows hold).
+        :func:`slipsense.recordings.markers.marker_clouds`, the values its real training windows hold).
         None for a video model (the decoded video) and for a marker model that records no layout
         (simulated, or a user's marker file: nothing says how to take its markers from a video)."""
         layout = self.geometry.get("marker_layout")
@@ -181,16 +175,6 @@ class WindowStream:
             return None
         window = torch.from_numpy(np.stack([x[sensor] for x in self._inputs])[None])  # (1, T, ...)
         return self.model.attention(window)
-
-    def close(self) -> None:
-        if self.tmpdir is not None:
-            self.tmpdir.cleanup()
-            self.tmpdir = None
-
-
-# ---------------------------------------------------------------------------------------------
-# Checks of what users push
-# ---------------------------------------------------------------------------------------------
 
 
 def check_video_stream(stream: np.ndarray, where: str) -> np.ndarray:

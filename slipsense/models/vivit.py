@@ -20,13 +20,11 @@ CPU at batch 1::
 Speed (CPU inference). vit-pytorch cuts the patches out with a rearrange that gathers every
 channel-last ``(p1 p2 c)`` value one float at a time, then runs LayerNorm over 4800-value rows and a
 Linear: about 80 % of its time at the paper size.
-Here (:meth:`ViViT._embed_fused`) the patches are copied in ``(c p1 p2)`` order (runs of 40
-contiguous floats), centred in place, and projected by one matrix product whose kernel has the
-patch LayerNorm's affine folded in (``W diag(gamma)``, ``W beta + b``); an extra all-``1/n`` kernel
-row gives the residual mean that makes this the corrected two-pass algorithm — as accurate as
-``F.layer_norm`` (measured: closer to a float64 reference than vit-pytorch's own float32 path).
-In eval mode without autograd the attention folds ``dim_head`` away (see :class:`Attention`) and
-the last layer of each transformer computes only the CLS row; training runs vit-pytorch's attention.
+Here (:meth:`ViViT._embed_fused`) the patches are copied in ``(c p1 p2)`` order and projected by one
+matrix product with the patch LayerNorm folded in, as accurate as ``F.layer_norm`` (measured: closer
+to a float64 reference than vit-pytorch's own float32 path). In eval mode without autograd the
+attention folds ``dim_head`` away (see :class:`Attention`) and the last layer of each transformer
+computes only the CLS row; training runs vit-pytorch's attention.
 The parameters stay an ordinary ``LayerNorm`` + ``Linear`` (same shapes and ``(p1 p2 c)`` layout as
 vit-pytorch), so training, weight decay and checkpoints are normal; ``fused=False`` runs the
 straightforward patch embedding instead.
@@ -63,8 +61,8 @@ from einops import rearrange, repeat
 from torch import Tensor, nn
 
 from slipsense.errors import ConfigError, InputError
-from slipsense.models.base import VideoModel, check_video_values, register
-from slipsense.models.vivit_layers import Transformer, eager_inference, version_key
+from slipsense.models.base import VideoModel, register
+from slipsense.models.vivit_layers import Transformer, cached, eager_inference
 from slipsense.models.vivit_parts import ViViTFramePart, ViViTWindowPart, conv_embed_patches
 
 
@@ -120,25 +118,13 @@ class ViViT(VideoModel):
         super().__init__()
         image_h, image_w = pair(image_size)
         patch_h, patch_w = pair(patch_size)
-        ints = dict(
-            image_h=image_h,
-            image_w=image_w,
-            patch_h=patch_h,
-            patch_w=patch_w,
-            frames=frames,
-            dim=dim,
-            heads=heads,
-            dim_head=dim_head,
-            mlp_dim=mlp_dim,
-            channels=channels,
-            num_classes=num_classes,
-        )
-        for key, value in ints.items():
-            if not isinstance(value, int) or value < 1:
-                raise ConfigError(f"vivit: {key} must be a positive integer, got {value!r}")
-        for key, value in dict(spatial_depth=spatial_depth, temporal_depth=temporal_depth).items():
-            if not isinstance(value, int) or value < 0:
-                raise ConfigError(f"vivit: {key} must be a non-negative integer, got {value!r}")
+        counts = dict(image_h=image_h, image_w=image_w, patch_h=patch_h, patch_w=patch_w, frames=frames, dim=dim)
+        counts.update(heads=heads, dim_head=dim_head, mlp_dim=mlp_dim, channels=channels, num_classes=num_classes)
+        counts.update(spatial_depth=spatial_depth, temporal_depth=temporal_depth)  # these may be 0
+        for key, value in counts.items():
+            if not isinstance(value, int) or value < (0 if key.endswith("_depth") else 1):
+                kind = "non-negative" if key.endswith("_depth") else "positive"
+                raise ConfigError(f"vivit: {key} must be a {kind} integer, got {value!r}")
         if image_h % patch_h or image_w % patch_w:
             raise ConfigError(
                 f"vivit: image_size {(image_h, image_w)} is not divisible by patch_size {(patch_h, patch_w)}"
@@ -155,22 +141,10 @@ class ViViT(VideoModel):
         self.patch_size = (patch_h, patch_w)
         self.grid = (image_h // patch_h, image_w // patch_w)  # (Hp, Wp)
         self.frames, self.channels, self.pool = frames, channels, pool
-        self._config = dict(
-            image_size=[image_h, image_w],
-            patch_size=[patch_h, patch_w],
-            frames=frames,
-            dim=dim,
-            spatial_depth=spatial_depth,
-            temporal_depth=temporal_depth,
-            heads=heads,
-            dim_head=dim_head,
-            mlp_dim=mlp_dim,
-            pool=pool,
-            dropout=float(dropout),
-            emb_dropout=float(emb_dropout),
-            channels=channels,
-            num_classes=num_classes,
-        )
+        self._config = dict(image_size=[image_h, image_w], patch_size=[patch_h, patch_w], frames=frames, dim=dim)
+        self._config.update(spatial_depth=spatial_depth, temporal_depth=temporal_depth, heads=heads, dim_head=dim_head)
+        self._config.update(mlp_dim=mlp_dim, pool=pool, dropout=float(dropout), emb_dropout=float(emb_dropout))
+        self._config.update(channels=channels, num_classes=num_classes)
         if positions != "slot":  # only when set: checkpoints of the paper model keep their config unchanged
             self._config["positions"] = positions
         self.positions = positions
@@ -187,30 +161,17 @@ class ViViT(VideoModel):
         self.patch_to_dim = nn.Linear(patch_dim, dim)
         self.dim_norm = nn.LayerNorm(dim)
 
-        if positions == "slot":
-            self.pos_embedding = nn.Parameter(torch.randn(1, frames, num_patches, dim))  # per frame slot and patch
-            self.register_parameter("temporal_pos_embedding", None)
-        else:
-            self.pos_embedding = nn.Parameter(torch.randn(1, 1, num_patches, dim))  # per patch, any slot
-            self.temporal_pos_embedding = nn.Parameter(torch.randn(1, frames, dim))  # per frame slot
+        # "slot": per frame slot and patch; "factorised": per patch, any slot, and per frame slot
+        slot = positions == "slot"
+        self.pos_embedding = nn.Parameter(torch.randn(1, frames if slot else 1, num_patches, dim))
+        self.temporal_pos_embedding = None if slot else nn.Parameter(torch.randn(1, frames, dim))
         self.emb_dropout = nn.Dropout(emb_dropout)
-        if pool == "cls":
-            self.spatial_cls = nn.Parameter(torch.randn(1, 1, dim))
-            self.temporal_cls = nn.Parameter(torch.randn(1, 1, dim))
-        else:
-            self.register_parameter("spatial_cls", None)
-            self.register_parameter("temporal_cls", None)
+        self.spatial_cls = nn.Parameter(torch.randn(1, 1, dim)) if pool == "cls" else None
+        self.temporal_cls = nn.Parameter(torch.randn(1, 1, dim)) if pool == "cls" else None
 
         self.spatial_transformer = Transformer(dim, spatial_depth, heads, dim_head, mlp_dim, dropout)
         self.temporal_transformer = Transformer(dim, temporal_depth, heads, dim_head, mlp_dim, dropout)
         self.head = nn.Linear(dim, num_classes)
-
-    # input checks
-
-    def check_input(self, x: Any) -> None:
-        """Raise :class:`InputError` unless ``x`` is a finite float tensor ``(B, frames, channels, H, W)``."""
-        self._check_shape(x)
-        check_video_values(x)
 
     def _check_shape(self, x: Any) -> None:
         if not isinstance(x, Tensor):
@@ -288,22 +249,13 @@ class ViViT(VideoModel):
         """Same function as :meth:`_embed_plain`, several times faster on a CPU: (n, C, H, W) -> (n, P, dim).
 
         ``Linear(LayerNorm(p)) = (W diag(gamma)) (p - mu) / sqrt(var + eps) + (W beta + b)`` for a
-        patch ``p`` with mean ``mu`` and variance ``var``. The patches are cut out in ``(c p1 p2)``
-        order — runs of ``pw`` contiguous pixels, a cheap copy unlike vit-pytorch's channel-last
-        ``(p1 p2 c)`` gather — centred in place and projected by one matrix product. Numerics: the
-        corrected two-pass algorithm — the extra all-``1/n`` row of the kernel gives the residual
-        mean ``r`` of the centred patches, removed from both the projection and the variance — as
-        accurate as ``F.layer_norm``.
+        patch ``p`` with mean ``mu`` and variance ``var``: the patches, cut out in ``(c p1 p2)`` order
+        (runs of ``pw`` contiguous pixels), are centred in place and projected by one matrix product
+        (:meth:`fused_patch_weights`). Numerics: the corrected two-pass algorithm (the kernel's
+        all-``1/n`` row gives the residual mean of the centred patches), as accurate as ``F.layer_norm``.
         """
-        ph, pw = self.patch_size
-        if eager_inference():  # cache the folded weights until a weight changes
-            params = (self.patch_norm.weight, self.patch_norm.bias, self.patch_to_dim.weight, self.patch_to_dim.bias)
-            key = version_key(*params)
-            if key is None or self._fused_cache is None or self._fused_cache[0] != key:
-                self._fused_cache = (key, *self.fused_patch_weights())
-            _, kernel, row_sum, bias = self._fused_cache
-        else:
-            kernel, row_sum, bias = self.fused_patch_weights()
+        params = (self.patch_norm.weight, self.patch_norm.bias, self.patch_to_dim.weight, self.patch_to_dim.bias)
+        kernel, row_sum, bias = cached(self, "_fused_cache", params, self.fused_patch_weights)  # until a weight changes
 
         rows = self._cut_patches(frames)  # (n P, patch_dim)
         mean = rows.mean(dim=1, keepdim=True)

@@ -40,6 +40,17 @@ def version_key(*tensors: Tensor) -> tuple | None:
         return None
 
 
+def cached(owner: nn.Module, attr: str, tensors, compute):
+    """``compute()``, kept in ``owner.<attr>`` in eager inference until one of ``tensors`` changes."""
+    if not eager_inference():
+        return compute()
+    key, cache = version_key(*tensors), getattr(owner, attr)
+    if key is None or cache is None or cache[0] != key:
+        cache = (key, compute())
+        setattr(owner, attr, cache)
+    return cache[1]
+
+
 class Attention(nn.Module):
     """Pre-norm multi-head self-attention: (N, n, dim) -> (N, n, dim).
 
@@ -96,13 +107,7 @@ class Attention(nn.Module):
         return a.reshape(dim, -1), m.reshape(dim, -1), bias
 
     def _forward_folded(self, y: Tensor, attn_store: list[Tensor] | None, first_only: bool) -> Tensor:
-        if eager_inference():  # cache the folded weights until a weight changes
-            key = version_key(self.to_qkv.weight, *self.to_out.parameters())
-            if key is None or self._folded is None or self._folded[0] != key:
-                self._folded = (key, *self.folded_weights())
-            _, a, m, bias = self._folded
-        else:
-            a, m, bias = self.folded_weights()
+        a, m, bias = cached(self, "_folded", (self.to_qkv.weight, *self.to_out.parameters()), self.folded_weights)
         b, n, dim = y.shape
         h = self.heads
         queries = y[:, :1] if first_only else y  # (b, q, dim)

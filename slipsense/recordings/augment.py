@@ -85,13 +85,6 @@ def add_noise(x: np.ndarray, std: float, rng: np.random.Generator) -> np.ndarray
     return out
 
 
-def _check_clip(x: np.ndarray) -> np.ndarray:
-    x = np.asarray(x)
-    if x.dtype != np.uint8 or x.ndim != 4 or x.shape[-1] != 3:
-        raise InputError(None, f"a clip must be uint8 (T, H, W, 3), got {x.dtype} {x.shape}")
-    return x
-
-
 def transform_clip(x: np.ndarray, cfg: AugmentConfig, rng: np.random.Generator) -> np.ndarray:
     """The augmented copy of one clip.
 
@@ -103,7 +96,9 @@ def transform_clip(x: np.ndarray, cfg: AugmentConfig, rng: np.random.Generator) 
     Returns:
         New uint8 ``(T, H, W, 3)`` array; ``x`` is untouched. With ``cfg.enabled`` False, a copy.
     """
-    x = _check_clip(x)
+    x = np.asarray(x)
+    if x.dtype != np.uint8 or x.ndim != 4 or x.shape[-1] != 3:
+        raise InputError(None, f"a clip must be uint8 (T, H, W, 3), got {x.dtype} {x.shape}")
     if not cfg.enabled:
         return x.copy()
     out = add_noise(x, cfg.noise_std, rng) if cfg.noise_std > 0 else x

@@ -20,7 +20,6 @@ topic of the bag is a sensor, in topic order, converted once into the cache (:fu
 
 from __future__ import annotations
 
-import hashlib
 import math
 import warnings
 from dataclasses import dataclass, field
@@ -31,6 +30,7 @@ import cv2
 import numpy as np
 
 from slipsense.atomic import atomic_path, write_text
+from slipsense.cache import Entry
 from slipsense.config import cache_root
 from slipsense.errors import ConfigError, InputError
 from slipsense.sensors.spec import check_fps
@@ -298,17 +298,15 @@ def write_recording(bag: BagFrames, folder: str | Path, camera_names: Sequence[s
 
 def bag_cameras(bag: Path, fps: float) -> list[Path]:
     """The camera videos of a bag used as an experiment folder: every image topic, in topic order,
-    paired by time and written once into the cache (``$SLIPSENSE_CACHE/bags``, keyed by the bag's
-    files, sizes and times) as ``camera_<k>.avi``."""
+    paired by time and written once into the cache as ``camera_<k>.avi`` (a verified folder entry
+    under ``$SLIPSENSE_CACHE/bags`` keyed by the bag's files, sizes and times: :mod:`slipsense.cache`)."""
     topics = sorted(t for t, kind in image_topics(bag).items() if kind in (IMAGE, COMPRESSED))
     if not topics:
         raise InputError(bag, "bag holds no sensor_msgs Image or CompressedImage topic")
     files = sorted(p for p in Path(bag).iterdir() if p.is_file()) if Path(bag).is_dir() else [Path(bag)]
     ident = [str(Path(bag).resolve()), fps, topics] + [[p.name, p.stat().st_size, p.stat().st_mtime_ns] for p in files]
-    key = hashlib.sha256(repr(ident).encode()).hexdigest()[:16]
-    folder = cache_root() / "bags" / key
     names = [f"camera_{k}" for k in range(len(topics))]
-    paths = [folder / f"{n}.avi" for n in names]
-    if not all(p.is_file() for p in paths):
-        write_recording(read_bag(bag, topics, fps=fps), folder, names, slipped=False, fps=fps)
-    return paths
+    entry = Entry(cache_root() / "bags", ident, "bag cache", names=[f"{n}.avi" for n in names])
+    if entry.load(lambda *paths: paths) is None:
+        entry.save(lambda to: write_recording(read_bag(bag, topics, fps=fps), to, names, slipped=False, fps=fps))
+    return entry.files

@@ -17,10 +17,8 @@ Windows, in frame indices of the decoded video (0-based, ``end`` inclusive):
 
 from __future__ import annotations
 
-import hashlib
 import json
 import warnings
-import zipfile
 import zlib
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -31,7 +29,7 @@ from tqdm.auto import tqdm
 
 from .. import config
 from ..sensors.spec import GELSIGHT_MINI
-from ..atomic import file_sha256, write_text, write_with
+from ..cache import Entry, key
 from ..errors import CacheWarning, ConfigError, InputError
 from .folders import SkippedInputWarning
 from .frames import source_stat
@@ -325,11 +323,8 @@ def _plans(
 # ----------------------------------------------------------------------------------------- cache
 
 
-def cache_key(recordings: Iterable[Recording], labels: Mapping[Key, VideoLabel], spec: ClipSpec) -> str:
-    """sha256 hex digest of (cache version, spec, each video's path/size/mtime/slipped and label).
-
-    Any edit to a video (size or modification time), its label or the spec gives a new key.
-    """
+def _inputs(recordings: Iterable[Recording], labels: Mapping[Key, VideoLabel], spec: ClipSpec) -> dict[str, Any]:
+    """What clips are cut from: cache version, spec, each video's path/size/mtime/slipped and label."""
     videos = []
     for rec in sorted(recordings, key=lambda r: r.key):
         try:
@@ -337,55 +332,26 @@ def cache_key(recordings: Iterable[Recording], labels: Mapping[Key, VideoLabel],
         except OSError:
             raise InputError(rec.path, "video file does not exist") from None
         label = labels.get(rec.key)
-        videos.append(
-            [
-                list(rec.key),
-                str(Path(rec.path).resolve()),
-                size,
-                mtime,
-                rec.slipped,
-                None if label is None else asdict(label),
-            ]
-        )
-    payload = json.dumps({"version": CACHE_VERSION, "spec": asdict(spec), "videos": videos}, sort_keys=True)
-    return hashlib.sha256(payload.encode()).hexdigest()
+        path = str(Path(rec.path).resolve())
+        videos.append([list(rec.key), path, size, mtime, rec.slipped, None if label is None else asdict(label)])
+    return {"version": CACHE_VERSION, "spec": asdict(spec), "videos": videos}
 
 
-def _save_npz(path: Path, clips: ClipSet) -> str:
-    """Write the clips atomically; return the sha256 of the bytes written."""
-    digest: list[str] = []
-
-    def writer(tmp: Path) -> None:
-        # Uncompressed: loading ~500 MB of clips is disk-bound, compression would make it CPU-bound.
-        with open(tmp, "wb") as fh:
-            np.savez(fh, x=clips.x, y=clips.y, meta=np.array(json.dumps(clips.meta)))
-        digest.append(file_sha256(tmp))
-
-    write_with(path, writer)
-    return digest[0]
+def cache_key(recordings: Iterable[Recording], labels: Mapping[Key, VideoLabel], spec: ClipSpec) -> str:
+    """The key of the clips' cache entry: any edit to a video (size or modification time), its label
+    or the spec gives a new one."""
+    return key(_inputs(recordings, labels, spec))
 
 
-def _load_npz(
-    npz: Path,
-    sidecar: Path,
-    spec: ClipSpec,
-    key: str | None = None,
-    expected: tuple[list[dict[str, Any]], np.ndarray] | None = None,
-) -> ClipSet:
-    """Load a cache entry, raising ValueError/OSError on any inconsistency.
+def _save_npz(path: Path, clips: ClipSet) -> None:
+    # Uncompressed: loading ~500 MB of clips is disk-bound, compression would make it CPU-bound.
+    with open(path, "wb") as fh:
+        np.savez(fh, x=clips.x, y=clips.y, meta=np.array(json.dumps(clips.meta)))
 
-    ``key``: the :func:`cache_key` of the inputs, which the sidecar must record; ``expected``:
-    the ``(meta, y)`` the inputs give (:func:`_plans`), which the entry must hold exactly.
-    """
-    info = json.loads(sidecar.read_text())
-    if not isinstance(info, dict):
-        raise ValueError("checksum file is not a JSON object")
-    if info.get("version") != CACHE_VERSION:
-        raise ValueError(f"cache version {info.get('version')!r}, expected {CACHE_VERSION}")
-    if key is not None and info.get("key") != key:
-        raise ValueError("made from other videos, labels or settings")
-    if file_sha256(npz) != info.get("sha256"):
-        raise ValueError("checksum mismatch")
+
+def _load_npz(npz: Path, spec: ClipSpec, expected: tuple[list[dict[str, Any]], np.ndarray]) -> ClipSet:
+    """Load a cache entry, raising ValueError on any inconsistency; ``expected``: the ``(meta, y)``
+    the inputs give (:func:`_plans`), which the entry must hold exactly."""
     with np.load(npz, allow_pickle=False) as data:
         if set(data.files) != {"x", "y", "meta"}:
             raise ValueError(f"unexpected arrays {sorted(data.files)}")
@@ -394,13 +360,18 @@ def _load_npz(
         raise ValueError(f"clip array {x.dtype} {x.shape} does not match the spec")
     if y.ndim != 1 or len(y) != len(x) or not isinstance(meta, list) or len(meta) != len(x):
         raise ValueError("clip, label and provenance counts differ")
-    if expected is not None:
-        want_meta, want_y = expected
-        if meta != want_meta:
-            raise ValueError("clip windows differ from those the labels give")
-        if not np.array_equal(y, want_y):
-            raise ValueError("clip labels differ from those the labels give")
+    if meta != expected[0]:
+        raise ValueError("clip windows differ from those the labels give")
+    if not np.array_equal(y, expected[1]):
+        raise ValueError("clip labels differ from those the labels give")
     return ClipSet(x, y, meta, spec)
+
+
+def _read_entry(npz: Path, recordings, labels, spec: ClipSpec) -> ClipSet:
+    plans = _plans(recordings, labels, spec, warn=False)
+    want_meta = [_meta(rec, label, win) for rec, label, windows in plans for win in windows]
+    want_y = np.array([win.y for _, _, windows in plans for win in windows], np.int64)
+    return _load_npz(npz, spec, (want_meta, want_y))
 
 
 def load_or_build_clips(
@@ -412,13 +383,10 @@ def load_or_build_clips(
 ) -> ClipSet:
     """:func:`build_clips`, cached on disk.
 
-    The cache entry is ``<cache_dir>/clips-<key>.npz`` (uncompressed) plus a ``.json`` sidecar
-    holding its sha256; ``cache_dir`` defaults to ``config.cache_root() / "clips"`` and ``<key>``
-    is the first 24 hex digits of :func:`cache_key`. Both files are written atomically, the
-    sidecar last, so an interrupted write leaves no entry that looks complete. An entry that fails
-    its checksum, was made from other inputs (the sidecar records the full key), holds other
-    windows or labels than the labels give, or cannot be loaded is rebuilt with a
-    :class:`CacheWarning`; a failure to write
+    The cache entry is ``<cache_dir>/clips-<key>.npz`` (uncompressed; ``cache_dir`` defaults to
+    ``config.cache_root() / "clips"``), verified (:mod:`slipsense.cache`) and keyed by
+    :func:`cache_key`'s inputs. An entry that fails its checks, holds other windows or labels than
+    the labels give, or cannot be loaded is rebuilt with a :class:`CacheWarning`; a failure to write
     the cache only warns, since the clips are in hand.
 
     Returns:
@@ -426,38 +394,11 @@ def load_or_build_clips(
     """
     recordings = list(recordings)
     folder = Path(cache_dir) if cache_dir is not None else config.cache_root() / "clips"
-    key = cache_key(recordings, labels, spec)
-    stem = f"clips-{key[:24]}"
-    npz, sidecar = folder / f"{stem}.npz", folder / f"{stem}.json"
-
-    if npz.exists() or sidecar.exists():
-        try:
-            if not sidecar.exists():
-                raise ValueError("checksum file missing")
-            if not npz.exists():
-                raise ValueError("clip file missing")
-            plans = _plans(recordings, labels, spec, warn=False)
-            want_meta = [_meta(rec, label, win) for rec, label, windows in plans for win in windows]
-            want_y = np.array([win.y for _, _, windows in plans for win in windows], np.int64)
-            return _load_npz(npz, sidecar, spec, key, (want_meta, want_y))
-        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, InputError) as exc:
-            warnings.warn(f"{npz}: cache entry unusable ({exc}); rebuilding", CacheWarning, stacklevel=2)
-
-    clips = build_clips(recordings, labels, spec, progress=progress)
-    try:
-        digest = _save_npz(npz, clips)
-        sidecar_info = {
-            "version": CACHE_VERSION,
-            "key": key,
-            "sha256": digest,
-            "n_clips": len(clips),
-            "spec": asdict(spec),
-            "counts": clips.counts(),
-        }
-        write_text(sidecar, json.dumps(sidecar_info, indent=2, sort_keys=True) + "\n")
-    except OSError as exc:
-        warnings.warn(f"{npz}: cannot write the clip cache ({exc}); continuing without it", CacheWarning, stacklevel=2)
-    return clips
+    return Entry(folder, _inputs(recordings, labels, spec), "clip cache", prefix="clips-", suffix=".npz").get(
+        lambda npz: _read_entry(npz, recordings, labels, spec),
+        lambda: build_clips(recordings, labels, spec, progress=progress),
+        _save_npz,
+    )
 
 
 # ---------------------------------------------------------------------------------------- splits

@@ -21,9 +21,7 @@ are 0-based indices into the decoded video):
    (the object shifting) is followed by the complete one within :data:`PARTIAL_WINDOW` frames,
    or leaves a level that still jitters with the arm's motion (:data:`ACTIVE_CHANGE`), whereas
    a gel the object has left keeps at most a still residual deformation. It then combines the
-   cameras: the moment of slip is the last frame before the object loses contact with either
-   sensor (``rule="either"``, the earliest per-camera loss), or, with ``rule="both"``, the last
-   frame before it has lost contact with both (the latest per-camera loss).
+   cameras by its ``rule``: the earliest per-camera loss (``"either"``) or the latest (``"both"``).
 
 Thresholds are in 8-bit intensity units of the block-averaged difference. They were set on the
 shared GelSight Mini recordings, where the rest level of the signal is about 1.5 and contacts
@@ -37,9 +35,8 @@ from typing import Literal, Sequence
 import cv2
 import numpy as np
 
-#: Frames 0 .. STARTUP_FRAMES-1 are a start-up transient of the camera stream (frame 0 differs
-#: strongly, frames 1..~9 form a plateau that ends abruptly), not the scene.
-STARTUP_FRAMES = 10
+from slipsense.sensors.spec import STARTUP_FRAMES
+
 #: Side of the square pixel blocks frames are averaged into before comparing them.
 BLOCK_PX = 8
 #: Fraction of blocks (the most changed ones) averaged into the per-frame score.
@@ -79,9 +76,7 @@ LEVEL_AFTER = 5
 Rule = Literal["either", "both"]
 
 
-# --------------------------------------------------------------------------------------------
-# Contact signal
-# --------------------------------------------------------------------------------------------
+# ------------------------------------------------------------------------------ contact signal
 
 
 def video_blocks(frames: np.ndarray) -> np.ndarray:
@@ -170,9 +165,7 @@ def contact_signal(frames: np.ndarray, reference: Literal["tail", "head"] = "tai
     return _signal(video_blocks(frames).astype(np.float32), reference)[0]
 
 
-# --------------------------------------------------------------------------------------------
-# Contact phase and contact loss in one signal
-# --------------------------------------------------------------------------------------------
+# ---------------------------------------------------- contact phase and contact loss in one signal
 
 
 def _check_signal(signal: np.ndarray) -> np.ndarray:
@@ -190,8 +183,7 @@ def _first_frame(n: int) -> int:
 
 
 def _running_median(s: np.ndarray, width: int = 5) -> np.ndarray:
-    padded = np.pad(s, width // 2, mode="edge")
-    return np.median(np.lib.stride_tricks.sliding_window_view(padded, width), axis=1)
+    return _running_medians(np.pad(s, width // 2, mode="edge"), width)
 
 
 def _floor(s: np.ndarray) -> float:
@@ -233,10 +225,8 @@ def _drops(s: np.ndarray, floor: float, begin: int) -> list[tuple[int, float, fl
     group: list[tuple[int, float, float]] = []
     before_full, after_full = _running_medians(s, LEVEL_BEFORE), _running_medians(s, LEVEL_AFTER)
     for t in range(begin, n - 1):
-        if t - LEVEL_BEFORE + 1 >= begin:
-            pre = float(before_full[t - LEVEL_BEFORE + 1])
-        else:
-            pre = float(np.median(s[begin : t + 1]))
+        first = t - LEVEL_BEFORE + 1
+        pre = float(before_full[first] if first >= begin else np.median(s[begin : t + 1]))
         if t + 2 + LEVEL_AFTER <= n:
             post = float(after_full[t + 2])
         else:
@@ -257,9 +247,7 @@ def _drops(s: np.ndarray, floor: float, begin: int) -> list[tuple[int, float, fl
 def _running_medians(s: np.ndarray, k: int) -> np.ndarray:
     """``out[i]`` = the median of ``s[i : i + k]`` for every whole window (one call instead of one per
     frame: labelling spent a fifth of its time in per-frame medians)."""
-    if len(s) < k:
-        return np.empty(0, s.dtype)
-    return np.median(np.lib.stride_tricks.sliding_window_view(s, k), axis=1)
+    return np.median(np.lib.stride_tricks.sliding_window_view(s, k), axis=1) if len(s) >= k else np.empty(0, s.dtype)
 
 
 def _jitter(s: np.ndarray) -> float:
@@ -361,6 +349,15 @@ def find_moment_of_slip(signals_per_camera: Sequence[np.ndarray], rule: Rule = "
     if len({len(s) for s in signals}) != 1:
         raise ValueError(f"the cameras' signals differ in length: {[len(s) for s in signals]}")
     losses = [m for m in (_camera_loss(s) for s in signals) if m is not None]
-    if not losses:
-        return None
-    return int(min(losses) if rule == "either" else max(losses))
+    return int(min(losses) if rule == "either" else max(losses)) if losses else None
+
+
+def rest_mask(contact: np.ndarray, margin: float = MIN_CONTACT) -> np.ndarray:
+    """``(S, N)`` contact strength per sensor -> ``(N,)`` bool, True where no sensor is touched:
+    every sensor within ``margin`` of its own rest floor (lowest 5-frame median after start-up)."""
+    c = np.asarray(contact, dtype=np.float64)
+    rest = np.ones(c.shape[1], dtype=bool)
+    for s in c:
+        tail = s[STARTUP_FRAMES:] if len(s) > STARTUP_FRAMES + 5 else s
+        rest &= s < float(_running_median(tail).min()) + margin
+    return rest

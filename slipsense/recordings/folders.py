@@ -18,7 +18,7 @@ from typing import Iterable, Literal
 from ..errors import ConfigError, InputError
 from ..sensors.spec import GELSIGHT_MINI, SensorSpec
 from .bags import bag_cameras
-from .frame_folders import find_frame_recordings, is_frame_layout
+from .frame_folders import _dirs as _visible_dirs, find_frame_recordings, is_frame_layout
 from .types import Recording
 from .video import probe_video
 
@@ -47,11 +47,6 @@ def report(path: Path | str | None, problem: str, on_error: str) -> None:
     if on_error == "raise":
         raise InputError(path, problem)
     warnings.warn(f"{path}: {problem}; skipped", SkippedInputWarning, stacklevel=3)
-
-
-def _visible_dirs(folder: Path) -> list[Path]:
-    # Hidden entries (.DS_Store, .git, editor folders) are never data.
-    return sorted(p for p in folder.iterdir() if p.is_dir() and not p.name.startswith("."))
 
 
 def find_recordings(
@@ -93,17 +88,12 @@ def find_recordings(
 
     if is_frame_layout(root):
         found = find_frame_recordings(root, lambda path, problem: report(path, problem, on_error))
-        if not found:
-            raise InputError(root, "no usable recordings found")
-        return found
-    found: list[Recording] = []
-    if not (sensor.experiment_pattern and sensor.camera_glob and sensor.slip_marker):
-        sensor = GELSIGHT_MINI  # a sensor of frame folders (a detector calibrated to one) reads videos as the study laid them out
-    for obj_dir in objects:
-        found.extend(_object_recordings(obj_dir, on_error, sensor))
+    else:
+        if not (sensor.experiment_pattern and sensor.camera_glob and sensor.slip_marker):
+            sensor = GELSIGHT_MINI  # a sensor of frame folders (a detector calibrated to one) reads videos as the study laid them out
+        found = sorted((r for obj in objects for r in _object_recordings(obj, on_error, sensor)), key=lambda r: r.key)
     if not found:
         raise InputError(root, "no usable recordings found")
-    found.sort(key=lambda r: r.key)
     return found
 
 
@@ -158,26 +148,17 @@ def _object_recordings(obj_dir: Path, on_error: str, sensor: SensorSpec = GELSIG
         # say so rather than label the run from the other camera alone without a word.
         for p in sorted(exp_dir.iterdir()):
             if p.is_file() and camera_prefix and p.name.lower().startswith(camera_prefix) and p not in cameras:
-                warnings.warn(
-                    f"{p}: not used (sensor videos are read from files named {camera_glob}, lower case)",
-                    SkippedInputWarning,
-                    stacklevel=3,
-                )
+                why = f"not used (sensor videos are read from files named {camera_glob}, lower case)"
+                warnings.warn(f"{p}: {why}", SkippedInputWarning, stacklevel=3)
         if not cameras:
             report(exp_dir, f"experiment folder holds no {camera_glob} video", on_error)
             continue
         if len(cameras) == 1:
-            warnings.warn(
-                f"{exp_dir}: only one sensor video ({cameras[0].name}); the run is labelled from it alone",
-                IncompleteRunWarning,
-                stacklevel=3,
-            )
+            why = f"only one sensor video ({cameras[0].name}); the run is labelled from it alone"
+            warnings.warn(f"{exp_dir}: {why}", IncompleteRunWarning, stacklevel=3)
         seen[number] = exp_dir
         slipped = (exp_dir / slip_marker).exists()
-        out.extend(
-            Recording(object=obj_dir.name, experiment=number, camera=cam.stem, path=cam, slipped=slipped)
-            for cam in cameras
-        )
+        out.extend(Recording(obj_dir.name, number, cam.stem, cam, slipped) for cam in cameras)
     return out
 
 
@@ -186,18 +167,10 @@ def validate_recordings(
     on_error: OnError = "raise",
     expected_size: tuple[int, int] | None = GELSIGHT_MINI.image_size,
 ) -> list[Recording]:
-    """Probe each video (:func:`~slipsense.recordings.video.probe_video`, a few ms each; at least 2
-    frames).
-
-    Args:
-        recordings: as returned by :func:`find_recordings`.
-        on_error: ``"raise"`` re-raises the first video's InputError; ``"skip"`` warns
-            (:class:`SkippedInputWarning`, naming the file and the problem) and drops it.
-        expected_size: required ``(height, width)`` in pixels, or None for any.
-
-    Returns:
-        The recordings whose videos passed, in the given order.
-    """
+    """The ``recordings`` (from :func:`find_recordings`) whose videos pass a probe
+    (:func:`~slipsense.recordings.video.probe_video`, a few ms each; at least 2 frames, and
+    ``expected_size`` ``(height, width)`` in pixels unless None), in the given order; ``on_error`` as
+    the module notes say (``"skip"``: a video that fails is named in a warning and dropped)."""
     check_on_error(on_error)
     good: list[Recording] = []
     for rec in recordings:

@@ -13,34 +13,30 @@ A 450-frame recording takes tens of milliseconds to decode and its 240 x 320 col
   (:func:`slipsense.recordings.runs.gray_frames`), 0.5 MB at 30 x 40;
 * ``"markers:M"`` / ``"markers:RxC"``: float32 ``(T, M, 3)`` the video's tracked markers as a
   marker model reads them, x, y in mm and the depth proxy: the ``M`` nearest the image centre
-  (:func:`slipsense.sensors.markers.marker_sequences`) or every marker resampled onto an ``R x C``
-  grid (:func:`slipsense.sensors.markers.grid_sequences`); served from
-  the marker track cache (:func:`slipsense.sensors.markers.track_recordings`), which real marker
+  (:func:`slipsense.recordings.markers.marker_sequences`) or every marker resampled onto an ``R x C``
+  grid (:func:`slipsense.recordings.markers.grid_sequences`); served from
+  the marker track cache (:func:`slipsense.recordings.markers.track_recordings`), which real marker
   training windows are cut from too: a replay and those windows see the same numbers.
 
 :func:`video_products` returns the ones asked for; whatever is missing is computed from a single
-decode of the video and written under ``<cache root>/frames/`` as ``.npy`` (read back
-memory-mapped) with a ``.json`` beside it holding its sha256 and the video's identity (resolved
-path, size, mtime). An entry that fails its checksum or names another video is computed again, with
-a :class:`~slipsense.errors.CacheWarning`; a cache that cannot be written is a warning too, never an
-error.
+decode of the video and kept under ``<cache root>/frames/`` as a verified ``.npy`` entry
+(:mod:`slipsense.cache`: keyed by the product and the video's resolved path, size and mtime; read
+back memory-mapped).
 """
 
 from __future__ import annotations
 
-import hashlib
-import json
 import re
-import warnings
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 
-from .. import atomic, config
-from ..errors import CacheWarning, InputError
+from .. import config
+from ..cache import Entry
+from ..errors import InputError
 from ..parallel import run_jobs
-from ..sensors.markers import marker_clouds, track_recordings
+from .markers import marker_clouds, track_recordings
 from .contact import signal_of_blocks, video_blocks
 from .frames import source_stat
 from .video import gray_frames
@@ -57,9 +53,9 @@ def _identity(path: Path) -> dict:
     return {"path": str(path.resolve()), "bytes": size, "mtime_ns": mtime}
 
 
-def _entry(path: Path, product: str) -> Path:
-    key = json.dumps([FRAMES_VERSION, product, _identity(path)], sort_keys=True)
-    return config.cache_root() / "frames" / f"{hashlib.sha256(key.encode()).hexdigest()[:32]}.npy"
+def _entry(path: Path, product: str) -> Entry:
+    inputs = [FRAMES_VERSION, product, _identity(path)]
+    return Entry(config.cache_root() / "frames", inputs, "frame cache", suffix=".npy")
 
 
 def _check_product(product: str) -> None:
@@ -88,33 +84,6 @@ def _compute(video: np.ndarray, product: str, made: dict) -> np.ndarray:
     return gray_frames(video, (h, w))
 
 
-def _load(entry: Path, identity: dict) -> np.ndarray | None:
-    """The cached array (memory-mapped) when whole and made from this video, else None."""
-    side = entry.with_suffix(".json")
-    if not entry.exists() or not side.exists():
-        return None
-    try:
-        meta = json.loads(side.read_text())
-        arr = np.load(entry, mmap_mode="r", allow_pickle=False)
-        ok = meta.get("video") == identity and meta.get("sha256") == hashlib.sha256(memoryview(arr)).hexdigest()
-    except (OSError, ValueError, TypeError):
-        ok = False
-    if not ok:
-        warnings.warn(f"{entry}: frame cache entry failed its checks; decoding the video again", CacheWarning, 2)
-        return None
-    return arr
-
-
-def _store(entry: Path, identity: dict, arr: np.ndarray) -> None:
-    arr = np.ascontiguousarray(arr)
-    try:
-        atomic.write_with(entry, lambda tmp: np.save(tmp, arr, allow_pickle=False))
-        meta = {"video": identity, "sha256": hashlib.sha256(memoryview(arr)).hexdigest(), "shape": list(arr.shape)}
-        atomic.write_text(entry.with_suffix(".json"), json.dumps(meta))  # written last: marks the entry whole
-    except OSError as exc:
-        warnings.warn(f"{entry}: cannot write the frame cache ({exc}); continuing without it", CacheWarning, 2)
-
-
 def video_products(path: str | Path, products: Sequence[str], min_frames: int = 2) -> dict[str, np.ndarray]:
     """``{product: array}`` of one video (see the module notes), decoding it at most once for the
     frame products (tracked markers come from the marker track cache, which decodes on its own).
@@ -130,7 +99,7 @@ def video_products(path: str | Path, products: Sequence[str], min_frames: int = 
     for p in products:
         _check_product(p)
     try:
-        identity = _identity(path)
+        entries = {p: _entry(path, p) for p in products if not _MARKERS.match(p)}
     except OSError as exc:
         read_video(path, expected_size=None, min_frames=min_frames)  # raises its own one-line error
         raise InputError(path, f"cannot read ({exc.strerror or exc})") from None
@@ -139,7 +108,7 @@ def video_products(path: str | Path, products: Sequence[str], min_frames: int = 
         if _MARKERS.match(p):
             out[p] = _marker_clouds(path, p)
             continue
-        arr = _load(_entry(path, p), identity)
+        arr = entries[p].load(lambda f: np.load(f, mmap_mode="r", allow_pickle=False))
         if arr is not None:
             out[p] = arr
     missing = [p for p in products if p not in out]
@@ -147,8 +116,8 @@ def video_products(path: str | Path, products: Sequence[str], min_frames: int = 
         video = read_video(path, expected_size=None, min_frames=min_frames)
         made: dict = {}
         for p in missing:
-            out[p] = _compute(video, p, made)
-            _store(_entry(path, p), identity, out[p])
+            out[p] = arr = np.ascontiguousarray(_compute(video, p, made))
+            entries[p].save(lambda tmp: np.save(tmp, arr, allow_pickle=False))
     if len(next(iter(out.values()))) < min_frames:
         raise InputError(path, f"only {len(next(iter(out.values())))} frame(s), need at least {min_frames}")
     return out
@@ -156,7 +125,7 @@ def video_products(path: str | Path, products: Sequence[str], min_frames: int = 
 
 def _is_cached(path: Path, products: Sequence[str]) -> bool:
     try:
-        return all(_entry(path, p).with_suffix(".json").exists() for p in products)
+        return all(_entry(path, p).check.exists() for p in products)
     except OSError:
         return False
 

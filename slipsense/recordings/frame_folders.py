@@ -55,6 +55,7 @@ HELD_WORDS = ("ok", "success")
 
 
 def _dirs(folder: Path) -> list[Path]:
+    # Hidden entries (.DS_Store, .git, editor folders) are never data.
     return sorted(p for p in folder.iterdir() if p.is_dir() and not p.name.startswith("."))
 
 
@@ -210,14 +211,12 @@ def find_frame_recordings(root: str | Path, report: Report) -> list[Recording]:
     :func:`~slipsense.recordings.folders.validate_recordings`). ``report(path, problem)`` raises or
     warns (:func:`slipsense.recordings.folders.find_recordings` passes its ``on_error`` rule)."""
     root = Path(root)
-    found: list[Recording] = []
-    objects = _dirs(root)
-    for result in sorted(root.glob(f"*{RESULT_SUFFIX}")):
-        if not (root / result.name.removesuffix(RESULT_SUFFIX)).is_dir():
-            report(result, f"names object {result.name.removesuffix(RESULT_SUFFIX)}, which has no folder")
-    with_results = any(root.glob(f"*{RESULT_SUFFIX}"))
-    for obj in objects:
-        found.extend(_object_grasps(root, obj, report, with_results))
+    results = sorted(root.glob(f"*{RESULT_SUFFIX}"))
+    for result in results:
+        name = result.name.removesuffix(RESULT_SUFFIX)
+        if not (root / name).is_dir():
+            report(result, f"names object {name}, which has no folder")
+    found = [r for obj in _dirs(root) for r in _object_grasps(root, obj, report, bool(results))]
     return _same_cameras(sorted(found, key=lambda r: r.key), report)
 
 

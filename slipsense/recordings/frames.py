@@ -103,46 +103,47 @@ def _read_image(path: Path) -> np.ndarray:
     return frame
 
 
-def _check_size(path: Path, frame: np.ndarray, first: tuple[int, int], first_name: str) -> None:
-    if frame.shape[:2] != first:
+def _frame_like(path: Path, first: np.ndarray, first_name: str) -> np.ndarray:
+    """The frame at ``path``; InputError unless it is the size of ``first``, the frame ``first_name``."""
+    frame = _read_image(path)
+    if frame.shape[:2] != first.shape[:2]:
         raise InputError(
             path,
-            f"frames of mixed sizes: {first_name} is {first[1]}x{first[0]}, this one "
+            f"frames of mixed sizes: {first_name} is {first.shape[1]}x{first.shape[0]}, this one "
             f"{frame.shape[1]}x{frame.shape[0]} (width x height)",
         )
+    return frame
+
+
+def check_size(path: Path, height: int, width: int, expected_size: tuple[int, int] | None) -> None:
+    """InputError naming ``path`` unless its frames are ``expected_size`` ``(h, w)`` (None: any size)."""
+    if expected_size is not None and (height, width) != tuple(expected_size):
+        eh, ew = expected_size
+        raise InputError(path, f"frames are {width}x{height} pixels (width x height), expected {ew}x{eh}")
 
 
 def _first_frame(path: Path, expected_size: tuple[int, int] | None) -> np.ndarray:
     frame = _read_image(path)
-    if expected_size is not None and frame.shape[:2] != tuple(expected_size):
-        h, w = expected_size
-        raise InputError(
-            path, f"frames are {frame.shape[1]}x{frame.shape[0]} pixels (width x height), expected {w}x{h}"
-        )
+    check_size(path, *frame.shape[:2], expected_size)
     return frame
 
 
 def read_frames(folder: str | Path, expected_size: tuple[int, int] | None = None, min_frames: int = 2) -> np.ndarray:
     """Every frame of a frame folder -> uint8 BGR ``(T, H, W, 3)``; InputError naming the file for a
     missing, undecodable or differently sized frame, or a wrong ``expected_size`` ``(h, w)``."""
-    folder = Path(folder)
-    files = _checked_files(folder, min_frames)
+    files = _checked_files(Path(folder), min_frames)
     first = _first_frame(files[0], expected_size)
-    size = first.shape[:2]
     out = np.empty((len(files),) + first.shape, np.uint8)
     out[0] = first
     for i, p in enumerate(files[1:], 1):
-        frame = _read_image(p)
-        _check_size(p, frame, size, files[0].name)
-        out[i] = frame
+        out[i] = _frame_like(p, first, files[0].name)
     return out
 
 
 def probe_frames(folder: str | Path, expected_size: tuple[int, int] | None = None, min_frames: int = 2):
     """The cheap check of a frame folder (the numbering, the first and last frames decode at one
     size) -> ``(n_frames, height, width)``."""
-    folder = Path(folder)
-    files = _checked_files(folder, min_frames)
+    files = _checked_files(Path(folder), min_frames)
     first = _first_frame(files[0], expected_size)
-    _check_size(files[-1], _read_image(files[-1]), first.shape[:2], files[0].name)
+    _frame_like(files[-1], first, files[0].name)
     return len(files), int(first.shape[0]), int(first.shape[1])

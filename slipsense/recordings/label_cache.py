@@ -1,19 +1,18 @@
-"""Cache of automatic labels, one JSON file per run, checked before use (:func:`check_run_labels`).
+"""Cache of automatic labels, one verified JSON entry per run (:mod:`slipsense.cache`), whose labels
+are checked before use too (:func:`check_run_labels`).
 
 Used by :func:`slipsense.recordings.labels.label_recordings`.
 """
 
 from __future__ import annotations
 
-import hashlib
 import json
-import warnings
 from dataclasses import asdict
 from pathlib import Path
 from typing import Sequence
 
-from .. import atomic, config
-from ..errors import CacheWarning, InputError
+from .. import config
+from ..cache import Entry
 from .contact import Rule
 from .frames import source_stat
 from .types import Recording, VideoLabel
@@ -21,9 +20,6 @@ from .video import TRUNCATION_TOLERANCE, frame_count
 
 #: Bump whenever the automatic labels (contact.py, labels.py) could change; it keys the label cache.
 ALGORITHM_VERSION = "labels-1"
-
-#: Layout of a label cache entry; bumped when it changes (old entries are then not even looked at).
-CACHE_FORMAT = 2
 
 
 def _inputs(recs: Sequence[Recording], rule: Rule) -> list:
@@ -45,24 +41,13 @@ def _inputs(recs: Sequence[Recording], rule: Rule) -> list:
     return out
 
 
-def _cache_file(recs: Sequence[Recording], rule: Rule) -> Path:
-    """Cache path for one run: a hash of the cache format and the run's inputs (:func:`_inputs`)."""
-    payload = json.dumps([CACHE_FORMAT, _inputs(recs, rule)], sort_keys=True)
-    digest = hashlib.sha256(payload.encode()).hexdigest()[:32]
-    return config.cache_root() / "labels" / f"{digest}.json"
+def cache_entry(recs: Sequence[Recording], rule: Rule) -> Entry:
+    """The run's entry: ``<cache_root>/labels/<key>.json``, keyed by its inputs (:func:`_inputs`)."""
+    return Entry(config.cache_root() / "labels", _inputs(recs, rule), "label cache", suffix=".json")
 
 
-def _sidecar(path: Path) -> Path:
-    """Beside each cached ``<hash>.json`` (the labels, a list of rows): ``<hash>.check``, its
-    sha256 and the inputs it was made from, written last."""
-    return path.with_suffix(".check")
-
-
-def _write_cache(path: Path, recs: Sequence[Recording], rule: Rule, labels: Sequence[VideoLabel]) -> None:
-    data = json.dumps([asdict(l) for l in labels], indent=1).encode("utf-8")
-    atomic.write_bytes(path, data)
-    check = {"format": CACHE_FORMAT, "sha256": hashlib.sha256(data).hexdigest(), "inputs": _inputs(recs, rule)}
-    atomic.write_text(_sidecar(path), json.dumps(check, indent=1))
+def save_labels(entry: Entry, labels: Sequence[VideoLabel]) -> None:
+    entry.save(lambda tmp: tmp.write_text(json.dumps([asdict(l) for l in labels], indent=1), encoding="utf-8"))
 
 
 def _is_int(v) -> bool:
@@ -102,31 +87,15 @@ def check_run_labels(labels: Sequence[VideoLabel], recs: Sequence[Recording]) ->
             raise ValueError(f"{l.camera}: {n} frames but the video states {stated}")
 
 
-def _load_cached(path: Path, recs: Sequence[Recording], rule: Rule = "either") -> list[VideoLabel] | None:
-    """Labels cached for this run, or None when absent; an entry that fails its checksum, was made
-    from other inputs or holds impossible labels is reported (:class:`CacheWarning`) and None
-    returned, so the run is labelled again."""
-    if not path.exists() and not _sidecar(path).exists():
-        return None
-    try:
-        data = path.read_bytes()
-        check = json.loads(_sidecar(path).read_text(encoding="utf-8"))
-        if not isinstance(check, dict) or check.get("format") != CACHE_FORMAT:
-            raise ValueError(f"check file format is not {CACHE_FORMAT}")
-        if check.get("sha256") != hashlib.sha256(data).hexdigest():
-            raise ValueError("checksum mismatch")
-        if check.get("inputs") != _inputs(recs, rule):
-            raise ValueError("made from other videos or settings")
-        rows = json.loads(data.decode("utf-8"))
+def load_labels(entry: Entry, recs: Sequence[Recording]) -> list[VideoLabel] | None:
+    """Labels cached for this run when its entry passes its checks and holds possible labels."""
+
+    def read(path: Path) -> list[VideoLabel]:
+        rows = json.loads(path.read_text(encoding="utf-8"))
         if not isinstance(rows, list) or not all(isinstance(r, dict) for r in rows):
             raise ValueError("labels are not a list of records")
         labels = [VideoLabel(**row) for row in rows]
         check_run_labels(labels, recs)
-    except (OSError, ValueError, TypeError, InputError) as exc:  # FileNotFoundError: half an entry
-        return _unusable(path, str(exc))
-    return labels
+        return labels
 
-
-def _unusable(path: Path, why: str) -> None:
-    warnings.warn(f"{path}: label cache entry unusable ({why}); relabelling", CacheWarning, stacklevel=3)
-    return None
+    return entry.load(read)

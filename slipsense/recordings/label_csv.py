@@ -1,5 +1,5 @@
-"""Label CSV files and hand-made overrides: :func:`write_labels_csv` / :func:`read_labels_csv`,
-:func:`read_overrides_csv` and :func:`apply_overrides`.
+"""Label CSV files and hand-made overrides: :func:`write_labels_csv`, :func:`read_overrides_csv` and
+:func:`apply_overrides`.
 """
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ from __future__ import annotations
 import csv
 import io
 import re
-from dataclasses import asdict, replace
+from dataclasses import asdict, fields, replace
 from pathlib import Path
 from typing import Iterable, Mapping, Sequence
 
@@ -20,18 +20,9 @@ EXCLUDE = "exclude"
 
 Key = tuple[str, int, str]
 
-#: Columns of a labels CSV, in order.
-LABEL_COLUMNS = (
-    "object",
-    "experiment",
-    "camera",
-    "n_frames",
-    "slipped",
-    "moment_of_slip",
-    "contact_start",
-    "contact_end",
-    "source",
-)
+#: Columns of a labels CSV, in order: the fields of a VideoLabel (object, experiment, camera, n_frames,
+#: slipped, moment_of_slip, contact_start, contact_end, source).
+LABEL_COLUMNS = tuple(f.name for f in fields(VideoLabel))
 
 
 def apply_overrides(
@@ -67,25 +58,19 @@ def apply_overrides(
         for key in keys:
             label = out[key]
             if moment == EXCLUDE:
-                out[key] = replace(label, moment_of_slip=None, contact_end=label.contact_start, source="override")
-                continue
-            if moment is None:
-                out[key] = replace(label, slipped=False, moment_of_slip=None, source="override")
-                continue
-            if not (0 <= moment < label.n_frames):
+                change = dict(moment_of_slip=None, contact_end=label.contact_start)
+            elif moment is None:
+                change = dict(slipped=False, moment_of_slip=None)
+            elif 0 <= moment < label.n_frames:
+                m = int(moment)
+                change = dict(slipped=True, moment_of_slip=m, contact_start=min(label.contact_start, m), contact_end=m)
+            else:
                 raise InputError(
                     path,
                     f"{line}override for {obj} experiment {exp} {key[2]}: moment {moment} is outside "
                     f"0..{label.n_frames - 1} (the video has {label.n_frames} frames)",
                 )
-            out[key] = replace(
-                label,
-                slipped=True,
-                moment_of_slip=int(moment),
-                contact_start=min(label.contact_start, int(moment)),
-                contact_end=int(moment),
-                source="override",
-            )
+            out[key] = replace(label, **change, source="override")
     return out
 
 
@@ -118,11 +103,6 @@ class Overrides(dict):
         super().__init__(items)
         self.path = path
         self.lines = dict(lines or {})
-
-    def without_runs(self, runs) -> "Overrides":
-        """The rows of runs other than ``runs`` (``{(object, experiment)}``), lines kept."""
-        runs = set(runs)
-        return Overrides({k: v for k, v in self.items() if k[:2] not in runs}, self.path, self.lines)
 
 
 def _where(overrides, key) -> tuple[Path | None, str]:
@@ -236,38 +216,4 @@ def read_overrides_csv(
         seen[key] = line
         out[key] = moment
         out.lines[key] = line
-    return out
-
-
-def read_labels_csv(path: str | Path) -> dict[Key, VideoLabel]:
-    """Read a file written by :func:`write_labels_csv` back into ``{key: VideoLabel}``.
-
-    Raises:
-        InputError: naming the file and line, for missing columns or malformed values.
-    """
-    path = Path(path)
-    header, rows = _open_csv(path)
-    missing = [c for c in LABEL_COLUMNS if c not in header]
-    if missing:
-        raise InputError(path, f"line 1: missing column(s) {', '.join(missing)}")
-    out: dict[Key, VideoLabel] = {}
-    for line, row in rows:
-        slipped = row["slipped"].lower()
-        if slipped not in ("true", "false"):
-            raise InputError(path, f"line {line}: slipped must be true or false, got {row['slipped']!r}")
-        moment = row["moment_of_slip"]
-        label = VideoLabel(
-            object=row["object"],
-            experiment=_parse_int(path, line, "experiment", row["experiment"]),
-            camera=row["camera"],
-            n_frames=_parse_int(path, line, "n_frames", row["n_frames"], lo=1),
-            slipped=slipped == "true",
-            moment_of_slip=None if moment == "" else _parse_int(path, line, "moment_of_slip", moment),
-            contact_start=_parse_int(path, line, "contact_start", row["contact_start"]),
-            contact_end=_parse_int(path, line, "contact_end", row["contact_end"]),
-            source=row["source"] or "auto",
-        )
-        if label.key in out:
-            raise InputError(path, f"line {line}: repeats {label.object} experiment {label.experiment} {label.camera}")
-        out[label.key] = label
     return out

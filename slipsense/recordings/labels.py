@@ -2,32 +2,23 @@
 
 The recordings carry no frame index of the slip, so we recover it from the video: while an
 object presses on the gel, the image differs from the gel at rest; when the object lets go, that
-difference collapses within one or two frames.
-
-Pipeline (all frame indices are 0-based indices into the decoded video):
-
-1. :mod:`slipsense.recordings.contact` turns each video into a contact signal
-   (:func:`contact_signal`), finds its main contact phase (:func:`contact_phase`) and, from the
-   signals of all cameras of a run, the moment of slip (:func:`find_moment_of_slip`).
-2. :func:`label_run` / :func:`label_recordings` turn recordings into :class:`VideoLabel`\\ s
-   (for runs that did not slip and stop while still holding the object, the rest reference is
-   taken from the start), cache them, and apply hand-made overrides read by
-   :func:`read_overrides_csv`; :func:`write_labels_csv` writes them out.
-
-Labels are cached by :mod:`slipsense.recordings.label_cache`; CSV files and overrides are
-handled by :mod:`slipsense.recordings.label_csv`.
+difference collapses within one or two frames. :mod:`slipsense.recordings.contact` finds both in
+each video's contact signal (frame indices 0-based into the decoded video); :func:`label_run` and
+:func:`label_recordings` turn recordings into :class:`VideoLabel`\\ s, cached by
+:mod:`slipsense.recordings.label_cache`, with the hand-made overrides of
+:mod:`slipsense.recordings.label_csv` applied.
 """
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import replace
 from pathlib import Path
 from typing import Iterable, Mapping, Sequence
 
 import numpy as np
 
-from ..errors import CacheWarning, InputError
+from ..cache import Entry
+from ..errors import InputError
 from ..parallel import run_jobs
 from .contact import (
     MIN_CONTACT_FRAMES,
@@ -38,7 +29,7 @@ from .contact import (
     find_moment_of_slip,
 )
 from .frame_cache import video_products
-from .label_cache import _cache_file, _load_cached, _write_cache
+from .label_cache import cache_entry, load_labels, save_labels
 from .label_csv import (
     Key,
     apply_overrides,
@@ -62,25 +53,24 @@ STILL_END_FRAMES = 24
 def _run_labels(recordings: Sequence[Recording], signals: Sequence[np.ndarray], rule: Rule) -> list[VideoLabel]:
     """VideoLabels for one run from its recordings and their tail-referenced signals."""
     n = len(signals[0])
-    slipped = any(r.slipped for r in recordings)
+    if not any(r.slipped for r in recordings):
+        return [
+            VideoLabel(r.object, r.experiment, r.camera, n, False, None, *contact_phase(s))
+            for r, s in zip(recordings, signals)
+        ]
+    moment = find_moment_of_slip(signals, rule=rule)
+    starts = [contact_phase(s)[0] for s in signals]
+    first = min(_first_frame(n), n - 1)
     out: list[VideoLabel] = []
-    if slipped:
-        moment = find_moment_of_slip(signals, rule=rule)
-        starts = [contact_phase(s)[0] for s in signals]
-        first = min(_first_frame(n), n - 1)
-        for rec, s, own in zip(recordings, signals, starts):
-            if moment is None:
-                # No moment: the clips code skips slipped runs without one; keep a valid phase.
-                start, end = contact_phase(s)
-            else:
-                usable = [x for x in starts if x <= moment]
-                start = own if own <= moment else (min(usable) if usable else min(first, moment))
-                end = moment
-            out.append(VideoLabel(rec.object, rec.experiment, rec.camera, n, True, moment, int(start), int(end)))
-        return out
-    for rec, s in zip(recordings, signals):
-        start, end = contact_phase(s)
-        out.append(VideoLabel(rec.object, rec.experiment, rec.camera, n, False, None, start, end))
+    for rec, s, own in zip(recordings, signals, starts):
+        if moment is None:
+            # No moment: the clips code skips slipped runs without one; keep a valid phase.
+            start, end = contact_phase(s)
+        else:
+            usable = [x for x in starts if x <= moment]
+            start = own if own <= moment else (min(usable) if usable else min(first, moment))
+            end = moment
+        out.append(VideoLabel(rec.object, rec.experiment, rec.camera, n, True, moment, int(start), int(end)))
     return out
 
 
@@ -143,12 +133,9 @@ def label_run(recordings_of_one_experiment: Sequence[Recording], rule: Rule = "e
         raise ValueError("label_run takes the recordings of one (object, experiment)")
     if len({r.camera for r in recs}) != len(recs):
         raise InputError(recs[0].path.parent, "two recordings of this run have the same camera name")
-    blocks = []
-    for r in recs:
-        # Keep only the block averages: the decoded video is ~100 MB, its blocks ~1.6 MB. The grey
-        # frames grasp detectors read come from the same decode, so training decodes nothing again.
-        products = video_products(r.path, LABEL_PRODUCTS, min_frames=2)
-        blocks.append(products["blocks"].astype(np.float32))
+    # Keep only the block averages: the decoded video is ~100 MB, its blocks ~1.6 MB. The grey
+    # frames grasp detectors read come from the same decode, so training decodes nothing again.
+    blocks = [video_products(r.path, LABEL_PRODUCTS, min_frames=2)["blocks"].astype(np.float32) for r in recs]
     counts = {r.camera: len(b) for r, b in zip(recs, blocks)}
     if len(set(counts.values())) != 1:
         raise InputError(recs[0].path.parent, f"the cameras of this run differ in frame count: {counts}")
@@ -179,7 +166,6 @@ def _label_runs(runs: list[list[Recording]], rule: Rule, progress: bool, workers
     several runs (decoding and the contact signals are most of a fresh labelling's time)."""
     if len(runs) < 4 or workers == 1:  # fewer runs: starting workers would cost more than it saves
         return [label_run(recs, rule=rule) for recs in runs]
-
     return run_jobs(_label_one, runs, rule, workers, progress=progress, desc="labelling runs")
 
 
@@ -192,11 +178,10 @@ def label_recordings(
 ) -> dict[Key, VideoLabel]:
     """Label all recordings, run by run, then apply hand-made overrides.
 
-    Automatic labels are cached under ``<cache_root>/labels``, one JSON file per run (and a
-    ``.check`` file beside it), keyed by algorithm version, rule and each video's path, size and
-    mtime. An entry is used only when its sha256 matches, the inputs its ``.check`` records are this
-    run's, and its labels are possible for the videos (:func:`check_run_labels`); otherwise the run
-    is labelled again with a :class:`~slipsense.errors.CacheWarning`.
+    Automatic labels are cached under ``<cache_root>/labels``, one verified JSON entry per run
+    (:mod:`slipsense.cache`) keyed by algorithm version, rule and each video's path, size and mtime,
+    used only when its labels are possible for the videos too (:func:`check_run_labels`); otherwise
+    the run is labelled again with a :class:`~slipsense.errors.CacheWarning`.
 
     Args:
         recordings: e.g. from :func:`slipsense.recordings.folders.find_recordings`; grouped by
@@ -221,23 +206,16 @@ def label_recordings(
     if isinstance(overrides, (str, Path)):
         overrides = read_overrides_csv(overrides, known=known)
     labels: dict[Key, VideoLabel] = {}
-    todo: list[tuple[list[Recording], Path]] = []  # runs the cache cannot answer
+    todo: list[tuple[list[Recording], Entry]] = []  # runs the cache cannot answer
     for recs in runs.values():
-        cached_path = _cache_file(recs, rule)
-        run_labels = _load_cached(cached_path, recs, rule)
+        entry = cache_entry(recs, rule)
+        run_labels = load_labels(entry, recs)
         if run_labels is None:
-            todo.append((recs, cached_path))
+            todo.append((recs, entry))
         else:
             labels.update((label.key, label) for label in run_labels)
-    for (recs, cached_path), run_labels in zip(todo, _label_runs([r for r, _ in todo], rule, progress, workers)):
-        try:
-            _write_cache(cached_path, recs, rule, run_labels)
-        except OSError as exc:
-            warnings.warn(
-                f"{cached_path}: cannot write the label cache ({exc}); continuing without it",
-                CacheWarning,
-                stacklevel=2,
-            )
+    for (recs, entry), run_labels in zip(todo, _label_runs([r for r, _ in todo], rule, progress, workers)):
+        save_labels(entry, run_labels)
         labels.update((label.key, label) for label in run_labels)
     if overrides:
         labels = apply_overrides(labels, overrides)

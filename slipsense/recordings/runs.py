@@ -13,7 +13,6 @@ and streaming see the same pixels.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, replace
 from typing import Iterable, Mapping, Sequence
 
@@ -60,12 +59,9 @@ class GraspRun:
 
 def _decode_run(recs: Sequence[Recording], size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
     """The run's grey frames ``(S, N, h, w)`` and contact signals ``(S, N)``."""
-    grays, contacts = [], []
     gray = f"gray:{size[0]}x{size[1]}"
-    for r in recs:
-        products = video_products(r.path, ["contact", gray], min_frames=2)
-        grays.append(products[gray])
-        contacts.append(products["contact"])
+    products = [video_products(r.path, ["contact", gray], min_frames=2) for r in recs]
+    grays, contacts = [p[gray] for p in products], [p["contact"] for p in products]
     counts = {r.camera: len(g) for r, g in zip(recs, grays)}
     if len(set(counts.values())) != 1:
         raise InputError(recs[0].path.parent, f"the cameras of this run differ in frame count: {counts}")
@@ -125,7 +121,3 @@ def runs_summary(runs: Sequence[GraspRun]) -> dict[str, int]:
         "held": sum(not r.slipped for r in judged),
         **({"also_runs": len(runs) - len(judged)} if len(judged) < len(runs) else {}),
     }
-
-
-def describe(run: GraspRun) -> str:
-    return json.dumps({"object": run.object, "experiment": run.experiment, "n_frames": run.n_frames})

@@ -31,7 +31,7 @@ import numpy as np  # noqa: E402
 
 from ..errors import InputError  # noqa: E402
 from ..sensors.spec import GELSIGHT_MINI  # noqa: E402
-from .frames import frame_files, is_frame_folder, probe_frames, read_frames  # noqa: E402
+from .frames import check_size, frame_files, is_frame_folder, probe_frames, read_frames  # noqa: E402
 
 #: Largest accepted gap between the frame count the container states and the frames decoded.
 TRUNCATION_TOLERANCE = 1
@@ -126,9 +126,7 @@ def _fourcc(cap: cv2.VideoCapture) -> str:
 def _container_count(cap: cv2.VideoCapture) -> int | None:
     """Frame count the container states, or None when it states none we can trust."""
     count = cap.get(cv2.CAP_PROP_FRAME_COUNT)
-    if not np.isfinite(count) or count < 0 or count > _MAX_TRUSTED_COUNT:
-        return None
-    return int(round(count))
+    return int(round(count)) if np.isfinite(count) and 0 <= count <= _MAX_TRUSTED_COUNT else None
 
 
 def _open_checked(path: Path) -> tuple[cv2.VideoCapture, int | None, int, int, float, str]:
@@ -154,32 +152,18 @@ def _open_checked(path: Path) -> tuple[cv2.VideoCapture, int | None, int, int, f
 
 def _short(exc: BaseException) -> str:
     """One line of an OpenCV error, which otherwise spans several with source locations."""
-    text = " ".join(str(exc).split())
-    return text[:200]
-
-
-def _check_size(path: Path, height: int, width: int, expected_size: tuple[int, int] | None) -> None:
-    if expected_size is None:
-        return
-    eh, ew = expected_size
-    if (height, width) != (eh, ew):
-        raise InputError(path, f"frames are {width}x{height} pixels (width x height), expected {ew}x{eh}")
+    return " ".join(str(exc).split())[:200]
 
 
 def _check_args(expected_size: tuple[int, int] | None, min_frames: int) -> None:
-    if isinstance(min_frames, bool) or not isinstance(min_frames, (int, np.integer)) or min_frames < 1:
+    def positive(v) -> bool:
+        return isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v > 0
+
+    if not positive(min_frames):
         raise InputError(None, f"min_frames must be a positive integer, got {min_frames!r}")
-    if expected_size is None:
-        return
-    ok = (
-        isinstance(expected_size, (tuple, list))
-        and len(expected_size) == 2
-        and all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v > 0 for v in expected_size)
-    )
-    if not ok:
-        raise InputError(
-            None, f"expected_size must be (height, width) positive integers or None, got {expected_size!r}"
-        )
+    size = expected_size
+    if size is not None and not (isinstance(size, (tuple, list)) and len(size) == 2 and all(map(positive, size))):
+        raise InputError(None, f"expected_size must be (height, width) positive integers or None, got {size!r}")
 
 
 def read_video(
@@ -213,13 +197,13 @@ def read_video(
     try:
         if width > 0 and height > 0:
             # Cheap early refusal; the decoded frames are checked again below.
-            _check_size(path, height, width, expected_size)
+            check_size(path, height, width, expected_size)
         frames = _decode_all(cap, path, count, height, width)
     finally:
         cap.release()
 
     check_frame_count(path, count, frames.shape[0], min_frames)
-    _check_size(path, frames.shape[1], frames.shape[2], expected_size)
+    check_size(path, frames.shape[1], frames.shape[2], expected_size)
     return frames
 
 
@@ -239,18 +223,6 @@ def check_frame_count(path: str | Path, stated: int | None, decoded: int, min_fr
     if decoded < min_frames:
         raise InputError(path, f"only {decoded} frame{'s' if decoded != 1 else ''}, need at least {min_frames}")
     return decoded
-
-
-def decoded_frame_count(path: str | Path) -> int:
-    """How many frames of ``path`` decode, read one after the other from the start exactly as
-    :func:`read_video` reads them (0 where none does). Decodes the whole video: :func:`probe_video`
-    calls it only where its cheap check of the last frame failed."""
-    path = Path(path)
-    cap, count, height, width, _fps, _tag = _open_checked(path)
-    try:
-        return int(_decode_all(cap, path, count, height, width).shape[0])
-    finally:
-        cap.release()
 
 
 def _decode_all(cap: cv2.VideoCapture, path: Path, count: int | None, height: int, width: int) -> np.ndarray:
@@ -303,9 +275,7 @@ def _decode_all(cap: cv2.VideoCapture, path: Path, count: int | None, height: in
     if block is not None:
         head = block[: min(i, prealloc)]
         return head if not extra else np.concatenate([head, np.stack(extra)])
-    if not extra:
-        return np.empty((0, max(height, 0), max(width, 0), 3), dtype=np.uint8)
-    return np.stack(extra)
+    return np.stack(extra) if extra else np.empty((0, max(height, 0), max(width, 0), 3), dtype=np.uint8)
 
 
 def _read_at(cap: cv2.VideoCapture, index: int) -> tuple[bool, np.ndarray | None]:
@@ -371,7 +341,7 @@ def probe_video(
         if first.ndim != 3 or first.shape[2] != 3:
             raise InputError(path, f"frame 0 is not 3-channel colour (shape {first.shape})")
         height, width = first.shape[:2]
-        _check_size(path, height, width, expected_size)
+        check_size(path, height, width, expected_size)
         if count is None or count == 0:
             # No trustworthy header count: count by decoding, the only honest answer.
             count = 1
@@ -390,10 +360,12 @@ def probe_video(
                 if ok:
                     break
             if not ok:
-                # the frames that do decode are counted as read_video counts them, and judged by the
-                # same check: every command reports a truncated file with the same numbers
+                # the frames that do decode are counted as read_video counts them (all, in order from
+                # the start), and judged by the same check: every command reports a truncated file
+                # with the same numbers
                 cap.release()
-                count = check_frame_count(path, count, decoded_frame_count(path), min_frames)
+                cap = _open_checked(path)[0]
+                count = check_frame_count(path, count, len(_decode_all(cap, path, count, height, width)), min_frames)
                 frame = first  # seeking failed where decoding in order did not: the frames were checked
             if frame.shape != first.shape:
                 raise InputError(

@@ -1,6 +1,6 @@
 """Marker detection on one marker-gel tactile frame: :func:`detect_markers` and :func:`order_markers`.
 
-Step 1 of the pipeline described in :mod:`slipsense.sensors.markers`. The blob search
+Step 1 of the pipeline described in :mod:`slipsense.recordings.markers`. The blob search
 (:func:`_detect`) is shared with :mod:`slipsense.sensors.marker_tracking`, which uses it to
 re-acquire lost markers.
 """
@@ -60,15 +60,11 @@ def _median_nn_distance(points: np.ndarray) -> float:
     return float(np.median(d.min(axis=1)))
 
 
-def _diameter_from_areas(areas: np.ndarray) -> float:
-    """Equivalent-circle diameter (px) of the median thresholded area (px^2)."""
-    return float(2.0 * np.sqrt(np.median(areas) / np.pi))
-
-
 def _blob_diameter(blobs: "_Blobs") -> float:
-    """Marker diameter (px) from the blobs found at the base threshold (all blobs if none)."""
+    """Marker diameter (px): the equivalent circle of the median area of the blobs found at the base
+    threshold (all blobs if none)."""
     areas = blobs.areas[blobs.base] if blobs.base.any() else blobs.areas
-    return _diameter_from_areas(areas)
+    return float(2.0 * np.sqrt(np.median(areas) / np.pi))
 
 
 #: Thresholds, as multiples of the base (Otsu) threshold, tried in turn. Under contact a marker
@@ -174,7 +170,7 @@ def _detect(
     # median spacing is a marker plus a speck (or a split marker): keep the larger blob.
     spacing = _median_nn_distance(pts) if len(pts) > 2 else np.nan
     if not np.isfinite(spacing):
-        spacing = 2.0 * _diameter_from_areas(np.array([ref_area]))  # typical pitch / diameter ~ 2-3
+        spacing = 4.0 * np.sqrt(ref_area / np.pi)  # twice the diameter: typical pitch / diameter ~ 2-3
     keep = _dedupe(pts, -areas, 0.5 * spacing)
     pts, areas = pts[keep], areas[keep]
     base_level = np.ones(len(pts), bool)

@@ -1,5 +1,5 @@
 """The marker dataset format: :class:`MarkerDataset` in memory, the marker ``.npz`` on disk
-(:func:`load_marker_npz`; written by :func:`slipsense.sensors.real.save_marker_npz`).
+(:func:`load_marker_npz`; written by :func:`slipsense.marker_sequences.save_marker_npz`).
 
 The same format holds simulated and real marker windows; every file read is validated and any
 problem is an InputError naming the file.
@@ -120,9 +120,7 @@ def load_marker_npz(path: str | Path, require_labels: bool = True) -> MarkerData
     if not path.is_file():
         raise InputError(path, "no such file")
     try:
-        with np.load(path, allow_pickle=False) as z:
-            if not hasattr(z, "files"):
-                raise ValueError("a single array (.npy), not an .npz archive")
+        with np.load(path, allow_pickle=False) as z:  # a .npy fails here: an array is no archive
             data = {}
             present = sorted(z.files)
             for k in NPZ_KEYS:  # only what is used: other arrays (object arrays too) are never read
@@ -142,11 +140,7 @@ def load_marker_npz(path: str | Path, require_labels: bool = True) -> MarkerData
     y = None
     if "y" in data:
         y_raw = _per_sample(data["y"], n, "y", path)
-        if not (
-            np.issubdtype(y_raw.dtype, np.integer)
-            or np.issubdtype(y_raw.dtype, np.bool_)
-            or np.issubdtype(y_raw.dtype, np.floating)
-        ):
+        if y_raw.dtype.kind not in "iubf":  # integer, bool or float
             raise InputError(path, f"y has dtype {y_raw.dtype}; expected integer labels 0/1")
         bad = ~np.isin(y_raw, (0, 1))
         if bad.any():

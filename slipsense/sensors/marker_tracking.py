@@ -1,7 +1,7 @@
 """Marker tracking through a video: :func:`track_markers` (pyramidal Lucas-Kanade) and its result,
 :class:`MarkerTrack`.
 
-Steps 2 and 3 of the pipeline described in :mod:`slipsense.sensors.markers`; the markers are
+Steps 2 and 3 of the pipeline described in :mod:`slipsense.recordings.markers`; the markers are
 found with :mod:`slipsense.sensors.marker_detection`.
 """
 
@@ -280,7 +280,6 @@ def track_markers(
         spacing = 2.0 * diameter  # a single marker: assume the usual grid pitch
     if win_size is None:
         win_size = int(np.clip(_odd(0.7 * spacing), 11, 41))
-    win = (int(win_size), int(win_size))
     jump = float(max_jump) if max_jump is not None else 0.25 * spacing
     # Per-marker edge margin: half a marker radius (a marker cut that far loses about a fifth of
     # its disc and its LK position drifts by up to ~1 px), but never more than the marker's own
@@ -289,6 +288,7 @@ def track_markers(
     ref_margin = np.minimum(ref.min(axis=1), np.minimum(w - 1 - ref[:, 0], h - 1 - ref[:, 1]))
     edge = np.clip(np.minimum(diameter / 4.0, ref_margin - 1.0), 0.0, None)
     criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01)
+    lk_settings = dict(winSize=(int(win_size), int(win_size)), maxLevel=max_level, criteria=criteria)
     nbrs = _neighbours(ref, _K_NEIGHBOURS)
 
     positions = np.empty((n_frames, n, 2), np.float32)
@@ -301,15 +301,8 @@ def track_markers(
     # The Python binding of calcOpticalFlowPyrLK in OpenCV 5 takes images only (not prebuilt
     # pyramids), so each call builds its own; at 320 x 240 that costs well under a millisecond.
     def lk(src: Any, dst: Any, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        out, status, _err = cv2.calcOpticalFlowPyrLK(
-            src,
-            dst,
-            pts.reshape(-1, 1, 2).astype(np.float32),
-            None,
-            winSize=win,
-            maxLevel=max_level,
-            criteria=criteria,
-        )
+        pts = pts.reshape(-1, 1, 2).astype(np.float32)
+        out, status, _err = cv2.calcOpticalFlowPyrLK(src, dst, pts, None, **lk_settings)
         return out.reshape(-1, 2), status.reshape(-1).astype(bool)
 
     def step(t_prev: int, t: int) -> None:
@@ -355,16 +348,8 @@ def track_markers(
         step(t + 1, t)
 
     depth = _depth_proxy(frames, positions, reference_index, diameter)
-    return MarkerTrack(
-        positions=positions,
-        valid=valid,
-        depth=depth,
-        reference_positions=ref.astype(np.float32),
-        reference_index=int(reference_index),
-        frame_size=(int(h), int(w)),
-        spacing=float(spacing),
-        diameter=float(diameter),
-    )
+    ref, size = ref.astype(np.float32), (int(h), int(w))
+    return MarkerTrack(positions, valid, depth, ref, int(reference_index), size, float(spacing), float(diameter))
 
 
 def _drop_collisions(pos: np.ndarray, ok: np.ndarray, fb: np.ndarray, radius: float) -> None:

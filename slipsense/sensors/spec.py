@@ -16,6 +16,10 @@ from typing import Any, Mapping
 
 from slipsense.errors import ConfigError, InputError
 
+#: Frames 0 .. STARTUP_FRAMES-1 are a start-up transient of the camera stream (frame 0 differs
+#: strongly, frames 1..~9 form a plateau that ends abruptly), not the scene: never scored.
+STARTUP_FRAMES = 10
+
 #: The frame rates a sensor, a recording or an option may state (frames per second): the one range
 #: every rate is checked against (:func:`fps_problem`), so every rate message names the same range.
 MIN_FPS, MAX_FPS = 1.0, 240.0
@@ -169,17 +173,5 @@ def sensor_of(info: Mapping[str, Any] | None, path: Any = None) -> SensorSpec:
         raise InputError(path, f"checkpoint sensor spec is malformed ({exc})") from None
 
 
-__all__ = [
-    "BINOCULAR_MARKERS",
-    "GELSIGHT_LIFT",
-    "GELSIGHT_MINI",
-    "MAX_FPS",
-    "MIN_FPS",
-    "SENSORS",
-    "SensorSpec",
-    "check_fps",
-    "fps_problem",
-    "register_sensor",
-    "sensor_named",
-    "sensor_of",
-]
+__all__ = ["BINOCULAR_MARKERS", "GELSIGHT_LIFT", "GELSIGHT_MINI", "MAX_FPS", "MIN_FPS", "SENSORS", "SensorSpec"]
+__all__ += ["check_fps", "fps_problem", "register_sensor", "sensor_named", "sensor_of"]

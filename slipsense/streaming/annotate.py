@@ -115,33 +115,15 @@ class Annotator:
             cv2.polylines(img, [np.array(pts, np.int32)], False, (160, 60, 0), 2, cv2.LINE_AA)
         elif pts:
             cv2.circle(img, pts[0], 2, (160, 60, 0), -1)
-        cv2.putText(
-            img,
-            f"slip probability (last {TRACE_SECONDS:g} s), threshold {self.threshold:g}",
-            (left + 4, top + 12),
-            cv2.FONT_HERSHEY_SIMPLEX,
-            0.35,
-            (80, 80, 80),
-            1,
-            cv2.LINE_AA,
-        )
+        title = f"slip probability (last {TRACE_SECONDS:g} s), threshold {self.threshold:g}"
+        cv2.putText(img, title, (left + 4, top + 12), cv2.FONT_HERSHEY_SIMPLEX, 0.35, (80, 80, 80), 1, cv2.LINE_AA)
         return img
 
 
 #: The colours the Annotator draws with (RGB), kept exact in every GIF palette whatever the sensor
 #: frames look like: banners, text, the trace and its threshold line.
-_DRAWN_COLOURS = (
-    (0, 0, 0),
-    (255, 255, 255),
-    (90, 90, 90),
-    (0, 120, 0),
-    (200, 0, 0),
-    (40, 40, 40),
-    (0, 60, 160),
-    (220, 0, 0),
-    (200, 200, 200),
-    (80, 80, 80),
-)
+_DRAWN_COLOURS = ((0, 0, 0), (255, 255, 255), (90, 90, 90), (0, 120, 0), (200, 0, 0), (40, 40, 40), (0, 60, 160))
+_DRAWN_COLOURS += ((220, 0, 0), (200, 200, 200), (80, 80, 80))
 
 
 class _GifFrames:

@@ -41,7 +41,7 @@ class CaptureThread:
         self._stop = False
         self.grabbed = self.delivered = self.dropped = self.repeated = 0
         self._handed = 0  # sequence number of the last frame handed out
-        self._first: float | None = None
+        self._first: float | None = None  # capture times of the first and the latest frame
         self._last: float | None = None
         self._thread = threading.Thread(target=self._run, name=f"slipsense-capture-{name}", daemon=True)
         self._thread.start()
@@ -91,14 +91,8 @@ class CaptureThread:
         with self._cond:
             span = (self._last - self._first) if self._first is not None and self._last is not None else 0.0
             fps = (self.grabbed - 1) / span if span > 0 else float("nan")
-            return {
-                "camera": self.name,
-                "grabbed": self.grabbed,
-                "delivered": self.delivered,
-                "dropped": self.dropped,
-                "repeated": self.repeated,
-                "fps": fps,
-            }
+            counts = {k: getattr(self, k) for k in ("grabbed", "delivered", "dropped", "repeated")}
+            return {"camera": self.name, **counts, "fps": fps}
 
     def give_back(self) -> None:
         """The frame :meth:`next` handed out last was replaced before use (a camera catching up with

@@ -10,12 +10,11 @@ model's own incremental state (:class:`slipsense.models.motion.MotionStream`). W
 detector's own: the operating point (threshold, debounce, hold), combining sensors where the model
 judges each apart, frame numbering and the readings. Nothing here depends on the kind of model.
 
-Backends: ``"torch"`` runs the stream's modules as PyTorch modules; ``"onnx"`` exports them once
-(:mod:`slipsense.streaming.export`, cached under ``<cache_root>/onnx``) and runs them on ONNX Runtime.
-Heat maps (:meth:`SlipDetector.heatmap`) always use the PyTorch model.
+The stream's modules run on PyTorch or ONNX Runtime (``backend``); heat maps
+(:meth:`SlipDetector.heatmap`) always use the PyTorch model.
 
 :meth:`SlipDetector.replay` computes the same probabilities for whole recordings at once: what
-:mod:`slipsense.evaluation.early_warning` and the evaluation use.
+:mod:`slipsense.evaluation.replay` and the evaluation use.
 """
 
 from __future__ import annotations
@@ -32,7 +31,7 @@ from slipsense.alarm import alarm_trace, hold_frames
 from slipsense.checkpoint import load_model, read_info
 from slipsense.errors import ConfigError, InputError
 from slipsense.models.base import SlipModel, window_geometry
-from slipsense.models.runners import BACKENDS, DTYPES, onnx_cache_dir, resolve_backend
+from slipsense.models.runners import check_backend, onnx_cache_dir, resolve_backend
 from slipsense.resources import default_model_name, shipped_model, shipped_models
 from slipsense.sensors.spec import GELSIGHT_MINI, sensor_of
 from slipsense.streaming.clock import ModelClock, resample
@@ -44,11 +43,6 @@ DEFAULT_CHECKPOINT = shipped_model()
 COMBINE = ("max", "mean")
 #: Longest alarm hold accepted (seconds).
 MAX_HOLD_S = 60.0
-
-
-# ---------------------------------------------------------------------------------------------
-# The detector
-# ---------------------------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
@@ -189,8 +183,10 @@ class SlipDetector:
         dtype: str = "float32",
         debounce: int | None = None,
         hold: float | None = None,
+        loaded: tuple[Any, dict[str, Any]] | None = None,
     ) -> "SlipDetector":
-        """Load a checkpoint (:func:`slipsense.checkpoint.load_model`) into a detector.
+        """Load a checkpoint (:func:`slipsense.checkpoint.load_model`) into a detector (``loaded``:
+        its ``(model, info)`` where the caller has read it already).
 
         ``threshold`` / ``debounce`` / ``hold`` default to the operating point stored in the
         checkpoint (chosen on its training objects only); a checkpoint without one gets 0.5 / 1 / 0 s
@@ -200,7 +196,7 @@ class SlipDetector:
         :attr:`backend` says which. On ONNX Runtime the parts are cached under ``onnx_dir`` (default
         ``<cache_root>/onnx/<hash of the checkpoint file>``), so only the first use pays the export.
         """
-        model, info = load_model(path)
+        model, info = loaded if loaded is not None else load_model(path)
         sensor_of(info, path)  # a malformed sensor spec is named with its file
         threshold, debounce = stored_operating_point(path, info, threshold, debounce)
         hold = stored_hold(info, hold)
@@ -208,19 +204,11 @@ class SlipDetector:
         backend = resolve_backend(backend, model)
         if backend == "onnx" and onnx_dir is None:
             onnx_dir = onnx_cache_dir(Path(path))
+        settings = dict(
+            threshold=threshold, sensors=sensors, combine=combine, dtype=dtype, debounce=debounce, hold=hold
+        )
         try:
-            return cls(
-                model,
-                threshold=threshold,
-                sensors=sensors,
-                combine=combine,
-                backend=backend,
-                info=info,
-                onnx_dir=onnx_dir,
-                dtype=dtype,
-                debounce=debounce,
-                hold=hold,
-            )
+            return cls(model, backend=backend, info=info, onnx_dir=onnx_dir, **settings)
         except ConfigError as exc:  # name the checkpoint: it is what the user chose
             raise InputError(path, str(exc)) from None
 
@@ -261,11 +249,6 @@ class SlipDetector:
         self._answer: tuple[float, tuple[float, ...]] | None = None  # the latest step's (combined, per sensor)
         self._clock = ModelClock(self.sensor.fps)
         self._stream.reset()
-
-    @property
-    def window_full(self) -> bool:
-        """True once the model answers (its window is full, the camera start-up is over)."""
-        return self._stream.ready
 
     def push(self, *frames: Any, stamp: float | None = None) -> Reading:
         """Add one frame per sensor and classify the latest frames.
@@ -331,11 +314,7 @@ class SlipDetector:
         n = len(streams[0])
         if any(len(s) != n for s in streams):
             raise InputError(None, f"replay streams differ in length: {[len(s) for s in streams]}")
-        if stamps is None:
-            return self._trace(self._stream.replay(streams))
-        stamps = np.asarray(stamps, dtype=np.float64)
-        ticks, last = resample(streams, stamps, self.sensor.fps)
-        return self._trace(self._stream.replay(ticks)[last], stamps)
+        return self._replayed(self._stream.replay, list(streams), stamps)
 
     @property
     def cache_product(self) -> str | None:
@@ -351,13 +330,19 @@ class SlipDetector:
             raise ConfigError(f"{self.model_name} is replayed from decoded videos: use replay()")
         if stamps is None:
             return self._trace(self._stream.replay_cached(frames))
-        stamps = np.asarray(stamps, dtype=np.float64)
-        ticks, last = resample(list(frames), stamps, self.sensor.fps)
-        return self._trace(self._stream.replay_cached(np.stack(ticks))[last], stamps)
+        return self._replayed(lambda ticks: self._stream.replay_cached(np.stack(ticks)), list(frames), stamps)
 
     def replay_gray(self, gray: np.ndarray) -> Trace:
         """:meth:`replay_cached` of a grasp model: grey frames uint8 ``(S, N, h, w)`` at its size."""
         return self.replay_cached(gray)
+
+    def _replayed(self, run, streams: list[np.ndarray], stamps: np.ndarray | None) -> Trace:
+        """The trace of ``run(streams)``: on the model's clock (:func:`resample`) where ``stamps`` are given."""
+        if stamps is None:
+            return self._trace(run(streams))
+        stamps = np.asarray(stamps, dtype=np.float64)
+        ticks, last = resample(streams, stamps, self.sensor.fps)
+        return self._trace(run(ticks)[last], stamps)
 
     def _trace(self, per_sensor: np.ndarray, stamps: np.ndarray | None = None) -> Trace:
         """The trace of per-sensor (or fused) answers, one row per source frame; the hold in frames
@@ -407,13 +392,16 @@ def stored_hold(info: Mapping[str, Any] | None, hold: float | None) -> float:
     return check_hold(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else 0.0
 
 
+def _in_range(value: Any, low: float, high: float) -> bool:
+    try:
+        return low <= float(value) <= high
+    except (TypeError, ValueError):
+        return False
+
+
 def check_hold(hold: Any) -> float:
     """``hold`` as seconds in [0, MAX_HOLD_S], else ConfigError."""
-    try:
-        ok = 0.0 <= float(hold) <= MAX_HOLD_S
-    except (TypeError, ValueError):
-        ok = False
-    if not ok:
+    if not _in_range(hold, 0.0, MAX_HOLD_S):
         raise ConfigError(f"hold must be a number of seconds in [0, {MAX_HOLD_S:g}], got {hold!r}")
     return float(hold)
 
@@ -439,35 +427,14 @@ def stored_operating_point(
 
 
 def check_settings(threshold: Any, sensors: Any, combine: str | None, backend: str, dtype: str = "float32") -> None:
-    try:
-        ok = 0.0 <= float(threshold) <= 1.0
-    except (TypeError, ValueError):
-        ok = False
-    if not ok:
+    if not _in_range(threshold, 0.0, 1.0):
         raise ConfigError(f"threshold must be a number in [0, 1], got {threshold!r}")
     if isinstance(sensors, bool) or not isinstance(sensors, (int, np.integer)) or sensors < 1:
         raise ConfigError(f"sensors must be a positive integer, got {sensors!r}")
     if combine is not None and combine not in COMBINE:
         raise ConfigError(f"combine must be one of {COMBINE}, got {combine!r}")
-    if backend not in BACKENDS:
-        raise ConfigError(f"backend must be one of {BACKENDS}, got {backend!r}")
-    if dtype not in DTYPES:
-        raise ConfigError(f"dtype must be one of {DTYPES}, got {dtype!r}")
-    if dtype == "int8" and resolve_backend(backend) != "onnx":
-        raise ConfigError("dtype 'int8' needs backend 'onnx' (ONNX Runtime dynamic quantization)")
+    check_backend(backend, dtype)
 
 
-__all__ = [
-    "DEFAULT_CHECKPOINT",
-    "FPS",
-    "Reading",
-    "SlipDetector",
-    "Trace",
-    "combine_probabilities",
-    "onnx_cache_dir",
-    "shipped_name",
-    "window_geometry",
-    "stored_operating_point",
-    "stored_hold",
-    "check_hold",
-]
+__all__ = ["DEFAULT_CHECKPOINT", "FPS", "Reading", "SlipDetector", "Trace", "combine_probabilities", "onnx_cache_dir"]
+__all__ += ["shipped_name", "window_geometry", "stored_operating_point", "stored_hold", "check_hold"]

@@ -42,14 +42,6 @@ from slipsense.models.base import window_geometry
 from slipsense.models.onnx import ExportResult, export_module, export_parts, exportable, max_abs_diff, streaming_names
 
 
-def _load(source: str | Path | nn.Module) -> tuple[nn.Module, dict[str, Any], Path | None]:
-    if isinstance(source, nn.Module):
-        return source, {}, None
-
-    model, info = load_model(source)
-    return model, info, Path(source)
-
-
 def export_onnx(
     checkpoint_or_model: str | Path | nn.Module,
     out_path: str | Path,
@@ -75,7 +67,8 @@ def export_onnx(
     Raises:
         InputError: unreadable checkpoint, or neither exporter could export the model.
     """
-    model, ck_info, _ = _load(checkpoint_or_model)
+    source = checkpoint_or_model
+    model, ck_info = (source, {}) if isinstance(source, nn.Module) else load_model(source)
     geometry = window_geometry(model, info or ck_info)
     out_path = Path(out_path)
     if batch is not None and (isinstance(batch, bool) or not isinstance(batch, int) or batch < 1):

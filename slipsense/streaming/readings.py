@@ -133,15 +133,8 @@ def read_bag_readings(path: str | Path, topic: str = "/slipsense/reading") -> li
             if conn.msgtype == READING_MSGTYPE:
                 out.append(json.loads(m.data))
                 continue
-            p = float(m.probability)
-            out.append(
-                {
-                    "frame": int(m.frame),
-                    "stamp": m.header.stamp.sec + m.header.stamp.nanosec * 1e-9,
-                    "probability": None if math.isnan(p) else p,
-                    "per_sensor": [float(v) for v in m.per_sensor] or None,
-                    "alarm": bool(m.alarm),
-                    "latency_ms": float(m.latency_ms),
-                }
-            )
+            p, stamp = float(m.probability), m.header.stamp.sec + m.header.stamp.nanosec * 1e-9
+            record = {"frame": int(m.frame), "stamp": stamp, "probability": None if math.isnan(p) else p}
+            record["per_sensor"] = [float(v) for v in m.per_sensor] or None
+            out.append({**record, "alarm": bool(m.alarm), "latency_ms": float(m.latency_ms)})
     return out

@@ -50,7 +50,6 @@ class Source:
     steps: Iterator[Step]
     closer: Callable[[], None] | None = None
     stats: Callable[[], dict[str, Any]] = field(default=lambda: {})
-    #: the inputs are not the pictures shown (markers tracked in them, or a saved stream)
     converted: bool = False
     fps: float = 25.0
     clock: str = ""
@@ -105,47 +104,31 @@ def open_source(
         src.fps, src.clock = _stamped_rate(stamps, given or camera_fps), "the messages' header stamps"
         return src
     if path.is_dir() and is_frame_folder(path):  # one sensor's frames, read as its video
-        rate, clock = (given, "--fps") if given else frame_folder_rate(path)
-        video = read_video(path, expected_size=None, min_frames=1)
-        return _array_source(str(path), [video], [path], model, np.arange(len(video)) / rate, geometry, rate, clock)
+        rate = (given, "--fps") if given else frame_folder_rate(path)
+        return _videos_source(path, [path], model, geometry, rate, "")
     if path.is_dir():
         cams = sorted(p for p in path.glob(camera_glob) if p.is_file())
         if not cams and any(p.is_dir() for p in path.glob(f"{CAMERA_FOLDER_PREFIX}*")):
-            return _camera_folders_source(path, model, given, geometry)
+            # a grasp folder of camera_* frame folders: each camera a sensor, at the rate of the data's sensor.json
+            cams = [folder for _, folder in grasp_cameras(path)]  # the same frame count, else one line naming it
+            rate = (given, "--fps") if given else frame_folder_rate(cams[0])
+            return _videos_source(path, cams, model, geometry, rate, "the cameras of this grasp")
         if not cams:
             raise InputError(path, f"folder holds no {camera_glob} videos (expected a recordings experiment folder)")
         rates = {video_rate(p, given) for p in cams}
         if len(rates) != 1:
             raise InputError(path, f"the camera videos state different frame rates: {sorted(r for r, _ in rates)}")
-        ((rate, clock),) = rates
-        videos = [read_video(p, expected_size=None, min_frames=1) for p in cams]
-        if len({len(v) for v in videos}) != 1:
-            raise InputError(path, f"the camera videos differ in frame count: {[len(v) for v in videos]}")
-        stamps = np.arange(len(videos[0])) / rate
-        return _array_source(str(path), videos, cams, model, stamps, geometry, rate, clock)
+        return _videos_source(path, cams, model, geometry, rates.pop(), "the camera videos")
     if path.is_file():
         if path.suffix.lower() == ".npy":
             return _npy_source(path, model, given or camera_fps, "--fps" if given else "the model's sensor")
-        rate, clock = video_rate(path, given)
-        video = read_video(path, expected_size=None, min_frames=1)
-        return _array_source(str(path), [video], [path], model, np.arange(len(video)) / rate, geometry, rate, clock)
+        return _videos_source(path, [path], model, geometry, video_rate(path, given), "")
     indices = source.replace(" ", "").split(",")
     if all(i.isdigit() for i in indices):
         if model is not None:
             model.check_live_cameras(source)
         return camera_source([int(i) for i in indices], given or camera_fps, capture_format, frame_size, tolerance_s)
     raise InputError(path, "no such file or folder (nor a camera index)")
-
-
-def _camera_folders_source(path: Path, model: Any, given: float | None, geometry) -> Source:
-    """A grasp folder of ``camera_*`` frame folders (:mod:`slipsense.recordings.frame_folders`): each
-    camera a sensor, stamped at the rate of the data's ``sensor.json`` (or ``--fps``)."""
-    cams = [folder for _, folder in grasp_cameras(path)]  # the same frame count, else one line naming the grasp
-    rate, clock = (given, "--fps") if given else frame_folder_rate(cams[0])
-    videos = [read_video(p, expected_size=None, min_frames=1) for p in cams]
-    if len({len(v) for v in videos}) != 1:
-        raise InputError(path, f"the cameras of this grasp differ in frame count: {[len(v) for v in videos]}")
-    return _array_source(str(path), videos, cams, model, np.arange(len(videos[0])) / rate, geometry, rate, clock)
 
 
 #: What to do about a source whose rate cannot be known, where the command takes ``--fps``.
@@ -196,6 +179,16 @@ def _stamped_rate(stamps: np.ndarray, fallback: float) -> float:
     steps = np.diff(stamps)
     steps = steps[steps > 0]
     return float(1.0 / np.median(steps)) if len(steps) else float(fallback)
+
+
+def _videos_source(path: Path, paths: list[Path], model: Any, geometry, rate: tuple[float, str], what: str) -> Source:
+    """The videos (or frame folders) ``paths`` as the sensors of one source, stamped ``index / rate``
+    (``rate``: the rate and where it was read); ``what`` they are, for videos of unequal length."""
+    videos = [read_video(p, expected_size=None, min_frames=1) for p in paths]
+    if len({len(v) for v in videos}) != 1:
+        raise InputError(path, f"{what} differ in frame count: {[len(v) for v in videos]}")
+    stamps = np.arange(len(videos[0])) / rate[0]
+    return _array_source(str(path), videos, paths, model, stamps, geometry, *rate)
 
 
 def _array_source(

@@ -33,8 +33,8 @@ from slipsense.atomic import write_text
 from slipsense.checkpoint import load_model, load_resume_state, read_info, update_info
 from slipsense.config import resolve_path
 from slipsense.errors import ConfigError, InputError, SlipsenseError
-from slipsense.evaluation.evaluate import evaluate_model, predict
-from slipsense.evaluation.metrics import metrics_from
+from slipsense.evaluation.predict import evaluate_model, predict
+from slipsense.measures.clips import metrics_from
 from slipsense.models import available, build, model_class, settings_of
 from slipsense.parallel import end_with_parent
 from slipsense.readers import check_same_split
@@ -43,7 +43,7 @@ from slipsense.run_config import dump_tree, typed
 from slipsense.sensors.spec import sensor_of
 from slipsense.training.distributed import Dist, RankBatches, StepPlan, setup  # noqa: F401
 from slipsense.training.operating_point import choose_on_training_runs
-from slipsense.training.trainer import LoopSettings, Step, restore, rng_state, set_rng_state, train
+from slipsense.training.trainer import LoopSettings, Step, Task, restore, rng_state, set_rng_state, train
 
 
 def _loader_worker_start(parent: int, worker_id: int) -> None:
@@ -120,14 +120,11 @@ def make_optimizer(model: nn.Module, cfg: TrainConfig):
     return optimizer, scheduler
 
 
-class ClipTask:
-    """Labelled clips (videos or marker sequences) for the training loop (:mod:`slipsense.training.trainer`).
-
-    One plan for every world size (:class:`~slipsense.training.distributed.StepPlan`): each step takes
-    the next ``world x batch x accumulate`` items of a seeded shuffle and cuts them into micro-batches;
-    no item is repeated or dropped (a DistributedSampler pads with repeats), so 2 x 8 sees the batches
-    1 x 16 sees, for any dataset size. A micro-batch's loss is its summed cross-entropy over the step's
-    item count."""
+class ClipTask(Task):
+    """Labelled clips (videos or marker sequences) for the training loop (:mod:`slipsense.training.trainer`),
+    in the micro-batches of a :class:`~slipsense.training.distributed.StepPlan`: no item is repeated or
+    dropped (a DistributedSampler pads with repeats), so 2 x 8 sees the batches 1 x 16 sees, for any
+    dataset size. A micro-batch's loss is its summed cross-entropy over the step's item count."""
 
     def __init__(self, train_data: Dataset, val_data: Dataset | None, cfg: TrainConfig, extra_eval=None):
         if len(train_data) == 0:
@@ -135,9 +132,6 @@ class ClipTask:
         self.train_data, self.val_data, self.cfg, self.extra_eval = train_data, val_data, cfg, extra_eval or {}
         self._loader = None
         self.device = torch.device("cpu")
-
-    def trainable(self, model):
-        return model
 
     def optimizer(self, model):
         return make_optimizer(model, self.cfg)
@@ -173,9 +167,6 @@ class ClipTask:
         x, _ = default_collate([self.train_data[0]])
         return net(x.to(self.device)).sum()
 
-    def epoch_stats(self) -> dict[str, Any]:
-        return {}
-
     def validate(self, model, d: Dist) -> dict[str, float]:
         row = {}
         sets = {"val": self.val_data, **self.extra_eval}
@@ -190,31 +181,12 @@ class ClipTask:
     def identity(self) -> str:
         return settings_identity(self.cfg)
 
-    def state(self) -> dict[str, Any]:
-        return {}
-
-    def restore(self, state: dict[str, Any]) -> None:
-        pass
-
 
 def settings_identity(cfg: TrainConfig) -> str:
     """The optimisation settings a resume must share (the data split is checked on its own:
     readers.check_same_split); epochs may grow, progress and workers may change."""
     free = ("epochs", "progress", "num_workers", "device", "max_steps_per_epoch", "operating_point")
     return json.dumps({k: v for k, v in asdict(cfg).items() if k not in free}, sort_keys=True)
-
-
-def loop_settings(cfg: TrainConfig, desc: str = "") -> LoopSettings:
-    return LoopSettings(
-        epochs=cfg.epochs,
-        seed=cfg.seed,
-        accumulate=cfg.accumulate,
-        device=cfg.device,
-        progress=cfg.progress,
-        max_steps_per_epoch=cfg.max_steps_per_epoch,
-        select_by=cfg.select_by,
-        desc=desc,
-    )
 
 
 def fit(
@@ -251,17 +223,11 @@ def fit(
     model.prepare(train_data)  # what it takes from its data (a resumed state overwrites it with the same)
     world = setup(cfg.device).world
     info = {**(info or {}), "train": asdict(cfg), "global_batch": world * cfg.batch_size * cfg.accumulate}
+    loop = ("epochs", "seed", "accumulate", "device", "progress", "max_steps_per_epoch", "select_by")
+    settings = LoopSettings(**{k: getattr(cfg, k) for k in loop})  # what the loop needs of cfg
     out = Path(out_dir)
-    return train(
-        model,
-        task,
-        loop_settings(cfg),
-        out=out,
-        info=info,
-        state_path=out / "resume.pt",
-        resume_state=resume_state,
-        resume=resume,
-    )
+    state = out / "resume.pt"
+    return train(model, task, settings, out=out, info=info, state_path=state, resume_state=resume_state, resume=resume)
 
 
 # --------------------------------------------------------------------------- from a run configuration to a run
@@ -342,12 +308,8 @@ def run_training(run, out: Path, progress: bool = True, resume: bool = False) ->
         out.mkdir(parents=True, exist_ok=True)
         write_text(out / "split.json", json.dumps(split_info, indent=1))
         write_text(out / "config.yaml", dump_tree(tree))
-    info = {
-        "data": {k: v for k, v in split_info.items() if k != "test_indices"},
-        "sensor": sensor,
-        "preset": run.preset,
-        "config": tree,
-    }
+    data = {k: v for k, v in split_info.items() if k != "test_indices"}
+    info = {"data": data, "sensor": sensor, "preset": run.preset, "config": tree}
     history = fit(model, train_data, test_data, cfg, out, info=info, resume=resume, resume_state=state)
     # a model reading frames is replayed over its training objects' runs to choose where it alarms
     replayable = cls.clip_reader.replays(split_info)
@@ -355,29 +317,16 @@ def run_training(run, out: Path, progress: bool = True, resume: bool = False) ->
         _store_operating_point(out, split_info, run.data.overrides, progress)
     if not d.main:
         return {}
-    result = {
-        "checkpoint": out / "last.safetensors",
-        "operating_point": read_info(out / "last.safetensors").get("operating_point"),
-        "history": history,
-        "clips": None,
-    }
+    last = out / "last.safetensors"
+    result = {"checkpoint": last, "operating_point": read_info(last).get("operating_point"), "history": history}
     if len(test_data) == 0:
-        return result
+        return {**result, "clips": None}
 
     # The held-out part is also the validation set that picked best.safetensors, so scoring that
     # checkpoint on it would be optimistic: the reported model is the last epoch's.
-    final, _ = load_model(out / "last.safetensors")
+    extra = {"checkpoint": last.as_posix(), **{k: split_info.get(k) for k in ("split", "test_objects")}}
     metrics = evaluate_model(
-        final,
-        test_data,
-        out / "evaluation.json",
-        out / "confusion.png",
-        extra={
-            "checkpoint": (out / "last.safetensors").as_posix(),
-            "split": split_info.get("split"),
-            "test_objects": split_info.get("test_objects"),
-        },
-        progress=progress,
+        load_model(last)[0], test_data, out / "evaluation.json", out / "confusion.png", extra=extra, progress=progress
     )
     print(json.dumps({k: metrics[k] for k in ("accuracy", "precision", "recall", "f1", "n_clips")}))
     return {**result, "clips": metrics}

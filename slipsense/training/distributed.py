@@ -86,14 +86,9 @@ class StepPlan:
         return self.world * self.batch * self.accumulate
 
     def steps(self, epoch: int) -> list[list[list[int]]]:
-        g = torch.Generator()
-        g.manual_seed(self.seed + epoch)
-        order = torch.randperm(self.n, generator=g).tolist()
-        out = []
-        for a in range(0, self.n, self.global_batch):
-            items = order[a : a + self.global_batch]
-            out.append([items[m * self.batch : (m + 1) * self.batch] for m in range(self.world * self.accumulate)])
-        return out
+        order = torch.randperm(self.n, generator=torch.Generator().manual_seed(self.seed + epoch)).tolist()
+        b, parts = self.batch, range(self.world * self.accumulate)
+        return [[order[a + m * b : a + (m + 1) * b] for m in parts] for a in range(0, self.n, self.global_batch)]
 
 
 class RankBatches:

@@ -4,7 +4,7 @@ as one checkpoint with its operating point, metrics and curves.
 
 :func:`train_detector` is what ``slipsense train``
 run; :func:`plan_training` / :func:`fit_job` / :func:`finish_training` are its parts, which
-``slipsense train --cross-validate`` runs for every fold in one pool (:mod:`slipsense.evaluation.folds`).
+``slipsense train --cross-validate`` runs for every fold in one pool (:mod:`slipsense.training.folds`).
 """
 
 from __future__ import annotations
@@ -21,10 +21,12 @@ from slipsense import atomic
 from slipsense.alarm import HOLD_S
 from slipsense.checkpoint import save_checkpoint, update_info
 from slipsense.errors import ConfigError
-from slipsense.evaluation import pergrasp
+from slipsense.measures import pergrasp
 from slipsense.evaluation.calibrate import calibrated_threshold
-from slipsense.evaluation.grasp_scores import evaluate_held_out
-from slipsense.evaluation.outcome import peak_alarm_score, roc_auc
+from slipsense.evaluation.judge import clip_scores
+from slipsense.measures.clips import clip_metrics
+from slipsense.recordings.contact import rest_mask
+from slipsense.measures.slipped_or_held import peak_alarm_score, roc_auc
 from slipsense.models import build
 from slipsense.parallel import run_jobs
 from slipsense.recordings.clips import object_folds
@@ -207,7 +209,7 @@ def train_with_operating_point(
 
 
 def held_alarm_of(probs: Sequence[np.ndarray], runs: Sequence[GraspRun], op: dict, cfg: GraspTrainConfig) -> dict:
-    """:func:`~slipsense.evaluation.pergrasp.held_alarm_promise` of the held ``runs`` at ``op``."""
+    """:func:`~slipsense.measures.pergrasp.held_alarm_promise` of the held ``runs`` at ``op``."""
     held = [(p, r.object) for p, r in zip(probs, runs) if not r.slipped]
     alarm = [
         pergrasp.grasp_outcome(
@@ -344,3 +346,22 @@ def train_detector(
 def _same_weights(a, b) -> bool:
     wa, wb = load_file(str(a)), load_file(str(b))
     return wa.keys() == wb.keys() and all(wa[k].equal(wb[k]) for k in wa)
+
+
+def evaluate_held_out(
+    probs: Sequence[np.ndarray], op: dict[str, Any], runs: Sequence[GraspRun], labels: dict, horizon: int
+) -> dict[str, Any]:
+    """Per-grasp outcomes and clip metrics of ``runs`` from their P(slip) traces at ``op``."""
+    outs = held_out_outcomes(runs, probs, op, horizon, [rest_mask(r.contact) for r in runs])
+    p, y = clip_scores(runs, probs, labels)
+    return {"per_grasp": pergrasp.summarise(outs), "clips": clip_metrics(p, y, op["threshold"])}
+
+
+def held_out_outcomes(runs, probs, op: dict[str, Any], horizon: int, rests) -> list[pergrasp.GraspOutcome]:
+    """Each run's per-grasp verdict at the operating point ``op`` (from its ``startup``); a slip
+    labelled as a whole (no moment to warn before) is ``slip_without_moment``, neither slip nor held."""
+    startup = int(op.get("startup", pergrasp.STARTUP))
+    return [
+        pergrasp.trace_outcome(p, op["threshold"], op["debounce"], r.moment_of_slip, r.slipped, horizon, startup, rest)
+        for r, p, rest in zip(runs, probs, rests)
+    ]

@@ -34,7 +34,7 @@ from slipsense.checkpoint import load_model, read_info
 from slipsense.config import portable_path, resolve_path
 from slipsense.data import label_runs
 from slipsense.errors import ConfigError, InputError, SlipsenseError
-from slipsense.evaluation import pergrasp
+from slipsense.measures import pergrasp
 from slipsense.models import build
 from slipsense.models.base import RecordingsShape
 from slipsense.recordings.folders import camera_counts, find_recordings, validate_recordings
@@ -42,7 +42,7 @@ from slipsense.recordings.runs import GraspRun, load_runs
 from slipsense.run_config import DEFAULT_MODEL, typed
 from slipsense.sensors.spec import GELSIGHT_MINI
 from slipsense.streaming.clock import resample, slower_camera_frames
-from slipsense.training.trainer import LoopSettings, Step, train
+from slipsense.training.trainer import LoopSettings, Step, Task, train
 
 
 @dataclass
@@ -66,9 +66,8 @@ class GraspTrainConfig:
     seed: int = 0
     inner_folds: int = 2  # for the operating point (0: choose it on the training runs themselves)
     split_seed: int | None = None  # objects -> folds and inner folds (None: seed); set it to vary training alone
-    max_held_alarm: float | None = (
-        None  # operating point: at most this fraction of held grasps alarm (None: best score)
-    )
+    # operating point: at most this fraction of held grasps alarm (None: best score)
+    max_held_alarm: float | None = None
     accumulate: int = 1  # micro-batches per process per step (a step's runs cut into world x accumulate groups)
     startup: int = pergrasp.STARTUP  # leading frames never trained on or scored (the camera's start-up; 0: none)
     init: str | None = None  # a checkpoint of cfg.model whose weights training starts from (fine-tuning)
@@ -244,7 +243,7 @@ class _ChunkForward(nn.Module):
         return self.model.chunk_logits(runs, n_out)
 
 
-class GraspTask:
+class GraspTask(Task):
     """Whole grasps for the training loop (:mod:`slipsense.training.trainer`).
 
     An epoch draws chunks (:class:`_Chunks`), every ``mine_every`` epochs after the first from where
@@ -257,7 +256,6 @@ class GraspTask:
     def __init__(self, runs: Sequence[GraspRun], cfg: GraspTrainConfig):
         self.cfg = cfg
         self.rng = np.random.default_rng(cfg.seed)
-        self.epochs = cfg.epochs  # the schedule's length
         self.data = _Chunks(runs, cfg)
         if not self.data.items:
             raise ConfigError("no usable training runs (every run excluded, or slip runs without a moment)")
@@ -266,22 +264,15 @@ class GraspTask:
         self.hardness: list[np.ndarray] | None = None
         self.weight = torch.ones(2)
         self._stats: dict[str, Any] = {}
-        self._identity = json.dumps(
-            {
-                "config": cfg.to_dict(),
-                "runs": [
-                    [r.object, r.experiment, list(r.cameras), r.slipped, r.moment_of_slip, r.n_frames] for r in runs
-                ],
-            },
-            sort_keys=True,
-        )
+        trained_on = [[r.object, r.experiment, list(r.cameras), r.slipped, r.moment_of_slip, r.n_frames] for r in runs]
+        self._identity = json.dumps({"config": cfg.to_dict(), "runs": trained_on}, sort_keys=True)
 
     def trainable(self, model):
         return _ChunkForward(model)
 
     def optimizer(self, model):
         opt = torch.optim.AdamW(model.parameters(), lr=self.cfg.lr, weight_decay=self.cfg.weight_decay)
-        return opt, torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=self.epochs)
+        return opt, torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=self.cfg.epochs)
 
     def plan(self, model, epoch: int, d, accumulate: int) -> list[Step]:
         cfg = self.cfg
@@ -294,10 +285,7 @@ class GraspTask:
         self.weight = torch.tensor([1.0, cfg.positive_weight * n_neg / max(n_pos, 1)])
         self._stats = {"onset_frames": n_pos, "other_frames": n_neg}
         w = self.weight.double().numpy()
-
-        def weigh(runs) -> float:
-            return _weights(np.concatenate([c[2] for c in runs]), w) if runs else 0.0
-
+        weigh = lambda runs: _weights(np.concatenate([c[2] for c in runs]), w) if runs else 0.0  # loss weight
         return _steps(chunks, cfg, self.rng, d.world * accumulate, weigh)
 
     def batches(self, steps, epoch: int, d, accumulate: int):
@@ -344,9 +332,6 @@ class GraspTask:
 
     def epoch_stats(self) -> dict[str, Any]:
         return dict(self._stats)
-
-    def validate(self, model, d) -> dict[str, float]:
-        return {}
 
     def identity(self) -> str:
         return self._identity
@@ -396,15 +381,9 @@ def fit_runs(
     out=None,
     info: dict[str, Any] | None = None,
 ):
-    """Train ``cfg.model`` on ``runs`` through the one training loop; returns ``(model in eval mode,
-    per-epoch metrics)``.
-
-    ``state_path``: after every epoch the whole training state (weights, optimizer, schedule, the
-    random generators, the mined hard negatives, the metrics) is written there atomically, and a
-    training that finds a state there continues from it: killed at any moment and started again, it
-    ends with the weights an uninterrupted training gives, bit for bit. ``out``: where
-    ``last.safetensors``, ``best.safetensors`` (with ``info``), ``metrics.csv`` and ``curves.png``
-    go after every epoch."""
+    """Train ``cfg.model`` on ``runs`` through the one training loop (:func:`~slipsense.training.trainer.train`,
+    which writes the resume state to ``state_path`` and the checkpoints, with ``info``, metrics and
+    curves to ``out``); returns ``(model in eval mode, per-epoch metrics)``."""
     torch.manual_seed(cfg.seed)
     model = build(cfg.model, **cfg.model_config) if cfg.init is None else _initial_model(cfg)
     if cfg.epochs == 0:
@@ -514,6 +493,4 @@ def recordings_shape(recordings, sensor=None, on_error: str = "raise") -> Record
             found = find_recordings(recordings, on_error=on_error, sensor=sensor or GELSIGHT_MINI)
     except SlipsenseError:
         return None
-    if not found:
-        return None
-    return RecordingsShape(cameras_per_grasp(found), all(r.per_grasp for r in found))
+    return RecordingsShape(cameras_per_grasp(found), all(r.per_grasp for r in found)) if found else None

@@ -23,12 +23,8 @@ from typing import Any, Callable
 import torch
 
 from slipsense.atomic import check_output_dir, write_text
-from slipsense.checkpoint import load_model
 from slipsense.config import portable_path
 from slipsense.errors import ConfigError
-from slipsense.evaluation.clip_folds import pool
-from slipsense.evaluation.evaluate import evaluate_clip_checkpoint, evaluate_grasp_checkpoint
-from slipsense.evaluation.folds import run_folds
 from slipsense.models import build, model_class
 from slipsense.recordings.frame_folders import data_sensor
 from slipsense.recordings.runs import per_sensor
@@ -36,6 +32,7 @@ from slipsense.run_config import dump_tree
 from slipsense.sensors.spec import GELSIGHT_MINI
 from slipsense.training.clips import run_training
 from slipsense.training.config import RunConfig, recordings_root, recordings_sensor
+from slipsense.training.folds import pool, run_folds
 from slipsense.training.grasp_detector import object_split, train_detector
 from slipsense.training.grasps import load_grasp_data, recordings_shape
 
@@ -76,10 +73,10 @@ def cross_validate(
 ) -> dict[str, Any]:
     """Leave objects out for any model: ``folds`` folds by object, each trained and judged on its
     unseen objects, pooled into ``out``. A grasp detector goes through
-    :func:`slipsense.evaluation.folds.run_folds` (per grasp, its report); a clip or marker model is
+    :func:`slipsense.training.folds.run_folds` (per grasp, its report); a clip or marker model is
     :func:`fit` once per fold into ``out/fold<k>`` (a fold already judged is kept; a killed one
     resumes) and the held-out clips pooled into ``out/folds.json``
-    (:func:`slipsense.evaluation.clip_folds.pool`). Returns the pooled report."""
+    (:func:`slipsense.training.folds.pool`). Returns the pooled report."""
     if run.data.fold is not None or run.data.test_objects:
         raise ConfigError("cross-validation holds out every fold in turn: leave --fold and --test-objects out")
     check_output_dir(out, "--out")
@@ -87,16 +84,6 @@ def cross_validate(
         torch.set_num_threads(threads)
     cross = FOLDS[model_class(run.name).training_task]
     return cross(run, Path(out), folds, progress=progress, workers=workers, command=command)
-
-
-def evaluate(checkpoint: str | Path, **options: Any) -> dict[str, Any]:
-    """Judge a checkpoint the way its task is judged: a grasp detector per grasp
-    (:func:`slipsense.evaluation.evaluate.evaluate_grasp_checkpoint`), a clip or marker model per clip on
-    the data its reader takes (:func:`slipsense.evaluation.evaluate.evaluate_clip_checkpoint`, whose
-    keyword ``options`` both take)."""
-    model, _ = load_model(checkpoint)  # a damaged checkpoint is refused before any data is read
-    judge = {"clips": evaluate_clip_checkpoint, "grasps": evaluate_grasp_checkpoint}[model.training_task]
-    return judge(checkpoint, **options)
 
 
 def _grasp_folds(run: RunConfig, out: Path, folds: int, *, progress, workers, command) -> dict[str, Any]:
@@ -202,4 +189,4 @@ def grasp_data(run: RunConfig, progress: bool = True):
 TRAINERS: dict[str, Callable[..., dict[str, Any]]] = {"clips": fit_clips, "grasps": fit_grasps}
 FOLDS: dict[str, Callable[..., dict[str, Any]]] = {"clips": _clip_folds, "grasps": _grasp_folds}
 
-__all__ = ["RunConfig", "cross_validate", "evaluate", "fit"]
+__all__ = ["RunConfig", "cross_validate", "fit"]

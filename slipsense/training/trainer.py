@@ -9,10 +9,8 @@ validation metrics. Every task gets from the loop:
   runs on rank ``m // accumulate``; each micro-batch's loss is scaled by its share of the step's
   loss weight, so the all-reduced gradient is the step's, whoever computed which part. A rank whose
   micro-batch is empty (the short last step) runs a weight-0 filler so it joins every all-reduce.
-* seeds: when a step is cut into several micro-batches, each runs with torch's generator seeded from
-  ``(seed, epoch, step, micro-batch)`` (:func:`~slipsense.training.distributed.micro_batch_rng`), so
-  N processes draw the dropout masks of one process with ``accumulate = N``; otherwise torch's
-  generator runs on from the seed.
+* seeds: a step cut into several micro-batches runs each under
+  :func:`~slipsense.training.distributed.micro_batch_rng`; otherwise torch's generator runs on.
 * resume: after every epoch the whole state (weights, optimizer, schedule, every random generator,
   the task's own state, metrics, best score) is written atomically (safetensors + JSON); a training
   started again from it ends with the weights of an uninterrupted one, bit for bit.
@@ -24,13 +22,16 @@ validation metrics. Every task gets from the loop:
 from __future__ import annotations
 
 import contextlib
+import csv
+import ctypes
+import io
 import json
 import math
 import random
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Iterator, Protocol
+from typing import Any, Callable, Iterator
 
 import numpy as np
 import torch
@@ -53,11 +54,13 @@ class Step:
     weight: float
 
 
-class Task(Protocol):
-    """What the loop asks of a kind of training data."""
+class Task:
+    """What the loop asks of a kind of training data (a task subclasses it; the defaults here are a
+    task's without validation, extra columns or state of its own)."""
 
     def trainable(self, model: nn.Module) -> nn.Module:
         """The module whose forward the loss calls (wrapped in DDP under torchrun)."""
+        return model
 
     def optimizer(self, model: nn.Module) -> tuple[Any, Any]:
         """``(optimizer, scheduler)``; the scheduler steps once per epoch."""
@@ -77,17 +80,21 @@ class Task(Protocol):
 
     def epoch_stats(self) -> dict[str, Any]:
         """Extra columns of the epoch's metrics row (after :meth:`plan`)."""
+        return {}
 
     def validate(self, model: nn.Module, d: Dist) -> dict[str, float]:
         """Validation metrics after an epoch (``val_<metric>`` and others), or ``{}``."""
+        return {}
 
     def identity(self) -> str | None:
         """What a resume state must have been written for (settings, data), or None."""
 
     def state(self) -> dict[str, Any]:
         """The task's own state for a resume (its generators, what it mined)."""
+        return {}
 
-    def restore(self, state: dict[str, Any]) -> None: ...
+    def restore(self, state: dict[str, Any]) -> None:
+        """Take back what :meth:`state` gave."""
 
 
 @dataclass
@@ -146,9 +153,7 @@ def train(
     for epoch in range(start, s.epochs):
         t0 = time.perf_counter()
         _sync_buffers(model, d)
-        steps = task.plan(model, epoch, d, s.accumulate)
-        if s.max_steps_per_epoch is not None:
-            steps = steps[: s.max_steps_per_epoch]
+        steps = task.plan(model, epoch, d, s.accumulate)[: s.max_steps_per_epoch]  # None: every step
         net.train()
         sums = torch.zeros(4, dtype=torch.float64)  # weighted loss sum, its weight, correct, counted
         batches = task.batches(steps, epoch, d, s.accumulate)
@@ -187,11 +192,9 @@ def train(
         _trim_heap()
         row["seconds"] = time.perf_counter() - t0
         history.append(row)
-        score = (
-            -row["val_loss"]
-            if s.select_by == "loss" and "val_loss" in row
-            else row.get(f"val_{s.select_by}", row["train_accuracy"])
-        )
+        score = row.get(f"val_{s.select_by}", row["train_accuracy"])
+        if s.select_by == "loss" and "val_loss" in row:
+            score = -row["val_loss"]  # lower is better
         improved = score > best
         best = max(best, score)
         if d.main:
@@ -201,8 +204,11 @@ def train(
                 if improved:
                     save_checkpoint(out / "best.safetensors", model, card)
                 write_metrics_csv(out / "metrics.csv", history)
-            if state_path is not None:
-                _save(state_path, epoch + 1, model, optimizer, scheduler, task, history, best)
+            if state_path is not None:  # everything a resume needs
+                state = {"identity": task.identity() or "", "epoch": epoch + 1}
+                objects = {"model": model, "optimizer": optimizer, "scheduler": scheduler}
+                state.update({k: o.state_dict() for k, o in objects.items()}, rng=rng_state(), task=task.state())
+                save_resume_state(state_path, {**state, "history": history, "best": best})
             if s.progress:
                 print(json.dumps({k: (round(v, 4) if isinstance(v, float) else v) for k, v in row.items()}), flush=True)
         if on_epoch is not None:
@@ -247,48 +253,27 @@ def set_rng_state(s: dict[str, Any]) -> None:
         torch.cuda.set_rng_state_all(list(s["cuda"]))
 
 
-def _save(path, epochs_done, model, optimizer, scheduler, task, history, best) -> None:
-    save_resume_state(
-        path,
-        {
-            "identity": task.identity() or "",
-            "epoch": epochs_done,
-            "model": model.state_dict(),
-            "optimizer": optimizer.state_dict(),
-            "scheduler": scheduler.state_dict(),
-            "rng": rng_state(),
-            "task": task.state(),
-            "history": history,
-            "best": best,
-        },
-    )
-
-
 def restore(path, state: dict[str, Any], model, optimizer=None, scheduler=None, task=None):
     """Load a resume state into the training's objects; ``(epochs done, history, best score)``.
     InputError naming ``path`` when it was written for another training or does not fit."""
 
     def fail(what: str, exc: BaseException):
-        text = " ".join(str(exc).split())
-        raise InputError(path, f"resume state does not fit {what} ({text[:200]})") from None
+        raise InputError(path, f"resume state does not fit {what} ({' '.join(str(exc).split())[:200]})") from None
 
     if task is not None and state.get("identity", "") != (task.identity() or ""):
         raise InputError(path, "resume state of another training (settings or data differ); use a new --out")
-    try:
-        model.load_state_dict(state["model"])
-    except (RuntimeError, KeyError, TypeError, ValueError) as exc:
-        fail("the model", exc)
-    for part, obj in (("optimizer", optimizer), ("scheduler", scheduler)):
+    unfit = (RuntimeError, KeyError, TypeError, ValueError, IndexError)
+    for part, obj in (("model", model), ("optimizer", optimizer), ("scheduler", scheduler)):
         if obj is not None:
             try:
                 obj.load_state_dict(state[part])
-            except (RuntimeError, KeyError, TypeError, ValueError, IndexError) as exc:
+            except unfit as exc:
                 fail(f"the {part}", exc)
     try:
         set_rng_state(state["rng"])
         if task is not None:
             task.restore(state.get("task") or {})
-    except (RuntimeError, KeyError, TypeError, ValueError, IndexError) as exc:
+    except unfit as exc:
         fail("the random number generators", exc)
     if not all(isinstance(r, dict) for r in state["history"]):
         raise InputError(path, "resume state history is not a list of metric rows")
@@ -297,14 +282,8 @@ def restore(path, state: dict[str, Any], model, optimizer=None, scheduler=None, 
 
 # --------------------------------------------------------------------------- files
 def write_metrics_csv(path: Path, rows: list[dict[str, Any]]) -> None:
-    import csv
-    import io
-
-    keys: list[str] = []
-    for r in rows:
-        keys += [k for k in r if k not in keys]
     buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=keys)
+    w = csv.DictWriter(buf, fieldnames=list(dict.fromkeys(k for r in rows for k in r)))  # columns as first seen
     w.writeheader()
     w.writerows(rows)
     write_text(path, buf.getvalue())
@@ -315,18 +294,5 @@ def _trim_heap() -> None:
     of changing sizes (a grasp batch's distinct frames), which fragments the heap: without this a
     grasp training grew by ~200 MB per epoch, to about 3 GB; trimmed after every epoch it peaks near
     1.3 GB, at no cost in speed."""
-    global _LIBC
-    if _LIBC is None:
-        import ctypes
-        import ctypes.util
-
-        try:
-            _LIBC = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-            _LIBC.malloc_trim  # noqa: B018 - raises AttributeError where the C library has none
-        except (OSError, AttributeError):
-            _LIBC = False
-    if _LIBC:
-        _LIBC.malloc_trim(0)
-
-
-_LIBC = None
+    with contextlib.suppress(OSError, AttributeError, TypeError):  # a C library without malloc_trim
+        ctypes.CDLL(None).malloc_trim(0)  # the C library this process runs on

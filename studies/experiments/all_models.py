@@ -9,8 +9,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from slipsense.models import model_class
 from slipsense.errors import ConfigError
+from slipsense.models import model_class
 from studies.experiments.report import Report
 from studies.experiments.settings import Settings
 from studies.experiments.source import DataSource, clip_spec, held_out_objects, object_split
@@ -24,7 +24,7 @@ def match_windows(
 
     Args:
         meta: the clips' metadata (``ClipSet.meta``).
-        arrays: marker windows as :func:`slipsense.sensors.real.real_marker_dataset` returns them.
+        arrays: marker windows as :func:`slipsense.marker_sequences.real_marker_dataset` returns them.
         y: the clips' labels; pairs whose labels disagree with the marker window's are dropped.
 
     Returns:

@@ -168,7 +168,7 @@ def fit_and_score(
         from sklearn.ensemble import HistGradientBoostingClassifier
     except ImportError:
         raise ConfigError("the marker baseline needs scikit-learn: pip install scikit-learn") from None
-    from slipsense.evaluation.metrics import metrics_from
+    from slipsense.measures.clips import metrics_from
 
     f = window_features(x, grid, rest)
     names = FEATURES + (REST_FEATURES if rest is not None else ())

@@ -13,8 +13,7 @@ def run_params(settings: Settings) -> dict[str, Any]:
     """Parameter count of every model at the papers' settings (built on the meta device: no memory)."""
     import torch
 
-    from slipsense.models import build, count_parameters
-    from slipsense.models import resnet3d, stnet
+    from slipsense.models import build, count_parameters, resnet3d, stnet
 
     rep = Report("params", settings)
     rows: list[dict[str, Any]] = []

@@ -26,7 +26,6 @@ from slipsense.atomic import write_text
 from slipsense.errors import ConfigError
 from studies.experiments.settings import EXPERIMENTS, TITLES, Settings
 
-
 # =============================================================================== machine
 
 

@@ -22,8 +22,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from slipsense.errors import ConfigError, InputError
-from studies.experiments.settings import Settings
 from slipsense.sensors.spec import GELSIGHT_MINI
+from studies.experiments.settings import Settings
 
 FPS = GELSIGHT_MINI.fps
 
@@ -131,10 +131,10 @@ class DataSource:
         wiggle_per_video: int = 2,
         seed: int = 0,
     ) -> dict[str, np.ndarray]:
-        """Real marker windows (:func:`slipsense.sensors.real.real_marker_dataset`; ``n_markers`` a
+        """Real marker windows (:func:`slipsense.marker_sequences.real_marker_dataset`; ``n_markers`` a
         layout: N markers nearest the image centre, or ``"ROWSxCOLS"``, every marker on that grid),
         labelled as :meth:`labels` labels them (the same hand labels)."""
-        from slipsense.sensors.real import real_marker_dataset
+        from slipsense.marker_sequences import real_marker_dataset
 
         arrays = real_marker_dataset(
             self.root,
@@ -151,9 +151,9 @@ class DataSource:
 
     def replay(self, detector, objects: Sequence[str]):
         """Every labelled run of ``objects`` replayed through ``detector`` as it runs live, all
-        cameras from the first frame (:func:`slipsense.evaluation.early_warning.replay_recordings`):
-        one :class:`~slipsense.evaluation.early_warning.RunTrace` per run (slips without a moment left out)."""
-        from slipsense.evaluation.early_warning import replay_recordings
+        cameras from the first frame (:func:`slipsense.evaluation.replay.replay_recordings`):
+        one :class:`~slipsense.evaluation.replay.RunTrace` per run (slips without a moment left out)."""
+        from slipsense.evaluation.replay import replay_recordings
 
         labels, keep = self.labels(), set(objects)
         recs = [r for r in self.recordings() if r.object in keep and r.key in labels]

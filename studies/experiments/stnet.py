@@ -72,7 +72,7 @@ def _per_grasp(model, info, source, train_objects: Sequence[str], test_objects: 
     replayed from its first frame, both fingers (alarm when either camera's window says slip), at
     the operating point chosen on the training objects' runs replayed the same way (best warned
     rate minus false-positive rate, as for the papers' clip models)."""
-    from slipsense.evaluation import pergrasp
+    from slipsense.measures import pergrasp
     from slipsense.streaming.detector import SlipDetector
 
     det = SlipDetector(model.eval(), sensors=2, info=info)
@@ -103,7 +103,7 @@ def run_stnet(
     sequences (split by sequence) and on real marker sequences (held-out objects)."""
     from slipsense.datasets import MarkerDataset
     from slipsense.models import stnet as stnet_mod
-    from slipsense.sensors.markers import layout_name, marker_layout
+    from slipsense.recordings.markers import layout_name, marker_layout
     from studies.stnet.sim_model import rest_grid
     from studies.stnet.simulator import SimConfig
 

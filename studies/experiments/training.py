@@ -24,8 +24,8 @@ def _device_of(model):
 
 def score(model, data, batch_size: int = 32) -> dict[str, Any]:
     """Metrics of ``model`` on ``data`` (on the model's device)."""
-    from slipsense.evaluation.evaluate import predict
-    from slipsense.evaluation.metrics import metrics_from
+    from slipsense.evaluation.predict import predict
+    from slipsense.measures.clips import metrics_from
 
     p, y = predict(model, data, batch_size=batch_size, device=_device_of(model))
     return metrics_from(p, y)

@@ -17,14 +17,14 @@ in turn is held out and, from the other objects' grasps only:
   shear the lift put on the gel's markers has been given up; its ``gate`` and ``letgo`` chosen among
   :attr:`~slipsense.models.shear.ShearRetention.recipe` and its threshold set on the other
   objects' grasps (``train.choose``, :func:`slipsense.training.grasp_detector.finish_training`);
-* the non-learned baselines (:mod:`slipsense.evaluation.baselines`) and the majority class, their
+* the non-learned baselines (:mod:`slipsense.measures.baselines`) and the majority class, their
   thresholds chosen on the other objects.
 
 Every row is judged on the held-out objects' grasps: ROC AUC of the per-grasp peak score (pooled over
 the folds' detectors), accuracy and balanced accuracy at each fold's own threshold, accuracy with each
 object's threshold chosen on the other objects' held-out scores, and the held grasps that alarm; rows
 trained on a few grasps pool three draws of them; 95% intervals from a bootstrap over objects
-(:mod:`slipsense.evaluation.outcome`). ``python -m studies grasp adaptation`` writes ``adaptation.json``,
+(:mod:`slipsense.measures.slipped_or_held`). ``python -m studies grasp adaptation`` writes ``adaptation.json``,
 ``adaptation.md`` and ``adaptation.png``.
 """
 
@@ -37,8 +37,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from slipsense.evaluation import outcome
 from slipsense.evaluation.calibrate import calibrated_threshold
+from slipsense.measures import slipped_or_held
 
 #: Training grasps drawn for the fine-tuning rows (None: all of the other objects').
 SIZES = (5, 10, 20, None)
@@ -67,7 +67,7 @@ def _subset(runs: Sequence, n: int | None, rng: np.random.Generator) -> list:
 def _peaks(model, runs: Sequence, startup: int) -> np.ndarray:
     from slipsense.training.grasps import predict_runs
 
-    return np.array([outcome.peak_alarm_score(p, 1, 0) for p in predict_runs(model, runs, startup)])
+    return np.array([slipped_or_held.peak_alarm_score(p, 1, 0) for p in predict_runs(model, runs, startup)])
 
 
 def _both_sets_job(shared, job, tick=lambda units: None) -> tuple[np.ndarray, np.ndarray]:
@@ -87,7 +87,7 @@ def _both_sets_job(shared, job, tick=lambda units: None) -> tuple[np.ndarray, np
 
 
 def _row(name: str, scores, alarmed, slipped, objects, seconds: float, draws: int) -> dict[str, Any]:
-    m = outcome.outcome_measure(scores, slipped, objects, alarmed, draws)
+    m = slipped_or_held.outcome_measure(scores, slipped, objects, alarmed, draws)
     held = ~np.asarray(slipped, bool)
     m.update(row=name, held_alarming=int(np.asarray(alarmed, bool)[held].sum()), seconds=round(seconds, 1))
     return m
@@ -98,7 +98,7 @@ def adaptation_study(
     sizes: Sequence[int | None] = SIZES,
     epochs: int = 10,
     seed: int = 0,
-    draws: int = outcome.BOOTSTRAP,
+    draws: int = slipped_or_held.BOOTSTRAP,
     progress: bool = True,
     repeats: int = 3,
     also: str | Path | None = None,
@@ -113,7 +113,7 @@ def adaptation_study(
     both-sets row's detectors) side by side (None: one per core; each training is seeded and
     single-threaded, so the numbers do not depend on it)."""
     from slipsense.checkpoint import load_model
-    from slipsense.evaluation.baselines import frame_scores
+    from slipsense.measures.baselines import frame_scores
     from slipsense.progress import progress_bar
     from slipsense.resources import ONE_SENSOR_MODEL, shipped_model
     from slipsense.training.grasp_detector import train_with_operating_point
@@ -177,7 +177,7 @@ def adaptation_study(
                 _, _, op, probs = train_with_operating_point(
                     train + [r for r in grasps if r.object == o], [o], cfg, workers=workers
                 )
-                scores[mine] = [outcome.peak_alarm_score(p, 1, 0) for p in probs]
+                scores[mine] = [slipped_or_held.peak_alarm_score(p, 1, 0) for p in probs]
                 alarmed[mine] = scores[mine] >= op["threshold"]
             parts.append((scores, alarmed))
         k = len(parts)  # the draws pooled: each grasp judged once per draw, objects still the unit
@@ -226,9 +226,9 @@ def adaptation_study(
         rows.append(_row(name, scores, alarmed, slipped, objects, time.perf_counter() - t0, draws))
     for name in ("mean_frame_difference", "difference_to_contact", "frame_difference"):
         s = np.array([frame_scores(r.gray[0], 0)[name] for r in runs])  # on the detector's own grey frames
-        lo = outcome.leave_objects_out(s, slipped, objects)
+        lo = slipped_or_held.leave_objects_out(s, slipped, objects)
         rows.append(_row(f"baseline: {name}", s, lo, slipped, objects, 0.0, draws))
-    m = outcome.majority_measure(slipped, objects, draws)
+    m = slipped_or_held.majority_measure(slipped, objects, draws)
     m.update(row="baseline: majority class", held_alarming=0, seconds=0.0)
     m["operating_point"] = m["leave_objects_out"]
     rows.append(m)

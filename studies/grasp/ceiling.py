@@ -22,9 +22,9 @@ from pathlib import Path
 import numpy as np
 
 from slipsense.errors import InputError
-from slipsense.evaluation import pergrasp
-from slipsense.evaluation.grasp_scores import stored_trace
-from slipsense.evaluation.pergrasp import STARTUP
+from slipsense.training.folds import stored_trace
+from slipsense.measures import pergrasp
+from slipsense.measures.pergrasp import STARTUP
 
 DEBOUNCES = (1, 2, 3, 5)
 

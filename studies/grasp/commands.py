@@ -15,21 +15,21 @@ from slipsense.cli.common import check_seed, command_line, friendly
 from slipsense.cli.live import THREADS_HELP, set_threads
 from slipsense.config import data_root, gelsight_recordings, resolve_path
 from slipsense.errors import ConfigError
-from slipsense.evaluation.pergrasp import promise_text
+from slipsense.measures.pergrasp import promise_text
 from slipsense.resources import shipped_model
 from slipsense.training.grasps import load_grasp_data
 from studies.grasp.adaptation import adaptation_study, table, write
 from studies.grasp.ceiling import held_out_traces, one_threshold, per_fold, phases
+from studies.grasp.derive import adapt_report, derive_sensor, resized_frame_folders, slower_frame_folders
 from studies.grasp.early_warning import DEFAULT_THRESHOLDS, run_early_warning
 from studies.grasp.hold import hold_study
-from studies.grasp.learning_curve import curve_table, learning_curve
 from studies.grasp.hold import table as hold_table
-from studies.grasp.precursors import aligned_means, precursor_table, summary, write_report
+from studies.grasp.learning_curve import curve_table, learning_curve
 from studies.grasp.looks import looks_folds_study, looks_study
 from studies.grasp.looks import table as looks_table
 from studies.grasp.looks import write as write_looks
+from studies.grasp.precursors import aligned_means, precursor_table, summary, write_report
 from studies.grasp.promise import restate_promise
-from studies.grasp.derive import adapt_report, derive_sensor, resized_frame_folders, slower_frame_folders
 from studies.grasp.rates import folds_study, lift_study, rates_study
 from studies.grasp.rates import folds_table as rates_folds_table
 from studies.grasp.rates import table as rates_table

@@ -12,22 +12,58 @@ import warnings
 from pathlib import Path
 from typing import Any, Mapping, Optional, Sequence
 
+from slipsense import atomic
 from slipsense.atomic import check_output_dir
 from slipsense.checkpoint import read_info
 from slipsense.config import gelsight_recordings
 from slipsense.errors import ConfigError, InputError
-from slipsense import atomic
-from slipsense.evaluation import pergrasp
-from slipsense.evaluation.early_warning import RunTrace, plot_tradeoff, replay_recordings
-from slipsense.evaluation.replay import shipped_for
+from slipsense.evaluation.judge import shipped_for
+from slipsense.evaluation.replay import RunTrace, plot_tradeoff, replay_recordings
+from slipsense.measures import pergrasp
 from slipsense.recordings.folders import camera_counts, find_recordings
-from slipsense.recordings.label_csv import read_labels_csv
+from slipsense.recordings.label_csv import LABEL_COLUMNS, Key, _open_csv, _parse_int
+from slipsense.recordings.types import VideoLabel
 from slipsense.sensors.spec import GELSIGHT_MINI, check_fps, sensor_of
 from slipsense.streaming.detector import SlipDetector
 from slipsense.watch import checkpoint_or_shipped
 
 #: Default alarm thresholds of ``early-warning``.
 DEFAULT_THRESHOLDS = "0.1,0.2,0.3,0.4,0.5,0.6,0.7,0.8,0.9"
+
+
+def read_labels_csv(path: str | Path) -> dict[Key, VideoLabel]:
+    """Read a file written by :func:`slipsense.recordings.label_csv.write_labels_csv` (``slipsense
+    label``) back into ``{key: VideoLabel}``.
+
+    Raises:
+        InputError: naming the file and line, for missing columns or malformed values.
+    """
+    path = Path(path)
+    header, rows = _open_csv(path)
+    missing = [c for c in LABEL_COLUMNS if c not in header]
+    if missing:
+        raise InputError(path, f"line 1: missing column(s) {', '.join(missing)}")
+    out: dict[Key, VideoLabel] = {}
+    for line, row in rows:
+        slipped = row["slipped"].lower()
+        if slipped not in ("true", "false"):
+            raise InputError(path, f"line {line}: slipped must be true or false, got {row['slipped']!r}")
+        moment = row["moment_of_slip"]
+        label = VideoLabel(
+            object=row["object"],
+            experiment=_parse_int(path, line, "experiment", row["experiment"]),
+            camera=row["camera"],
+            n_frames=_parse_int(path, line, "n_frames", row["n_frames"], lo=1),
+            slipped=slipped == "true",
+            moment_of_slip=None if moment == "" else _parse_int(path, line, "moment_of_slip", moment),
+            contact_start=_parse_int(path, line, "contact_start", row["contact_start"]),
+            contact_end=_parse_int(path, line, "contact_end", row["contact_end"]),
+            source=row["source"] or "auto",
+        )
+        if label.key in out:
+            raise InputError(path, f"line {line}: repeats {label.object} experiment {label.experiment} {label.camera}")
+        out[label.key] = label
+    return out
 
 
 def parse_thresholds(text: str) -> list[float]:

@@ -15,7 +15,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from slipsense.alarm import debounce, hold, hold_frames, onsets
-from slipsense.evaluation.replay import evaluate
+from slipsense.evaluation.judge import evaluate
 
 HOLDS_S = (0.0, 0.1, 0.2, 0.3, 0.5, 1.0, 2.0)
 

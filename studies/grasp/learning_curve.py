@@ -18,8 +18,8 @@ from typing import Any
 import numpy as np
 
 from slipsense.api import fit
-from slipsense.evaluation import outcome
-from slipsense.evaluation.replay import evaluate
+from slipsense.evaluation.judge import evaluate
+from slipsense.measures import slipped_or_held
 from slipsense.progress import progress_bar
 from slipsense.recordings.folders import find_recordings
 from studies.pages import curve_table  # noqa: F401  (the report's table: written with the pages)
@@ -55,8 +55,8 @@ def learning_curve(
                 {
                     "objects": list(train),
                     "grasps": sum(grasps[o] for o in train),
-                    "accuracy": outcome.accuracy(a, y),
-                    "balanced_accuracy": outcome.balanced_accuracy(a, y),
+                    "accuracy": slipped_or_held.accuracy(a, y),
+                    "balanced_accuracy": slipped_or_held.balanced_accuracy(a, y),
                 }
             )
             alarmed.append(a)
@@ -66,8 +66,8 @@ def learning_curve(
             {
                 "objects": k,
                 "grasps": float(np.mean([r["grasps"] for r in rows])),
-                "accuracy": outcome.accuracy(a, y),
-                "balanced_accuracy": outcome.balanced_accuracy(a, y),
+                "accuracy": slipped_or_held.accuracy(a, y),
+                "balanced_accuracy": slipped_or_held.balanced_accuracy(a, y),
                 "draws": rows,
             }
         )

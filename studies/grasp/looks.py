@@ -15,14 +15,14 @@ import numpy as np
 from slipsense import atomic
 from slipsense.config import portable_path
 from slipsense.data import label_runs
-from slipsense.evaluation import pergrasp
-from slipsense.evaluation.early_warning import RunTrace
+from slipsense.errors import InputError
+from slipsense.evaluation.replay import RunTrace
+from slipsense.measures import pergrasp
+from slipsense.recordings.contact import STARTUP_FRAMES, rest_mask
 from slipsense.recordings.folders import find_recordings
 from slipsense.recordings.frame_cache import video_products
 from slipsense.recordings.video import read_video
 from slipsense.sensors.marker_detection import detect_markers
-from slipsense.recordings.contact import STARTUP_FRAMES
-from slipsense.errors import InputError
 from slipsense.streaming.detector import SlipDetector
 from studies.grasp.rates import fold_detectors, judged_runs, trained_by_command
 from studies.pages import looks_table
@@ -82,7 +82,7 @@ def _replayed(det: SlipDetector, recs: list, labels: dict, looks: dict, progress
     outcomes: dict[str, list] = {name: [] for name in looks}
     for obj, exp, cams, slipped, moment in judged_runs(recs, labels, det.sensors, progress):
         videos = [read_video(r.path, expected_size=None) for r in cams]
-        rest = pergrasp.rest_mask(np.stack([video_products(r.path, ["contact"])["contact"] for r in cams]))
+        rest = rest_mask(np.stack([video_products(r.path, ["contact"])["contact"] for r in cams]))
         for name, change in looks.items():
             trace = det.replay(*[v if change is None else change(v) for v in videos])
             run = RunTrace(obj, exp, slipped, moment, len(videos[0]), trace.probability, rest)

@@ -26,7 +26,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from slipsense.evaluation import pergrasp
+from slipsense.measures import pergrasp
+from slipsense.recordings.contact import rest_mask
 from slipsense.recordings.runs import GraspRun
 
 SIGNALS = ("motion", "change_1s", "contact_fading")
@@ -59,7 +60,7 @@ def _window_mean(x: np.ndarray, end: int, window: int) -> float:
 
 
 def _grasp_start(run: GraspRun) -> int:
-    touched = np.flatnonzero(~pergrasp.rest_mask(run.contact))
+    touched = np.flatnonzero(~rest_mask(run.contact))
     touched = touched[touched >= pergrasp.STARTUP]
     return int(touched[0]) if touched.size else pergrasp.STARTUP
 

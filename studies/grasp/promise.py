@@ -8,13 +8,11 @@ from typing import Any, Sequence
 import numpy as np
 
 from slipsense.checkpoint import read_info, update_info
-from slipsense.errors import InputError
-from slipsense.errors import ConfigError
+from slipsense.errors import ConfigError, InputError
 from slipsense.parallel import run_jobs
 from slipsense.recordings.runs import GraspRun
 from slipsense.training.grasp_detector import fit_job, held_alarm_of, job_weight, plan_training
-from slipsense.training.grasps import GraspTrainConfig
-from slipsense.training.grasps import with_settings
+from slipsense.training.grasps import GraspTrainConfig, with_settings
 from slipsense.training.recipe import RunConfig, grasp_data
 
 

@@ -22,10 +22,11 @@ from slipsense import atomic
 from slipsense.checkpoint import read_info
 from slipsense.config import portable_path
 from slipsense.data import label_runs
-from slipsense.evaluation import pergrasp
-from slipsense.evaluation.early_warning import RunTrace
-from slipsense.evaluation.replay import evaluate
+from slipsense.evaluation.judge import evaluate
+from slipsense.evaluation.replay import RunTrace
+from slipsense.measures import pergrasp
 from slipsense.progress import progress_bar
+from slipsense.recordings.contact import rest_mask
 from slipsense.recordings.folders import find_recordings
 from slipsense.recordings.frame_cache import video_products
 from slipsense.recordings.types import by_run
@@ -109,7 +110,7 @@ def _replayed(det: SlipDetector, recs: list, labels: dict, rng_for, modes=("cloc
         for cond in CONDITIONS:
             idx, stamps = cond.frames(gray.shape[1], rng_for(obj, exp))
             sub_moment = None if moment is None else int(np.searchsorted(idx, moment, side="right")) - 1
-            rest = pergrasp.rest_mask(contact[:, idx])
+            rest = rest_mask(contact[:, idx])
             for mode in modes:
                 trace = det.replay_cached(gray[:, idx], stamps=stamps if mode == "clock" else None)
                 run = RunTrace(obj, exp, slipped, sub_moment, len(idx), trace.probability, rest, (), cond.fps)

@@ -11,13 +11,14 @@ from typing import Any, Sequence
 import numpy as np
 
 from slipsense.errors import ConfigError, InputError
-from slipsense.evaluation import pergrasp
-from slipsense.evaluation.folds import _echo_fold, _pct, _rule, _write_report
-from slipsense.evaluation.grasp_scores import clip_metrics, stored_trace
+from slipsense.measures.clips import clip_metrics
+from slipsense.training.folds import stored_trace
+from slipsense.measures import pergrasp
+from slipsense.training.folds import _echo_fold, _pct, _rule, _write_report
 
 
 def fold_at(fold: dict[str, Any], op: dict[str, Any], horizon: int) -> dict[str, Any]:
-    """A fold written by :func:`slipsense.evaluation.grasp_scores.fold_result` scored again at another operating point ``op``, from
+    """A fold written by :func:`slipsense.training.folds.fold_result` scored again at another operating point ``op``, from
     the held-out traces and clip probabilities it keeps (6 decimals; fold files written before kept 4,
     where a threshold near 0.9999 can decide differently than the full-precision trace would)."""
     runs, outs = [], []

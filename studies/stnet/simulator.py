@@ -41,7 +41,7 @@ import numpy as np
 from slipsense.atomic import write_with
 from slipsense.progress import progress_bar
 from slipsense.sensors.marker_npz import MarkerDataset, load_marker_npz
-from slipsense.sensors.real import save_marker_npz
+from slipsense.marker_sequences import save_marker_npz
 from studies.stnet.sim_model import OBJECTS, PATTERNS, SLIP_PATTERN, SimConfig, displacement_field, rest_grid
 from studies.stnet.sim_sequence import simulate_sequence
 

@@ -78,7 +78,7 @@ class MemorySource:
         return ClipSet(x, y, meta, spec)
 
     def markers(self, frames, n_markers, horizon=0, wiggle_per_video=2, seed=0):
-        from slipsense.sensors.markers import marker_layout
+        from slipsense.recordings.markers import marker_layout
 
         self.calls.append(("markers", frames, n_markers))
         n_markers, _ = marker_layout(n_markers)  # a layout: a count or ROWSxCOLS
@@ -101,7 +101,7 @@ class MemorySource:
     def replay(self, detector, objects):
         """Per object a run that slips (its markers jump at frame 25, moment 30) and one that holds,
         both cameras, through the detector as the real source replays them."""
-        from slipsense.evaluation.early_warning import RunTrace
+        from slipsense.evaluation.replay import RunTrace
 
         self.calls.append(("replay", tuple(objects)))
         rng = np.random.default_rng(3)
@@ -344,7 +344,7 @@ def test_stnet_real_row_on_a_grid_makes_checkpoints_that_replay_on_it(tmp_path, 
 
 
 def test_marker_layout_of_the_real_row():
-    from slipsense.sensors.markers import marker_layout
+    from slipsense.recordings.markers import marker_layout
 
     assert marker_layout("7x9") == (63, (7, 9)) and marker_layout(" 2X3 ") == (6, (2, 3))
     assert marker_layout(32) == (32, None) and marker_layout("5") == (5, None)

@@ -1,6 +1,6 @@
 """Real marker sequences from GelSight recordings, for the point-cloud models (STNet, TemNet).
 
-Each video's markers are tracked (pyramidal Lucas-Kanade, :mod:`slipsense.sensors.markers`),
+Each video's markers are tracked (pyramidal Lucas-Kanade, :mod:`slipsense.recordings.markers`),
 reduced to a fixed count per sensor and cut into the same windows as the video clips
 (:func:`slipsense.recordings.clips.plan_windows`): slip windows end right before the moment of
 slip, wiggle windows come from the contact phase of runs that did not slip. ``groups`` is the
@@ -18,7 +18,7 @@ from slipsense.data import label_runs
 from slipsense.errors import InputError
 from slipsense.recordings.clips import ClipSpec, plan_windows
 from slipsense.recordings.folders import find_recordings, validate_recordings
-from slipsense.sensors.markers import layout_name, marker_clouds, track_recordings
+from slipsense.recordings.markers import layout_name, marker_clouds, track_recordings
 
 
 def real_marker_dataset(
@@ -37,11 +37,11 @@ def real_marker_dataset(
     Returns arrays ``x`` float32 ``(N, frames, n_markers, 3)`` — per marker x, y in mm from the
     image centre and the unitless intensity depth proxy —, ``y`` int64 ``(N,)`` (1 = onset of
     slip), ``groups`` str ``(N,)`` object names, ``experiment`` int, ``camera`` str, ``start`` int
-    (first frame of the window) and ``marker_layout`` (0-d str, ``"7x9"`` or ``"32"``: :func:`~slipsense.sensors.markers.layout_name`). ``overrides``: a label overrides CSV (hand labels win), as for
+    (first frame of the window) and ``marker_layout`` (0-d str, ``"7x9"`` or ``"32"``: :func:`~slipsense.recordings.markers.layout_name`). ``overrides``: a label overrides CSV (hand labels win), as for
     training; with ``on_error="skip"`` runs that cannot be labelled are left out with a warning.
-    ``n_markers`` is a layout (:func:`slipsense.sensors.markers.marker_layout`): a count N, the N
+    ``n_markers`` is a layout (:func:`slipsense.recordings.markers.marker_layout`): a count N, the N
     markers nearest the image centre, or ``"ROWSxCOLS"``, every tracked marker resampled onto that
-    grid of virtual markers (:func:`slipsense.sensors.markers.grid_sequences`).
+    grid of virtual markers (:func:`slipsense.recordings.markers.grid_sequences`).
     """
     layout = layout_name(n_markers)
     spec = ClipSpec(frames=frames, horizon=horizon, wiggle_per_video=wiggle_per_video, seed=seed)

@@ -42,7 +42,7 @@ Modules
 -------
 Detection lives in :mod:`slipsense.sensors.marker_detection`, tracking and :class:`MarkerTrack`
 in :mod:`slipsense.sensors.marker_tracking`, the track cache in
-:mod:`slipsense.sensors.marker_cache`. This module re-exports their public names and holds what
+:mod:`slipsense.recordings.marker_cache`. This module re-exports their public names and holds what
 works on whole recordings and finished tracks: :func:`track_recording`, :func:`track_recordings`,
 :func:`marker_sequences`, :func:`grid_sequences` and :func:`marker_clouds`.
 """
@@ -57,11 +57,11 @@ from tqdm.auto import tqdm
 
 from ..config import cache_root
 from ..errors import ConfigError, InputError
-from ..recordings.video import read_video
-from .marker_cache import _cache_file, _load_cached_track, _save_cached_track
-from .marker_detection import detect_markers, order_markers
-from .marker_tracking import DEFAULT_MM_PER_PX, MarkerTrack, track_markers
-from .spec import GELSIGHT_MINI
+from .video import read_video
+from .marker_cache import read_track, track_entry
+from ..sensors.marker_detection import detect_markers, order_markers
+from ..sensors.marker_tracking import DEFAULT_MM_PER_PX, MarkerTrack, track_markers
+from ..sensors.spec import GELSIGHT_MINI
 
 __all__ = [
     "DEFAULT_MM_PER_PX",
@@ -230,10 +230,9 @@ def track_recordings(
         recordings: objects with a ``.path`` (e.g. :class:`slipsense.recordings.types.Recording`)
             or plain paths.
         reference_index, expected_size, track_kwargs: as for :func:`track_recording`.
-        cache_dir: the cache (default ``config.cache_root()/markers``). Its files are named by a
-            hash of the video's resolved path, size, mtime and all tracking parameters, and are
-            written atomically with a ``.json`` sidecar (sha256 and inputs, written last); an entry
-            whose checksum or inputs do not match, or whose arrays do not fit together or the
+        cache_dir: the cache (default ``config.cache_root()/markers``) of verified entries
+            (:mod:`slipsense.cache`) keyed by the video's resolved path, size, mtime and all tracking
+            parameters; an entry that fails its checks, or whose arrays do not fit together or the
             video, is tracked again with a :class:`~slipsense.errors.CacheWarning` and overwritten.
         progress: show a tqdm progress bar.
 
@@ -248,10 +247,10 @@ def track_recordings(
         path = Path(getattr(item, "path", item))
         if not path.is_file():
             raise InputError(path, "video file does not exist")
-        cfile = _cache_file(folder, path, params)
-        track = _load_cached_track(cfile, path, params, expected_size)
-        if track is None:
-            track = track_recording(path, reference_index, expected_size=expected_size, **track_kwargs)
-            _save_cached_track(cfile, path, params, track)
+        track = track_entry(folder, path, params).get(
+            lambda f: read_track(f, path, expected_size),
+            lambda: track_recording(path, reference_index, expected_size=expected_size, **track_kwargs),
+            lambda tmp, track: np.savez(tmp, **track.to_arrays()),
+        )
         tracks.append(track)
     return tracks

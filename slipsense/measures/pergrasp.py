@@ -15,42 +15,26 @@ not fire before anything touches it. A detector that is always on scores 0 warne
 false-positive grasps; one that is always off scores 0 warned and 0 false positives; one that
 alarms only in ``m-H..m`` scores 100% and 0 (tests hold all three).
 
-Everything here is numpy on alarm arrays: the models and the replay live elsewhere.
+Everything here is numpy on alarm arrays (a floor of :mod:`slipsense.measures`): the models and the replay live elsewhere.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
-from typing import Any, Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
 from slipsense.alarm import HOLD_S, debounce  # the alarm rule every outcome is judged by
 from slipsense.errors import ConfigError
-from slipsense.recordings.contact import MIN_CONTACT as REST_MARGIN  # touching: this far above the rest floor
-from slipsense.recordings.contact import STARTUP_FRAMES as STARTUP  # camera start-up transient, never scored
 from slipsense.sensors.spec import GELSIGHT_MINI
+from slipsense.measures.registry import HORIZON, STARTUP, Judged, plural, register
 
-#: Default warning horizon: 50 frames = 2 s at 25 frames/s.
-HORIZON = 50
 
 #: Thresholds an operating point is chosen among: class-balanced training inflates probabilities,
 #: so the grid is dense near 1.
 THRESHOLDS = tuple(float(t) for t in np.round(np.linspace(0.05, 0.95, 19), 3)) + (0.97, 0.98, 0.99, 0.995, 0.998, 0.999)
-
-
-def rest_mask(contact: np.ndarray, margin: float = REST_MARGIN) -> np.ndarray:
-    """``(S, N)`` contact strength per sensor -> ``(N,)`` bool, True where no sensor is touched:
-    every sensor within ``margin`` of its own rest floor (lowest 5-frame median after start-up)."""
-    c = np.asarray(contact, dtype=np.float64)
-    rest = np.ones(c.shape[1], dtype=bool)
-    for s in c:
-        tail = s[STARTUP:] if len(s) > STARTUP + 5 else s
-        padded = np.pad(tail, 2, mode="edge")
-        floor = float(np.median(np.lib.stride_tricks.sliding_window_view(padded, 5), axis=1).min())
-        rest &= s < floor + margin
-    return rest
 
 
 @dataclass(frozen=True)
@@ -80,7 +64,7 @@ def grasp_outcome(
         moment: the moment of slip, or None for a run that held.
         horizon: frames before the moment in which a first alarm is a warning in time.
         startup: leading frames not scored.
-        rest: optional ``(N,)`` bool, True where no sensor is touched (:func:`rest_mask`).
+        rest: optional ``(N,)`` bool, True where no sensor is touched (:func:`slipsense.recordings.contact.rest_mask`).
     """
     a = np.asarray(alarm, dtype=bool)
     start = min(startup, len(a))
@@ -114,6 +98,32 @@ def trace_outcome(
     ``slip_without_moment``, neither slip nor held."""
     o = grasp_outcome(debounce(probability, threshold, debounce_frames), moment, horizon, startup, rest)
     return replace(o, outcome="slip_without_moment") if slipped and moment is None else o
+
+
+@dataclass
+class RunTrace:
+    """One replayed run: its labels, its probability trace and where no gel was touched."""
+
+    object: str
+    experiment: int
+    slipped: bool
+    moment_of_slip: int | None  # last frame before the object loses contact (slip runs)
+    n_frames: int
+    probability: np.ndarray  # (N,) combined; NaN where the detector gives no answer yet
+    rest: np.ndarray | None = field(default=None, repr=False)  # (N,) bool: no sensor touched
+    cameras: tuple[str, ...] = ()  # the cameras replayed: one for a one-finger detector, else all
+    fps: float = 25.0  # the rate the run's frames were taken at
+    model_fps: float = 25.0  # the rate the detector runs at (its sensor's)
+    fps_from: str = ""  # where the run's rate was read (sensor.json, the video's stated rate, ...)
+
+    def outcome(
+        self, threshold: float, debounce: int = 1, horizon: int = HORIZON, startup: int = STARTUP
+    ) -> GraspOutcome:
+        """The run's verdict; ``horizon`` and ``startup`` count frames at the detector's rate (50 and 10
+        at 25 frames/s: 2 s and 0.4 s), so a run taken at another rate is judged over the same time."""
+        scale = self.fps / self.model_fps
+        h, s = (horizon, startup) if scale == 1 else (max(1, round(horizon * scale)), round(startup * scale))
+        return trace_outcome(self.probability, threshold, debounce, self.moment_of_slip, self.slipped, h, s, self.rest)
 
 
 #: Columns of the per-grasp table, in order.
@@ -361,3 +371,45 @@ def bootstrap_curve(
             }
         )
     return rows
+
+
+def early_warning_lines(g: Mapping[str, Any], context: Mapping[str, Any]) -> list[str]:
+    """Warned in time / too early / missed, on the slips with a moment of slip; false alarms on held grasps."""
+    horizon, fps = context.get("horizon"), context.get("fps")
+    lines = []
+    held = g["held_runs"]
+    fp = f"False alarms: {g['false_positive_grasps']} of {plural(held, 'held grasp')} alarmed at some point."
+    without = g.get("slips_without_moment", 0)
+    if g["slip_runs"] == 0:
+        if g.get("slips_without_moment"):
+            lines.append(
+                "No slipped grasp has a moment of slip in these labels (they say only whether a grasp slipped, not "
+                "when): the early-warning figures do not apply."
+            )
+        return lines + [fp]
+    window = f"{horizon} frames" if horizon is not None else "the warning window"
+    if horizon is not None and fps:
+        window += f" = {horizon / fps:.1f} s"
+    lead = g.get("median_lead_ms")
+    lead_text = "" if lead is None or math.isnan(lead) else f"; median warning {lead:.0f} ms before the slip"
+    lines.append(
+        f"Early warning on the {plural(g['slip_runs'], 'slipped grasp')} whose moment of slip is known: "
+        f"{g['warned']} warned in time (first alarm at most {window} before the object slipped away), "
+        f"{g['premature']} too early (first alarm before that: the gripper would react to nothing), "
+        f"{g['missed']} missed{lead_text}."
+    )
+    if without:
+        lines.append(
+            f"  {plural(without, 'more slipped grasp')} without a moment of slip found in the video: judged only as "
+            "slipped or held above."
+        )
+    return lines + [fp]
+
+
+@register("per_grasp", early_warning_lines, pools=False)
+def per_grasp(judged: Judged) -> dict[str, Any]:
+    """Slips warned in time / premature / missed, false-positive grasps, alarms at rest, lead times
+    (:func:`summarise`), and ``slips_without_moment``: the slipped runs whose moment of slip was not
+    found, counted in neither ``slip_runs`` nor ``held_runs``."""
+    outcomes = [r.outcome(th, k, judged.horizon, judged.startup) for r, (th, k, _) in zip(judged.runs, judged.points)]
+    return {**summarise(outcomes), "slips_without_moment": sum(o.outcome == "slip_without_moment" for o in outcomes)}

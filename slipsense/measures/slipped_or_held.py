@@ -23,6 +23,8 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from slipsense.measures.registry import Judged, pct, register, with_range
+
 #: Bootstrap draws for the intervals.
 BOOTSTRAP = 2000
 
@@ -187,3 +189,75 @@ def beats(detector: Mapping[str, Any], baselines: Mapping[str, Mapping[str, Any]
             if not mine_v > theirs_v:
                 said.append(f"the detector does not beat {name} on {label} ({mine_v:.3f} against {theirs_v:.3f})")
     return said
+
+
+#: Plain words for the baselines of :meth:`grasp_measure`.
+BASELINE_WORDS = {
+    "majority_class": "always answers the outcome most grasps of the other objects had",
+    "frame_difference": "the largest change between consecutive frames",
+    "mean_frame_difference": "the mean change between consecutive frames",
+    "difference_to_contact": "the largest change from the first frame of contact",
+}
+
+
+def telling_apart(measure: Mapping[str, Any], context: Mapping[str, Any] | None = None) -> list[str]:
+    """Slipped against held grasps: the detector's figures, then the baselines'."""
+    d = measure["detector"]
+    own = (d.get("operating_point") or {}).get("accuracy")
+    loo = (d.get("leave_objects_out") or {}).get("accuracy")
+    lines = [
+        "Telling slipped grasps from held ones (ranking: 50% = chance, 100% = every slipped grasp scored above "
+        "every held one; 95% ranges: objects drawn again at random):",
+        f"  detector: ranking {with_range(d['roc_auc'])}; right on {with_range(own)} of grasps at its own "
+        "alarm threshold",
+    ]
+    if loo:
+        lines.append(
+            f"            right on {with_range(loo)} with each object's threshold chosen on the other objects only"
+        )
+    for name, b in measure.get("baselines", {}).items():
+        b_loo = (b.get("leave_objects_out") or {}).get("accuracy")
+        words = BASELINE_WORDS.get(name, "a rule that learns nothing")
+        lines.append(
+            f"  baseline {name} ({words}): ranking {pct(b['roc_auc']['value'])}, right on "
+            f"{pct(b_loo['value']) if b_loo else 'n/a'} with thresholds chosen on the other objects"
+        )
+    lines += _not_beaten(d, measure.get("baselines", {}))
+    return lines
+
+
+def _not_beaten(d: Mapping[str, Any], baselines: Mapping[str, Mapping[str, Any]]) -> list[str]:
+    """One line per baseline the detector does not beat, as :func:`slipsense.measures.slipped_or_held.beats`
+    judges it (the ``not_beaten`` sentences of the JSON)."""
+    lines = []
+    for name, b in baselines.items():
+        said = []
+        if not d["roc_auc"]["value"] > b["roc_auc"]["value"]:
+            said.append(f"ranking {pct(d['roc_auc']['value'])} against {pct(b['roc_auc']['value'])}")
+        mine, theirs = d.get("leave_objects_out"), b.get("leave_objects_out")
+        if mine and theirs and not mine["accuracy"]["value"] > theirs["accuracy"]["value"]:
+            said.append(
+                f"right on {pct(mine['accuracy']['value'])} against {pct(theirs['accuracy']['value'])} "
+                "with thresholds chosen on the other objects"
+            )
+        if said:
+            lines.append(f"  the detector does not beat {name}: {'; '.join(said)}")
+    return lines
+
+
+@register("grasp_measure", telling_apart, pools=False)
+def grasp_measure(judged: Judged, draws: int = BOOTSTRAP) -> dict[str, Any]:
+    """Slipped against held grasps: the detector's ROC AUC of each grasp's
+    :func:`peak_alarm_score`, accuracy and balanced accuracy at its operating point and with
+    thresholds chosen on the other objects, 95% intervals over objects; beside it the majority class
+    and the non-learned baselines' scores (``judged.baselines``), and where it does not beat them."""
+    runs = judged.runs
+    slipped = [r.slipped for r in runs]
+    objects = [r.object for r in runs]
+    score = np.array([peak_alarm_score(r.probability, k, judged.startup) for r, (_, k, _) in zip(runs, judged.points)])
+    alarmed = [v >= th for v, (th, _, _) in zip(score, judged.points)]  # anywhere in the grasp, after the slip too
+    detector = outcome_measure(score, slipped, objects, alarmed, draws)
+    baselines = {"majority_class": majority_measure(slipped, objects, draws)}
+    for name, s in (judged.baselines or {}).items():
+        baselines[name] = outcome_measure(s, slipped, objects, None, draws)
+    return {"detector": detector, "baselines": baselines, "not_beaten": beats(detector, baselines)}

@@ -1,11 +1,11 @@
-"""Evaluation: a checkpoint against labelled data, to JSON and a confusion-matrix picture."""
+"""Clip and marker models judged per clip: predictions over a data set, their metrics to JSON and a
+confusion-matrix picture, and the runs replayed per grasp where the model reads video."""
 
 from __future__ import annotations
 
 import json
 import math
 import warnings
-from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -16,39 +16,37 @@ from torch import nn
 from torch.utils.data import DataLoader, Dataset, Subset
 
 from slipsense.atomic import write_text
-from slipsense.checkpoint import load_model
 from slipsense.config import portable_path
 from slipsense.errors import ConfigError, InputError, SlipsenseError
-from slipsense.evaluation.metrics import metrics_from
-from slipsense.evaluation.replay import evaluate as evaluate_grasps
+from slipsense.evaluation.judge import judge
+from slipsense.measures.clips import metrics_from
 from slipsense.models import at_dtype
 from slipsense.plots import plot_confusion
 from slipsense.progress import progress_bar
-from slipsense.training.distributed import Dist
 
 
 @torch.inference_mode()
 def predict(
-    model: nn.Module, data: Dataset, batch_size: int = 32, device="cpu", d: Dist | None = None, progress: bool = False
+    model: nn.Module, data: Dataset, batch_size: int = 32, device="cpu", d=None, progress: bool = False
 ) -> tuple[np.ndarray, np.ndarray]:
     """Slip probabilities and labels for every item of ``data`` -> ``(p (N,), y (N,))``.
 
     Under DDP each rank predicts a strided share and the shares are gathered, so no item is
     counted twice (a DistributedSampler would pad).
     """
-    d = d or Dist()
-    idx = list(range(d.rank, len(data), d.world))
+    rank, world, main = (d.rank, d.world, d.main) if d is not None else (0, 1, True)  # a training.distributed.Dist
+    idx = list(range(rank, len(data), world))
     loader = DataLoader(Subset(data, idx), batch_size=batch_size, shuffle=False)
     model.eval()
     probs, labels = [], []
-    for x, y in progress_bar(loader, progress and d.main, "predict"):
+    for x, y in progress_bar(loader, progress and main, "predict"):
         logits = model(x.to(device))
         probs.append(torch.softmax(logits.float(), dim=-1)[:, 1].cpu())
         labels.append(y)
     p = torch.cat(probs) if probs else torch.zeros(0)
     y = torch.cat(labels) if labels else torch.zeros(0, dtype=torch.long)
-    if d.world > 1:
-        gathered = [None] * d.world
+    if world > 1:
+        gathered = [None] * world
         dist.all_gather_object(gathered, (idx, p.numpy(), y.numpy()))
         order = np.concatenate([g[0] for g in gathered]).astype(np.int64)
         p_all = np.empty(len(data), np.float32)
@@ -84,6 +82,7 @@ def evaluate_model(
 
 def evaluate_clip_checkpoint(
     checkpoint: str | Path,
+    loaded: tuple[Any, dict[str, Any]],
     recordings=None,
     split=None,
     markers=None,
@@ -114,7 +113,7 @@ def evaluate_clip_checkpoint(
     sources = [s for s in (recordings, split, markers) if s is not None]
     if len(sources) != 1:
         raise ConfigError("give exactly one of --recordings, --split-file or --markers")
-    model, info = load_model(checkpoint)
+    model, info = loaded
     model = at_dtype(model.eval(), dtype)
     found = model.clip_reader.evaluation_data(
         checkpoint,
@@ -136,7 +135,7 @@ def evaluate_clip_checkpoint(
         **found.extra,
     }
     if found.replay is not None and per_grasp and dtype == "float32":
-        extra["per_grasp"] = _replayed(checkpoint, progress=progress, **found.replay)
+        extra["per_grasp"] = _replayed(checkpoint, loaded, progress=progress, **found.replay)
     data = found.data
     if len(data) == 0:
         raise InputError(split or recordings or markers, "holds nothing to evaluate")
@@ -144,20 +143,21 @@ def evaluate_clip_checkpoint(
         return evaluate_model(model, data, json_out, png, extra=extra, progress=progress)
 
 
-def _replayed(checkpoint, *, recordings, overrides, progress, objects, on_error="raise") -> dict[str, Any]:
-    """Per-grasp outcomes of a clip model's replay (:func:`slipsense.evaluation.replay.evaluate`) with its
+def _replayed(checkpoint, loaded, *, recordings, overrides, progress, objects, on_error="raise") -> dict[str, Any]:
+    """Per-grasp outcomes of a clip model's replay (:func:`slipsense.evaluation.judge.judge`) with its
     operating point. Data the replay cannot take (runs of different camera counts) leaves the clip
     metrics standing: ``{"skipped": why}`` and a warning instead."""
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # trained-on objects / no threshold: stated in the result instead
-            ev = evaluate_grasps(
+            ev = judge(
                 checkpoint,
                 recordings,
                 overrides=True if overrides is None else overrides,
                 progress=progress,
                 objects=objects,
                 on_error=on_error,
+                loaded=loaded,
             )
     except SlipsenseError as exc:
         warnings.warn(f"per-grasp replay left out ({exc}); the clip metrics stand", stacklevel=2)
@@ -169,64 +169,3 @@ def _replayed(checkpoint, *, recordings, overrides, progress, objects, on_error=
         "horizon": ev.horizon,
         "frame_rate": ev.frame_rates(),
     }
-
-
-def evaluate_grasp_checkpoint(
-    checkpoint,
-    recordings=None,
-    split=None,
-    markers=None,
-    json_out=None,
-    png=None,
-    noise_std: float = 0.0,
-    on_error: str = "raise",
-    overrides=None,
-    progress: bool = True,
-    dtype: str = "float32",
-    per_grasp: bool = True,
-) -> dict[str, Any]:
-    """A grasp detector is judged per grasp (:func:`slipsense.evaluation.replay.evaluate`: every run of the
-    recordings folder replayed from its first frame, both sensors, at the checkpoint's operating
-    point); the JSON holds the summary and each run's outcome. Takes the arguments of
-    :func:`evaluate_clip_checkpoint` (``on_error="skip"`` leaves out the runs of videos that cannot be
-    read, each named in a warning); ``png``, ``noise_std`` and ``per_grasp`` are for clip models and
-    not used."""
-    if split is not None or markers is not None:
-        raise InputError(
-            split or markers,
-            f"{checkpoint} holds a grasp detector (whole runs of both sensors): evaluate it on a "
-            "recordings folder (--recordings; default: the shared recordings)",
-        )
-    if dtype != "float32":
-        raise ConfigError(f"a grasp detector is evaluated in float32 (--dtype {dtype} is for clip and marker models)")
-    ev = evaluate_grasps(
-        checkpoint,
-        recordings,
-        overrides=True if overrides is None else overrides,
-        progress=progress,
-        on_error=on_error,
-    )
-    doc = {
-        "checkpoint": portable_path(checkpoint),
-        "recordings": None if recordings is None else portable_path(recordings),
-        "threshold": ev.threshold,
-        "debounce": ev.debounce,
-        "horizon": ev.horizon,
-        "frame_rate": ev.frame_rates(),
-        "per_grasp": ev.summary(),
-        "clips": ev.clips(),
-        "grasp_measure": ev.grasp_measure(),
-        "runs": [
-            {
-                "object": r.object,
-                "experiment": r.experiment,
-                "cameras": list(r.cameras),
-                "moment_of_slip": r.moment_of_slip,
-                **asdict(o),
-            }
-            for r, o in zip(ev.runs, ev.outcomes())
-        ],
-    }
-    if json_out is not None:
-        write_text(json_out, json.dumps(doc, indent=1, default=float))
-    return doc

@@ -20,13 +20,20 @@ import time
 from pathlib import Path
 from typing import Any, Sequence
 
+import numpy as np
+
 from slipsense import atomic
-from slipsense.errors import ConfigError
-from slipsense.evaluation.early_warning import plot_tradeoff
-from slipsense.evaluation.grasp_scores import fold_result, pool_folds
+from slipsense.errors import ConfigError, InputError
+from slipsense.evaluation.judge import clip_scores
+from slipsense.evaluation.replay import plot_tradeoff
+from slipsense.measures import MEASURES, Judged, measure_all, measure_lines, pergrasp
+from slipsense.measures.clips import clip_metrics, scores
+from slipsense.recordings.contact import rest_mask
+from slipsense.sensors.spec import GELSIGHT_MINI
 from slipsense.parallel import run_jobs
 from slipsense.recordings.runs import GraspRun, runs_summary
 from slipsense.training.grasp_detector import (
+    held_out_outcomes,
     chosen_part,
     finish_training,
     fit_job,
@@ -37,6 +44,118 @@ from slipsense.training.grasp_detector import (
     plan_training,
 )
 from slipsense.training.grasps import GraspTrainConfig
+
+
+def stored_trace(run: dict[str, Any]) -> np.ndarray:
+    """``(N,)`` float64 P(slip) of a run as a fold file keeps it (``null`` where the detector gave
+    no answer, NaN here)."""
+    return np.array([np.nan if v is None else v for v in run["probability"]], dtype=np.float64)
+
+
+def fold_result(
+    test: Sequence[GraspRun],
+    probs: Sequence[np.ndarray],
+    op: dict[str, Any],
+    history: list[dict[str, Any]],
+    labels: dict,
+    held: Sequence[str],
+    cfg,
+) -> dict[str, Any]:
+    """A fold's per-grasp summary and clip metrics at its operating point, plus what pooling needs:
+    every held-out run's trace and the clips' probabilities and labels."""
+    rests = [rest_mask(r.contact) for r in test]
+    outs = held_out_outcomes(test, probs, op, cfg.horizon, rests)
+    p, y = clip_scores(test, probs, labels)
+    return {
+        "objects": sorted(held),
+        "operating_point": op,
+        "per_grasp": pergrasp.summarise(outs),
+        "clips": clip_metrics(p, y, op["threshold"]),
+        "history": history,
+        "clip_probability": [round(float(v), 5) for v in p],
+        "clip_label": [int(v) for v in y],
+        "runs": [
+            {
+                "object": r.object,
+                "experiment": r.experiment,
+                "cameras": list(r.cameras),
+                "moment_of_slip": r.moment_of_slip,
+                "slipped": r.slipped,
+                "outcome": o.outcome,
+                "first_alarm": o.first_alarm,
+                "lead": o.lead,
+                "rest": np.flatnonzero(rest).tolist(),
+                "probability": [None if math.isnan(v) else round(float(v), 6) for v in pr],
+            }
+            for r, o, pr, rest in zip(test, outs, probs, rests)
+        ],
+    }
+
+
+def pool_folds(folds: Sequence[dict[str, Any]], thresholds: Sequence[float] | None = None) -> dict[str, Any]:
+    """Pool :func:`fold_result` s: per-grasp outcomes and clip decisions, each fold at its own
+    operating point; and, for the trade-off curve, every fold's runs at shared ``thresholds``."""
+    outcomes = [
+        pergrasp.GraspOutcome(r["outcome"], r["first_alarm"], r["lead"], 0.0, 0) for f in folds for r in f["runs"]
+    ]
+    per_grasp = pergrasp.summarise(outcomes)
+    per_grasp["runs_alarming_at_rest"] = sum(f["per_grasp"]["runs_alarming_at_rest"] for f in folds)
+    per_grasp["held_alarm_fraction"] = float(np.mean([f["per_grasp"]["held_alarm_fraction"] for f in folds]))
+    decisions = np.concatenate([np.asarray(f["clip_probability"]) >= f["operating_point"]["threshold"] for f in folds])
+    y = np.concatenate([np.asarray(f["clip_label"], dtype=np.int64) for f in folds])
+    if thresholds is None:
+        thresholds = pergrasp.THRESHOLDS
+    traces, moments, rests = [], [], []
+    for f in folds:
+        for r in f["runs"]:
+            p = stored_trace(r)
+            rest = np.zeros(len(p), dtype=bool)
+            rest[r["rest"]] = True
+            traces.append(p)
+            moments.append(r["moment_of_slip"])
+            rests.append(rest)
+    debounce = int(np.median([f["operating_point"]["debounce"] for f in folds]))
+    curve = pergrasp.table(traces, moments, thresholds, (debounce,), rests=rests)
+    intervals = pergrasp.bootstrap_curve(traces, moments, thresholds, debounce)
+    for row, ci in zip(curve, intervals):
+        row.update({k: ci[k] for k in ("warned_low", "warned_high", "fp_low", "fp_high")})
+    per_grasp["intervals"] = pergrasp.bootstrap_rates([o.outcome for o in outcomes])
+    p_all = np.concatenate([np.asarray(f["clip_probability"], dtype=np.float64) for f in folds])
+    return {
+        "per_grasp": per_grasp,
+        "clips": clip_metrics(decisions.astype(np.float64), y, 0.5),
+        "clips_at_half": clip_metrics(p_all, y, 0.5),
+        "operating_points": [f["operating_point"] for f in folds],
+        "curve": curve,
+    }
+
+
+def pool(run_dirs: list[Path]) -> dict:
+    """Pool the held-out evaluations of a clip model's folds (each run folder's ``evaluation.json``,
+    written by ``slipsense train``) from the summed confusion matrices: every held-out clip counts once."""
+    folds, total = [], np.zeros((2, 2), np.int64)
+    for run in run_dirs:
+        path = Path(run) / "evaluation.json"
+        if not path.is_file():
+            raise InputError(path, "no evaluation.json (did the run finish?)")
+        m = json.loads(path.read_text())
+        total += np.asarray(m["confusion"], np.int64)
+        folds.append(
+            {
+                "run": Path(run).name,
+                "test_objects": m.get("test_objects"),
+                **{k: m[k] for k in ("accuracy", "precision", "recall", "f1", "n_clips", "n_slip", "n_wiggle")},
+            }
+        )
+    pooled = {
+        **scores(total),
+        "n_clips": int(total.sum()),
+        "n_slip": int(total[1].sum()),
+        "n_wiggle": int(total[0].sum()),
+        "confusion": total.tolist(),
+    }
+    mean = {k: float(np.mean([f[k] for f in folds])) for k in ("accuracy", "precision", "recall", "f1")}
+    return {"folds": folds, "pooled": pooled, "mean_over_folds": mean}
 
 
 def _config_key(cfg: GraspTrainConfig, folds: int, runs: Sequence[GraspRun]) -> str:
@@ -132,6 +251,8 @@ def _write_report(out: Path, head: dict[str, Any], folds: list[dict[str, Any]], 
     """``head`` with the ``folds`` pooled, written into ``out`` as folds.json, README.md and
     tradeoff.png; returns the report."""
     pooled = pool_folds(folds)
+    fps = float((head.get("sensor") or {}).get("fps") or GELSIGHT_MINI.fps)
+    pooled.update(measure_all(pooled_runs(folds, fps, head["train_config"]["horizon"]), pooled_measures()))
     report = {
         **head,
         "pooled": {k: v for k, v in pooled.items() if k != "curve"},
@@ -144,6 +265,40 @@ def _write_report(out: Path, head: dict[str, Any], folds: list[dict[str, Any]], 
     atomic.write_text(out / "README.md", summary_markdown(report))
     plot_tradeoff(pooled["curve"], out / "tradeoff.png", title=title)
     return report
+
+
+def pooled_measures() -> list[str]:
+    """The registered measures a cross-validation report computes on its folds pooled."""
+    return [k for k, m in MEASURES.items() if m.pools]
+
+
+def pooled_runs(folds: Sequence[dict[str, Any]], fps: float, horizon: int) -> Judged:
+    """Every fold's held-out runs as the measures take them, each at its fold's operating point
+    (``fps``: the rate the runs were read at, the detector's)."""
+    runs, points = [], []
+    for f in folds:
+        op = f["operating_point"]
+        for r in f["runs"]:
+            p = stored_trace(r)
+            rest = np.zeros(len(p), dtype=bool)
+            rest[r["rest"]] = True
+            runs.append(
+                pergrasp.RunTrace(
+                    r["object"],
+                    r["experiment"],
+                    r["slipped"],
+                    r["moment_of_slip"],
+                    len(p),
+                    p,
+                    rest,
+                    tuple(r["cameras"]),
+                    fps,
+                    fps,
+                )
+            )
+            points.append((op["threshold"], op["debounce"], op.get("hold_s", 0.0)))
+    startup = int(folds[0]["operating_point"].get("startup", pergrasp.STARTUP)) if folds else pergrasp.STARTUP
+    return Judged(runs, points, horizon, startup)
 
 
 def _traces(runs: Sequence[GraspRun], probs) -> list[dict[str, Any]]:
@@ -217,6 +372,9 @@ def summary_markdown(report: dict[str, Any]) -> str:
     """The report as a short Markdown page: per-grasp and clip tables, per fold and pooled."""
     g, c = report["pooled"]["per_grasp"], report["pooled"]["clips"]
     cfg, d = report["train_config"], report["data"]
+    fps = float((report.get("sensor") or {}).get("fps") or GELSIGHT_MINI.fps)
+    pooled = {k: v for k, v in report["pooled"].items() if k in pooled_measures()}
+    others = measure_lines(pooled, {"horizon": cfg["horizon"], "fps": fps})
     lines = [
         f"# {cfg['model']}: leave-objects-out, {report['folds']} folds, judged per grasp",
         "",
@@ -261,6 +419,7 @@ def summary_markdown(report: dict[str, Any]) -> str:
             if c is not None
         ],
         "",
+        *(["## Pooled over folds, each at its own operating point", "", *others, ""] if others else []),
         "## Folds",
         "",
         "| fold | objects | threshold x debounce | warned | false-positive grasps | clip F1 | done after (s) |",

@@ -7,19 +7,16 @@ must beat before it says anything about the network.
   keeps moving: motion energy);
 * ``difference_to_contact``: the largest mean absolute difference of a frame to the first frame in
   contact (how far the gel's image moves from the grasp's start);
-* the majority class (:func:`slipsense.evaluation.outcome.majority_measure`), which needs no frames.
+* the majority class (:func:`slipsense.measures.slipped_or_held.majority_measure`), which needs no frames.
 
-Both frame scores read grey frames of :data:`SIZE` from the frame cache (the conversion the detectors
+The judge (:func:`slipsense.evaluation.judge.baseline_scores`) reads grey frames of :data:`SIZE` from the frame cache (the conversion the detectors
 use) and take the largest value over a run's cameras; intensities are 8-bit units.
 """
 
 from __future__ import annotations
 
-from typing import Mapping, Sequence
-
 import numpy as np
 
-from slipsense.recordings.frame_cache import video_products
 
 #: ``(h, w)`` of the grey frames the baselines read.
 SIZE = (60, 80)
@@ -39,22 +36,3 @@ def frame_scores(gray: np.ndarray, contact_start: int = 0, start: int = 0) -> di
         "mean_frame_difference": float(step.mean()),
         "difference_to_contact": float(np.abs(g[first:] - g[first]).mean(axis=(1, 2)).max()),
     }
-
-
-def baseline_scores(
-    runs: Sequence, recordings: Sequence, labels: Mapping[tuple, object], start: int = 0
-) -> dict[str, np.ndarray]:
-    """``{name: (len(runs),) scores}`` for replayed ``runs`` (each with ``object``, ``experiment``,
-    ``cameras``), reading the frames of ``recordings`` and the contact starts of ``labels``."""
-    by_key = {r.key: r for r in recordings}
-    product = f"gray:{SIZE[0]}x{SIZE[1]}"
-    out = {name: np.zeros(len(runs)) for name in NAMES}
-    for i, run in enumerate(runs):
-        for camera in run.cameras:
-            rec = by_key[(run.object, run.experiment, camera)]
-            label = labels.get(rec.key)
-            gray = video_products(rec.path, [product])[product]
-            scores = frame_scores(gray, getattr(label, "contact_start", 0), start)
-            for name in NAMES:
-                out[name][i] = max(out[name][i], scores[name])
-    return out

@@ -1,0 +1,315 @@
+"""Judge a detector as a gripper runs it: open it once, read the recordings once, replay every run once
+from its first frame through the live detector, and hand the traces to every registered measure
+(:mod:`slipsense.measures`). ``slipsense evaluate``, ``slipsense.evaluate``, ``calibrate``, ``adapt``
+and the clip models' operating point all come through :func:`judge`."""
+
+from __future__ import annotations
+
+import json
+import math
+import warnings
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from slipsense.atomic import write_text
+from slipsense.checkpoint import load_model
+from slipsense.config import gelsight_recordings
+from slipsense.data import label_runs
+from slipsense.errors import InputError
+from slipsense.evaluation.replay import replay_recordings
+from slipsense.measures import Judged, measure_all, pergrasp, slipped_or_held
+from slipsense.measures.baselines import NAMES, SIZE, frame_scores
+from slipsense.recordings import folders
+from slipsense.recordings.clips import ClipSpec, plan_windows
+from slipsense.recordings.folders import SkippedInputWarning, camera_counts, validate_recordings
+from slipsense.recordings.frame_cache import video_products
+from slipsense.recordings.frame_folders import data_sensor
+from slipsense.recordings.video import probe_video
+from slipsense.resources import shipped_model
+from slipsense.sensors.spec import GELSIGHT_MINI, sensor_of
+from slipsense.streaming.detector import SlipDetector, shipped_name
+
+
+def recordings_folder(recordings: str | Path | None) -> Path:
+    return Path(recordings) if recordings is not None else gelsight_recordings()
+
+
+def label_overrides(overrides: str | Path | None | bool) -> Path | None | bool:
+    """As :func:`slipsense.data.label_runs` takes them: ``True`` (default) -> None (the shipped hand
+    labels for runs of the shared recordings), ``False``/None -> False (none), else the CSV's path."""
+    if overrides is True:
+        return None
+    return False if overrides is False or overrides is None else Path(overrides)
+
+
+def shipped_for(recordings: str | Path | None, found: Sequence[Any] | None = None) -> Path:
+    """The shipped detector for a recordings folder (:func:`~slipsense.streaming.detector.shipped_name`):
+    the one of its sensor where one is shipped (the frame size its ``sensor.json`` or layout states,
+    else its first recording's), for one finger where its grasps have one camera each. ``found``:
+    the folder's recordings where it was scanned already."""
+    root = recordings_folder(recordings)
+    if found is None:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # the evaluation that follows reports them
+            found = folders.find_recordings(root, on_error="skip")
+    sensor = data_sensor(root)
+    size = sensor.image_size if sensor is not None else None
+    for rec in found if size is None else ():  # the first video that reads (the evaluation reports the others)
+        try:
+            info = probe_video(rec.path, expected_size=None)
+        except InputError:
+            continue
+        size = (info.height, info.width)
+        break
+    if size is None:
+        probe_video(found[0].path, expected_size=None)  # none reads: the first one's problem
+    return shipped_model(shipped_name(1 if camera_counts(found) == [1] else 2, size))
+
+
+@dataclass
+class Evaluation:
+    """What :func:`judge` returns: every run replayed as live use would, ready for every measure.
+
+    Attributes:
+        runs: one :class:`~slipsense.measures.pergrasp.RunTrace` per replayed run (probabilities per frame).
+        threshold, debounce, hold_s, horizon: the operating point and horizon (frames) the measures use.
+    """
+
+    runs: list[Any]
+    threshold: float
+    debounce: int
+    horizon: int = pergrasp.HORIZON
+    labels: dict | None = None  # {(object, experiment, camera): VideoLabel} of the replayed videos
+    recordings: list | None = None  # the replayed Recordings (their frames feed the baselines)
+    startup: int = pergrasp.STARTUP  # leading frames never scored (0 for grasps labelled as a whole)
+    hold_s: float = 0.0
+    checkpoint: Path | None = None  # the detector judged
+    _results: dict = field(default_factory=dict, repr=False)
+
+    def judged(self, keys: Sequence[str] = ()) -> Judged:
+        """The runs as the measures take them; the baselines' frames and the short clips are read
+        only where a measure of ``keys`` needs them."""
+        point = (self.threshold, self.debounce, self.hold_s)
+        base = None
+        if "grasp_measure" in keys and self.recordings is not None:
+            base = baseline_scores(self.runs, self.recordings, self.labels or {}, self.startup)
+        clips = (
+            clip_scores(self.runs, [r.probability for r in self.runs], self.labels or {}) if "clips" in keys else None
+        )
+        return Judged(self.runs, [point] * len(self.runs), self.horizon, self.startup, base, clips)
+
+    def measure(self, key: str) -> dict[str, Any] | None:
+        """One registered measure's result (computed once)."""
+        if key not in self._results:
+            self._results.update(measure_all(self.judged([key]), [key]) or {key: None})
+        return self._results[key]
+
+    def measures(self) -> dict[str, Any]:
+        """Every registered measure that applies: ``{key: result}``."""
+        from slipsense.measures import MEASURES
+
+        return {k: v for k in MEASURES if (v := self.measure(k)) is not None}
+
+    def outcomes(self) -> list[pergrasp.GraspOutcome]:
+        return [r.outcome(self.threshold, self.debounce, self.horizon, self.startup) for r in self.runs]
+
+    def peak_scores(self) -> np.ndarray:
+        """``(runs,)`` each run's :func:`~slipsense.measures.slipped_or_held.peak_alarm_score` at this
+        debounce: it alarms somewhere at threshold t exactly when its score is >= t."""
+        return np.array(
+            [slipped_or_held.peak_alarm_score(r.probability, self.debounce, self.startup) for r in self.runs]
+        )
+
+    def grasp_measure(self, draws: int | None = None) -> dict[str, Any]:
+        """Slipped against held grasps (:func:`slipsense.measures.slipped_or_held.grasp_measure`);
+        ``draws``: bootstrap draws for its intervals (default: the registered measure's)."""
+        if draws is None:
+            return self.measure("grasp_measure")
+        return slipped_or_held.grasp_measure(self.judged(["grasp_measure"]), draws)
+
+    def summary(self) -> dict[str, Any]:
+        """Early warning per grasp (:func:`slipsense.measures.pergrasp.per_grasp`)."""
+        return self.measure("per_grasp")
+
+    def clips(self) -> dict[str, Any]:
+        """The papers' clip protocol on the same traces (:func:`slipsense.measures.clips.clips`)."""
+        return self.measure("clips")
+
+    def frame_rates(self) -> dict[str, Any]:
+        """The rate the detector runs at and the rates the runs were read at (frames per second),
+        each with where it was read and how many runs: ``{"detector": 25.0, "recordings": [{"fps": 12.5,
+        "from": ".../sensor.json", "runs": 26}]}``. Runs at another rate were resampled to the detector's clock."""
+        counts: dict[tuple[float, str], int] = {}
+        for r in self.runs:
+            counts[(r.fps, r.fps_from)] = counts.get((r.fps, r.fps_from), 0) + 1
+        detector = self.runs[0].model_fps if self.runs else math.nan
+        return {"detector": detector, "recordings": [{"fps": f, "from": w, "runs": n} for (f, w), n in counts.items()]}
+
+    def to_dict(self) -> dict[str, Any]:
+        """The operating point, the rates, every measure under its key and each run's outcome."""
+        return {
+            "threshold": self.threshold,
+            "debounce": self.debounce,
+            "horizon": self.horizon,
+            "frame_rate": self.frame_rates(),
+            **self.measures(),
+            "runs": [
+                {
+                    "object": r.object,
+                    "experiment": r.experiment,
+                    "cameras": list(r.cameras),
+                    "moment_of_slip": r.moment_of_slip,
+                    **asdict(o),
+                }
+                for r, o in zip(self.runs, self.outcomes())
+            ],
+        }
+
+    def to_json(self, path: str | Path) -> Path:
+        """:meth:`to_dict` written to ``path`` (atomically)."""
+        write_text(path, json.dumps(self.to_dict(), indent=1, default=float))
+        return Path(path)
+
+
+def clip_scores(
+    runs: Sequence[Any], probs: Sequence[np.ndarray], labels: dict, frames: int = 5
+) -> tuple[np.ndarray, np.ndarray]:
+    """The paper's clip protocol on per-frame traces: every ``frames``-frame clip the project cuts
+    (:func:`slipsense.recordings.clips.plan_windows`: the clip ending right before the moment of
+    slip, two wiggle windows per video of a run that held) is scored by the detector's probability
+    at its last frame. Returns ``(p, y)``; a run's cameras share one fused trace, so both cameras'
+    clips of a run get the probability of their own end frames."""
+    spec = ClipSpec(frames=frames)
+    p, y = [], []
+    for run, trace in zip(runs, probs):
+        for cam in run.cameras:
+            label = labels.get((run.object, run.experiment, cam))
+            if label is None:
+                continue
+            for w in plan_windows(label, spec):
+                p.append(trace[w.end])
+                y.append(w.y)
+    return np.asarray(p, dtype=np.float64), np.asarray(y, dtype=np.int64)
+
+
+def baseline_scores(
+    runs: Sequence, recordings: Sequence, labels: Mapping[tuple, object], start: int = 0
+) -> dict[str, np.ndarray]:
+    """``{name: (len(runs),) scores}`` for replayed ``runs`` (each with ``object``, ``experiment``,
+    ``cameras``), reading the frames of ``recordings`` and the contact starts of ``labels``."""
+    by_key = {r.key: r for r in recordings}
+    product = f"gray:{SIZE[0]}x{SIZE[1]}"
+    out = {name: np.zeros(len(runs)) for name in NAMES}
+    for i, run in enumerate(runs):
+        for camera in run.cameras:
+            rec = by_key[(run.object, run.experiment, camera)]
+            label = labels.get(rec.key)
+            gray = video_products(rec.path, [product])[product]
+            scores = frame_scores(gray, getattr(label, "contact_start", 0), start)
+            for name in NAMES:
+                out[name][i] = max(out[name][i], scores[name])
+    return out
+
+
+def _layout(sensor: Any) -> tuple:
+    """What :func:`~slipsense.recordings.folders.find_recordings` reads of a sensor."""
+    return (sensor.experiment_pattern, sensor.camera_glob, sensor.slip_marker)
+
+
+def _whole_runs(found: Sequence[Any], kept: Sequence[Any]) -> list[Any]:
+    """``kept`` without the runs that lost a camera video among ``found`` (skipped with
+    ``on_error="skip"``), each named in a :class:`~slipsense.recordings.folders.SkippedInputWarning`:
+    a detector on both fingers cannot judge a grasp from one."""
+    have = {r.key for r in kept}
+    broken = {}
+    for r in found:
+        if r.key not in have:
+            broken.setdefault((r.object, r.experiment), (r.path.parent, r.path.name))
+    for folder, name in broken.values():
+        warnings.warn(
+            f"{folder}: run left out, its video {name} was skipped and the detector needs every camera of a run",
+            SkippedInputWarning,
+            stacklevel=3,
+        )
+    return [r for r in kept if (r.object, r.experiment) not in broken]
+
+
+def judge(
+    checkpoint: str | Path | None = None,
+    recordings: str | Path | None = None,
+    *,
+    overrides: str | Path | None | bool = True,
+    horizon: int = pergrasp.HORIZON,
+    threshold: float | None = None,
+    debounce: int | None = None,
+    progress: bool = True,
+    objects: Sequence[str] | None = None,
+    on_error: str = "raise",
+    loaded: tuple[Any, Mapping[str, Any]] | None = None,
+) -> Evaluation:
+    """Replay every run of a recordings folder through a detector, both sensors from the first frame.
+
+    Args:
+        checkpoint: default: the shipped detector for the recordings (:func:`shipped_for`).
+        recordings: default: the shared GelSight recordings.
+        overrides: label overrides CSV; True = the shipped hand labels for runs of the shared
+            recordings; False = none.
+        horizon: frames before the moment of slip in which an alarm counts as a warning in time.
+        threshold, debounce: default: the checkpoint's operating point.
+        objects: only the runs of these objects (default: every run).
+        on_error: ``"raise"`` (default) or ``"skip"`` (leave out bad videos with a warning).
+        loaded: ``(model, info)`` of ``checkpoint`` where the caller loaded it already.
+
+    The checkpoint is opened once and the folder scanned once. A model trained on a fixed number of
+    sensors (the grasp detectors) sees that many cameras per run (one: each camera is a grasp of its
+    own); a clip model sees every camera of a run at once and alarms on either.
+    """
+    root = recordings_folder(recordings)
+    found, scanned = None, None
+    if checkpoint is None:  # the folder says which shipped detector: scanned as the study laid it out
+        scanned = GELSIGHT_MINI
+        found = folders.find_recordings(root, on_error=on_error, sensor=scanned)
+    path = Path(checkpoint) if checkpoint is not None else shipped_for(root, found)
+    model, info = loaded if loaded is not None else load_model(path)
+    sensor = sensor_of(info, path)
+    if found is None or _layout(sensor) != _layout(scanned):
+        found = folders.find_recordings(root, on_error=on_error, sensor=sensor)
+    calibrated = ((info.get("operating_point") or {}).get("calibrated") or {}).get("objects") or ()
+    # another data set's objects are stored as <folder>/<object> (data.also): they count by their own name
+    trained_on = {o.rsplit("/", 1)[-1] for o in ((info.get("data") or {}).get("objects")) or ()} | set(calibrated)
+    recs = validate_recordings(found, on_error=on_error, expected_size=None)
+    sensors = info["model_config"].get("sensors")
+    if sensors != 1:  # a run replayed with all its cameras is left out whole where one was skipped
+        recs = _whole_runs(found, recs)
+    if objects is not None:
+        recs = [r for r in recs if r.object in set(objects)]
+    if not recs:
+        raise InputError(root, "no recording left to judge (every one was skipped)")
+    if not sensors:  # a clip model: every camera of a run at once
+        counts = camera_counts(recs)
+        if len(counts) != 1:
+            raise InputError(root, f"runs hold different numbers of camera videos ({counts}); a replay needs the same")
+        sensors = counts[0]
+    detector = SlipDetector.from_checkpoint(
+        path, sensors=sensors, threshold=threshold, debounce=debounce, backend="torch", loaded=(model, info)
+    )
+    seen = sorted(trained_on & {r.object for r in recs})
+    if seen:
+        warnings.warn(
+            f"the detector was trained or calibrated on {len(seen)} of these objects ({', '.join(seen[:5])}"
+            f"{', ...' if len(seen) > 5 else ''}): their runs do not measure objects it never saw",
+            stacklevel=2,
+        )
+
+    labels = label_runs(recs, label_overrides(overrides), on_error=on_error, progress=progress)
+    recs = [r for r in recs if r.key in labels]  # left out by on_error="skip"
+    runs = replay_recordings(detector, recs, labels, progress=progress, keep_without_moment=True)
+    startup = 0 if recs and all(r.per_grasp for r in recs) else pergrasp.STARTUP
+    return Evaluation(runs, detector.threshold, detector.debounce, horizon, labels, recs, startup, detector.hold, path)
+
+
+#: ``slipsense.evaluate`` (the name users know)
+evaluate = judge

@@ -1,0 +1,108 @@
+"""The registry of measures: what a measure is, what it reads (:class:`Judged`), and every one registered."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+import math
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+
+from slipsense.sensors.spec import STARTUP_FRAMES as STARTUP
+
+#: Default warning horizon: 50 frames = 2 s at 25 frames/s.
+HORIZON = 50
+
+
+@dataclass
+class Judged:
+    """What every measure reads: replayed runs, each at its operating point.
+
+    Attributes:
+        runs: one :class:`~slipsense.measures.pergrasp.RunTrace` per grasp (P(slip) per frame).
+        points: per run ``(threshold, debounce frames, hold seconds)``: one for all runs of an
+            evaluation, each fold's own where folds are pooled.
+        horizon, startup: frames at the detector's rate (a warning in time; never scored).
+        baselines: ``{name: (runs,) scores}`` of the non-learned baselines, where the frames were read.
+        clips: ``(p, y)`` of the papers' short clips cut from these runs, where their labels were there.
+    """
+
+    runs: Sequence[Any]  # RunTrace
+    points: Sequence[tuple[float, int, float]]
+    horizon: int = HORIZON
+    startup: int = STARTUP
+    baselines: Mapping[str, np.ndarray] | None = None
+    clips: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)
+
+
+@dataclass(frozen=True)
+class Measure:
+    """One registered measure.
+
+    Attributes:
+        key: its key in the JSON and the reports.
+        compute: ``Judged -> dict`` (None where it does not apply to these runs).
+        words: ``(its dict, context) -> lines`` of plain text for the printed summary and the reports;
+            ``context`` holds the evaluation's ``threshold``, ``debounce``, ``horizon`` and ``fps``.
+        pools: computed again on the runs of every fold pooled (each at its own operating point) in a
+            cross-validation report.
+    """
+
+    key: str
+    compute: Callable[[Judged], dict[str, Any] | None]
+    words: Callable[[Mapping[str, Any], Mapping[str, Any]], list[str]]
+    pools: bool = True
+
+
+#: key -> measure, in the order the summary says them
+MEASURES: dict[str, Measure] = {}
+
+
+def register(key: str, words: Callable, pools: bool = True) -> Callable:
+    """Decorator: ``@register("key", words)`` on a ``Judged -> dict`` function adds it to :data:`MEASURES`."""
+
+    def add(compute: Callable) -> Callable:
+        MEASURES[key] = Measure(key, compute, words, pools)
+        return compute
+
+    return add
+
+
+def measure_all(judged: Judged, only: Sequence[str] | None = None) -> dict[str, Any]:
+    """``{key: result}`` of every registered measure (or of ``only``) that applies to ``judged``."""
+    out = {}
+    for key, m in MEASURES.items():
+        if only is None or key in only:
+            result = m.compute(judged)
+            if result is not None:
+                out[key] = result
+    return out
+
+
+def measure_lines(results: Mapping[str, Any], context: Mapping[str, Any]) -> list[str]:
+    """The registered measures' sentences for ``results`` (as :func:`measure_all` gives them)."""
+    return [line for key, m in MEASURES.items() if key in results for line in m.words(results[key], context)]
+
+
+def pct(value: float) -> str:
+    return "n/a" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{100 * value:.0f}%"
+
+
+def with_range(m: Mapping[str, Any] | None, percent: bool = True) -> str:
+    """``{"value", "interval"}`` -> ``"83% (95% range 70-95%)"``."""
+    if not m:
+        return "n/a"
+    v, (lo, hi) = m["value"], m["interval"]
+    if v is None or math.isnan(v):
+        return "n/a"
+    if percent:
+        if math.isnan(lo) or math.isnan(hi):
+            return pct(v)
+        return f"{pct(v)} (95% range {100 * lo:.0f}-{100 * hi:.0f}%)"
+    if math.isnan(lo) or math.isnan(hi):
+        return f"{v:.2f}"
+    return f"{v:.2f} (95% range {lo:.2f}-{hi:.2f})"
+
+
+def plural(n: int, word: str) -> str:
+    return f"{n} {word}{'' if n == 1 else 's'}"
