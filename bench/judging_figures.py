@@ -79,6 +79,8 @@ def main() -> int:
         ):
             got = _evaluate(folder, Path(tmp) / f"{name}.json")
             got["recordings"] = name  # where it lay: not a figure
+            for rate in got.get("frame_rate", {}).get("recordings", []):  # a sensor.json's path, likewise
+                rate["from"] = rate["from"].replace(str(folder), name)
             reference = REFERENCES / f"{name}.json"
             if args.write:
                 REFERENCES.mkdir(parents=True, exist_ok=True)

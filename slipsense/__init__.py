@@ -16,22 +16,12 @@ from typing import Any
 __version__ = "0.1.0"
 
 #: public name -> module that defines it
-_EXPORTS = {
-    "SlipDetector": "slipsense.streaming.detector",
-    "Reading": "slipsense.streaming.detector",
-    "Trace": "slipsense.streaming.detector",
-    "fit": "slipsense.api",
-    "evaluate": "slipsense.api",
-    "TrainedDetector": "slipsense.api",
-    "Evaluation": "slipsense.api",
-    "read_video": "slipsense.recordings.video",
-    "find_recordings": "slipsense.recordings.folders",
-    "build_model": "slipsense.models",
-    "available_models": "slipsense.models",
-    "shipped_model": "slipsense.resources",
-    "SensorSpec": "slipsense.sensors.spec",
-    "GELSIGHT_MINI": "slipsense.sensors.spec",
-}
+_EXPORTS = dict.fromkeys(["SlipDetector", "Reading", "Trace"], "slipsense.streaming.detector")
+_EXPORTS |= dict.fromkeys(["fit", "evaluate", "TrainedDetector", "Evaluation"], "slipsense.api")
+_EXPORTS |= {"read_video": "slipsense.recordings.video", "find_recordings": "slipsense.recordings.folders"}
+_EXPORTS |= dict.fromkeys(["build_model", "available_models"], "slipsense.models")
+_EXPORTS |= {"shipped_model": "slipsense.resources", "SensorSpec": "slipsense.sensors.spec"}
+_EXPORTS["GELSIGHT_MINI"] = "slipsense.sensors.spec"
 _ALIASES = {"build_model": "build", "available_models": "available"}
 
 

@@ -157,13 +157,8 @@ class Candidate:
         )
 
     def to_dict(self) -> dict[str, Any]:
-        return {
-            "name": self.name,
-            "words": self.words,
-            "measure": self.measure,
-            "slips_caught": int(self.alarmed[self.slipped].sum()),
-            "held_alarming": int(self.alarmed[~self.slipped].sum()),
-        }
+        caught, loud = int(self.alarmed[self.slipped].sum()), int(self.alarmed[~self.slipped].sum())
+        return dict(name=self.name, words=self.words, measure=self.measure, slips_caught=caught, held_alarming=loud)
 
 
 def _pct(m: dict[str, Any], ranged: bool = True) -> str:
@@ -171,20 +166,13 @@ def _pct(m: dict[str, Any], ranged: bool = True) -> str:
     return f"{100 * m['value']:.0f}%" + (f" (95% range {100 * lo:.0f}-{100 * hi:.0f}%)" if ranged else "")
 
 
-def _rank(c: Candidate, mask: np.ndarray) -> tuple[float, float]:
-    """How a candidate ranks on the grasps of ``mask``: balanced accuracy, then ROC AUC."""
-    a, y, s = c.alarmed[mask], c.slipped[mask], c.scores[mask]
-    return tuple(
-        float(np.nan_to_num(v, nan=-np.inf))
-        for v in (slipped_or_held.balanced_accuracy(a, y), slipped_or_held.roc_auc(s, y))
-    )
-
-
 def best_of(candidates: Sequence[Candidate], mask: np.ndarray | None = None) -> Candidate:
     """The candidate of best balanced accuracy on the grasps of ``mask`` (ties: ROC AUC, then the
     one listed first, the cheaper)."""
     mask = np.ones(len(candidates[0].slipped), bool) if mask is None else mask
-    ranks = [_rank(c, mask) for c in candidates]
+    ba, auc = slipped_or_held.balanced_accuracy, slipped_or_held.roc_auc
+    ranks = [[ba(c.alarmed[mask], c.slipped[mask]), auc(c.scores[mask], c.slipped[mask])] for c in candidates]
+    ranks = [tuple(float(np.nan_to_num(v, nan=-np.inf)) for v in r) for r in ranks]
     top = max(range(len(candidates)), key=lambda i: (ranks[i], -i))
     return candidates[top]
 
@@ -204,13 +192,6 @@ def nested_choice(candidates: Sequence[Candidate]) -> tuple[Candidate, dict[str,
         chosen[str(o)] = pick.name
     kept = Candidate("chosen without each object", alarmed.astype(float), alarmed, first.slipped, first.objects)
     return kept, chosen
-
-
-def _object_folds(objects: Sequence[str], folds: int, seed: int) -> list[list[str]]:
-    """The objects shuffled with ``seed`` and dealt into ``min(folds, len)`` folds."""
-    names = sorted(set(objects))
-    order = np.random.default_rng(seed).permutation(len(names))
-    return [sorted(names[i] for i in part) for part in np.array_split(order, min(folds, len(names)))]
 
 
 def _keys(ev: Evaluation) -> list[tuple]:
@@ -314,7 +295,9 @@ def adapt(
     names, not_tried = families(grasps)
     for reason in dict.fromkeys(not_tried.values()):  # families alike in why said once
         echo(f"  {', '.join(n for n, r in not_tried.items() if r == reason):16s} not tried: {reason}")
-    keys, parts = _keys(as_is), _object_folds(objects, folds, seed)
+    keys, objs = _keys(as_is), sorted(set(objects))  # the objects shuffled with ``seed``, in min(folds, n) folds
+    order = np.random.default_rng(seed).permutation(len(objs))
+    parts = [sorted(objs[i] for i in part) for part in np.array_split(order, min(folds, len(objs)))]
     for name in names:
         train = lambda held, k, name=name: _train(root, out / "folds" / name / f"fold{k}", name, seed + k, held)  # noqa: E731
         s, a = _out_of_fold(keys, parts, train, root, f"{name}, one fold at a time", progress)
@@ -329,12 +312,8 @@ def adapt(
 
     kept_figure, per_object = nested_choice(candidates)
     chosen = best_of(candidates)
-    doc.update(
-        candidates=[c.to_dict() for c in candidates],
-        not_tried=not_tried,
-        baselines=baselines,
-        kept={**kept_figure.to_dict(), "chosen_without_each_object": per_object},
-    )
+    doc.update(candidates=[c.to_dict() for c in candidates], not_tried=not_tried, baselines=baselines)
+    doc["kept"] = {**kept_figure.to_dict(), "chosen_without_each_object": per_object}
     keep, advice = advise(chosen, kept_figure, per_object, candidates[0], best_name, best)
     if not keep or chosen.name == "as is":
         return _finish(doc, out, None, advice[0], advice, echo)

@@ -20,27 +20,16 @@ def debounce(probability: np.ndarray, threshold: float, frames: int = 1) -> np.n
     """``(N,)`` bool: alarm at ``t`` when the probability is ``>= threshold`` at ``t`` and the
     ``frames - 1`` frames before it. NaN (no answer yet) counts as below the threshold."""
     above = np.nan_to_num(np.asarray(probability, dtype=np.float64), nan=-np.inf) >= threshold
-    if frames <= 1:
-        return above
-    run = np.zeros(len(above), dtype=np.int64)
-    count = 0
-    for i, a in enumerate(above):  # consecutive count; N is a few hundred
-        count = count + 1 if a else 0
-        run[i] = count
-    return run >= frames
+    t = np.arange(len(above))  # below: t minus the last frame below the threshold = frames above in a row
+    return above if frames <= 1 else t - np.maximum.accumulate(np.where(above, -1, t)) >= frames
 
 
 def hold(alarm: np.ndarray, frames: int) -> np.ndarray:
     """``(N,)`` bool: on at ``t`` when ``alarm`` was on at ``t`` or at any of the ``frames`` frames
     before it (an alarm, once raised, stays on for ``frames`` frames after it last held)."""
     alarm = np.asarray(alarm, dtype=bool)
-    if frames <= 0 or not alarm.any():
-        return alarm
-    on = np.flatnonzero(alarm)
-    out = np.zeros(len(alarm), dtype=bool)
-    for t in on:  # N is a few hundred, alarms fewer
-        out[t : t + frames + 1] = True
-    return out
+    t = np.arange(len(alarm))  # below: t minus the last frame the alarm held = frames since
+    return alarm if frames <= 0 else t - np.maximum.accumulate(np.where(alarm, t, -frames - 1)) <= frames
 
 
 def alarm_trace(

@@ -138,18 +138,6 @@ def _check_config_bounds(path: Path, config: dict[str, Any], shapes: dict[str, t
         walk(k, v)
 
 
-def _check_shapes_on_meta(path: Path, name: str, config: dict[str, Any], shapes: dict[str, tuple[int, ...]]) -> None:
-    """Build the model on the meta device (no memory) and refuse weights that do not fit it."""
-    try:
-        with torch.device("meta"):
-            ref = {k: tuple(v.shape) for k, v in build(name, **config).state_dict().items()}
-    except ConfigError as exc:
-        raise InputError(path, f"checkpoint config cannot build its model: {exc}") from None
-    except Exception:  # a model that cannot be built on the meta device is checked after building
-        return
-    _check_fit(path, name, ref, shapes)
-
-
 def _check_fit(path: Path, name: str, expected: dict[str, tuple], got: dict[str, tuple]) -> None:
     """InputError unless the weights ``got`` (name -> shape) are the ones model ``name`` has."""
     missing, unexpected = sorted(set(expected) - set(got)), sorted(set(got) - set(expected))
@@ -175,7 +163,15 @@ def load_model(path: str | Path, expect_model: str | None = None) -> tuple[nn.Mo
         path, "checkpoint weights are unreadable", lambda fh: {k: tuple(fh.get_slice(k).get_shape()) for k in fh.keys()}
     )
     _check_config_bounds(path, info["model_config"], shapes)
-    _check_shapes_on_meta(path, info["model"], info["model_config"], shapes)
+    try:  # on the meta device first (no memory): weights that do not fit it are refused before allocating
+        with torch.device("meta"):
+            meta = build(info["model"], **info["model_config"])
+    except ConfigError as exc:
+        raise InputError(path, f"checkpoint config cannot build its model: {exc}") from None
+    except Exception:  # a model that cannot be built on the meta device is checked after building
+        pass
+    else:
+        _check_fit(path, info["model"], {k: tuple(v.shape) for k, v in meta.state_dict().items()}, shapes)
     try:
         model = build(info["model"], **info["model_config"])
     except ConfigError as exc:

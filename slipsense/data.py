@@ -30,14 +30,7 @@ from slipsense.sensors.marker_npz import load_marker_npz
 from slipsense.sensors.spec import GELSIGHT_MINI
 
 
-def gelsight_clips(
-    recordings_dir: str | Path,
-    spec,
-    on_error: str = "raise",
-    overrides: str | Path | None = None,
-    progress: bool = True,
-    sensor=None,
-):
+def gelsight_clips(recordings_dir: str | Path, spec, on_error="raise", overrides=None, progress=True, sensor=None):
     """Labelled clips of every video under ``recordings_dir`` (labels and clips are cached).
 
     Returns ``(clipset, labels)``; ``spec`` is a :class:`~slipsense.recordings.clips.ClipSpec`;

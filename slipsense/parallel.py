@@ -50,14 +50,6 @@ def default_workers(jobs: int) -> int:
     return max(1, min(cores, jobs))
 
 
-def _context():
-    """Forked workers on Linux: they start at once with ``shared`` already in memory (nothing is
-    pickled), and a user's script that calls :func:`slipsense.fit` needs no ``if __name__ ==
-    "__main__"`` guard (a spawned worker imports the main script again). Elsewhere, spawned."""
-    method = "fork" if sys.platform == "linux" and "fork" in multiprocessing.get_all_start_methods() else "spawn"
-    return multiprocessing.get_context(method)
-
-
 def end_with_parent(parent: int) -> None:
     """Make this worker process end when ``parent`` (the pid that started it) ends, and leave Ctrl-C
     to the parent. Called first thing in every worker (pool workers here, data loader workers).
@@ -193,7 +185,11 @@ def run_jobs(
                 results[i] = fn(shared, job, lambda u, i=i: bar.tick(i, u))
                 on_done(i, results[i])
             return results
-        ctx = _context()
+        # Forked workers on Linux: they start at once with ``shared`` already in memory (nothing is
+        # pickled), and a user's script that calls slipsense.fit needs no ``if __name__ == "__main__"``
+        # guard (a spawned worker imports the main script again). Elsewhere, spawned.
+        fork = sys.platform == "linux" and "fork" in multiprocessing.get_all_start_methods()
+        ctx = multiprocessing.get_context("fork" if fork else "spawn")
         ticks = ctx.Queue()
         init = (shared, ticks, os.getpid())
         with (
@@ -212,20 +208,16 @@ def run_jobs(
                         on_done(i, results[i])
             except BaseException:
                 pool.shutdown(wait=False, cancel_futures=True)
-                _end_workers(pool)  # else leaving the pool waits for the jobs they are running
+                # kill the workers now (their jobs are not wanted): else leaving the pool waits for them
+                for proc in list((getattr(pool, "_processes", None) or {}).values()):
+                    if proc.is_alive():
+                        proc.kill()
                 raise
             time.sleep(0.05)
             _drain(ticks, bar)
         return results
     finally:
         bar.close()
-
-
-def _end_workers(pool: ProcessPoolExecutor) -> None:
-    """Kill the pool's worker processes now (on an error or Ctrl-C here: their jobs are not wanted)."""
-    for proc in list((getattr(pool, "_processes", None) or {}).values()):
-        if proc.is_alive():
-            proc.kill()
 
 
 def _drain(ticks: Any, bar: _Progress) -> None:

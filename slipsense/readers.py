@@ -73,10 +73,10 @@ class VideoClips:
         if data.markers is not None:
             raise ConfigError(f"model {run.name!r} takes video clips: use --recordings, not --markers")
         root = Path(data.recordings) if data.recordings else gelsight_recordings()
-        spec_kw = dict(frames=data.frames, horizon=data.horizon, wiggle_per_video=data.wiggle_per_video, seed=run.seed)
-        if data.size is not None:
-            spec_kw["size"] = data.size
-        spec = ClipSpec(**spec_kw)
+        given = {} if data.size is None else {"size": data.size}
+        spec = ClipSpec(
+            frames=data.frames, horizon=data.horizon, wiggle_per_video=data.wiggle_per_video, seed=run.seed, **given
+        )
         sensor = sensor_named(data.sensor) if data.sensor else GELSIGHT_MINI
         clips, _ = gelsight_clips(
             root, spec, on_error=data.on_error, overrides=data.overrides, progress=progress, sensor=sensor
@@ -142,7 +142,10 @@ class VideoClips:
             except ConfigError as exc:
                 raise InputError(split, str(exc)) from None
             root = resolve_path(split_info["recordings"])
-            labels = split_overrides(split_info.get("overrides"))
+            # the hand labels the clips were cut with: "default" the shipped ones of the shared recordings
+            # (None for data.label_runs), null (split files from before that default) none, else a CSV
+            stored = split_info.get("overrides")
+            labels = None if stored == "default" else False if stored is None else resolve_path(stored)
             on_error = split_info.get("on_error") or on_error
             clips, _ = gelsight_clips(root, spec, on_error=on_error, overrides=labels, progress=progress, sensor=sensor)
             idx = split_info["test_indices"]
@@ -199,11 +202,8 @@ class MarkerClips:
         layout = marker_file_layout(data.markers, x)
         if layout is not None:  # tracked in videos: a replay must take a camera's markers the same way
             split_info["clip_spec"] = {"marker_layout": layout}
-        sizes = {
-            "frames": int(x.shape[1]),
-            "markers": int(x.shape[2]),
-            "sensor": _marker_sensor(data.markers, x, layout),
-        }
+        sizes = {"frames": int(x.shape[1]), "markers": int(x.shape[2])}
+        sizes["sensor"] = _marker_sensor(data.markers, x, layout)
         return train, MarkerDataset(x[te], y[te]), split_info, sizes
 
     def replays(self, split_info: dict[str, Any]) -> bool:
@@ -362,12 +362,3 @@ def read_split(path, kind: str | None = None) -> dict[str, Any]:
     if len(set(idx)) != len(idx):
         raise InputError(path, "test_indices repeats an index")
     return info
-
-
-def split_overrides(stored):
-    """The hand labels a split file's clips were cut with: ``"default"`` -> the shipped ones of the
-    shared recordings (None for data.label_runs), null (split files written before that default) ->
-    none (False), else the CSV's path."""
-    if stored == "default":
-        return None
-    return False if stored is None else resolve_path(stored)

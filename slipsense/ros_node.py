@@ -161,7 +161,6 @@ class ReadingLoop:
         self._stopping = False
         self._thread: threading.Thread | None = None
 
-    # -- the subscriptions' side ---------------------------------------------------------------
     def on_message(self, k: int, msg: Any, info: Optional[dict] = None) -> None:
         self.last_seen[k] = time.monotonic()
         if self.silent[k]:
@@ -187,7 +186,6 @@ class ReadingLoop:
         if self.inline:
             self.judge_pending()
 
-    # -- the detector's side ---------------------------------------------------------------------
     def judge_pending(self) -> None:
         """Judge the pairs waiting, oldest first; one more than ``max_lag`` older than the newest
         waiting is left out as ``behind``."""
@@ -229,7 +227,15 @@ class ReadingLoop:
         record = reading_record(reading, stamp * 1e-9, latency_ms, frame=index)  # the pair as received
         with self._cond:
             self.judged += 1
-        self._tell_rate(stamp)
+        if not self.rate_told:  # the source's rate, once ten pairs were judged
+            self._stamps.append(stamp)
+            if len(self._stamps) == 10:
+                fps = 1e9 / float(np.median(np.diff(self._stamps)))
+                self.log(
+                    f"{', '.join(self.topics)}: {fps:.3g} frames/s (the header stamps); "
+                    f"the detector runs at {self.detector.sensor.fps:g} frames/s"
+                )
+                self.rate_told = True
         self.publish(record, stamp, reading.alarm)
 
     def start(self, on_error: Callable[[], None] | None = None) -> None:
@@ -261,19 +267,6 @@ class ReadingLoop:
             self._cond.notify_all()
         if self._thread is not None:
             self._thread.join(timeout=10)
-
-    # -- reports -----------------------------------------------------------------------------------
-    def _tell_rate(self, stamp: int) -> None:
-        if self.rate_told:
-            return
-        self._stamps.append(stamp)
-        if len(self._stamps) == 10:
-            fps = 1e9 / float(np.median(np.diff(self._stamps)))
-            self.log(
-                f"{', '.join(self.topics)}: {fps:.3g} frames/s (the header stamps); "
-                f"the detector runs at {self.detector.sensor.fps:g} frames/s"
-            )
-            self.rate_told = True
 
     def check_silence(self) -> None:
         now = time.monotonic()

@@ -146,7 +146,16 @@ def watch_source(
     annot = Annotator(det.threshold, det.sensors, fps=src.fps) if out is not None else None
     draw_heat = det.has_heatmap and heatmap is not False
     writer = AnnotatedWriter(out, fps=src.fps) if out is not None else None  # plays at the source's speed
-    sinks = _sinks(jsonl, bag_out, src, det)
+    sinks: list = []
+    try:
+        if jsonl is not None:
+            sinks.append(JsonlWriter(jsonl))
+        if bag_out is not None:
+            sinks.append(BagWriter(bag_out))
+    except BaseException:
+        for sink in [*sinks, src, det]:
+            sink.close()
+        raise
     onsets: list[int] = []
     previous, n = False, 0
     losses = _LossReport(src, lambda line: echo(line, err=True))
@@ -260,22 +269,6 @@ def _open(source, model, sensor, topics, tolerance, realtime, geometry=None, fps
 
     stats = lambda: live[0].stats() if live else {}  # noqa: E731
     return Source(name, src.sensors, play(), lambda: [s.close() for s in live], stats, fps=src.fps, clock=clock)
-
-
-def _sinks(jsonl, bag_out, src, det) -> list:
-    sinks = []
-    try:
-        if jsonl is not None:
-            sinks.append(JsonlWriter(jsonl))
-        if bag_out is not None:
-            sinks.append(BagWriter(bag_out))
-    except BaseException:
-        for sink in sinks:
-            sink.close()
-        src.close()
-        det.close()
-        raise
-    return sinks
 
 
 def rate_line(src, det) -> str:

@@ -14,11 +14,10 @@ import striped_video
 from striped_video import index_of
 
 from slipsense import config
-from slipsense.errors import ConfigError, InputError
+from slipsense.errors import CacheWarning, ConfigError, InputError
 from slipsense.recordings import clips as clips_mod
 from slipsense.recordings.augment import AugmentConfig, add_noise, transform_clip
 from slipsense.recordings.clips import (
-    CacheWarning,
     ClipSet,
     ClipSpec,
     build_clips,

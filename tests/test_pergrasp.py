@@ -121,12 +121,12 @@ def test_at_most_k_percent_of_held_grasps_rule():
 
 def test_bootstrap_intervals_hold_the_rates_and_trivial_detectors_have_none():
     probs, moments = _peaks(0.97, [i / 20 for i in range(20)])
-    rows = pergrasp.bootstrap_curve(probs, moments, [0.5, 0.97], samples=500)
+    rows = pergrasp.table(probs, moments, [0.5, 0.97], intervals=500)
     for r in rows:
         assert r["warned_low"] <= r["warned_rate"] <= r["warned_high"]
         assert r["fp_low"] <= r["false_positive_rate"] <= r["fp_high"]
     assert rows[0]["false_positive_rate"] == 0.5 and rows[0]["fp_low"] < 0.5 < rows[0]["fp_high"]  # peaks 0.5 .. 0.95
-    on = pergrasp.bootstrap_curve([np.ones(200) for _ in moments], moments, [0.5], samples=200)[0]
+    on = pergrasp.table([np.ones(200) for _ in moments], moments, [0.5], intervals=200)[0]
     assert on["fp_low"] == on["fp_high"] == 1.0 and on["warned_low"] == on["warned_high"] == 0.0
 
 

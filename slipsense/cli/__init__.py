@@ -13,12 +13,8 @@ import typer
 
 from slipsense.cli.common import friendly, one_line_warning
 
-app = typer.Typer(
-    add_completion=False,
-    no_args_is_help=True,
-    pretty_exceptions_enable=False,
-    help="Slip detection and prediction from vision-based tactile sensors.",
-)
+_HELP = "Slip detection and prediction from vision-based tactile sensors."
+app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False, help=_HELP)
 
 
 @app.command()
@@ -117,16 +113,8 @@ def adapt(
         raise ConfigError(f"--budget must be a fraction in [0, 1), got {budget!r}")
     if folds < 2 or epochs < 1:
         raise ConfigError(f"--folds must be 2 or more and --epochs 1 or more, got {folds} and {epochs}")
-    run(
-        recordings,
-        out,
-        budget=budget,
-        folds=folds,
-        epochs=epochs,
-        seed=check_seed(seed),
-        progress=progress,
-        echo=typer.echo,
-    )
+    settings = dict(budget=budget, folds=folds, epochs=epochs, seed=check_seed(seed), progress=progress)
+    run(recordings, out, echo=typer.echo, **settings)
 
 
 @app.command()

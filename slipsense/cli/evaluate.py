@@ -55,21 +55,9 @@ def register(app: typer.Typer) -> None:
         check_nonnegative(noise_std, "--noise-std")
         check_output_file(json_out, "--json")
         check_output_file(png, "--png")
-        metrics = evaluate_checkpoint(
-            checkpoint,
-            recordings,
-            echo=lambda line: typer.echo(line, err=True),
-            split=split_file,
-            markers=markers,
-            json_out=json_out,
-            png=png,
-            noise_std=noise_std,
-            on_error=on_error,
-            overrides=overrides,
-            progress=progress,
-            dtype=dtype,
-            per_grasp=per_grasp,
-        )
+        options = dict(split=split_file, markers=markers, json_out=json_out, png=png, noise_std=noise_std)
+        options.update(on_error=on_error, overrides=overrides, progress=progress, dtype=dtype, per_grasp=per_grasp)
+        metrics = evaluate_checkpoint(checkpoint, recordings, echo=lambda line: typer.echo(line, err=True), **options)
         typer.echo("\n".join(summary_lines(metrics)))
         if json_out is not None:
             typer.echo(f"every figure: {json_out}")

@@ -65,12 +65,6 @@ def cameras(info: Mapping[str, Any]) -> str:
     return "each" if sensors is None else str(sensors)
 
 
-def _summary(cls) -> str:
-    """The first line of a model class's docstring (what the model is, in its own words)."""
-    doc = inspect.getdoc(cls) or ""
-    return doc.splitlines()[0].rstrip(".") if doc else "-"
-
-
 def table(header: Sequence[str], rows: Iterable[Sequence[str]], right: Sequence[int] = ()) -> str:
     """Aligned columns, two spaces apart; columns ``right`` right-aligned; the last one not padded."""
     rows = [tuple(header)] + [tuple(str(c) for c in r) for r in rows]
@@ -90,7 +84,11 @@ def models_text() -> str:
     from slipsense.models import model_class
     from slipsense.resources import DEFAULT_MODEL, ONE_SENSOR_MODEL, shipped_model, shipped_models
 
-    registered_rows = [(name, _summary(model_class(name)), f"{n:,}") for name, n in default_parameter_counts().items()]
+    counts = default_parameter_counts()
+    docs = {name: inspect.getdoc(model_class(name)) or "" for name in counts}  # what it is, in its own words
+    registered_rows = [
+        (m, docs[m].splitlines()[0].rstrip(".") if docs[m] else "-", f"{n:,}") for m, n in counts.items()
+    ]
     shipped_rows = []
     for name in shipped_models():
         info = read_info(shipped_model(name))
@@ -98,13 +96,12 @@ def models_text() -> str:
         fps = sensor.get("fps")
         row = (name, info["model"], sensor.get("name", "-"), cameras(info), "-" if fps is None else f"{fps:g}")
         shipped_rows.append((*row, detector_promise(info)))
+    registered = table(("model", "what it is", "parameters"), registered_rows, right=(2,))
+    shipped = table(("detector", "model", "sensor", "cameras", "frames/s", "promise"), shipped_rows, right=(3, 4))
+    head = (
+        f"Shipped detectors (`SlipDetector.pretrained(NAME)`; the default: {DEFAULT_MODEL}, "
+        f"for one camera {ONE_SENSOR_MODEL}; files: {shipped_model(DEFAULT_MODEL).parent}):"
+    )
     return "\n".join(
-        [
-            "Registered models (`--model NAME`; parameters at default settings):",
-            table(("model", "what it is", "parameters"), registered_rows, right=(2,)),
-            "",
-            f"Shipped detectors (`SlipDetector.pretrained(NAME)`; the default: {DEFAULT_MODEL}, "
-            f"for one camera {ONE_SENSOR_MODEL}; files: {shipped_model(DEFAULT_MODEL).parent}):",
-            table(("detector", "model", "sensor", "cameras", "frames/s", "promise"), shipped_rows, right=(3, 4)),
-        ]
+        ["Registered models (`--model NAME`; parameters at default settings):", registered, "", head, shipped]
     )

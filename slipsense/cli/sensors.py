@@ -42,7 +42,6 @@ def register(app: typer.Typer) -> None:
         check_seed(seed)
         marker_layout(n_markers)  # a bad layout is refused before anything is tracked
         check_output_file(out, "--out")
-
         options = dict(horizon=horizon, wiggle_per_video=wiggle_per_video, seed=seed, on_error=on_error)
         options.update(progress=progress, overrides=overrides)
         arrays = real_marker_dataset(recordings or gelsight_recordings(), frames=frames, n_markers=n_markers, **options)

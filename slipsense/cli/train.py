@@ -122,26 +122,11 @@ def register(app: typer.Typer) -> None:
         OUT/config.yaml."""
         from slipsense.training import recipe
 
-        options = {
-            "model": {"name": model, "preset": preset},
-            "data": dict(
-                size=list(parse_hw(size)) if size else None,
-                recordings=recordings,
-                markers=markers,
-                frames=frames,
-                horizon=horizon,
-                split=split,
-                test_objects=test_objects,
-                fold=fold,
-                folds=folds,
-                augment=augment,
-                on_error=on_error,
-                overrides=overrides,
-            ),
-            "train": dict(
-                epochs=epochs, batch_size=batch_size, lr=lr, device=device, seed=seed, inner_folds=inner_folds
-            ),
-        }
+        data = dict(size=list(parse_hw(size)) if size else None, recordings=recordings, markers=markers, frames=frames)
+        data.update(horizon=horizon, split=split, test_objects=test_objects, fold=fold, folds=folds, augment=augment)
+        data.update(on_error=on_error, overrides=overrides)
+        training = dict(epochs=epochs, batch_size=batch_size, lr=lr, device=device, seed=seed, inner_folds=inner_folds)
+        options = {"model": {"name": model, "preset": preset}, "data": data, "train": training}
         # defaults < --config < options < --set; a bare --set KEY=VALUE goes to the model section, and
         # RunConfig.from_tree (every check, once) moves it to training where it names a training setting
         tree = merge(load_tree(config) if config else empty_tree(), given(options), parse_sets(sets))

@@ -136,20 +136,15 @@ def calibrate(
         "held_alarming": int((scores[~slipped] >= ev.threshold).sum()),
         "slipped_caught": int((scores[slipped] >= ev.threshold).sum()),
     }
-    info = read_info(source)
+    info, names = read_info(source), sorted({r.object for r in ev.runs})
     op = {
         **(info.get("operating_point") or {}),
         "threshold": threshold,
         "debounce": ev.debounce,
         "rule": f"at most {100 * budget:g}% of held grasps alarming",
-        "chosen_on": f"calibration on {len(ev.runs)} grasps of {len({r.object for r in ev.runs})} objects",
+        "chosen_on": f"calibration on {len(ev.runs)} grasps of {len(names)} objects",
         "held_alarm": promise,
-        "calibrated": {
-            "from": source.name,
-            "recordings": root.name,
-            "objects": sorted({r.object for r in ev.runs}),
-            "before": before,
-        },
+        "calibrated": {"from": source.name, "recordings": root.name, "objects": names, "before": before},
     }
 
     out = Path(out)
@@ -182,7 +177,6 @@ def check_by_objects(
     caught, accuracy. ``on_error`` as :func:`calibrate` takes it."""
     root = recordings_folder(recordings)
     ev = judge(checkpoint, root, overrides=overrides, progress=progress, on_error=on_error)
-    source = ev.checkpoint
     scores = ev.peak_scores()
     slipped = np.array([r.slipped for r in ev.runs], bool)
     objects = np.array([r.object for r in ev.runs])
@@ -206,21 +200,20 @@ def check_by_objects(
                 "slipped_caught": int((alarm & slipped[mine]).sum()),
             }
         )
-    held = sum(r["held"] for r in rows)
-    held_alarming = sum(r["held_alarming"] for r in rows)
-    slips = sum(r["slipped"] for r in rows)
-    caught = sum(r["slipped_caught"] for r in rows)
+    held, alarming, slips, caught = (
+        sum(r[k] for r in rows) for k in ("held", "held_alarming", "slipped", "slipped_caught")
+    )
     return {
-        "checkpoint": source.name,
+        "checkpoint": ev.checkpoint.name,
         "budget": budget,
         "objects": rows,
         "held": held,
-        "held_alarming": held_alarming,
-        "held_alarm_rate": held_alarming / held if held else math.nan,
+        "held_alarming": alarming,
+        "held_alarm_rate": alarming / held if held else math.nan,
         "largest_stated_bound": max(r["bound_counting_objects"] for r in rows),
         "slipped": slips,
         "slipped_caught": caught,
-        "accuracy": (caught + held - held_alarming) / (held + slips),
+        "accuracy": (caught + held - alarming) / (held + slips),
     }
 
 

@@ -47,16 +47,14 @@ def _grasps(
     echo: Callable[[str], Any] = lambda line: None,
     split=None,
     markers=None,
-    png=None,
-    noise_std: float = 0.0,
     on_error: str = "raise",
     overrides=None,
     progress: bool = True,
     dtype: str = "float32",
-    per_grasp: bool = True,
+    **clip_only: Any,
 ) -> dict[str, Any]:
-    """A grasp detector per grasp; the JSON holds every measure and each run's outcome (``png``,
-    ``noise_std`` and ``per_grasp`` are for clip models and not used)."""
+    """A grasp detector per grasp; the JSON holds every measure and each run's outcome (``clip_only``:
+    ``png``, ``noise_std`` and ``per_grasp``, for clip models, not used)."""
     if split is not None or markers is not None:
         raise InputError(
             split or markers,

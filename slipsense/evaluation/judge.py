@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 import math
 import warnings
+from collections import Counter
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Mapping, Sequence
@@ -20,7 +21,7 @@ from slipsense.config import gelsight_recordings
 from slipsense.data import label_runs
 from slipsense.errors import InputError
 from slipsense.evaluation.replay import replay_recordings
-from slipsense.measures import Judged, measure_all, pergrasp, slipped_or_held
+from slipsense.measures import MEASURES, Judged, measure_all, pergrasp, slipped_or_held
 from slipsense.measures.baselines import NAMES, SIZE, frame_scores
 from slipsense.recordings import folders
 from slipsense.recordings.clips import ClipSpec, plan_windows
@@ -92,13 +93,10 @@ class Evaluation:
     def judged(self, keys: Sequence[str] = ()) -> Judged:
         """The runs as the measures take them; the baselines' frames and the short clips are read
         only where a measure of ``keys`` needs them."""
-        point = (self.threshold, self.debounce, self.hold_s)
-        base = None
+        point, labels, base = (self.threshold, self.debounce, self.hold_s), self.labels or {}, None
         if "grasp_measure" in keys and self.recordings is not None:
-            base = baseline_scores(self.runs, self.recordings, self.labels or {}, self.startup)
-        clips = (
-            clip_scores(self.runs, [r.probability for r in self.runs], self.labels or {}) if "clips" in keys else None
-        )
+            base = baseline_scores(self.runs, self.recordings, labels, self.startup)
+        clips = clip_scores(self.runs, [r.probability for r in self.runs], labels) if "clips" in keys else None
         return Judged(self.runs, [point] * len(self.runs), self.horizon, self.startup, base, clips)
 
     def measure(self, key: str) -> dict[str, Any] | None:
@@ -109,12 +107,7 @@ class Evaluation:
 
     def measures(self) -> dict[str, Any]:
         """Every registered measure that applies: ``{key: result}``."""
-        from slipsense.measures import MEASURES
-
         return {k: v for k in MEASURES if (v := self.measure(k)) is not None}
-
-    def outcomes(self) -> list[pergrasp.GraspOutcome]:
-        return [r.outcome(self.threshold, self.debounce, self.horizon, self.startup) for r in self.runs]
 
     def peak_scores(self) -> np.ndarray:
         """``(runs,)`` each run's :func:`~slipsense.measures.slipped_or_held.peak_alarm_score` at this
@@ -134,38 +127,24 @@ class Evaluation:
         """Early warning per grasp (:func:`slipsense.measures.pergrasp.per_grasp`)."""
         return self.measure("per_grasp")
 
-    def clips(self) -> dict[str, Any]:
-        """The papers' clip protocol on the same traces (:func:`slipsense.measures.clips.clips`)."""
-        return self.measure("clips")
-
     def frame_rates(self) -> dict[str, Any]:
         """The rate the detector runs at and the rates the runs were read at (frames per second),
         each with where it was read and how many runs: ``{"detector": 25.0, "recordings": [{"fps": 12.5,
         "from": ".../sensor.json", "runs": 26}]}``. Runs at another rate were resampled to the detector's clock."""
-        counts: dict[tuple[float, str], int] = {}
-        for r in self.runs:
-            counts[(r.fps, r.fps_from)] = counts.get((r.fps, r.fps_from), 0) + 1
+        counts = Counter((r.fps, r.fps_from) for r in self.runs)
         detector = self.runs[0].model_fps if self.runs else math.nan
         return {"detector": detector, "recordings": [{"fps": f, "from": w, "runs": n} for (f, w), n in counts.items()]}
 
     def to_dict(self) -> dict[str, Any]:
         """The operating point, the rates, every measure under its key and each run's outcome."""
+        at = (self.threshold, self.debounce, self.horizon, self.startup)
         return {
             "threshold": self.threshold,
             "debounce": self.debounce,
             "horizon": self.horizon,
             "frame_rate": self.frame_rates(),
             **self.measures(),
-            "runs": [
-                {
-                    "object": r.object,
-                    "experiment": r.experiment,
-                    "cameras": list(r.cameras),
-                    "moment_of_slip": r.moment_of_slip,
-                    **asdict(o),
-                }
-                for r, o in zip(self.runs, self.outcomes())
-            ],
+            "runs": [{**pergrasp.run_fields(r), **asdict(r.outcome(*at))} for r in self.runs],
         }
 
     def to_json(self, path: str | Path) -> Path:
@@ -195,9 +174,7 @@ def clip_scores(
     return np.asarray(p, dtype=np.float64), np.asarray(y, dtype=np.int64)
 
 
-def baseline_scores(
-    runs: Sequence, recordings: Sequence, labels: Mapping[tuple, object], start: int = 0
-) -> dict[str, np.ndarray]:
+def baseline_scores(runs: Sequence, recordings: Sequence, labels: Mapping, start: int = 0) -> dict[str, np.ndarray]:
     """``{name: (len(runs),) scores}`` for replayed ``runs`` (each with ``object``, ``experiment``,
     ``cameras``), reading the frames of ``recordings`` and the contact starts of ``labels``."""
     by_key = {r.key: r for r in recordings}
@@ -212,11 +189,6 @@ def baseline_scores(
             for name in NAMES:
                 out[name][i] = max(out[name][i], scores[name])
     return out
-
-
-def _layout(sensor: Any) -> tuple:
-    """What :func:`~slipsense.recordings.folders.find_recordings` reads of a sensor."""
-    return (sensor.experiment_pattern, sensor.camera_glob, sensor.slip_marker)
 
 
 def _whole_runs(found: Sequence[Any], kept: Sequence[Any]) -> list[Any]:
@@ -275,7 +247,8 @@ def judge(
     path = Path(checkpoint) if checkpoint is not None else shipped_for(root, found)
     model, info = loaded if loaded is not None else load_model(path)
     sensor = sensor_of(info, path)
-    if found is None or _layout(sensor) != _layout(scanned):
+    layout = ("experiment_pattern", "camera_glob", "slip_marker")  # what find_recordings reads of a sensor
+    if found is None or any(getattr(sensor, a) != getattr(scanned, a) for a in layout):
         found = folders.find_recordings(root, on_error=on_error, sensor=sensor)
     calibrated = ((info.get("operating_point") or {}).get("calibrated") or {}).get("objects") or ()
     # another data set's objects are stored as <folder>/<object> (data.also): they count by their own name

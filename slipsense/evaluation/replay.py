@@ -61,29 +61,25 @@ def replay_recordings(
     out = []
     for key in progress_bar(keys, progress, "replaying runs"):
         cams = runs[key]
-        if detector.sensors == 1 and len(cams) > 1:  # one finger: each camera is a grasp of its own
-            groups = [[c] for c in cams]
-        else:
-            groups = [cams]
-        for group in groups:
-            trace = _replay_run(detector, key, group, cams, labels, read_video, video_products, keep_without_moment)
+        # one finger: each camera is a grasp of its own
+        for group in [[c] for c in cams] if detector.sensors == 1 and len(cams) > 1 else [cams]:
+            trace = _replay_run(detector, key, group, cams, labels, keep_without_moment)
             if trace is not None:
                 out.append(trace)
     return out
 
 
-def _replay_run(detector, key, cams, run_cams, labels, read_video, video_products, keep=False) -> RunTrace | None:
+def _replay_run(detector, key, cams, run_cams, labels, keep=False) -> RunTrace | None:
     """One run (or one camera of it) replayed; None for a slip without a moment of slip."""
     if len(cams) != detector.sensors:
         raise InputError(
             cams[0].path.parent,
             f"run has {len(cams)} camera video(s), the detector takes {detector.sensors} sensor(s)",
         )
-    labs = []
-    for r in run_cams:  # the run's label is its cameras' (the grasp is lost for both fingers)
+    for r in run_cams:
         if r.key not in labels:
             raise InputError(r.path, "no label for this video")
-        labs.append(labels[r.key])
+    labs = [labels[r.key] for r in run_cams]  # the run's label is its cameras' (the grasp is lost for both fingers)
     moment = next((l.moment_of_slip for l in labs if l.moment_of_slip is not None), None)
     slipped = any(l.slipped for l in labs)
     if slipped and moment is None and not keep:
@@ -118,7 +114,7 @@ def plot_tradeoff(rows: Sequence[Mapping[str, Any]], path: str | Path, title: st
     fig, ax = plt.subplots(figsize=(5.2, 4.2))
     xs = [r["false_positive_rate"] for r in rows]
     ys = [r["warned_rate"] for r in rows]
-    if all("warned_low" in r for r in rows):  # bootstrap intervals over runs (pergrasp.bootstrap_curve)
+    if all("warned_low" in r for r in rows):  # bootstrap intervals over runs (pergrasp.table)
         xerr = [[x - r["fp_low"] for x, r in zip(xs, rows)], [r["fp_high"] - x for x, r in zip(xs, rows)]]
         yerr = [[y - r["warned_low"] for y, r in zip(ys, rows)], [r["warned_high"] - y for y, r in zip(ys, rows)]]
         ax.errorbar(xs, ys, xerr=xerr, yerr=yerr, fmt="none", ecolor="tab:blue", alpha=0.25, lw=1)

@@ -57,25 +57,17 @@ def metrics_from(p: np.ndarray, y: np.ndarray, threshold: float = 0.5) -> dict[s
 
 def clip_metrics(p: np.ndarray, y: np.ndarray, threshold: float) -> dict[str, Any]:
     """Accuracy, balanced accuracy, precision, recall, F1 and the always-wiggle baseline."""
-    pred = np.nan_to_num(p, nan=0.0) >= threshold
-    tp, fp = int((pred & (y == 1)).sum()), int((pred & (y == 0)).sum())
-    fn, tn = int((~pred & (y == 1)).sum()), int((~pred & (y == 0)).sum())
-    prec = tp / (tp + fp) if tp + fp else 0.0
-    rec = tp / (tp + fn) if tp + fn else 0.0
-    spec = tn / (tn + fp) if tn + fp else 0.0
+    cm = confusion(y, np.nan_to_num(p, nan=0.0) >= threshold)
+    (tn, fp), (fn, tp) = cm.tolist()
+    s = scores(cm)
     return {
         "clips": len(y),
         "slip_clips": int((y == 1).sum()),
         "accuracy": (tp + tn) / max(len(y), 1),
-        "balanced_accuracy": (rec + spec) / 2,
-        "precision": prec,
-        "recall": rec,
-        "f1": 2 * prec * rec / (prec + rec) if prec + rec else 0.0,
+        "balanced_accuracy": (s["recall"] + (tn / (tn + fp) if tn + fp else 0.0)) / 2,
+        **{k: s[k] for k in ("precision", "recall", "f1")},
         "always_wiggle_accuracy": float((y == 0).mean()) if len(y) else math.nan,
-        "tp": tp,
-        "fp": fp,
-        "fn": fn,
-        "tn": tn,
+        **{"tp": tp, "fp": fp, "fn": fn, "tn": tn},
     }
 
 

@@ -26,9 +26,7 @@ import numpy as np
 
 from slipsense.alarm import alarm_trace, hold_frames, onsets
 from slipsense.measures.registry import Judged, plural, register
-
-#: Bootstrap draws for the interval.
-BOOTSTRAP = 2000
+from slipsense.measures.slipped_or_held import BOOTSTRAP, object_interval
 
 
 def held_part(run: Any, horizon: int, startup: int) -> tuple[int, int] | None:
@@ -85,15 +83,8 @@ def false_alarms_per_hour(judged: Judged, draws: int = BOOTSTRAP, seed: int = 0)
     objects = np.array([o for o, _, _ in rows])
     counts = np.array([c for _, c, _ in rows], float)
     seconds = np.array([s for _, _, s in rows], float)
-    groups = [np.flatnonzero(objects == o) for o in np.unique(objects)]
-    rng = np.random.default_rng(seed)
-    drawn = []
-    for _ in range(draws if len(groups) > 1 else 0):
-        idx = np.concatenate([groups[i] for i in rng.integers(0, len(groups), len(groups))])
-        v = _per_hour(counts[idx], seconds[idx])
-        if not math.isnan(v):
-            drawn.append(v)
-    interval = [float(np.percentile(drawn, 2.5)), float(np.percentile(drawn, 97.5))] if drawn else [math.nan] * 2
+    draws = draws if len(np.unique(objects)) > 1 else 0
+    interval = object_interval(_per_hour, (counts, seconds), objects, draws, seed)
     return {
         "false_alarms": int(counts.sum()),
         "hours": float(seconds.sum() / 3600.0),

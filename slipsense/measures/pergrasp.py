@@ -14,8 +14,6 @@ Alarms while the gel is at rest (no contact on any sensor) are counted separatel
 not fire before anything touches it. A detector that is always on scores 0 warned and 100%
 false-positive grasps; one that is always off scores 0 warned and 0 false positives; one that
 alarms only in ``m-H..m`` scores 100% and 0 (tests hold all three).
-
-Everything here is numpy on alarm arrays (a floor of :mod:`slipsense.measures`): the models and the replay live elsewhere.
 """
 
 from __future__ import annotations
@@ -100,6 +98,11 @@ def trace_outcome(
     return replace(o, outcome="slip_without_moment") if slipped and moment is None else o
 
 
+def run_fields(r: Any) -> dict[str, Any]:
+    """How reports name a run (a :class:`RunTrace` or a training run) beside its figures."""
+    return dict(object=r.object, experiment=r.experiment, cameras=list(r.cameras), moment_of_slip=r.moment_of_slip)
+
+
 @dataclass
 class RunTrace:
     """One replayed run: its labels, its probability trace and where no gel was touched."""
@@ -124,26 +127,6 @@ class RunTrace:
         scale = self.fps / self.model_fps
         h, s = (horizon, startup) if scale == 1 else (max(1, round(horizon * scale)), round(startup * scale))
         return trace_outcome(self.probability, threshold, debounce, self.moment_of_slip, self.slipped, h, s, self.rest)
-
-
-#: Columns of the per-grasp table, in order.
-COLUMNS = (
-    "threshold",
-    "debounce",
-    "slip_runs",
-    "warned",
-    "premature",
-    "missed",
-    "warned_rate",
-    "median_lead_frames",
-    "median_lead_ms",
-    "held_runs",
-    "false_positive_grasps",
-    "false_positive_rate",
-    "held_alarm_fraction",
-    "runs_alarming_at_rest",
-    "score",
-)
 
 
 def summarise(outcomes: Sequence[GraspOutcome], fps: float = GELSIGHT_MINI.fps) -> dict[str, Any]:
@@ -183,8 +166,11 @@ def table(
     startup: int = STARTUP,
     rests: Sequence[np.ndarray | None] | None = None,
     fps: float = GELSIGHT_MINI.fps,
+    intervals: int = 0,
 ) -> list[dict[str, Any]]:
-    """One row (:data:`COLUMNS`) per (threshold, debounce) over runs given as probability traces."""
+    """One row (``threshold``, ``debounce``, :func:`summarise`) per (threshold, debounce) over runs given as
+    probability traces; with ``intervals`` bootstrap draws, also ``warned_low``/``warned_high`` and
+    ``fp_low``/``fp_high``: 95% intervals over runs (:func:`bootstrap_rates`, the same draws for every row)."""
     rests = rests if rests is not None else [None] * len(probabilities)
     rows = []
     for k in debounces:
@@ -194,6 +180,9 @@ def table(
                 for p, m, r in zip(probabilities, moments, rests)
             ]
             rows.append({"threshold": float(th), "debounce": int(k), **summarise(outs, fps)})
+            if intervals:
+                ci = bootstrap_rates([o.outcome for o in outs], intervals)
+                rows[-1].update({c: ci[c] for c in ("warned_low", "warned_high", "fp_low", "fp_high")})
     return rows
 
 
@@ -242,17 +231,9 @@ def choose_operating_point(
     k = min(r["debounce"] for r in tied)
     tied = sorted((r for r in tied if r["debounce"] == k), key=lambda r: r["threshold"])
     best = tied[(len(tied) - 1) // 2]
-    return {
-        "threshold": best["threshold"],
-        "debounce": best["debounce"],
-        "hold_s": HOLD_S,
-        "horizon": horizon,
-        "startup": startup,
-        "rule": rule,
-        "score_on_training_runs": best["score"],
-        "warned_rate_on_training_runs": best["warned_rate"],
-        "false_positive_rate_on_training_runs": best["false_positive_rate"],
-    }
+    point = {"threshold": best["threshold"], "debounce": best["debounce"], "hold_s": HOLD_S}
+    on_training_runs = {f"{k}_on_training_runs": best[k] for k in ("score", "warned_rate", "false_positive_rate")}
+    return {**point, "horizon": horizon, "startup": startup, "rule": rule, **on_training_runs}
 
 
 def bootstrap_rates(outcomes: Sequence[str], samples: int = 2000, seed: int = 0, level: float = 0.95) -> dict[str, Any]:
@@ -334,45 +315,6 @@ def wilson(k: float, n: int, z: float = 1.959964) -> tuple[float, float]:
     return (max(0.0, centre - half), min(1.0, centre + half))
 
 
-def bootstrap_curve(
-    probabilities: Sequence[np.ndarray],
-    moments: Sequence[int | None],
-    thresholds: Sequence[float],
-    debounce_frames: int = 1,
-    horizon: int = HORIZON,
-    startup: int = STARTUP,
-    samples: int = 2000,
-    seed: int = 0,
-    level: float = 0.95,
-) -> list[dict[str, Any]]:
-    """Per threshold, the warned-in-time and false-positive rates with bootstrap intervals over runs.
-
-    Slip runs and held runs are resampled with replacement, each group to its own size (a run is
-    the unit: 51 slip runs make one run 2%), ``samples`` times; the interval is the central
-    ``level`` of the resampled rates. Returns rows ``{"threshold", "warned_rate", "warned_low",
-    "warned_high", "false_positive_rate", "fp_low", "fp_high"}``.
-    """
-    rows = []
-    for th in thresholds:
-        outs = [
-            grasp_outcome(debounce(p, th, debounce_frames), m, horizon, startup).outcome
-            for p, m in zip(probabilities, moments)
-        ]
-        warned = [o == "warned" for o, m in zip(outs, moments) if m is not None]
-        fp = [o == "false_positive" for o, m in zip(outs, moments) if m is None]
-        ci = bootstrap_rates(outs, samples, seed, level)  # the same draws for every threshold
-        rows.append(
-            {
-                "threshold": float(th),
-                "warned_rate": float(np.mean(warned)) if warned else math.nan,
-                **{k: ci[k] for k in ("warned_low", "warned_high")},
-                "false_positive_rate": float(np.mean(fp)) if fp else math.nan,
-                **{k: ci[k] for k in ("fp_low", "fp_high")},
-            }
-        )
-    return rows
-
-
 def early_warning_lines(g: Mapping[str, Any], context: Mapping[str, Any]) -> list[str]:
     """Warned in time / too early / missed, on the slips with a moment of slip; false alarms on held grasps."""
     horizon, fps = context.get("horizon"), context.get("fps")
@@ -381,7 +323,7 @@ def early_warning_lines(g: Mapping[str, Any], context: Mapping[str, Any]) -> lis
     fp = f"False alarms: {g['false_positive_grasps']} of {plural(held, 'held grasp')} alarmed at some point."
     without = g.get("slips_without_moment", 0)
     if g["slip_runs"] == 0:
-        if g.get("slips_without_moment"):
+        if without:
             lines.append(
                 "No slipped grasp has a moment of slip in these labels (they say only whether a grasp slipped, not "
                 "when): the early-warning figures do not apply."

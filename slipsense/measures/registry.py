@@ -70,13 +70,8 @@ def register(key: str, words: Callable, pools: bool = True) -> Callable:
 
 def measure_all(judged: Judged, only: Sequence[str] | None = None) -> dict[str, Any]:
     """``{key: result}`` of every registered measure (or of ``only``) that applies to ``judged``."""
-    out = {}
-    for key, m in MEASURES.items():
-        if only is None or key in only:
-            result = m.compute(judged)
-            if result is not None:
-                out[key] = result
-    return out
+    results = {key: m.compute(judged) for key, m in MEASURES.items() if only is None or key in only}
+    return {key: result for key, result in results.items() if result is not None}
 
 
 def measure_lines(results: Mapping[str, Any], context: Mapping[str, Any]) -> list[str]:
@@ -88,20 +83,14 @@ def pct(value: float) -> str:
     return "n/a" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{100 * value:.0f}%"
 
 
-def with_range(m: Mapping[str, Any] | None, percent: bool = True) -> str:
+def with_range(m: Mapping[str, Any] | None) -> str:
     """``{"value", "interval"}`` -> ``"83% (95% range 70-95%)"``."""
-    if not m:
+    if not m or m["value"] is None or math.isnan(m["value"]):
         return "n/a"
     v, (lo, hi) = m["value"], m["interval"]
-    if v is None or math.isnan(v):
-        return "n/a"
-    if percent:
-        if math.isnan(lo) or math.isnan(hi):
-            return pct(v)
-        return f"{pct(v)} (95% range {100 * lo:.0f}-{100 * hi:.0f}%)"
     if math.isnan(lo) or math.isnan(hi):
-        return f"{v:.2f}"
-    return f"{v:.2f} (95% range {lo:.2f}-{hi:.2f})"
+        return pct(v)
+    return f"{pct(v)} (95% range {100 * lo:.0f}-{100 * hi:.0f}%)"
 
 
 def plural(n: int, word: str) -> str:

@@ -92,7 +92,7 @@ def leave_objects_out(score: np.ndarray, positive: np.ndarray, objects: Sequence
     return predicted
 
 
-def _interval(metric, arrays: Sequence[np.ndarray], objects: np.ndarray, draws: int, seed: int) -> list[float]:
+def object_interval(metric, arrays: Sequence[np.ndarray], objects: np.ndarray, draws: int, seed: int) -> list[float]:
     """95% percentile interval of ``metric(*arrays)`` over bootstrap draws of whole objects; draws
     where the metric is undefined (one class only) are left out."""
     names = np.unique(objects)
@@ -110,7 +110,15 @@ def _interval(metric, arrays: Sequence[np.ndarray], objects: np.ndarray, draws: 
 
 
 def _with_interval(metric, arrays, objects, draws, seed) -> dict[str, Any]:
-    return {"value": metric(*arrays), "interval": _interval(metric, arrays, objects, draws, seed)}
+    return {"value": metric(*arrays), "interval": object_interval(metric, arrays, objects, draws, seed)}
+
+
+def _accuracies(predicted: np.ndarray, y: np.ndarray, objects: np.ndarray, draws: int, seed: int) -> dict[str, Any]:
+    return {m.__name__: _with_interval(m, (predicted, y), objects, draws, seed) for m in (accuracy, balanced_accuracy)}
+
+
+def _counts(y: np.ndarray, objects: np.ndarray) -> dict[str, int]:
+    return {"grasps": int(len(y)), "slipped": int(y.sum()), "objects": int(len(np.unique(objects)))}
 
 
 def outcome_measure(
@@ -134,24 +142,11 @@ def outcome_measure(
     s, y, objs = np.asarray(score, float), np.asarray(slipped, bool), np.asarray(objects)
     if not (len(s) == len(y) == len(objs)):
         raise ValueError("score, slipped and objects differ in length")
-    out: dict[str, Any] = {
-        "grasps": int(len(y)),
-        "slipped": int(y.sum()),
-        "objects": int(len(np.unique(objs))),
-        "roc_auc": _with_interval(roc_auc, (s, y), objs, draws, seed),
-    }
+    out: dict[str, Any] = {**_counts(y, objs), "roc_auc": _with_interval(roc_auc, (s, y), objs, draws, seed)}
     if alarmed is not None:
-        a = np.asarray(alarmed, bool)
-        out["operating_point"] = {
-            "accuracy": _with_interval(accuracy, (a, y), objs, draws, seed),
-            "balanced_accuracy": _with_interval(balanced_accuracy, (a, y), objs, draws, seed),
-        }
+        out["operating_point"] = _accuracies(np.asarray(alarmed, bool), y, objs, draws, seed)
     if len(np.unique(objs)) > 1:
-        lo = leave_objects_out(s, y, objs)
-        out["leave_objects_out"] = {
-            "accuracy": _with_interval(accuracy, (lo, y), objs, draws, seed),
-            "balanced_accuracy": _with_interval(balanced_accuracy, (lo, y), objs, draws, seed),
-        }
+        out["leave_objects_out"] = _accuracies(leave_objects_out(s, y, objs), y, objs, draws, seed)
     return out
 
 
@@ -164,31 +159,34 @@ def majority_measure(slipped: Sequence[bool], objects: Sequence[str], draws: int
         mine = objs == o
         predicted[mine] = y[~mine].mean() > 0.5 if (~mine).any() else False
     return {
-        "grasps": int(len(y)),
-        "slipped": int(y.sum()),
-        "objects": int(len(np.unique(objs))),
+        **_counts(y, objs),
         "roc_auc": {"value": 0.5, "interval": [0.5, 0.5]},
-        "leave_objects_out": {
-            "accuracy": _with_interval(accuracy, (predicted, y), objs, draws, seed),
-            "balanced_accuracy": _with_interval(balanced_accuracy, (predicted, y), objs, draws, seed),
-        },
+        "leave_objects_out": _accuracies(predicted, y, objs, draws, seed),
     }
 
 
-def beats(detector: Mapping[str, Any], baselines: Mapping[str, Mapping[str, Any]]) -> list[str]:
-    """Sentences saying where the detector does not beat a baseline (its AUC, its leave-objects-out
-    accuracy); empty when it beats every one."""
-    said = []
+def _shortfalls(detector: Mapping[str, Any], baselines: Mapping[str, Mapping[str, Any]]):
+    """``(baseline, key, the detector's value, the baseline's)`` where the detector does not beat a baseline
+    on its ROC AUC (``roc_auc``) or its leave-objects-out accuracy (``leave_objects_out``)."""
     for name, b in baselines.items():
-        for key, label in (("roc_auc", "ROC AUC"), ("leave_objects_out", "leave-objects-out accuracy")):
+        for key in ("roc_auc", "leave_objects_out"):
             mine, theirs = detector.get(key), b.get(key)
             if mine is None or theirs is None:
                 continue
             mine_v = mine["value"] if key == "roc_auc" else mine["accuracy"]["value"]
             theirs_v = theirs["value"] if key == "roc_auc" else theirs["accuracy"]["value"]
             if not mine_v > theirs_v:
-                said.append(f"the detector does not beat {name} on {label} ({mine_v:.3f} against {theirs_v:.3f})")
-    return said
+                yield name, key, mine_v, theirs_v
+
+
+def beats(detector: Mapping[str, Any], baselines: Mapping[str, Mapping[str, Any]]) -> list[str]:
+    """Sentences saying where the detector does not beat a baseline (its AUC, its leave-objects-out
+    accuracy); empty when it beats every one."""
+    label = {"roc_auc": "ROC AUC", "leave_objects_out": "leave-objects-out accuracy"}
+    return [
+        f"the detector does not beat {name} on {label[key]} ({mine:.3f} against {theirs:.3f})"
+        for name, key, mine, theirs in _shortfalls(detector, baselines)
+    ]
 
 
 #: Plain words for the baselines of :meth:`grasp_measure`.
@@ -227,22 +225,13 @@ def telling_apart(measure: Mapping[str, Any], context: Mapping[str, Any] | None 
 
 
 def _not_beaten(d: Mapping[str, Any], baselines: Mapping[str, Mapping[str, Any]]) -> list[str]:
-    """One line per baseline the detector does not beat, as :func:`slipsense.measures.slipped_or_held.beats`
-    judges it (the ``not_beaten`` sentences of the JSON)."""
-    lines = []
-    for name, b in baselines.items():
-        said = []
-        if not d["roc_auc"]["value"] > b["roc_auc"]["value"]:
-            said.append(f"ranking {pct(d['roc_auc']['value'])} against {pct(b['roc_auc']['value'])}")
-        mine, theirs = d.get("leave_objects_out"), b.get("leave_objects_out")
-        if mine and theirs and not mine["accuracy"]["value"] > theirs["accuracy"]["value"]:
-            said.append(
-                f"right on {pct(mine['accuracy']['value'])} against {pct(theirs['accuracy']['value'])} "
-                "with thresholds chosen on the other objects"
-            )
-        if said:
-            lines.append(f"  the detector does not beat {name}: {'; '.join(said)}")
-    return lines
+    """One line per baseline the detector does not beat (the ``not_beaten`` sentences of the JSON)."""
+    said: dict[str, list[str]] = {}
+    for name, key, mine, theirs in _shortfalls(d, baselines):
+        line = f"{pct(mine)} against {pct(theirs)}"
+        line = f"ranking {line}" if key == "roc_auc" else f"right on {line} with thresholds chosen on the other objects"
+        said.setdefault(name, []).append(line)
+    return [f"  the detector does not beat {name}: {'; '.join(s)}" for name, s in said.items()]
 
 
 @register("grasp_measure", telling_apart, pools=False)

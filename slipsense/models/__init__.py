@@ -16,24 +16,12 @@ import torch.nn as nn
 
 from slipsense.errors import ConfigError
 
-from slipsense.models.base import (  # noqa: F401  (re-exported: the public face of the registry)
-    MarkerModel,
-    SlipModel,
-    build_registered,
-    register,
-    registered,
-    settings_of,
-    window_geometry,
-)
+# re-exported: the public face of the registry
+from slipsense.models.base import MarkerModel, SlipModel, build_registered, register  # noqa: F401
+from slipsense.models.base import registered, settings_of, window_geometry  # noqa: F401
 
 # Modules that register models on import; imported lazily so `import slipsense` stays fast.
-_MODULES = (
-    "slipsense.models.vivit",
-    "slipsense.models.resnet3d",
-    "slipsense.models.stnet",
-    "slipsense.models.motion",
-    "slipsense.models.shear",
-)
+_MODULES = tuple(f"slipsense.models.{m}" for m in ("vivit", "resnet3d", "stnet", "motion", "shear"))
 
 
 def _load_all() -> None:

@@ -122,8 +122,6 @@ class SlipModel(nn.Module):
     #: True when the frame part's output holds the frame's token at every window slot, ``(N, T, dim)``,
     #: so a window takes row ``k`` of its ``k``-th frame (ViViT's slot position embedding)
     slot_tokens: bool = False
-    #: epochs of the experiments' quick setting
-    quick_epochs: int = 10
     #: where ``backend="auto"`` streams it: ``"onnx"`` (ONNX Runtime where installed: several times
     #: faster for most small streaming models) or ``"torch"`` for a model measured faster on PyTorch
     auto_backend: str = "onnx"
@@ -231,8 +229,36 @@ class SlipModel(nn.Module):
     def onnx_parts(self, geometry: Mapping[str, Any], batch: int | None = None) -> dict[str, OnnxPart]:
         """What ``slipsense export`` writes (call it on :meth:`exportable`): ``"model"`` (the whole
         network) and the :meth:`streaming_modules` with example inputs. ``batch`` None leaves the
-        batch axis free, an int fixes it."""
-        return clip_onnx_parts(self, geometry, batch)
+        batch axis free, an int fixes it. A clip model: the whole network and its frame/window parts,
+        batch axis 0, on random example inputs (seed 0) of ``batch`` (default 2) items."""
+        g, t, b = torch.Generator().manual_seed(0), geometry["frames"], batch or 2
+        video = geometry["kind"] == "video"
+        if video:
+            full = torch.rand(b, t, 3, *geometry["image_size"], generator=g)
+        else:
+            full = torch.randn(b, t, geometry["markers"], 3, generator=g)
+        examples = {"model": full, "window": full}
+        frame_part, _ = self.streaming_parts()
+        if frame_part is not None:
+            with torch.no_grad():
+                tokens = frame_part(full.flatten(0, 1)).unflatten(0, (b, t))
+            if self.slot_tokens:
+                tokens = tokens[:, torch.arange(t), torch.arange(t)]  # frame k at slot k
+            examples.update(frame=full[:, 0], window=tokens.contiguous())
+        names = {
+            "model": ("video" if video else "markers", "logits"),
+            "frame": ("frames" if video else "clouds", "tokens"),
+            "window": ("tokens", "logits"),
+        }
+        modules = {"model": self, **self.streaming_modules(geometry)}
+        if "frame" not in modules:  # the window part is the whole model and takes the model's input
+            names["window"] = names["model"]
+        parts = {}
+        for key, module in modules.items():
+            inp, out = names[key]
+            dyn = {} if batch is not None else {inp: {0: "batch"}, out: {0: "batch"}}
+            parts[key] = OnnxPart(module, (examples[key],), [inp], [out], dyn)
+        return parts
 
     #: what :meth:`attention` draws (e.g. "attention rollout"), None for a model that has no heat map
     attention_map: str | None = None
@@ -458,7 +484,11 @@ def registered() -> dict[str, type]:
     return dict(_REGISTRY)
 
 
-def _check_sizes(name: str, config: Mapping[str, Any]) -> None:
+def build_registered(name: str, **config: Any) -> SlipModel:
+    """Build registered model ``name``; see :func:`slipsense.models.build`."""
+    if name not in _REGISTRY:
+        raise ConfigError(f"unknown model {name!r}; available: {', '.join(sorted(_REGISTRY))}")
+
     def walk(key, v):
         if isinstance(v, bool):
             return
@@ -470,13 +500,6 @@ def _check_sizes(name: str, config: Mapping[str, Any]) -> None:
 
     for key, value in config.items():
         walk(key, value)
-
-
-def build_registered(name: str, **config: Any) -> SlipModel:
-    """Build registered model ``name``; see :func:`slipsense.models.build`."""
-    if name not in _REGISTRY:
-        raise ConfigError(f"unknown model {name!r}; available: {', '.join(sorted(_REGISTRY))}")
-    _check_sizes(name, config)
     cls = _REGISTRY[name]
     try:
         if torch.empty(0).device.type == "meta":  # already building without memory (checkpoint checks)
@@ -488,39 +511,6 @@ def build_registered(name: str, **config: Any) -> SlipModel:
         return cls(**config)
     except (TypeError, ValueError) as exc:  # a setting of the wrong type: int("abc"), a number for a list
         raise ConfigError(f"model {name!r}: {exc}") from None
-
-
-def clip_onnx_parts(model: SlipModel, geometry: Mapping[str, Any], batch: int | None) -> dict[str, OnnxPart]:
-    """The files of a clip model: the whole network and its frame/window parts, batch axis 0, on
-    random example inputs (seed 0) of ``batch`` (default 2) items."""
-    g, t, b = torch.Generator().manual_seed(0), geometry["frames"], batch or 2
-    video = geometry["kind"] == "video"
-    if video:
-        full = torch.rand(b, t, 3, *geometry["image_size"], generator=g)
-    else:
-        full = torch.randn(b, t, geometry["markers"], 3, generator=g)
-    examples = {"model": full, "window": full}
-    frame_part, _ = model.streaming_parts()
-    if frame_part is not None:
-        with torch.no_grad():
-            tokens = frame_part(full.flatten(0, 1)).unflatten(0, (b, t))
-        if model.slot_tokens:
-            tokens = tokens[:, torch.arange(t), torch.arange(t)]  # frame k at slot k
-        examples.update(frame=full[:, 0], window=tokens.contiguous())
-    names = {
-        "model": ("video" if video else "markers", "logits"),
-        "frame": ("frames" if video else "clouds", "tokens"),
-        "window": ("tokens", "logits"),
-    }
-    modules = {"model": model, **model.streaming_modules(geometry)}
-    if "frame" not in modules:  # the window part is the whole model and takes the model's input
-        names["window"] = names["model"]
-    parts = {}
-    for key, module in modules.items():
-        inp, out = names[key]
-        dyn = {} if batch is not None else {inp: {0: "batch"}, out: {0: "batch"}}
-        parts[key] = OnnxPart(module, (examples[key],), [inp], [out], dyn)
-    return parts
 
 
 def check_video_values(x: Tensor) -> None:

@@ -214,8 +214,6 @@ class MotionNet(GraspModel):
         """Frames back the differences reach (lag 0, the first frame of the grasp, is kept apart)."""
         return max(lag for lag in self.lags if lag > 0)
 
-    # per-frame part
-
     def levelled(self, gray: Tensor) -> Tensor:
         """``(..., h, w)`` grey frames scaled to a mean of 0.5 each when ``level`` is set (exposure is a
         gain on the grey levels; dividing by the frame's own mean takes it out, frame by frame, so
@@ -256,8 +254,6 @@ class MotionNet(GraspModel):
         x = torch.cat([x.mean(dim=(2, 3)), x.amax(dim=(2, 3))], dim=1)
         f = rearrange(self.project(x), "(b s n) f -> b s n f", b=b, s=s)
         return torch.cat([f.mean(dim=1), f.amax(dim=1)], dim=-1)
-
-    # over time
 
     def classify(self, feats: Tensor) -> Tensor:
         """``(B, N, 2F)`` features -> ``(B, N', 2)`` logits, ``N' = N - receptive_field + 1`` (valid
@@ -331,18 +327,13 @@ class MotionNet(GraspModel):
         feat = torch.randn(1, step.feature_size, generator=g)
         free = {} if batch is not None else {0: "batch"}
         state_in = [f"state{i}" for i in range(len(states))]
+        state_out = ["logits", *(f"{n}_next" for n in state_in)]
         return {
             "model": OnnxPart(
                 self, (gray,), ["gray"], ["logits"], {"gray": {**free, 2: "frames"}, "logits": {**free, 1: "frames"}}
             ),
             "frame": OnnxPart(MotionFrame(self), (diffs,), ["differences"], ["features"], {}),
-            "step": OnnxPart(
-                step,
-                (feat, torch.ones(1), *states),
-                ["features", "fresh", *state_in],
-                ["logits", *(f"{n}_next" for n in state_in)],
-                {},
-            ),
+            "step": OnnxPart(step, (feat, torch.ones(1), *states), ["features", "fresh", *state_in], state_out, {}),
         }
 
 

@@ -47,9 +47,7 @@ class ExportResult:
 
 def exportable(model: nn.Module) -> nn.Module:
     """An eval-mode copy of ``model`` set up for tracing (each model says how: ``SlipModel.exportable``)."""
-    if not callable(
-        getattr(model, "onnx_parts", None)
-    ):  # not isinstance: models.base reaches this module through its streams
+    if not callable(getattr(model, "onnx_parts", None)):  # not isinstance: models.base reaches here through its streams
         raise InputError(None, f"{type(model).__name__} is not a slipsense model (see slipsense.models.base)")
     return model.exportable()
 
@@ -69,22 +67,14 @@ def export_module(
     """
     path = Path(path)
     module = module.eval()
-    errors = []
+    errors, names = [], dict(input_names=inputs, output_names=outputs)
     for exporter in ("torchscript", "dynamo"):
         try:
             with atomic_path(path) as tmp, torch.no_grad(), _quiet():
                 if exporter == "torchscript":
-                    torch.onnx.export(
-                        module,
-                        examples,
-                        str(tmp),
-                        dynamo=False,
-                        opset_version=TORCHSCRIPT_OPSET,
-                        input_names=inputs,
-                        output_names=outputs,
-                        do_constant_folding=True,
-                        dynamic_axes={k: dict(v) for k, v in dynamic.items()} or None,
-                    )
+                    axes = {k: dict(v) for k, v in dynamic.items()} or None
+                    settings = dict(opset_version=TORCHSCRIPT_OPSET, do_constant_folding=True, dynamic_axes=axes)
+                    torch.onnx.export(module, examples, str(tmp), dynamo=False, **names, **settings)
                 else:
                     dims: dict[str, Any] = {}
                     shapes = tuple(
@@ -95,16 +85,8 @@ def export_module(
                         or None
                         for name in inputs
                     )
-                    program = torch.onnx.export(
-                        module,
-                        examples,
-                        dynamo=True,
-                        input_names=inputs,
-                        output_names=outputs,
-                        dynamic_shapes=shapes if any(shapes) else None,
-                        optimize=True,
-                        verbose=False,
-                    )
+                    settings = dict(dynamic_shapes=shapes if any(shapes) else None, optimize=True, verbose=False)
+                    program = torch.onnx.export(module, examples, dynamo=True, **names, **settings)
                     program.save(str(tmp), external_data=False)
             return exporter
         except Exception as exc:  # each exporter raises its own zoo of error types
@@ -196,47 +178,28 @@ def streaming_names(model: nn.Module, geometry: Mapping[str, Any]) -> list[str]:
 
 
 def export_parts(
-    model: nn.Module,
-    folder: str | Path,
-    names: list[str],
-    *,
-    geometry: Mapping[str, Any],
-    batch: int | None = None,
-    verify: bool = True,
-    prefix: str = "",
+    model: nn.Module, paths: Mapping[str, Path], *, geometry: Mapping[str, Any], batch: int | None = None, verify=True
 ) -> ExportResult:
-    """Write the model's ONNX files ``names`` (:meth:`SlipModel.onnx_parts`) into ``folder`` as
-    ``<prefix><name>.onnx``, verified against the model as it runs in PyTorch."""
+    """Write the model's ONNX files (:meth:`SlipModel.onnx_parts`) ``{name: path}``, in that order, each
+    verified against the model as it runs in PyTorch."""
     parts = exportable(model).onnx_parts(geometry, batch)
     ref = {"model": model.eval(), **model.eval().streaming_modules(geometry)}
     result = ExportResult()
-    folder = Path(folder)
-    for key in names:
+    for key, path in paths.items():
         part = parts[key]
-        path = folder / f"{prefix}{key}.onnx"
-        result.exporter[key] = export_module(
-            part.module, part.example, path, part.inputs, part.outputs, dynamic=part.dynamic
-        )
+        result.exporter[key] = export_module(part.module, part.example, path, part.inputs, part.outputs, part.dynamic)
         result.paths[key] = path
         if verify:
             result.max_abs_diff[key] = max_abs_diff(path, ref[key], part.example)
     return result
 
 
-# ------------------------------------------------------------------------------ verified parts cache
 def _parts_key(model: nn.Module, geometry: Mapping[str, Any], dtype: str) -> dict[str, Any]:
     config = model.config() if hasattr(model, "config") else {}
     # the model's own code: parts exported before a change to it (their inputs, their maths) are stale
     code = hashlib.sha256(Path(inspect.getfile(type(model))).read_bytes()).hexdigest()[:16]
-    return {
-        "model": getattr(model, "model_name", type(model).__name__),
-        "config": config,
-        "geometry": dict(geometry),
-        "dtype": dtype,
-        "slipsense": __version__,
-        "torch": torch.__version__,
-        "code": code,
-    }
+    key = dict(model=getattr(model, "model_name", type(model).__name__), config=config, geometry=dict(geometry))
+    return {**key, "dtype": dtype, "slipsense": __version__, "torch": torch.__version__, "code": code}
 
 
 def cached_streaming_parts(
@@ -256,7 +219,7 @@ def cached_streaming_parts(
     entry = Entry(folder, _parts_key(model, geometry, dtype), "ONNX parts", names=names, keyed=False)
 
     def export(folder: Path) -> None:
-        export_parts(model, folder, parts, geometry=geometry, verify=False)
+        export_parts(model, {p: folder / f"{p}.onnx" for p in parts}, geometry=geometry, verify=False)
         for p in parts if dtype == "int8" else []:
             quantize_int8(folder / f"{p}.onnx", folder / f"{p}.int8.onnx")
 

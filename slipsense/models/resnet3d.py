@@ -92,7 +92,6 @@ class ResNet3D50(VideoModel):
     pytorchvideo's pretrained weights expect, applied inside the model).
     """
 
-    quick_epochs = 2
     paper_training = dict(epochs=10, batch_size=8, lr=1e-3, weight_decay=1e-4, step_size=30, gamma=0.1)
 
     @classmethod

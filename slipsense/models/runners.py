@@ -98,7 +98,6 @@ def make_runner(
     if onnx_dir is None:
         tmpdir = tempfile.TemporaryDirectory(prefix="slipsense-onnx-")
         onnx_dir = tmpdir.name
-
     paths = cached_streaming_parts(model, Path(onnx_dir), geometry, dtype)
     inputs = {k: part.inputs for k, part in model.exportable().onnx_parts(geometry).items() if k in paths}
     return OnnxRunner(paths, inputs), tmpdir

@@ -66,12 +66,6 @@ _TRACKED: dict[tuple, Tensor] = {}
 _TRACKED_MAX = 512
 
 
-def _digest(x: Tensor) -> tuple:
-    """A key for a tensor's values: its shape, dtype and a BLAKE2 digest of its bytes."""
-    data = x.detach().contiguous().cpu().numpy()
-    return (tuple(data.shape), str(data.dtype), hashlib.blake2b(data.tobytes(), digest_size=16).hexdigest())
-
-
 class _Frame(ModelPart):
     def forward(self, reference: Tensor, gray: Tensor):
         return self.model.frame_shift(reference, gray)
@@ -202,8 +196,6 @@ class ShearRetention(GraspModel):
     def cells(self) -> int:
         return (self.image_size[0] // self.patch) * (self.image_size[1] // self.patch)
 
-    # per frame
-
     def _smooth(self, x: Tensor, kernel: Tensor) -> Tensor:
         r = kernel.shape[0] // 2
         x = F.conv2d(F.pad(x, (r, r, 0, 0), mode="replicate"), kernel.view(1, 1, 1, -1))
@@ -273,7 +265,9 @@ class ShearRetention(GraspModel):
         into the graph as a constant of that input's frame count."""
         if torch.is_grad_enabled() or torch.jit.is_tracing() or torch.onnx.is_in_onnx_export():
             return self._track(gray)
-        key = (_digest(gray), self.patch, self.blur, self.iterations, tuple(self.image_size))
+        data = gray.detach().contiguous().cpu().numpy()  # keyed by its shape, dtype and a digest of its bytes
+        values = (tuple(data.shape), str(data.dtype), hashlib.blake2b(data.tobytes(), digest_size=16).hexdigest())
+        key = (values, self.patch, self.blur, self.iterations, tuple(self.image_size))
         shift = _TRACKED.get(key)
         if shift is None:
             shift = _TRACKED[key] = self._track(gray)
@@ -296,8 +290,6 @@ class ShearRetention(GraspModel):
             rows = self.chunk_rows(gray, ends, n_out)
             out.append(self(gray[None])[0][rows])
         return torch.cat(out)
-
-    # streaming
 
     def streaming_modules(self, geometry=None) -> dict[str, nn.Module]:
         """``frame``: the first frame's marker map and the current frame ``(1, S, h, w)`` -> cell

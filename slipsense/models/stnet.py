@@ -81,11 +81,13 @@ from einops.layers.torch import Rearrange
 from slipsense.errors import ConfigError, InputError
 from slipsense.models.base import MarkerModel, register
 from slipsense.models.stnet_fast import optimize_for_inference, quantize_dynamic_int8
-from slipsense.models.stnet_parts import MarkerFramePart, MarkerWindowPart, marker_saliency
+from slipsense.models.stnet_parts import MarkerFramePart, MarkerWindowPart
 from slipsense.sensors.marker_grid import rest_estimate
 
 POOLS = ("flatten", "mean", "last")
 ACTIVATIONS = {"relu": nn.ReLU, "gelu": nn.GELU}
+#: Settings that count something: positive integers.
+_COUNTS = "frames markers d_model heads blocks ff_dim codec_channels codec_kernel codec_layers num_classes".split()
 
 #: Named configurations. "paper": every layer as section II.B describes, sizes it leaves open
 #: chosen to match the direct port's ~129 M parameters (127,268,027 for STNet; see the module
@@ -95,14 +97,8 @@ ACTIVATIONS = {"relu": nn.ReLU, "gelu": nn.GELU}
 _PAPER: dict[str, Any] = dict(frames=12, markers=552, d_model=1656, heads=8, blocks=5, ff_dim=2048, head_hidden=1656)
 _PAPER.update(dropout=0.1, codec_channels=16, codec_kernel=3, codec_layers=4, pool="flatten", activation="relu")
 _COMPACT = dict(_PAPER, d_model=128, heads=4, blocks=2, ff_dim=256, head_hidden=0, codec_channels=8, centred=True)
-PRESETS: dict[str, dict[str, Any]] = {
-    "paper": _PAPER,
-    "paper-ff4096": {**_PAPER, "ff_dim": 4096, "head_hidden": 0},
-    "compact": _COMPACT,
-}
-
-
-# S codecs: spatial encoder-decoder applied to each frame's 1656 values
+PRESETS: dict[str, dict[str, Any]] = {"paper": _PAPER, "paper-ff4096": {**_PAPER, "ff_dim": 4096, "head_hidden": 0}}
+PRESETS["compact"] = _COMPACT
 
 
 class UpsampleConv1d(nn.Module):
@@ -187,7 +183,6 @@ class Block(nn.Module):
 class STNet(MarkerModel):
     """STNet (``use_codecs=True``) / TemNet (``use_codecs=False``): see the module docstring."""
 
-    quick_epochs = 30
     paper_training = dict(epochs=100, batch_size=64, lr=1e-5, weight_decay=0.0, step_size=1000, gamma=1.0)
     #: the compact network learns at ten times the paper's rate, and in few epochs over the moved
     #: copies of its windows (studies/docs/simulator.md)
@@ -222,7 +217,23 @@ class STNet(MarkerModel):
         c.update(ff_dim=ff_dim, head_hidden=head_hidden, dropout=dropout, codec_channels=codec_channels)
         c.update(codec_kernel=codec_kernel, codec_layers=codec_layers, pool=pool, activation=activation)
         c.update(num_classes=num_classes, use_codecs=use_codecs)
-        _validate(self._config)
+        for key in _COUNTS:
+            if not isinstance(c[key], int) or isinstance(c[key], bool) or c[key] < 1:
+                raise ConfigError(f"{key} must be a positive integer, got {c[key]!r}")
+        if not isinstance(c["head_hidden"], int) or isinstance(c["head_hidden"], bool) or c["head_hidden"] < 0:
+            raise ConfigError(f"head_hidden must be an integer >= 0 (0: one FC layer), got {c['head_hidden']!r}")
+        if c["d_model"] % c["heads"]:
+            raise ConfigError(f"d_model ({c['d_model']}) must be divisible by heads ({c['heads']})")
+        if c["codec_kernel"] % 2 == 0:
+            raise ConfigError(f"codec_kernel must be odd, got {c['codec_kernel']}")
+        if c["num_classes"] < 2:
+            raise ConfigError(f"num_classes must be >= 2, got {c['num_classes']}")
+        if not 0 <= c["dropout"] < 1:
+            raise ConfigError(f"dropout must be in [0, 1), got {c['dropout']!r}")
+        if c["pool"] not in POOLS:
+            raise ConfigError(f"pool must be one of {POOLS}, got {c['pool']!r}")
+        if c["activation"] not in ACTIVATIONS:
+            raise ConfigError(f"activation must be one of {tuple(ACTIVATIONS)}, got {c['activation']!r}")
         if relative:  # only stored when set, so checkpoints of the paper's network keep their config
             self._config["relative"] = True
         if centred and relative:
@@ -311,8 +322,6 @@ class STNet(MarkerModel):
             x = block(x)
         return self._head(x)
 
-    # the model contract (slipsense.models.base)
-
     @classmethod
     def small_config(cls) -> dict:
         return dict(PRESETS["compact"], frames=4, markers=24)
@@ -333,7 +342,6 @@ class STNet(MarkerModel):
     def streaming_parts(self) -> tuple[nn.Module | None, nn.Module]:
         if self.relative:  # every frame is seen relative to its window's first one: nothing to cache
             return None, self
-
         return MarkerFramePart(self), MarkerWindowPart(self)
 
     attention_map = "marker saliency against the gel at rest"
@@ -367,7 +375,34 @@ class STNet(MarkerModel):
         paper's sensor grid.
         """
         self.check_input(x)
-        return marker_saliency(self, x, target, baseline)
+        if getattr(self, "inference_only", False):
+            raise ConfigError(
+                "marker_saliency needs gradients: call it on the trainable model, "
+                "not on the copy optimize_for_inference made"
+            )
+        if isinstance(baseline, torch.Tensor):
+            x0 = baseline.to(x)
+        elif baseline == "first":
+            x0 = x[:, :1].expand_as(x)
+        elif baseline == "zero":
+            x0 = torch.zeros_like(x)
+        elif baseline == "rest":  # the gel at rest a centred model reads against, else the first frame
+            x0 = self.reference.expand_as(x) if self.centred else x[:, :1].expand_as(x)
+        else:
+            raise ConfigError(
+                f"marker_saliency: baseline must be 'first', 'rest', 'zero' or a tensor, got {baseline!r}"
+            )
+        was_training = self.training
+        self.eval()
+        try:
+            with torch.enable_grad():
+                xg = x.detach().float().requires_grad_(True)
+                logits = self(xg)
+                (grad,) = torch.autograd.grad(logits[:, target].sum(), xg)
+        finally:
+            self.train(was_training)
+        rel = (grad * (xg.detach() - x0.float())).sum(dim=(1, 3)).abs()  # (b, m)
+        return rel / rel.amax(dim=1, keepdim=True).clamp_min(torch.finfo(rel.dtype).tiny)
 
 
 @register("temnet")
@@ -379,27 +414,3 @@ class TemNet(STNet):
             raise TypeError("TemNet has no S codecs; use_codecs is not a TemNet setting")
         super().__init__(use_codecs=False, **kwargs)
         del self._config["use_codecs"]
-
-
-#: Settings that count something: positive integers.
-_COUNTS = "frames markers d_model heads blocks ff_dim codec_channels codec_kernel codec_layers num_classes".split()
-
-
-def _validate(c: dict) -> None:
-    for key in _COUNTS:
-        if not isinstance(c[key], int) or isinstance(c[key], bool) or c[key] < 1:
-            raise ConfigError(f"{key} must be a positive integer, got {c[key]!r}")
-    if not isinstance(c["head_hidden"], int) or isinstance(c["head_hidden"], bool) or c["head_hidden"] < 0:
-        raise ConfigError(f"head_hidden must be an integer >= 0 (0: one FC layer), got {c['head_hidden']!r}")
-    if c["d_model"] % c["heads"]:
-        raise ConfigError(f"d_model ({c['d_model']}) must be divisible by heads ({c['heads']})")
-    if c["codec_kernel"] % 2 == 0:
-        raise ConfigError(f"codec_kernel must be odd, got {c['codec_kernel']}")
-    if c["num_classes"] < 2:
-        raise ConfigError(f"num_classes must be >= 2, got {c['num_classes']}")
-    if not 0 <= c["dropout"] < 1:
-        raise ConfigError(f"dropout must be in [0, 1), got {c['dropout']!r}")
-    if c["pool"] not in POOLS:
-        raise ConfigError(f"pool must be one of {POOLS}, got {c['pool']!r}")
-    if c["activation"] not in ACTIVATIONS:
-        raise ConfigError(f"activation must be one of {tuple(ACTIVATIONS)}, got {c['activation']!r}")

@@ -24,11 +24,8 @@ def onednn_packing_available(dtype: torch.dtype = torch.float32) -> bool:
     """Whether this build and this CPU can pre-pack ``dtype`` Linear weights for oneDNN (bf16
     packing needs AVX512-BF16/AVX-NE-CONVERT or AVX512BW/VL/DQ; plain AVX2 machines lack it)."""
     if dtype not in _PACKING:
-        ok = (
-            torch.backends.mkldnn.is_available()
-            and hasattr(torch.ops.mkldnn, "_reorder_linear_weight")
-            and hasattr(torch.ops.mkldnn, "_linear_pointwise")
-        )
+        ops = ("_reorder_linear_weight", "_linear_pointwise")
+        ok = torch.backends.mkldnn.is_available() and all(hasattr(torch.ops.mkldnn, op) for op in ops)
         if ok:
             try:
                 w = torch.ops.mkldnn._reorder_linear_weight(torch.zeros(8, 8, dtype=dtype), 1)
@@ -46,14 +43,12 @@ class PackedLinear(nn.Module):
     keep the original model for training and checkpoints.
     """
 
-    def __init__(
-        self, linear: nn.Linear, batch_hint: int = 12, dtype: torch.dtype = torch.float32, activation: str = "none"
-    ):
+    def __init__(self, linear: nn.Linear, dtype: torch.dtype = torch.float32, activation: str = "none"):
         super().__init__()
         self.in_features, self.out_features = linear.in_features, linear.out_features
         self.activation = activation  # "none" or "relu", fused into the matmul
         w = linear.weight.detach().to(dtype).contiguous()
-        self.packed = torch.ops.mkldnn._reorder_linear_weight(w, batch_hint)
+        self.packed = torch.ops.mkldnn._reorder_linear_weight(w, 12)  # batch hint: a window's 12 frames
         self.bias = None if linear.bias is None else linear.bias.detach().to(dtype).clone()
 
     def forward(self, x):
@@ -82,7 +77,7 @@ class FrameSumLinear(nn.Module):
         return torch.bmm(self.weight, x).sum(0).t() + self.bias
 
 
-def optimize_for_inference(model: nn.Module, dtype: torch.dtype = torch.float32, batch_hint: int = 12) -> nn.Module:
+def optimize_for_inference(model: nn.Module, dtype: torch.dtype = torch.float32) -> nn.Module:
     """A copy of ``model`` for fast CPU inference: eval mode, ``dtype`` weights (float32 or
     bfloat16), every nn.Linear pre-packed for oneDNN (:class:`PackedLinear`), a big classifier
     layer over the flattened frames split by frame (:class:`FrameSumLinear`). Inputs stay float32
@@ -109,12 +104,12 @@ def optimize_for_inference(model: nn.Module, dtype: torch.dtype = torch.float32,
         return fast
     for block in getattr(fast, "blocks", ()):  # STNet's MSA blocks: ReLU fused into the first ff product
         if isinstance(block.ff[1], nn.ReLU):
-            block.ff[0] = PackedLinear(block.ff[0], batch_hint, dtype, activation="relu")
+            block.ff[0] = PackedLinear(block.ff[0], dtype, activation="relu")
             block.ff[1] = nn.Identity()
     for parent in list(fast.modules()):
         for name, child in list(parent.named_children()):
             if type(child) is nn.Linear:
-                setattr(parent, name, PackedLinear(child, batch_hint, dtype))
+                setattr(parent, name, PackedLinear(child, dtype))
     return fast
 
 

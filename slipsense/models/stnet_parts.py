@@ -1,13 +1,12 @@
 """STNet/TemNet streaming parts: the per-frame layers the live detector caches (S codecs, fusion:
-each frame alone), and the rest; and the marker saliency behind their heat maps.
+each frame alone), and the rest.
 """
 
 from __future__ import annotations
 
 import torch
-from torch import Tensor, nn
+from torch import Tensor
 
-from slipsense.errors import ConfigError
 from slipsense.models.base import ModelPart
 
 
@@ -33,33 +32,3 @@ class MarkerWindowPart(ModelPart):
         for block in self.model.blocks:
             x = block(x)
         return self.model._head(x)
-
-
-def marker_saliency(model: nn.Module, x: Tensor, target: int = 1, baseline="first") -> Tensor:
-    """:meth:`slipsense.models.stnet.STNet.marker_saliency` (see there), for a checked input ``x``."""
-    if getattr(model, "inference_only", False):
-        raise ConfigError(
-            "marker_saliency needs gradients: call it on the trainable model, "
-            "not on the copy optimize_for_inference made"
-        )
-    if isinstance(baseline, torch.Tensor):
-        x0 = baseline.to(x)
-    elif baseline == "first":
-        x0 = x[:, :1].expand_as(x)
-    elif baseline == "zero":
-        x0 = torch.zeros_like(x)
-    elif baseline == "rest":  # the gel at rest a centred model reads against, else the first frame
-        x0 = model.reference.expand_as(x) if getattr(model, "centred", False) else x[:, :1].expand_as(x)
-    else:
-        raise ConfigError(f"marker_saliency: baseline must be 'first', 'rest', 'zero' or a tensor, got {baseline!r}")
-    was_training = model.training
-    model.eval()
-    try:
-        with torch.enable_grad():
-            xg = x.detach().float().requires_grad_(True)
-            logits = model(xg)
-            (grad,) = torch.autograd.grad(logits[:, target].sum(), xg)
-    finally:
-        model.train(was_training)
-    rel = (grad * (xg.detach() - x0.float())).sum(dim=(1, 3)).abs()  # (b, m)
-    return rel / rel.amax(dim=1, keepdim=True).clamp_min(torch.finfo(rel.dtype).tiny)

@@ -90,14 +90,11 @@ class WindowStream(StreamBase):
         self._inputs.append(x)
         if not self.ready:
             return None
-        return slip_probability(self._run("window", self._window())[0])
-
-    def _window(self) -> np.ndarray:
-        """The window part's input from the cache: ``(S, T, ...)``."""
-        if self._slot_tokens:
-            # frame k of the window (k = 0 oldest) sits in slot k: its token row k
-            return np.stack([tokens[:, k] for k, tokens in enumerate(self._cache)], axis=1)
-        return np.stack(self._cache, axis=1)
+        if self._slot_tokens:  # frame k of the window (k = 0 oldest) sits in slot k: its token row k
+            window = np.stack([tokens[:, k] for k, tokens in enumerate(self._cache)], axis=1)
+        else:
+            window = np.stack(self._cache, axis=1)  # (S, T, ...)
+        return slip_probability(self._run("window", window)[0])
 
     def replay(self, streams: Sequence[np.ndarray]) -> np.ndarray:
         streams = [self._check_stream(s, i) for i, s in enumerate(streams)]

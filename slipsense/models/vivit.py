@@ -93,7 +93,6 @@ class ViViT(VideoModel):
     """
 
     slot_tokens = True  # the slot position embedding: a frame's spatial token depends on its slot
-    quick_epochs = 20
     paper_training = dict(epochs=75, batch_size=16, lr=3e-4, weight_decay=1e-4, step_size=30, gamma=0.1)
 
     def __init__(
@@ -184,8 +183,6 @@ class ViViT(VideoModel):
                 f"video must have shape (B, {shown}) (batch, frames, channels, height, width), got {tuple(x.shape)}",
             )
 
-    # patch embedding
-
     def embed_patches(self, frames: Tensor) -> Tensor:
         """Patch tokens of single frames, before the position embedding: (N, C, H, W) -> (N, P, dim).
 
@@ -270,8 +267,6 @@ class ViViT(VideoModel):
             tokens, self.dim_norm.normalized_shape, self.dim_norm.weight, self.dim_norm.bias, self.dim_norm.eps
         )
 
-    # the two halves of the network
-
     def encode_patches(self, tokens: Tensor, attn_store: list[Tensor] | None = None) -> Tensor:
         """Spatial transformer over each frame's patch tokens: (B, T, P, dim) -> (B, T, dim).
 
@@ -320,15 +315,12 @@ class ViViT(VideoModel):
         temporal: list[Tensor] = []
         logits = self.classify_frames(self.encode_frames(x, spatial), temporal)
         b, t = x.shape[:2]
-        attention = {
-            "spatial": rearrange(torch.stack(spatial, 1), "(b t) l h i j -> b t l h i j", b=b, t=t)
-            if spatial
-            else x.new_zeros(b, t, 0, 0, 0, 0),
-            "temporal": torch.stack(temporal, 1) if temporal else x.new_zeros(b, 0, 0, 0, 0),
-        }
-        return logits, attention
-
-    # the model contract (slipsense.models.base)
+        if spatial:
+            spatial_maps = rearrange(torch.stack(spatial, 1), "(b t) l h i j -> b t l h i j", b=b, t=t)
+        else:
+            spatial_maps = x.new_zeros(b, t, 0, 0, 0, 0)
+        temporal_maps = torch.stack(temporal, 1) if temporal else x.new_zeros(b, 0, 0, 0, 0)
+        return logits, {"spatial": spatial_maps, "temporal": temporal_maps}
 
     @classmethod
     def small_config(cls) -> dict:
@@ -351,8 +343,6 @@ class ViViT(VideoModel):
     def attention(self, window: Tensor):
         """Attention rollout of the window's latest frame on the patch grid, ``(Hp, Wp)``, sums to 1."""
         return self.cls_attention_map(window)[0, -1].numpy()
-
-    # attention for heat maps
 
     @torch.no_grad()
     def attention_maps(self, x: Tensor) -> dict[str, Tensor]:

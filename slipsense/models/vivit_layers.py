@@ -32,19 +32,16 @@ def eager_inference() -> bool:
     return not (torch.is_grad_enabled() or torch.jit.is_tracing() or torch.compiler.is_compiling())
 
 
-def version_key(*tensors: Tensor) -> tuple | None:
-    """Identifies the current values of ``tensors`` (storage, shape, in-place version); None if untracked."""
-    try:
-        return tuple((t.data_ptr(), t._version, t.shape, t.dtype, t.device) for t in tensors)
-    except RuntimeError:  # inference tensors carry no version counter: do not cache
-        return None
-
-
 def cached(owner: nn.Module, attr: str, tensors, compute):
-    """``compute()``, kept in ``owner.<attr>`` in eager inference until one of ``tensors`` changes."""
+    """``compute()``, kept in ``owner.<attr>`` in eager inference until one of ``tensors`` changes
+    (its storage, shape or in-place version)."""
     if not eager_inference():
         return compute()
-    key, cache = version_key(*tensors), getattr(owner, attr)
+    try:
+        key = tuple((t.data_ptr(), t._version, t.shape, t.dtype, t.device) for t in tensors)
+    except RuntimeError:  # inference tensors carry no version counter: do not cache
+        key = None
+    cache = getattr(owner, attr)
     if key is None or cache is None or cache[0] != key:
         cache = (key, compute())
         setattr(owner, attr, cache)

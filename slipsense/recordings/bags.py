@@ -39,8 +39,6 @@ IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED = "sensor_msgs/msg/CompressedImage"
 #: channels of the raw encodings read, and how to turn them into BGR
 ENCODINGS = {"bgr8": 3, "rgb8": 3, "mono8": 1, "8UC1": 1, "8UC3": 3, "bgra8": 4, "rgba8": 4}
-
-
 #: paired frames further apart than this many frame periods: a frame is missing inside the stream
 MAX_GAP_PERIODS = 1.5
 
@@ -54,12 +52,8 @@ def check_timing(fps: float, tolerance_s: float | None = None) -> None:
     """ConfigError unless ``fps`` is a frame rate (:func:`~slipsense.sensors.spec.check_fps`) and
     ``tolerance_s`` (if given) finite and >= 0."""
     check_fps(fps, "--fps")
-    if tolerance_s is not None and (
-        isinstance(tolerance_s, bool)
-        or not isinstance(tolerance_s, (int, float))
-        or not math.isfinite(tolerance_s)
-        or tolerance_s < 0
-    ):
+    t = tolerance_s
+    if t is not None and (isinstance(t, bool) or not isinstance(t, (int, float)) or not math.isfinite(t) or t < 0):
         raise ConfigError(f"--tolerance must be a number of seconds >= 0, got {tolerance_s!r}")
 
 
@@ -232,11 +226,8 @@ def read_bag(path: str | Path, topics: Sequence[str], fps: float = 25.0, toleran
         )
     paired = np.stack([stamps[k][idx[:, k]] for k in range(len(topics))], 1)
     dropped = {t: len(stamps[k]) - len(idx) for k, t in enumerate(topics)}
-    unpaired = [
-        f"{n} of {len(stamps[k])} frames of {t} found no partner within {tol / 1e6:g} ms"
-        for k, (t, n) in enumerate(dropped.items())
-        if n
-    ]
+    within = f"found no partner within {tol / 1e6:g} ms"
+    unpaired = [f"{n} of {len(stamps[k])} frames of {t} {within}" for k, (t, n) in enumerate(dropped.items()) if n]
     _check_spacing(path, paired, fps, unpaired)
     for line in unpaired:
         warnings.warn(f"{path}: {line}; left out", UnpairedFramesWarning, stacklevel=2)

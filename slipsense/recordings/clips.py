@@ -30,7 +30,7 @@ from tqdm.auto import tqdm
 from .. import config
 from ..sensors.spec import GELSIGHT_MINI
 from ..cache import Entry, key
-from ..errors import CacheWarning, ConfigError, InputError
+from ..errors import ConfigError, InputError
 from .folders import SkippedInputWarning
 from .frames import source_stat
 from .types import Recording, VideoLabel
@@ -97,11 +97,6 @@ class Window:
     y: int
 
 
-def _video_rng(seed: int, key: Key) -> np.random.Generator:
-    # crc32 rather than hash(): Python salts str hashes per process, which would break reproducibility.
-    return np.random.default_rng([seed, zlib.crc32(f"{key[0]}/{key[1]}/{key[2]}".encode())])
-
-
 def wiggle_starts(contact_start: int, contact_end: int, frames: int, count: int, rng: np.random.Generator) -> list[int]:
     """Draw ``count`` non-overlapping ``frames``-long windows inside ``[contact_start, contact_end]``.
 
@@ -153,8 +148,10 @@ def _plan(label: VideoLabel, spec: ClipSpec) -> tuple[list[Window], str | None]:
                 f"(it would start at frame {start}, before contact starts at {label.contact_start})"
             )
         return [Window(start, end, 1)], None
-    want = spec.wiggle_per_video
-    starts = wiggle_starts(label.contact_start, label.contact_end, f, want, _video_rng(spec.seed, label.key))
+    want, k = spec.wiggle_per_video, label.key
+    # crc32 rather than hash(): Python salts str hashes per process, which would break reproducibility.
+    rng = np.random.default_rng([spec.seed, zlib.crc32(f"{k[0]}/{k[1]}/{k[2]}".encode())])
+    starts = wiggle_starts(label.contact_start, label.contact_end, f, want, rng)
     note = None
     if len(starts) < want:
         note = (
@@ -221,13 +218,9 @@ class ClipSet:
 
     def counts(self) -> dict[str, int]:
         """``{"clips", "slip", "wiggle", "augmented", "objects"}`` counts."""
-        return {
-            "clips": len(self),
-            "slip": int((self.y == 1).sum()),
-            "wiggle": int((self.y == 0).sum()),
-            "augmented": int(sum(bool(m.get("augmented", False)) for m in self.meta)),
-            "objects": len(self.objects),
-        }
+        augmented = int(sum(bool(m.get("augmented", False)) for m in self.meta))
+        counts = dict(clips=len(self), slip=int((self.y == 1).sum()), wiggle=int((self.y == 0).sum()))
+        return {**counts, "augmented": augmented, "objects": len(self.objects)}
 
 
 def build_clips(
@@ -279,15 +272,9 @@ def build_clips(
 
 
 def _meta(rec: Recording, label: VideoLabel, win: Window) -> dict[str, Any]:
-    return {
-        "object": rec.object,
-        "experiment": int(rec.experiment),
-        "camera": rec.camera,
-        "start": int(win.start),
-        "end": int(win.end),
-        "moment_of_slip": None if label.moment_of_slip is None else int(label.moment_of_slip),
-        "augmented": False,
-    }
+    m = None if label.moment_of_slip is None else int(label.moment_of_slip)
+    meta = dict(object=rec.object, experiment=int(rec.experiment), camera=rec.camera, start=int(win.start))
+    return {**meta, "end": int(win.end), "moment_of_slip": m, "augmented": False}
 
 
 def _plans(
@@ -320,9 +307,6 @@ def _plans(
     return plans
 
 
-# ----------------------------------------------------------------------------------------- cache
-
-
 def _inputs(recordings: Iterable[Recording], labels: Mapping[Key, VideoLabel], spec: ClipSpec) -> dict[str, Any]:
     """What clips are cut from: cache version, spec, each video's path/size/mtime/slipped and label."""
     videos = []
@@ -349,9 +333,12 @@ def _save_npz(path: Path, clips: ClipSet) -> None:
         np.savez(fh, x=clips.x, y=clips.y, meta=np.array(json.dumps(clips.meta)))
 
 
-def _load_npz(npz: Path, spec: ClipSpec, expected: tuple[list[dict[str, Any]], np.ndarray]) -> ClipSet:
-    """Load a cache entry, raising ValueError on any inconsistency; ``expected``: the ``(meta, y)``
-    the inputs give (:func:`_plans`), which the entry must hold exactly."""
+def _read_entry(npz: Path, recordings, labels, spec: ClipSpec) -> ClipSet:
+    """Load a cache entry, raising ValueError on any inconsistency or where it holds other clip windows
+    and labels than the inputs give (:func:`_plans`)."""
+    plans = _plans(recordings, labels, spec, warn=False)
+    want_meta = [_meta(rec, label, win) for rec, label, windows in plans for win in windows]
+    want_y = np.array([win.y for _, _, windows in plans for win in windows], np.int64)
     with np.load(npz, allow_pickle=False) as data:
         if set(data.files) != {"x", "y", "meta"}:
             raise ValueError(f"unexpected arrays {sorted(data.files)}")
@@ -360,18 +347,11 @@ def _load_npz(npz: Path, spec: ClipSpec, expected: tuple[list[dict[str, Any]], n
         raise ValueError(f"clip array {x.dtype} {x.shape} does not match the spec")
     if y.ndim != 1 or len(y) != len(x) or not isinstance(meta, list) or len(meta) != len(x):
         raise ValueError("clip, label and provenance counts differ")
-    if meta != expected[0]:
+    if meta != want_meta:
         raise ValueError("clip windows differ from those the labels give")
-    if not np.array_equal(y, expected[1]):
+    if not np.array_equal(y, want_y):
         raise ValueError("clip labels differ from those the labels give")
     return ClipSet(x, y, meta, spec)
-
-
-def _read_entry(npz: Path, recordings, labels, spec: ClipSpec) -> ClipSet:
-    plans = _plans(recordings, labels, spec, warn=False)
-    want_meta = [_meta(rec, label, win) for rec, label, windows in plans for win in windows]
-    want_y = np.array([win.y for _, _, windows in plans for win in windows], np.int64)
-    return _load_npz(npz, spec, (want_meta, want_y))
 
 
 def load_or_build_clips(
@@ -399,9 +379,6 @@ def load_or_build_clips(
         lambda: build_clips(recordings, labels, spec, progress=progress),
         _save_npz,
     )
-
-
-# ---------------------------------------------------------------------------------------- splits
 
 
 def split_by_clip(clips: ClipSet, test_fraction: float = 0.1, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -459,21 +436,3 @@ def object_folds(objects: Iterable[str], n_folds: int = 5, seed: int = 0) -> lis
         raise ConfigError(f"n_folds must be an integer in 2..{len(names)} (the number of objects), got {n_folds!r}")
     order = np.random.default_rng(seed).permutation(len(names))
     return [sorted(names[j] for j in order[k::n_folds]) for k in range(n_folds)]
-
-
-__all__ = [
-    "CACHE_VERSION",
-    "CacheWarning",
-    "ClipSet",
-    "ClipSpec",
-    "Window",
-    "build_clips",
-    "cache_key",
-    "check_label",
-    "load_or_build_clips",
-    "object_folds",
-    "plan_windows",
-    "split_by_clip",
-    "split_by_object",
-    "wiggle_starts",
-]

@@ -76,9 +76,6 @@ LEVEL_AFTER = 5
 Rule = Literal["either", "both"]
 
 
-# ------------------------------------------------------------------------------ contact signal
-
-
 def video_blocks(frames: np.ndarray) -> np.ndarray:
     """Area-average uint8 ``(T, H, W[, C])`` frames into BLOCK_PX blocks: uint8 ``(T, H//8, W//8, C)``
     (what the frame cache keeps of a video for the contact signal)."""
@@ -165,9 +162,6 @@ def contact_signal(frames: np.ndarray, reference: Literal["tail", "head"] = "tai
     return _signal(video_blocks(frames).astype(np.float32), reference)[0]
 
 
-# ---------------------------------------------------- contact phase and contact loss in one signal
-
-
 def _check_signal(signal: np.ndarray) -> np.ndarray:
     s = np.asarray(signal, dtype=np.float64)
     if s.ndim != 1 or len(s) < 2:
@@ -250,11 +244,6 @@ def _running_medians(s: np.ndarray, k: int) -> np.ndarray:
     return np.median(np.lib.stride_tricks.sliding_window_view(s, k), axis=1) if len(s) >= k else np.empty(0, s.dtype)
 
 
-def _jitter(s: np.ndarray) -> float:
-    """Mean absolute deviation of ``s`` from its 5-frame running median (ignores smooth trends)."""
-    return float(np.mean(np.abs(s - _running_median(s))))
-
-
 def _camera_loss(signal: np.ndarray) -> int | None:
     """The last frame of the main contact phase of one camera before its contact is lost.
 
@@ -282,7 +271,8 @@ def _camera_loss(signal: np.ndarray) -> int | None:
             # Not down to rest: a static residual of the gel, or the object still touching it
             # more lightly (a partial drop). Only the latter moves with the arm.
             rest = s[m + 3 : min(drops[i + 1][0], m + 3 + ACTIVE_WINDOW)]
-            if len(rest) >= MIN_CONTACT_FRAMES and _jitter(rest) > ACTIVE_CHANGE:
+            # jitter: the mean absolute deviation from the 5-frame running median (smooth trends drop out)
+            if len(rest) >= MIN_CONTACT_FRAMES and np.mean(np.abs(rest - _running_median(rest))) > ACTIVE_CHANGE:
                 i += 1
                 continue
         # Follow partial drops: a later drop soon after, the signal never resting in between.

@@ -48,24 +48,10 @@ _GRAY = re.compile(r"^gray:(\d+)x(\d+)$")
 _MARKERS = re.compile(r"^markers:([1-9]\d*)(?:x([1-9]\d*))?$")
 
 
-def _identity(path: Path) -> dict:
-    size, mtime = source_stat(path)
-    return {"path": str(path.resolve()), "bytes": size, "mtime_ns": mtime}
-
-
 def _entry(path: Path, product: str) -> Entry:
-    inputs = [FRAMES_VERSION, product, _identity(path)]
+    size, mtime = source_stat(path)
+    inputs = [FRAMES_VERSION, product, {"path": str(path.resolve()), "bytes": size, "mtime_ns": mtime}]
     return Entry(config.cache_root() / "frames", inputs, "frame cache", suffix=".npy")
-
-
-def _check_product(product: str) -> None:
-    if product not in ("blocks", "contact") and not _GRAY.match(product) and not _MARKERS.match(product):
-        raise ValueError(f"unknown frame product {product!r} (blocks, contact, gray:HxW, markers:M or markers:RxC)")
-
-
-def _marker_clouds(path: Path, product: str) -> np.ndarray:
-    track = track_recordings([path], progress=False)[0]  # decodes the video itself when not cached
-    return marker_clouds(track, product.split(":", 1)[1])
 
 
 def _compute(video: np.ndarray, product: str, made: dict) -> np.ndarray:
@@ -97,7 +83,8 @@ def video_products(path: str | Path, products: Sequence[str], min_frames: int = 
     if not products:
         return {}
     for p in products:
-        _check_product(p)
+        if p not in ("blocks", "contact") and not _GRAY.match(p) and not _MARKERS.match(p):
+            raise ValueError(f"unknown frame product {p!r} (blocks, contact, gray:HxW, markers:M or markers:RxC)")
     try:
         entries = {p: _entry(path, p) for p in products if not _MARKERS.match(p)}
     except OSError as exc:
@@ -106,7 +93,8 @@ def video_products(path: str | Path, products: Sequence[str], min_frames: int = 
     out: dict[str, np.ndarray] = {}
     for p in products:
         if _MARKERS.match(p):
-            out[p] = _marker_clouds(path, p)
+            track = track_recordings([path], progress=False)[0]  # decodes the video itself when not cached
+            out[p] = marker_clouds(track, p.split(":", 1)[1])
             continue
         arr = entries[p].load(lambda f: np.load(f, mmap_mode="r", allow_pickle=False))
         if arr is not None:

@@ -126,13 +126,6 @@ def data_sensor(root: str | Path) -> SensorSpec | None:
     return GELSIGHT_LIFT if any(root.glob(f"*{RESULT_SUFFIX}")) else None
 
 
-def grasp_number(folder: Path) -> int:
-    digits = "".join(re.findall(r"\d", folder.name))
-    if not digits:
-        raise InputError(folder, "grasp folder name holds no number (its digits number the grasp)")
-    return int(digits)
-
-
 def read_result_file(path: Path) -> dict[str, bool]:
     """``{folder name as the line writes it: slipped}`` of one ``<object>_result.dat``."""
     out: dict[str, bool] = {}
@@ -181,11 +174,11 @@ def _object_grasps(root: Path, obj: Path, report: Report, with_results: bool) ->
         if outcomes is not None and folder.name not in named:
             report(folder, f"no line of {result} names this grasp folder")
             continue
-        try:
-            number = grasp_number(folder)
-        except InputError as exc:
-            report(folder, exc.problem)
+        digits = "".join(re.findall(r"\d", folder.name))
+        if not digits:
+            report(folder, "grasp folder name holds no number (its digits number the grasp)")
             continue
+        number = int(digits)
         if number in seen:
             report(folder, f"grasp {number} also found as {seen[number].name}")
             continue

@@ -34,11 +34,8 @@ def frame_files(folder: str | Path) -> list[Path]:
     hidden files are not frames. Empty when the folder holds none."""
     folder = Path(folder)
     try:
-        files = [
-            p
-            for p in folder.iterdir()
-            if p.suffix.lower() in FRAME_SUFFIXES and not p.name.startswith(".") and p.is_file()
-        ]
+        listed = [p for p in folder.iterdir() if p.suffix.lower() in FRAME_SUFFIXES]
+        files = [p for p in listed if not p.name.startswith(".") and p.is_file()]
     except PermissionError:
         raise InputError(folder, "frame folder is not readable (permission denied)") from None
 
@@ -63,7 +60,6 @@ def source_stat(path: str | Path) -> tuple[int, int]:
     st = path.stat()
     if not path.is_dir():
         return int(st.st_size), int(st.st_mtime_ns)
-
     files = frame_files(path)
     stats = [p.stat() for p in files]
     listing = [[p.name, int(s.st_size), int(s.st_mtime_ns)] for p, s in zip(files, stats)]

@@ -27,17 +27,7 @@ def _inputs(recs: Sequence[Recording], rule: Rule) -> list:
     out: list = [ALGORITHM_VERSION, rule]
     for r in sorted(recs, key=lambda r: r.camera):
         size, mtime = source_stat(r.path)
-        out.append(
-            [
-                r.object,
-                int(r.experiment),
-                r.camera,
-                str(Path(r.path).resolve()),
-                size,
-                mtime,
-                bool(r.slipped),
-            ]
-        )
+        out.append([r.object, int(r.experiment), r.camera, str(Path(r.path).resolve()), size, mtime, bool(r.slipped)])
     return out
 
 

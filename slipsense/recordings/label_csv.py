@@ -47,7 +47,9 @@ def apply_overrides(
     # Whole-run overrides first so that camera-specific ones, applied after, win.
     ordered = sorted(overrides.items(), key=lambda kv: kv[0][2] is not None)
     for (obj, exp, cam), moment in ordered:
-        path, line = _where(overrides, (obj, exp, cam))
+        # the file and "line N: " of a row read from a CSV, else (None, "")
+        path, line = getattr(overrides, "path", None), getattr(overrides, "lines", {}).get((obj, exp, cam))
+        line = f"line {line}: " if path is not None and line is not None else ""
         keys = runs.get((obj, exp))
         if not keys:
             raise InputError(path, f"{line}override for {obj} experiment {exp}: no such run among the recordings")
@@ -103,13 +105,6 @@ class Overrides(dict):
         super().__init__(items)
         self.path = path
         self.lines = dict(lines or {})
-
-
-def _where(overrides, key) -> tuple[Path | None, str]:
-    """``(file, "line N: ")`` of an override row when it was read from a CSV, else ``(None, "")``."""
-    path = getattr(overrides, "path", None)
-    line = getattr(overrides, "lines", {}).get(key)
-    return path, (f"line {line}: " if path is not None and line is not None else "")
 
 
 def _open_csv(path: Path) -> tuple[list[str], list[tuple[int, dict[str, str]]]]:

@@ -20,21 +20,10 @@ import numpy as np
 from ..cache import Entry
 from ..errors import InputError
 from ..parallel import run_jobs
-from .contact import (
-    MIN_CONTACT_FRAMES,
-    Rule,
-    _first_frame,
-    _signal,
-    contact_phase,
-    find_moment_of_slip,
-)
+from .contact import MIN_CONTACT_FRAMES, Rule, _first_frame, _signal, contact_phase, find_moment_of_slip
 from .frame_cache import video_products
 from .label_cache import cache_entry, load_labels, save_labels
-from .label_csv import (
-    Key,
-    apply_overrides,
-    read_overrides_csv,
-)
+from .label_csv import Key, apply_overrides, read_overrides_csv
 from .types import Recording, VideoLabel, by_run
 
 #: What labelling reads of each video through the frame cache: the 8 x 8 blocks of the contact

@@ -59,30 +59,9 @@ from ..config import cache_root
 from ..errors import ConfigError, InputError
 from .video import read_video
 from .marker_cache import read_track, track_entry
-from ..sensors.marker_detection import detect_markers, order_markers
+from ..sensors.marker_detection import detect_markers, order_markers  # noqa: F401 (re-exported)
 from ..sensors.marker_tracking import DEFAULT_MM_PER_PX, MarkerTrack, track_markers
 from ..sensors.spec import GELSIGHT_MINI
-
-__all__ = [
-    "DEFAULT_MM_PER_PX",
-    "MarkerTrack",
-    "detect_markers",
-    "grid_sequences",
-    "layout_name",
-    "marker_clouds",
-    "marker_layout",
-    "marker_sequences",
-    "order_markers",
-    "select_markers",
-    "track_markers",
-    "track_recording",
-    "track_recordings",
-]
-
-
-# --------------------------------------------------------------------------------------------
-# Fixed-size marker sets for models
-# --------------------------------------------------------------------------------------------
 
 
 def select_markers(track: MarkerTrack, n_markers: int) -> np.ndarray:
@@ -151,13 +130,7 @@ def marker_clouds(track: MarkerTrack, layout: str | int) -> np.ndarray:
     return grid_sequences(track, grid) if grid else marker_sequences(track, count, normalise=False)
 
 
-def grid_sequences(
-    track: MarkerTrack,
-    grid: tuple[int, int],
-    *,
-    mm_per_px: float = DEFAULT_MM_PER_PX,
-    neighbours: int = 4,
-) -> np.ndarray:
+def grid_sequences(track: MarkerTrack, grid: tuple[int, int], *, neighbours: int = 4) -> np.ndarray:
     """Every tracked marker, resampled onto a fixed grid of virtual markers, for models.
 
     Gel pads differ in how many markers they show (the shared recordings: about 35 or 62-80), while
@@ -191,12 +164,7 @@ def grid_sequences(
     disp = track.positions.astype(np.float64) - ref[None]  # (T, N, 2)
     xy = base[None] + np.einsum("gn,tnc->tgc", weights, disp) - np.array([(w - 1) / 2.0, (h - 1) / 2.0])
     depth = track.depth.astype(np.float64) @ weights.T  # (T, G)
-    return np.concatenate([xy * mm_per_px, depth[..., None]], axis=-1).astype(np.float32)
-
-
-# --------------------------------------------------------------------------------------------
-# Recordings and cache
-# --------------------------------------------------------------------------------------------
+    return np.concatenate([xy * DEFAULT_MM_PER_PX, depth[..., None]], axis=-1).astype(np.float32)
 
 
 def track_recording(

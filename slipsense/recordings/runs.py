@@ -57,17 +57,6 @@ class GraspRun:
         return not self.slipped or self.moment_of_slip is not None or self.whole
 
 
-def _decode_run(recs: Sequence[Recording], size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
-    """The run's grey frames ``(S, N, h, w)`` and contact signals ``(S, N)``."""
-    gray = f"gray:{size[0]}x{size[1]}"
-    products = [video_products(r.path, ["contact", gray], min_frames=2) for r in recs]
-    grays, contacts = [p[gray] for p in products], [p["contact"] for p in products]
-    counts = {r.camera: len(g) for r, g in zip(recs, grays)}
-    if len(set(counts.values())) != 1:
-        raise InputError(recs[0].path.parent, f"the cameras of this run differ in frame count: {counts}")
-    return np.stack(grays), np.stack(contacts)
-
-
 def load_runs(
     recordings: Iterable[Recording],
     labels: Mapping[tuple, VideoLabel],
@@ -85,13 +74,17 @@ def load_runs(
         size: ``(h, w)`` of the grey frames kept.
         sensors: cameras a run must have; a run with another number is refused, naming its folder.
     """
-    runs = []
+    runs, product = [], f"gray:{size[0]}x{size[1]}"
     for (obj, experiment), recs in progress_bar(list(by_run(recordings).items()), progress, "loading runs"):
         if len(recs) != sensors:
             raise InputError(recs[0].path.parent, f"run has {len(recs)} camera video(s), expected {sensors}")
         if any(r.key not in labels for r in recs):
             continue  # excluded by an override
-        gray, contact = _decode_run(recs, size)
+        products = [video_products(r.path, ["contact", product], min_frames=2) for r in recs]
+        counts = {r.camera: len(p[product]) for r, p in zip(recs, products)}
+        if len(set(counts.values())) != 1:
+            raise InputError(recs[0].path.parent, f"the cameras of this run differ in frame count: {counts}")
+        gray, contact = np.stack([p[product] for p in products]), np.stack([p["contact"] for p in products])
         labs = [labels[r.key] for r in recs]
         moment = next((l.moment_of_slip for l in labs if l.moment_of_slip is not None), None)
         slipped = any(l.slipped for l in labs)

@@ -118,11 +118,6 @@ def _open_capture(path: Path) -> cv2.VideoCapture:
         logging.setLogLevel(level)
 
 
-def _fourcc(cap: cv2.VideoCapture) -> str:
-    code = int(cap.get(cv2.CAP_PROP_FOURCC)) & 0xFFFFFFFF
-    return "".join(chr((code >> (8 * i)) & 0xFF) for i in range(4)).strip("\x00").strip()
-
-
 def _container_count(cap: cv2.VideoCapture) -> int | None:
     """Frame count the container states, or None when it states none we can trust."""
     count = cap.get(cv2.CAP_PROP_FRAME_COUNT)
@@ -143,7 +138,8 @@ def _open_checked(path: Path) -> tuple[cv2.VideoCapture, int | None, int, int, f
         width = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH))
         height = int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
         fps = float(cap.get(cv2.CAP_PROP_FPS))
-        fourcc = _fourcc(cap)
+        code = int(cap.get(cv2.CAP_PROP_FOURCC)) & 0xFFFFFFFF
+        fourcc = "".join(chr((code >> (8 * i)) & 0xFF) for i in range(4)).strip("\x00").strip()
     except cv2.error as exc:
         cap.release()
         raise InputError(path, f"cannot read the video properties ({_short(exc)})") from None
@@ -278,15 +274,6 @@ def _decode_all(cap: cv2.VideoCapture, path: Path, count: int | None, height: in
     return np.stack(extra) if extra else np.empty((0, max(height, 0), max(width, 0), 3), dtype=np.uint8)
 
 
-def _read_at(cap: cv2.VideoCapture, index: int) -> tuple[bool, np.ndarray | None]:
-    try:
-        cap.set(cv2.CAP_PROP_POS_FRAMES, index)
-        ok, frame = cap.read()
-    except cv2.error:
-        return False, None
-    return bool(ok and frame is not None), frame
-
-
 def frame_count(path: str | Path) -> int | None:
     """The frame count ``path``'s container states (no decoding; about 1 ms), or None when it
     states none that can be trusted or the file cannot be opened."""
@@ -356,7 +343,14 @@ def probe_video(
         else:
             # The last frame the header promises; within the tolerance, an earlier one will do.
             for last in sorted({count - 1, max(0, count - 1 - TRUNCATION_TOLERANCE)}, reverse=True):
-                ok, frame = _read_at(cap, last) if last > 0 else (True, first)
+                ok, frame = True, first
+                if last > 0:
+                    try:
+                        cap.set(cv2.CAP_PROP_POS_FRAMES, last)
+                        ok, frame = cap.read()
+                        ok = bool(ok and frame is not None)
+                    except cv2.error:
+                        ok, frame = False, None
                 if ok:
                     break
             if not ok:

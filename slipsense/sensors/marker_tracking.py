@@ -15,18 +15,8 @@ import cv2
 import numpy as np
 
 from ..errors import InputError
-from .marker_detection import (
-    _DEFAULT_DIAMETER,
-    _as_gray,
-    _blackhat,
-    _closing_kernel,
-    _detect,
-    _detect_scaled,
-    _median_nn_distance,
-    _odd,
-    _require,
-    order_markers,
-)
+from .marker_detection import _DEFAULT_DIAMETER, _as_gray, _blackhat, _closing_kernel, _detect, _detect_scaled
+from .marker_detection import _median_nn_distance, _odd, _require, order_markers
 
 #: Frames skipped by default at the start of a recording (camera start-up transient).
 STARTUP_FRAMES = 10
@@ -107,35 +97,20 @@ class MarkerTrack:
         xy = xy / (max(h, w) / 2.0) if normalise else xy * mm_per_px
         return np.concatenate([xy, self.depth[..., None]], axis=-1).astype(np.float32)
 
-    # -- persistence (cache) ------------------------------------------------------------------
-
     def to_arrays(self) -> dict[str, np.ndarray]:
         """Plain arrays for ``np.savez`` (inverse: :meth:`from_arrays`)."""
-        return {
-            "positions": self.positions,
-            "valid": self.valid,
-            "depth": self.depth,
-            "reference_positions": self.reference_positions,
-            "reference_index": np.int64(self.reference_index),
-            "frame_size": np.asarray(self.frame_size, np.int64),
-            "spacing": np.float64(self.spacing),
-            "diameter": np.float64(self.diameter),
-        }
+        arrays = {k: getattr(self, k) for k in ("positions", "valid", "depth", "reference_positions")}
+        sizes = {"reference_index": np.int64(self.reference_index), "frame_size": np.asarray(self.frame_size, np.int64)}
+        return {**arrays, **sizes, "spacing": np.float64(self.spacing), "diameter": np.float64(self.diameter)}
 
     @classmethod
     def from_arrays(cls, arrays: Any) -> "MarkerTrack":
         """Rebuild from :meth:`to_arrays` output (or the ``np.load`` of its ``.npz``)."""
         fs = np.asarray(arrays["frame_size"]).tolist()
-        return cls(
-            positions=np.asarray(arrays["positions"], np.float32),
-            valid=np.asarray(arrays["valid"], bool),
-            depth=np.asarray(arrays["depth"], np.float32),
-            reference_positions=np.asarray(arrays["reference_positions"], np.float32),
-            reference_index=int(arrays["reference_index"]),
-            frame_size=(int(fs[0]), int(fs[1])),
-            spacing=float(arrays["spacing"]),
-            diameter=float(arrays["diameter"]),
-        )
+        kept = {k: np.asarray(arrays[k], np.float32) for k in ("positions", "depth", "reference_positions")}
+        kept.update(valid=np.asarray(arrays["valid"], bool), reference_index=int(arrays["reference_index"]))
+        kept.update(frame_size=(int(fs[0]), int(fs[1])), spacing=float(arrays["spacing"]))
+        return cls(**kept, diameter=float(arrays["diameter"]))
 
 
 def default_reference_index(n_frames: int) -> int:

@@ -228,17 +228,9 @@ class _GifFrames:
 
     def save(self, path: Path, fps: float) -> None:
         first, rest = self.frames[0], self.frames[1:]
-        first.save(
-            path,
-            format="GIF",
-            save_all=True,
-            append_images=rest,
-            duration=int(round(1000 / fps)),
-            loop=0,
-            optimize=False,  # the frames are already differences on one palette
-            disposal=1,  # each frame is drawn over the last
-            transparency=self.TRANSPARENT,
-        )
+        # not optimized: the frames are already differences on one palette; disposal 1: each drawn over the last
+        gif = dict(save_all=True, append_images=rest, duration=int(round(1000 / fps)), loop=0, optimize=False)
+        first.save(path, format="GIF", disposal=1, transparency=self.TRANSPARENT, **gif)
 
 
 class _Aborted(Exception):

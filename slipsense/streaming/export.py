@@ -39,7 +39,7 @@ from torch import nn
 from slipsense.checkpoint import load_model
 from slipsense.errors import InputError
 from slipsense.models.base import window_geometry
-from slipsense.models.onnx import ExportResult, export_module, export_parts, exportable, max_abs_diff, streaming_names
+from slipsense.models.onnx import ExportResult, export_parts, streaming_names
 
 
 def export_onnx(
@@ -73,21 +73,8 @@ def export_onnx(
     out_path = Path(out_path)
     if batch is not None and (isinstance(batch, bool) or not isinstance(batch, int) or batch < 1):
         raise InputError(None, f"batch must be a positive integer or None (dynamic), got {batch!r}")
-    result = ExportResult()
     stem = out_path.name[: -len(".onnx")] if out_path.name.endswith(".onnx") else out_path.name
-    part = exportable(model).onnx_parts(geometry, batch)["model"]
-    result.exporter["model"] = export_module(
-        part.module, part.example, out_path, part.inputs, part.outputs, dynamic=part.dynamic
-    )
-    result.paths["model"] = out_path
-    if verify:
-        result.max_abs_diff["model"] = max_abs_diff(out_path, model.eval(), part.example)
-    names = streaming_names(model, geometry)
+    paths, names = {"model": out_path}, streaming_names(model, geometry)
     if streaming and names != ["window"]:  # a lone window part is the whole model again
-        parts = export_parts(
-            model, out_path.parent, names, geometry=geometry, batch=batch, verify=verify, prefix=f"{stem}."
-        )
-        result.paths.update(parts.paths)
-        result.exporter.update(parts.exporter)
-        result.max_abs_diff.update(parts.max_abs_diff)
-    return result
+        paths.update({n: out_path.parent / f"{stem}.{n}.onnx" for n in names})
+    return export_parts(model, paths, geometry=geometry, batch=batch, verify=verify)

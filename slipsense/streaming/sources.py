@@ -101,7 +101,9 @@ def open_source(
         name = f"{path} ({', '.join(topics)})"
         src = _array_source(name, videos, [Path(f"{path}:{t}") for t in topics], model, stamps, geometry)
         src.stats = lambda: {"dropped_unpaired": dict(bag.dropped)}
-        src.fps, src.clock = _stamped_rate(stamps, given or camera_fps), "the messages' header stamps"
+        steps = np.diff(stamps)[np.diff(stamps) > 0]  # the rate: one over their median spacing
+        src.fps = float(1.0 / np.median(steps)) if len(steps) else float(given or camera_fps)
+        src.clock = "the messages' header stamps"
         return src
     if path.is_dir() and is_frame_folder(path):  # one sensor's frames, read as its video
         rate = (given, "--fps") if given else frame_folder_rate(path)
@@ -172,13 +174,6 @@ def recording_rate(path: Path) -> tuple[float, str]:
     and where it was read; a rate that cannot be known is refused, saying to state it in a sensor.json."""
     path = Path(path)
     return frame_folder_rate(path, STATE_FPS) if path.is_dir() else video_rate(path, fix=STATE_FPS)
-
-
-def _stamped_rate(stamps: np.ndarray, fallback: float) -> float:
-    """The rate of stamped frames: one over their median spacing (``fallback`` for fewer than 2)."""
-    steps = np.diff(stamps)
-    steps = steps[steps > 0]
-    return float(1.0 / np.median(steps)) if len(steps) else float(fallback)
 
 
 def _videos_source(path: Path, paths: list[Path], model: Any, geometry, rate: tuple[float, str], what: str) -> Source:

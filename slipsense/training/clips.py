@@ -112,7 +112,6 @@ def seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
 
 
-# --------------------------------------------------------------------------- training
 def make_optimizer(model: nn.Module, cfg: TrainConfig):
     """``(optimizer, scheduler)``: Adam with a StepLR schedule, as in both papers."""
     optimizer = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
@@ -141,14 +140,10 @@ class ClipTask(Task):
             self.device = d.device
             self._plan = StepPlan(len(self.train_data), self.cfg.batch_size, d.world, accumulate, self.cfg.seed)
             self._rank_batches = RankBatches(self._plan, d.rank)
-            workers = self.cfg.num_workers
-            self._loader = DataLoader(
-                self.train_data,
-                batch_sampler=self._rank_batches,
-                num_workers=workers,
-                persistent_workers=workers > 0,
-                worker_init_fn=functools.partial(_loader_worker_start, os.getpid()) if workers > 0 else None,
-            )
+            n = self.cfg.num_workers
+            start = functools.partial(_loader_worker_start, os.getpid()) if n > 0 else None
+            workers = dict(num_workers=n, persistent_workers=n > 0, worker_init_fn=start)
+            self._loader = DataLoader(self.train_data, batch_sampler=self._rank_batches, **workers)
         return [Step(micro, float(sum(len(m) for m in micro))) for micro in self._plan.steps(epoch)]
 
     def batches(self, steps, epoch: int, d: Dist, accumulate: int):
@@ -230,7 +225,6 @@ def fit(
     return train(model, task, settings, out=out, info=info, state_path=state, resume_state=resume_state, resume=resume)
 
 
-# --------------------------------------------------------------------------- from a run configuration to a run
 def _store_operating_point(out: Path, split_info: dict[str, Any], overrides, progress: bool) -> None:
     """Choose the alarm operating point on the training objects' runs (labels: ``overrides``, as
     :func:`slipsense.data.label_runs` takes them) and write it into the run's checkpoints

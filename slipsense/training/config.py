@@ -197,11 +197,8 @@ class RunConfig:
         model.pop("preset", None)
         data = {k: v for k, v in data.items() if k not in CLIP_ONLY_DATA}
         train = {k: v for k, v in train.items() if k not in CLIP_ONLY_TRAIN}
-        check_keys(
-            {"train": train, "data": data},
-            {"train": train_keys(GraspTrainConfig), "data": GRASP_DATA_KEYS},
-            "grasp configuration",
-        )
+        keys = {"train": train_keys(GraspTrainConfig), "data": GRASP_DATA_KEYS}
+        check_keys({"train": train, "data": data}, keys, "grasp configuration")
         data_config = DataConfig.from_section(data)
         if data_config.size is not None:
             model["image_size"] = list(data_config.size)

@@ -24,24 +24,23 @@ import numpy as np
 
 from slipsense import atomic
 from slipsense.errors import ConfigError, InputError
-from slipsense.evaluation.judge import clip_scores
 from slipsense.evaluation.replay import plot_tradeoff
 from slipsense.measures import MEASURES, Judged, measure_all, measure_lines, pergrasp
 from slipsense.measures.clips import clip_metrics, scores
-from slipsense.recordings.contact import rest_mask
 from slipsense.sensors.spec import GELSIGHT_MINI
 from slipsense.parallel import run_jobs
 from slipsense.recordings.runs import GraspRun, runs_summary
 from slipsense.training.grasp_detector import (
-    held_out_outcomes,
     chosen_part,
     finish_training,
     fit_job,
+    held_out_result,
     inner_traces,
     job_weight,
     judged_indices,
     object_split,
     plan_training,
+    traces_json,
 )
 from slipsense.training.grasps import GraspTrainConfig
 
@@ -52,101 +51,42 @@ def stored_trace(run: dict[str, Any]) -> np.ndarray:
     return np.array([np.nan if v is None else v for v in run["probability"]], dtype=np.float64)
 
 
-def fold_result(
-    test: Sequence[GraspRun],
-    probs: Sequence[np.ndarray],
-    op: dict[str, Any],
-    history: list[dict[str, Any]],
-    labels: dict,
-    held: Sequence[str],
-    cfg,
-) -> dict[str, Any]:
-    """A fold's per-grasp summary and clip metrics at its operating point, plus what pooling needs:
-    every held-out run's trace and the clips' probabilities and labels."""
-    rests = [rest_mask(r.contact) for r in test]
-    outs = held_out_outcomes(test, probs, op, cfg.horizon, rests)
-    p, y = clip_scores(test, probs, labels)
-    return {
-        "objects": sorted(held),
-        "operating_point": op,
-        "per_grasp": pergrasp.summarise(outs),
-        "clips": clip_metrics(p, y, op["threshold"]),
-        "history": history,
-        "clip_probability": [round(float(v), 5) for v in p],
-        "clip_label": [int(v) for v in y],
-        "runs": [
-            {
-                "object": r.object,
-                "experiment": r.experiment,
-                "cameras": list(r.cameras),
-                "moment_of_slip": r.moment_of_slip,
-                "slipped": r.slipped,
-                "outcome": o.outcome,
-                "first_alarm": o.first_alarm,
-                "lead": o.lead,
-                "rest": np.flatnonzero(rest).tolist(),
-                "probability": [None if math.isnan(v) else round(float(v), 6) for v in pr],
-            }
-            for r, o, pr, rest in zip(test, outs, probs, rests)
-        ],
-    }
-
-
-def pool_folds(folds: Sequence[dict[str, Any]], thresholds: Sequence[float] | None = None) -> dict[str, Any]:
-    """Pool :func:`fold_result` s: per-grasp outcomes and clip decisions, each fold at its own
-    operating point; and, for the trade-off curve, every fold's runs at shared ``thresholds``."""
+def pool_folds(folds: Sequence[dict[str, Any]], runs: Sequence[pergrasp.RunTrace]) -> dict[str, Any]:
+    """Pool the folds: per-grasp outcomes and clip decisions, each fold at its own operating point; and,
+    for the trade-off curve, every fold's held-out runs (:func:`pooled_runs`) at shared thresholds."""
     outcomes = [
         pergrasp.GraspOutcome(r["outcome"], r["first_alarm"], r["lead"], 0.0, 0) for f in folds for r in f["runs"]
     ]
     per_grasp = pergrasp.summarise(outcomes)
     per_grasp["runs_alarming_at_rest"] = sum(f["per_grasp"]["runs_alarming_at_rest"] for f in folds)
     per_grasp["held_alarm_fraction"] = float(np.mean([f["per_grasp"]["held_alarm_fraction"] for f in folds]))
+    per_grasp["intervals"] = pergrasp.bootstrap_rates([o.outcome for o in outcomes])
     decisions = np.concatenate([np.asarray(f["clip_probability"]) >= f["operating_point"]["threshold"] for f in folds])
     y = np.concatenate([np.asarray(f["clip_label"], dtype=np.int64) for f in folds])
-    if thresholds is None:
-        thresholds = pergrasp.THRESHOLDS
-    traces, moments, rests = [], [], []
-    for f in folds:
-        for r in f["runs"]:
-            p = stored_trace(r)
-            rest = np.zeros(len(p), dtype=bool)
-            rest[r["rest"]] = True
-            traces.append(p)
-            moments.append(r["moment_of_slip"])
-            rests.append(rest)
-    debounce = int(np.median([f["operating_point"]["debounce"] for f in folds]))
-    curve = pergrasp.table(traces, moments, thresholds, (debounce,), rests=rests)
-    intervals = pergrasp.bootstrap_curve(traces, moments, thresholds, debounce)
-    for row, ci in zip(curve, intervals):
-        row.update({k: ci[k] for k in ("warned_low", "warned_high", "fp_low", "fp_high")})
-    per_grasp["intervals"] = pergrasp.bootstrap_rates([o.outcome for o in outcomes])
     p_all = np.concatenate([np.asarray(f["clip_probability"], dtype=np.float64) for f in folds])
+    debounce = int(np.median([f["operating_point"]["debounce"] for f in folds]))
+    traces, moments, rests = zip(*((r.probability, r.moment_of_slip, r.rest) for r in runs))
     return {
         "per_grasp": per_grasp,
         "clips": clip_metrics(decisions.astype(np.float64), y, 0.5),
         "clips_at_half": clip_metrics(p_all, y, 0.5),
         "operating_points": [f["operating_point"] for f in folds],
-        "curve": curve,
+        "curve": pergrasp.table(traces, moments, pergrasp.THRESHOLDS, (debounce,), rests=rests, intervals=2000),
     }
 
 
 def pool(run_dirs: list[Path]) -> dict:
     """Pool the held-out evaluations of a clip model's folds (each run folder's ``evaluation.json``,
     written by ``slipsense train``) from the summed confusion matrices: every held-out clip counts once."""
-    folds, total = [], np.zeros((2, 2), np.int64)
+    folds, total, keys = [], np.zeros((2, 2), np.int64), ("accuracy", "precision", "recall", "f1")
     for run in run_dirs:
         path = Path(run) / "evaluation.json"
         if not path.is_file():
             raise InputError(path, "no evaluation.json (did the run finish?)")
         m = json.loads(path.read_text())
         total += np.asarray(m["confusion"], np.int64)
-        folds.append(
-            {
-                "run": Path(run).name,
-                "test_objects": m.get("test_objects"),
-                **{k: m[k] for k in ("accuracy", "precision", "recall", "f1", "n_clips", "n_slip", "n_wiggle")},
-            }
-        )
+        counts = {k: m[k] for k in (*keys, "n_clips", "n_slip", "n_wiggle")}
+        folds.append({"run": Path(run).name, "test_objects": m.get("test_objects"), **counts})
     pooled = {
         **scores(total),
         "n_clips": int(total.sum()),
@@ -154,7 +94,7 @@ def pool(run_dirs: list[Path]) -> dict:
         "n_wiggle": int(total[0].sum()),
         "confusion": total.tolist(),
     }
-    mean = {k: float(np.mean([f[k] for f in folds])) for k in ("accuracy", "precision", "recall", "f1")}
+    mean = {k: float(np.mean([f[k] for f in folds])) for k in keys}
     return {"folds": folds, "pooled": pooled, "mean_over_folds": mean}
 
 
@@ -210,16 +150,16 @@ def run_folds(
         _, history, op, probs = finish_training(usable, plans[k], ordered, cfg)
         jobs_kept, results_kept = chosen_part(plans[k], ordered, op)  # of the settings train.choose kept
         test = [usable[i] for i in plans[k][0].predict]
+        inner = [usable[i] for i in judged_indices(usable, jobs_kept)] if cfg.inner_folds else []
         done[k] = {
             "config_key": key,
             "fold": k,
-            **fold_result(test, probs, op, history, labels, split[k], cfg),
+            "objects": sorted(split[k]),
+            "operating_point": op,
+            "history": history,
+            **held_out_result(test, probs, op, labels, cfg.horizon),
             # what chose the operating point, kept so another rule can be chosen on it later
-            "inner": _traces(
-                [usable[i] for i in judged_indices(usable, jobs_kept)], inner_traces(usable, jobs_kept, results_kept)
-            )
-            if cfg.inner_folds
-            else [],
+            "inner": traces_json(inner, inner_traces(usable, jobs_kept, results_kept) if inner else []),
             "seconds": round(time.perf_counter() - t0, 1),  # since the pool started: folds share it
         }
         atomic.write_text(out / f"fold{k}.json", json.dumps(done[k]))
@@ -250,9 +190,9 @@ def run_folds(
 def _write_report(out: Path, head: dict[str, Any], folds: list[dict[str, Any]], title: str) -> dict[str, Any]:
     """``head`` with the ``folds`` pooled, written into ``out`` as folds.json, README.md and
     tradeoff.png; returns the report."""
-    pooled = pool_folds(folds)
     fps = float((head.get("sensor") or {}).get("fps") or GELSIGHT_MINI.fps)
-    pooled.update(measure_all(pooled_runs(folds, fps, head["train_config"]["horizon"]), pooled_measures()))
+    judged = pooled_runs(folds, fps, head["train_config"]["horizon"])
+    pooled = {**pool_folds(folds, judged.runs), **measure_all(judged, pooled_measures())}
     report = {
         **head,
         "pooled": {k: v for k, v in pooled.items() if k != "curve"},
@@ -279,40 +219,13 @@ def pooled_runs(folds: Sequence[dict[str, Any]], fps: float, horizon: int) -> Ju
     for f in folds:
         op = f["operating_point"]
         for r in f["runs"]:
-            p = stored_trace(r)
-            rest = np.zeros(len(p), dtype=bool)
+            p, rest = stored_trace(r), np.zeros(len(r["probability"]), dtype=bool)
             rest[r["rest"]] = True
-            runs.append(
-                pergrasp.RunTrace(
-                    r["object"],
-                    r["experiment"],
-                    r["slipped"],
-                    r["moment_of_slip"],
-                    len(p),
-                    p,
-                    rest,
-                    tuple(r["cameras"]),
-                    fps,
-                    fps,
-                )
-            )
+            at = (r["object"], r["experiment"], r["slipped"], r["moment_of_slip"], len(p), p, rest, tuple(r["cameras"]))
+            runs.append(pergrasp.RunTrace(*at, fps, fps))
             points.append((op["threshold"], op["debounce"], op.get("hold_s", 0.0)))
     startup = int(folds[0]["operating_point"].get("startup", pergrasp.STARTUP)) if folds else pergrasp.STARTUP
     return Judged(runs, points, horizon, startup)
-
-
-def _traces(runs: Sequence[GraspRun], probs) -> list[dict[str, Any]]:
-    """Runs with their P(slip) traces (6 decimals, as the held-out traces: thresholds go up to 0.9999; None for no answer)."""
-    return [
-        {
-            "object": r.object,
-            "experiment": r.experiment,
-            "cameras": list(r.cameras),
-            "moment_of_slip": r.moment_of_slip,
-            "probability": [None if math.isnan(v) else round(float(v), 6) for v in p],
-        }
-        for r, p in zip(runs, probs)
-    ]
 
 
 def _echo_fold(echo, k: int, held: Sequence[str], done: dict[str, Any], resumed: bool = False) -> None:
@@ -375,6 +288,8 @@ def summary_markdown(report: dict[str, Any]) -> str:
     fps = float((report.get("sensor") or {}).get("fps") or GELSIGHT_MINI.fps)
     pooled = {k: v for k, v in report["pooled"].items() if k in pooled_measures()}
     others = measure_lines(pooled, {"horizon": cfg["horizon"], "fps": fps})
+    one = "One finger: each camera of a run is a grasp of its own (a run's two cameras count twice)."
+    also = "Every fold also trained on {} grasps of another data set (`data.also`: never held out or judged)."
     lines = [
         f"# {cfg['model']}: leave-objects-out, {report['folds']} folds, judged per grasp",
         "",
@@ -384,18 +299,8 @@ def summary_markdown(report: dict[str, Any]) -> str:
         f"without one (left out; for the shared recordings reports/labels says why), {d['held']} that held. Horizon {cfg['horizon']} frames (2 s at 25 frames/s); operating point "
         f"chosen per fold on its training objects only ({cfg['inner_folds']} inner folds; 0 = on the training "
         f"runs themselves; rule: {_rule(report)}).",
-        *(
-            [
-                f"Every fold also trained on {d['also_runs']} grasps of another data set (`data.also`: never held out or judged)."
-            ]
-            if d.get("also_runs")
-            else []
-        ),
-        *(
-            ["", "One finger: each camera of a run is a grasp of its own (a run's two cameras count twice)."]
-            if report.get("sensors_per_grasp") == 1
-            else []
-        ),
+        *([also.format(d["also_runs"])] if d.get("also_runs") else []),
+        *(["", one] if report.get("sensors_per_grasp") == 1 else []),
         "",
         "## Per grasp (pooled over folds, each fold at its own operating point)",
         "",

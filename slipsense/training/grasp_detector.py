@@ -2,14 +2,15 @@
 that choose its operating point), run side by side (:mod:`slipsense.parallel`), and written
 as one checkpoint with its operating point, metrics and curves.
 
-:func:`train_detector` is what ``slipsense train``
-run; :func:`plan_training` / :func:`fit_job` / :func:`finish_training` are its parts, which
-``slipsense train --cross-validate`` runs for every fold in one pool (:mod:`slipsense.training.folds`).
+:func:`train_detector` is what ``slipsense train`` runs; :func:`plan_training` / :func:`fit_job` /
+:func:`finish_training` are its parts, which ``slipsense train --cross-validate`` runs for every fold in
+one pool (:mod:`slipsense.training.folds`).
 """
 
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Sequence
@@ -18,7 +19,7 @@ import numpy as np
 from safetensors.torch import load_file
 
 from slipsense import atomic
-from slipsense.alarm import HOLD_S
+from slipsense.alarm import HOLD_S, debounce
 from slipsense.checkpoint import save_checkpoint, update_info
 from slipsense.errors import ConfigError
 from slipsense.measures import pergrasp
@@ -59,8 +60,7 @@ class FitJob:
 def fit_job(shared: tuple[Sequence[GraspRun], GraspTrainConfig], job: FitJob, tick=lambda units: None):
     """Run one :class:`FitJob` (in this process or a worker, :func:`slipsense.parallel.run_jobs`):
     ``{"history", "probs" (per predicted run), "judged" (per judged run), "state" (weights, when
-    kept)}``; ticks
-    ``len(job.train)`` units per epoch."""
+    kept)}``; ticks ``len(job.train)`` units per epoch."""
     runs, cfg = shared
     cfg = with_settings(cfg, dict(job.settings))
     model, history = fit_runs(
@@ -89,29 +89,23 @@ def plan_training(runs: Sequence[GraspRun], held: Sequence[str], cfg: GraspTrain
     objects (each replaying its own held-out runs), which choose the operating point (without inner
     folds the detector replays its own training runs for it, in its job: candidates side by side);
     all that once per candidate of ``cfg.choose``. Indices are into ``runs``."""
-    usable = [i for i, r in enumerate(runs) if r.usable]
-    train = tuple(i for i in usable if runs[i].object not in set(held))
+
+    def split(ids, objects):  # (the runs not on ``objects``, the runs on them)
+        on = [runs[i].object in objects for i in ids]
+        return tuple(i for i, o in zip(ids, on) if not o), tuple(i for i, o in zip(ids, on) if o)
+
+    train, tested = split([i for i, r in enumerate(runs) if r.usable], set(held))
     inner = object_split([runs[i] for i in train], cfg.inner_folds, cfg.folds_seed) if cfg.inner_folds else []
     judge = () if cfg.inner_folds else tuple(i for i in train if not runs[i].extra)
     jobs = []
     for settings in candidates(cfg):
         s = tuple(settings.items())
-        held_runs = tuple(i for i in usable if runs[i].object in set(held))
-        jobs.append(FitJob(train, held_runs, True, settings=s, judge=judge))
-        for objects in inner:
-            jobs.append(
-                FitJob(
-                    tuple(i for i in train if runs[i].object not in objects),
-                    tuple(i for i in train if runs[i].object in objects),
-                    settings=s,
-                )
-            )
+        jobs += [FitJob(train, tested, True, settings=s, judge=judge)]
+        jobs += [FitJob(*split(train, objects), settings=s) for objects in inner]
     return jobs
 
 
-def finish_training(
-    runs: Sequence[GraspRun], jobs: Sequence[FitJob], results: Sequence[dict[str, Any]], cfg: GraspTrainConfig
-):
+def finish_training(runs: Sequence[GraspRun], jobs: Sequence[FitJob], results: Sequence[dict], cfg: GraspTrainConfig):
     """From a finished :func:`plan_training`: ``(model in eval mode, history, operating point,
     P(slip) traces of the held-out runs)``. The operating point is chosen on the inner folds'
     out-of-fold traces (or, with ``inner_folds=0``, on the model's own traces of its training runs).
@@ -169,9 +163,7 @@ def judged_indices(runs: Sequence[GraspRun], jobs: Sequence[FitJob]) -> list[int
     return [i for i in jobs[0].train if not runs[i].extra]
 
 
-def inner_traces(
-    runs: Sequence[GraspRun], jobs: Sequence[FitJob], results: Sequence[dict[str, Any]]
-) -> list[np.ndarray]:
+def inner_traces(runs: Sequence[GraspRun], jobs: Sequence[FitJob], results: Sequence[dict]) -> list[np.ndarray]:
     """The out-of-fold P(slip) traces of the detector's judged training runs (:func:`judged_indices`,
     in that order), each from the inner-fold model that did not train on its object."""
     by_index = {i: p for job, res in zip(jobs[1:], results[1:]) for i, p in zip(job.predict, res["probs"])}
@@ -211,14 +203,8 @@ def train_with_operating_point(
 def held_alarm_of(probs: Sequence[np.ndarray], runs: Sequence[GraspRun], op: dict, cfg: GraspTrainConfig) -> dict:
     """:func:`~slipsense.measures.pergrasp.held_alarm_promise` of the held ``runs`` at ``op``."""
     held = [(p, r.object) for p, r in zip(probs, runs) if not r.slipped]
-    alarm = [
-        pergrasp.grasp_outcome(
-            pergrasp.debounce(p, op["threshold"], op["debounce"]), None, cfg.horizon, cfg.startup
-        ).first_alarm
-        is not None
-        for p, _ in held
-    ]
-    return pergrasp.held_alarm_promise(alarm, [o for _, o in held])
+    alarmed = [bool(debounce(p, op["threshold"], op["debounce"])[cfg.startup :].any()) for p, _ in held]
+    return pergrasp.held_alarm_promise(alarmed, [o for _, o in held])
 
 
 def _chosen_operating_point(probs: Sequence[np.ndarray], runs: Sequence[GraspRun], cfg: GraspTrainConfig) -> dict:
@@ -226,6 +212,7 @@ def _chosen_operating_point(probs: Sequence[np.ndarray], runs: Sequence[GraspRun
     Runs labelled as a whole (no moment to warn before) are judged per grasp: the threshold just above
     all but ``max_held_alarm`` (default 5%) of the held grasps' peaks
     (:func:`~slipsense.evaluation.calibrate.calibrated_threshold`), debounce 1."""
+    at = {"horizon": cfg.horizon, "startup": cfg.startup}
     if any(r.whole for r in runs):
         budget = 0.05 if cfg.max_held_alarm is None else cfg.max_held_alarm
         peak = np.array([peak_alarm_score(p, 1, cfg.startup) for p in probs])
@@ -238,18 +225,12 @@ def _chosen_operating_point(probs: Sequence[np.ndarray], runs: Sequence[GraspRun
             "score_on_training_runs": float(((peak >= threshold) == slipped).mean()),  # per-grasp accuracy
             "debounce": 1,
             "hold_s": HOLD_S,
-            "horizon": cfg.horizon,
-            "startup": cfg.startup,
+            **at,
             "rule": f"at most {100 * budget:g}% of held grasps alarming (grasps labelled as a whole)",
         }
     else:
-        op = pergrasp.choose_operating_point(
-            probs,
-            [r.moment_of_slip for r in runs],
-            horizon=cfg.horizon,
-            startup=cfg.startup,
-            max_held_alarm=cfg.max_held_alarm,
-        )
+        moments = [r.moment_of_slip for r in runs]
+        op = pergrasp.choose_operating_point(probs, moments, **at, max_held_alarm=cfg.max_held_alarm)
     op["chosen_on"] = (
         f"{cfg.inner_folds} inner folds of the training objects" if cfg.inner_folds else "the training runs themselves"
     )
@@ -257,21 +238,15 @@ def _chosen_operating_point(probs: Sequence[np.ndarray], runs: Sequence[GraspRun
     return op
 
 
-def _checkpoint_info(
-    cfg: GraspTrainConfig,
-    op: dict[str, Any],
-    runs: Sequence[GraspRun],
-    data: dict[str, Any],
-    history: list[dict[str, Any]],
-) -> dict[str, Any]:
+def _checkpoint_info(cfg: GraspTrainConfig, runs: Sequence[GraspRun], data: dict[str, Any], **trained) -> dict:
+    """What a detector's checkpoints carry besides the weights; ``trained``: its ``operating_point`` and ``history``."""
     data = dict(data)
     tree = data.pop("config", None)  # the whole configuration tree, where every checkpoint keeps it
     sensor = data.pop("sensor", None) or GELSIGHT_MINI.to_dict()  # the sensor whose recordings it read
     return {
         "train_config": cfg.to_dict(),
         "sensor": sensor,
-        "operating_point": op,
-        "history": history,
+        **trained,
         "data": {**data, "objects": sorted({r.object for r in runs}), "runs": len(runs)},
         **({"config": tree} if tree is not None else {}),
     }
@@ -293,9 +268,8 @@ def train_detector(
     write ``out/detector.safetensors`` (the last epoch's weights, full config, operating point),
     ``last.safetensors`` and ``best.safetensors`` (by training accuracy: nothing of the training objects
     is set aside to pick an epoch; the operating point goes into those holding the last epoch's
-    weights), ``metrics.csv`` and ``curves.png``;
-    with ``held`` objects, also ``held_out.json`` (their per-grasp outcomes and clip
-    metrics, never used for any choice).
+    weights), ``metrics.csv`` and ``curves.png``; with ``held`` objects, also ``held_out.json`` (their
+    per-grasp outcomes and clip metrics, never used for any choice).
 
     Every training keeps its state in ``out/resume/`` after each epoch; ``resume=True`` continues
     from there (a killed run ends with the weights of an uninterrupted one), else it starts afresh."""
@@ -319,18 +293,16 @@ def train_detector(
             f"held-out objects without usable runs: {', '.join(unknown)} (data.also's grasps are never held out)"
         )
     data = {**(data or {}), "held_out_objects": sorted(held)}
-    card = _checkpoint_info(cfg, None, train, data, [])
-    card = {k: v for k, v in card.items() if k not in ("operating_point", "history")}
-    model, history, op, held_probs = train_with_operating_point(
-        runs, held, cfg, workers, progress, state_dir, out=out, info=card
-    )
+    card = _checkpoint_info(cfg, train, data)
+    model, history, op, probs = train_with_operating_point(runs, held, cfg, workers, progress, state_dir, out, card)
     result = {"checkpoint": str(out / "detector.safetensors"), "operating_point": op, "history": history}
     if held:
         test = [r for r in usable if r.object in set(held)]
-        result.update(evaluate_held_out(held_probs, op, test, labels, cfg.horizon))
+        judged = held_out_result(test, probs, op, labels, cfg.horizon)
+        result.update({k: judged[k] for k in ("per_grasp", "clips")})
     if not d.main:
         return result
-    info = _checkpoint_info(cfg, op, train, data, history)
+    info = _checkpoint_info(cfg, train, data, operating_point=op, history=history)
     path = save_checkpoint(out / "detector.safetensors", model, info)
     for name in ("last.safetensors", "best.safetensors"):
         # the inner folds trained for every epoch: their operating point is the last epoch's, which
@@ -348,20 +320,31 @@ def _same_weights(a, b) -> bool:
     return wa.keys() == wb.keys() and all(wa[k].equal(wb[k]) for k in wa)
 
 
-def evaluate_held_out(
-    probs: Sequence[np.ndarray], op: dict[str, Any], runs: Sequence[GraspRun], labels: dict, horizon: int
-) -> dict[str, Any]:
-    """Per-grasp outcomes and clip metrics of ``runs`` from their P(slip) traces at ``op``."""
-    outs = held_out_outcomes(runs, probs, op, horizon, [rest_mask(r.contact) for r in runs])
-    p, y = clip_scores(runs, probs, labels)
-    return {"per_grasp": pergrasp.summarise(outs), "clips": clip_metrics(p, y, op["threshold"])}
+def traces_json(runs: Sequence[GraspRun], probs) -> list[dict[str, Any]]:
+    """Runs with their P(slip) traces (6 decimals: thresholds go up to 0.9999; None for no answer)."""
+    rounded = [[None if math.isnan(v) else round(float(v), 6) for v in p] for p in probs]
+    return [{**pergrasp.run_fields(r), "probability": p} for r, p in zip(runs, rounded)]
 
 
-def held_out_outcomes(runs, probs, op: dict[str, Any], horizon: int, rests) -> list[pergrasp.GraspOutcome]:
-    """Each run's per-grasp verdict at the operating point ``op`` (from its ``startup``); a slip
-    labelled as a whole (no moment to warn before) is ``slip_without_moment``, neither slip nor held."""
+def held_out_result(runs: Sequence[GraspRun], probs, op: dict[str, Any], labels: dict, horizon: int) -> dict:
+    """The held-out ``runs`` judged from their P(slip) traces at ``op`` (from its ``startup``): the per-grasp
+    summary and clip metrics, and what pooling folds needs: each run's outcome (a slip labelled as a whole is
+    ``slip_without_moment``, neither slip nor held), frames at rest and trace, the clips' probabilities and labels."""
     startup = int(op.get("startup", pergrasp.STARTUP))
-    return [
-        pergrasp.trace_outcome(p, op["threshold"], op["debounce"], r.moment_of_slip, r.slipped, horizon, startup, rest)
+    th, k = op["threshold"], op["debounce"]
+    rests = [rest_mask(r.contact) for r in runs]
+    outs = [
+        pergrasp.trace_outcome(p, th, k, r.moment_of_slip, r.slipped, horizon, startup, rest)
         for r, p, rest in zip(runs, probs, rests)
     ]
+    p, y = clip_scores(runs, probs, labels)
+    return {
+        "per_grasp": pergrasp.summarise(outs),
+        "clips": clip_metrics(p, y, th),
+        "clip_probability": [round(float(v), 5) for v in p],
+        "clip_label": [int(v) for v in y],
+        "runs": [
+            dict(t, slipped=r.slipped, outcome=o.outcome, first_alarm=o.first_alarm, lead=o.lead, rest=rest)
+            for t, r, o, rest in zip(traces_json(runs, probs), runs, outs, [np.flatnonzero(m).tolist() for m in rests])
+        ],
+    }

@@ -84,20 +84,10 @@ class GraspTrainConfig:
     gain: list = field(default_factory=list)
 
     def __post_init__(self):
-        checks = {
-            "epochs": (0, 10_000),  # 0: no gradient training (a model of fixed settings: its operating point only)
-            "batch_size": (1, 4096),
-            "chunk": (1, 2048),
-            "negatives": (0, 100),
-            "hard_negatives": (0, 100),
-            "mine_every": (1, 1000),
-            "onset_frames": (0, 500),
-            "horizon": (1, 5000),
-            "seed": (0, 2**32 - 1),
-            "inner_folds": (0, 20),
-            "accumulate": (1, 1024),
-            "startup": (0, 1000),
-        }
+        # epochs 0: no gradient training (a model of fixed settings: its operating point only)
+        checks = dict(epochs=(0, 10_000), batch_size=(1, 4096), chunk=(1, 2048), negatives=(0, 100))
+        checks.update(hard_negatives=(0, 100), mine_every=(1, 1000), onset_frames=(0, 500), horizon=(1, 5000))
+        checks.update(seed=(0, 2**32 - 1), inner_folds=(0, 20), accumulate=(1, 1024), startup=(0, 1000))
         if self.split_seed is not None:
             checks["split_seed"] = (0, 2**32 - 1)
         for key, (lo, hi) in checks.items():
@@ -385,7 +375,10 @@ def fit_runs(
     which writes the resume state to ``state_path`` and the checkpoints, with ``info``, metrics and
     curves to ``out``); returns ``(model in eval mode, per-epoch metrics)``."""
     torch.manual_seed(cfg.seed)
-    model = build(cfg.model, **cfg.model_config) if cfg.init is None else _initial_model(cfg)
+    if cfg.init is None:
+        model = build(cfg.model, **cfg.model_config)
+    else:  # the checkpoint's model (its own settings) trained further; another model than cfg.model is refused
+        model = load_model(resolve_path(cfg.init), expect_model=cfg.model)[0].train()
     if cfg.epochs == 0:
         return model.eval(), []
     settings = LoopSettings(
@@ -394,13 +387,6 @@ def fit_runs(
     task = GraspTask(runs, cfg)
     history = train(model, task, settings, out=out, info=info, state_path=state_path, on_epoch=on_epoch)
     return model.eval(), history
-
-
-def _initial_model(cfg: GraspTrainConfig):
-    """The model of ``cfg.init`` (its own settings), to be trained further; InputError naming the file
-    for a checkpoint of another model than ``cfg.model``."""
-    model, _ = load_model(resolve_path(cfg.init), expect_model=cfg.model)
-    return model.train()
 
 
 @torch.no_grad()
@@ -424,13 +410,11 @@ def make_config(model: str, settings: dict[str, Any]) -> GraspTrainConfig:
     ``model.KEY``) goes to the model's config."""
     train_keys = set(GraspTrainConfig.__dataclass_fields__) - {"model", "model_config"}
     train, model_cfg = {}, {}
-    for key, value in settings.items():
-        if key.startswith("model."):
-            model_cfg[key[len("model.") :]] = value
-        elif key in train_keys:
+    for key, value in settings.items():  # "model.KEY" is never a training key
+        if key in train_keys:
             train[key] = value
         else:
-            model_cfg[key] = value
+            model_cfg[key.removeprefix("model.")] = value
     if train.get("init") is not None:  # fine-tuning: the model is the checkpoint's, settings and all
         train["init"] = portable_path(resolve_path(train["init"]))  # kept as the checkpoint says it, resolvable
         theirs = dict(read_info(resolve_path(train["init"]))["model_config"])

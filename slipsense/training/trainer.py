@@ -234,7 +234,6 @@ def _sync_buffers(model: nn.Module, d: Dist) -> None:
             dist.broadcast(b, 0)
 
 
-# --------------------------------------------------------------------------- resume state
 def rng_state() -> dict[str, Any]:
     """Python's, numpy's and torch's global generators (and every CUDA device's, where there are any)."""
     state = {"python": random.getstate(), "numpy": np.random.get_state(), "torch": torch.get_rng_state()}
@@ -280,7 +279,6 @@ def restore(path, state: dict[str, Any], model, optimizer=None, scheduler=None, 
     return int(state["epoch"]), [dict(r) for r in state["history"]], float(state["best"])
 
 
-# --------------------------------------------------------------------------- files
 def write_metrics_csv(path: Path, rows: list[dict[str, Any]]) -> None:
     buf = io.StringIO()
     w = csv.DictWriter(buf, fieldnames=list(dict.fromkeys(k for r in rows for k in r)))  # columns as first seen

@@ -78,7 +78,23 @@ def parse_thresholds(text: str) -> list[float]:
 
 
 #: Columns of the early-warning CSV, in order.
-EARLY_WARNING_COLUMNS = pergrasp.COLUMNS
+EARLY_WARNING_COLUMNS = (
+    "threshold",
+    "debounce",
+    "slip_runs",
+    "warned",
+    "premature",
+    "missed",
+    "warned_rate",
+    "median_lead_frames",
+    "median_lead_ms",
+    "held_runs",
+    "false_positive_grasps",
+    "false_positive_rate",
+    "held_alarm_fraction",
+    "runs_alarming_at_rest",
+    "score",
+)
 
 
 def early_warning_table(

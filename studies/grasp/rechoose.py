@@ -18,7 +18,7 @@ from slipsense.training.folds import _echo_fold, _pct, _rule, _write_report
 
 
 def fold_at(fold: dict[str, Any], op: dict[str, Any], horizon: int) -> dict[str, Any]:
-    """A fold written by :func:`slipsense.training.folds.fold_result` scored again at another operating point ``op``, from
+    """A fold written by :func:`slipsense.training.folds.run_folds` scored again at another operating point ``op``, from
     the held-out traces and clip probabilities it keeps (6 decimals; fold files written before kept 4,
     where a threshold near 0.9999 can decide differently than the full-precision trace would)."""
     runs, outs = [], []
