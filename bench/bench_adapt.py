@@ -27,7 +27,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
-from slipsense.config import data_root  # noqa: E402
+from slipsense.paths import data_root  # noqa: E402
 from studies.grasp.derive import resized_frame_folders  # noqa: E402
 
 

@@ -25,7 +25,7 @@ def main() -> None:
     args = ap.parse_args()
     h, w = (int(v) for v in args.size.split("x"))
 
-    from slipsense.config import gelsight_recordings
+    from slipsense.paths import gelsight_recordings
     from slipsense.data import gelsight_clips
     from slipsense.datasets import ClipDataset
     from slipsense.models import build

@@ -26,7 +26,7 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from slipsense.config import data_root, gelsight_recordings  # noqa: E402
+from slipsense.paths import data_root, gelsight_recordings  # noqa: E402
 from slipsense.streaming.detector import DEFAULT_CHECKPOINT, SlipDetector  # noqa: E402
 from slipsense.recordings.video import read_video  # noqa: E402
 from slipsense.resources import shipped_model  # noqa: E402

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from slipsense.config import gelsight_recordings  # noqa: E402
+from slipsense.paths import gelsight_recordings  # noqa: E402
 from slipsense.recordings.video import read_video  # noqa: E402
 from slipsense.ros_node import READING_TOPIC  # noqa: E402
 

@@ -48,7 +48,7 @@ sys.path.insert(0, str(ROOT))
 from slipsense.training import grasps as G  # noqa: E402
 from slipsense.training.grasp_detector import object_split  # noqa: E402
 from slipsense.measures import pergrasp  # noqa: E402
-from slipsense.config import gelsight_recordings  # noqa: E402
+from slipsense.paths import gelsight_recordings  # noqa: E402
 from slipsense.models import build  # noqa: E402
 
 FPS = 25.0

@@ -32,7 +32,7 @@ from PIL import Image
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 import slipsense.watch as watch  # noqa: E402
 from slipsense.atomic import write_with  # noqa: E402
-from slipsense.config import gelsight_recordings  # noqa: E402
+from slipsense.paths import gelsight_recordings  # noqa: E402
 from slipsense.streaming.annotate import AnnotatedWriter  # noqa: E402
 
 

@@ -20,7 +20,7 @@ overrides=configs/gelsight-label-overrides.csv
 held=$(.venv/bin/python -c "import json,sys; print(' '.join(json.load(open(sys.argv[1]))['objects']))" \
     "$out/motionnet-fold0/held_out.json")
 rm -rf "$out/held-out-recordings" && mkdir -p "$out/held-out-recordings"
-data=$(.venv/bin/python -c "from slipsense.config import gelsight_recordings; print(gelsight_recordings())")
+data=$(.venv/bin/python -c "from slipsense.paths import gelsight_recordings; print(gelsight_recordings())")
 for o in $held; do ln -s "$data/$o" "$out/held-out-recordings/$o"; done
 .venv/bin/slipsense evaluate --checkpoint "$out/motionnet-fold0/detector.safetensors" \
     --recordings "$out/held-out-recordings" --json "$out/held-out-evaluation.json" --no-progress

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from slipsense.evaluation.judge import Evaluation, evaluate, label_overrides, recordings_folder
-from slipsense.run_config import DEFAULT_MODEL
+from slipsense.config_tree import DEFAULT_MODEL
 
 
 @dataclass
@@ -58,7 +58,7 @@ def fit(
     **settings: Any,
 ) -> TrainedDetector:
     """Train a registered model on a recordings folder, as ``slipsense train`` does
-    (:func:`slipsense.training.recipe.fit` of the :class:`~slipsense.training.config.RunConfig` of
+    (:func:`slipsense.training.recipe.fit` of the :class:`~slipsense.training.settings.RunConfig` of
     its configuration tree: the same checks, sensor spec, one-finger split and resume).
 
     Args:
@@ -70,7 +70,7 @@ def fit(
         overrides: label overrides CSV; True = the shipped hand labels for runs of the shared
             recordings; False = none.
         settings: the model's settings (e.g. ``width=8``) and training settings (e.g. ``epochs=5``),
-            each by its name (:meth:`~slipsense.training.config.RunConfig.from_tree` sorts them).
+            each by its name (:meth:`~slipsense.training.settings.RunConfig.from_tree` sorts them).
     """
     from slipsense.training.recipe import RunConfig, fit as fit_recipe
 

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from slipsense.config import gelsight_recordings
+from slipsense.paths import gelsight_recordings
 from slipsense.errors import ConfigError, InputError
 from slipsense.progress import progress_bar
 from slipsense.recordings.clips import ClipSpec, load_or_build_clips

@@ -21,7 +21,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from slipsense.config import gelsight_recordings, portable_path, resolve_path
+from slipsense.paths import gelsight_recordings, portable_path, resolve_path
 from slipsense.data import clip_spec_from, gelsight_clips, load_markers, split_groups
 from slipsense.datasets import ClipDataset, MarkerDataset
 from slipsense.errors import ConfigError, InputError
@@ -67,7 +67,7 @@ class VideoClips:
 
     def training_data(self, run, progress: bool) -> tuple[Any, Any, dict[str, Any], dict[str, Any]]:
         """``(train, test, split_info, data_config)`` for a clip model's
-        :class:`~slipsense.training.config.RunConfig` (its ``data`` section and seed); ``data_config``
+        :class:`~slipsense.training.settings.RunConfig` (its ``data`` section and seed); ``data_config``
         holds the sizes the model is built with and its ``sensor``."""
         data = run.data
         if data.markers is not None:

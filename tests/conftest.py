@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from slipsense.config import gelsight_recordings
+from slipsense.paths import gelsight_recordings
 
 #: one run of the shared recordings that the tests read a few frames of
 REAL_RUN = gelsight_recordings() / "avocado_real" / "exp_num_1"

@@ -140,7 +140,7 @@ def test_wheel_carries_the_shipped_detectors_and_overrides(tmp_path):
 def test_shipped_overrides_apply_to_the_shared_recordings_only(tmp_path):
     """One data path: every command labels through data.label_runs, which gives runs of the shared
     recordings the shipped hand labels unless told otherwise."""
-    from slipsense.config import gelsight_recordings
+    from slipsense.paths import gelsight_recordings
     from slipsense.data import shipped_overrides_for
     from slipsense.recordings.types import Recording
 

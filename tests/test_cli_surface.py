@@ -12,7 +12,7 @@ import typer.main
 from slipsense import api
 from slipsense.cli import app
 from slipsense.cli import train as train_cli
-from slipsense import run_config
+from slipsense import config_tree
 
 MAX_COMMANDS = 12
 
@@ -42,12 +42,12 @@ def test_every_option_of_every_command_is_explained():
 
 
 def test_one_default_model_everywhere():
-    from slipsense.training.config import RunConfig
+    from slipsense.training.settings import RunConfig
     from slipsense.training.grasps import GraspTrainConfig
 
-    assert train_cli.DEFAULT_MODEL is run_config.DEFAULT_MODEL == GraspTrainConfig().model == "motionnet"
-    assert inspect.signature(api.fit).parameters["model"].default == run_config.DEFAULT_MODEL
-    assert RunConfig.from_tree({}).name == run_config.DEFAULT_MODEL  # a tree that names none
+    assert train_cli.DEFAULT_MODEL is config_tree.DEFAULT_MODEL == GraspTrainConfig().model == "motionnet"
+    assert inspect.signature(api.fit).parameters["model"].default == config_tree.DEFAULT_MODEL
+    assert RunConfig.from_tree({}).name == config_tree.DEFAULT_MODEL  # a tree that names none
 
 
 def test_help_does_not_start_torch_and_importing_sets_nothing_process_wide():

@@ -125,7 +125,7 @@ def test_readme_fit_and_evaluate_sentences_are_calls_the_api_takes():
 def test_every_object_the_readme_holds_out_is_in_the_shared_recordings():
     """The README's ``fit(recordings, ..., held_out=[...])`` runs on the shared recordings of its quick
     start: each object it holds out must be one of them (``"mug"`` was not: it is ``"blue_mug"``)."""
-    from slipsense.config import gelsight_recordings
+    from slipsense.paths import gelsight_recordings
     from slipsense.recordings.folders import find_recordings
 
     objects = {r.object for r in find_recordings(gelsight_recordings(), on_error="skip")}

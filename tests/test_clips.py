@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 import striped_video
 from striped_video import index_of
 
-from slipsense import config
+from slipsense import paths
 from slipsense.errors import CacheWarning, ConfigError, InputError
 from slipsense.recordings import clips as clips_mod
 from slipsense.recordings.augment import AugmentConfig, add_noise, transform_clip
@@ -355,7 +355,7 @@ def test_default_cache_location(tmp_path, dataset, monkeypatch):
     _, recs, labels = dataset
     monkeypatch.setenv("SLIPSENSE_CACHE", str(tmp_path / "c"))
     load_or_build_clips(recs[:1], labels, SPEC, progress=False)
-    assert len(list((config.cache_root() / "clips").glob("clips-*.npz"))) == 1
+    assert len(list((paths.cache_root() / "clips").glob("clips-*.npz"))) == 1
 
 
 def test_cache_key_tracks_inputs(tmp_path, dataset):
@@ -488,7 +488,7 @@ def test_transform_rejects_bad_clip():
 
 # -------------------------------------------------------------------------------------- real data
 
-REAL = config.gelsight_recordings()
+REAL = paths.gelsight_recordings()
 
 
 @pytest.mark.skipif(not REAL.is_dir(), reason="shared GelSight recordings not present")

@@ -256,7 +256,7 @@ def test_grasps_labelled_as_a_whole_fine_tune_the_shipped_detector(tmp_path, cac
     assert res.exit_code == 0, res.output
     info = read_info(out / "detector.safetensors")
     assert info["model_config"] == read_info(init)["model_config"]  # the shipped model, trained further
-    from slipsense.config import resolve_path
+    from slipsense.paths import resolve_path
 
     assert (
         info["sensor"]["name"] == "gelsight-lift"

@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from slipsense import config
+from slipsense import paths
 from slipsense.errors import InputError
 from slipsense.recordings import contact as C
 from slipsense.recordings import label_csv as CSV
@@ -410,7 +410,7 @@ TOLERANCE = 3  # frames
 
 
 def _gelsight() -> Path:
-    root = config.gelsight_recordings()
+    root = paths.gelsight_recordings()
     if not root.is_dir():
         pytest.skip(f"GelSight recordings not found at {root} (set SLIPSENSE_DATA)")
     return root

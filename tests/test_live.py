@@ -19,7 +19,7 @@ from conftest import onnx_output
 from slipsense.checkpoint import save_checkpoint
 from slipsense.cli import app
 from studies.__main__ import app as studies_app
-from slipsense.config import gelsight_recordings
+from slipsense.paths import gelsight_recordings
 from slipsense.errors import ConfigError, InputError
 from slipsense.evaluation.replay import RunTrace
 from studies.grasp.early_warning import EARLY_WARNING_COLUMNS, early_warning_table

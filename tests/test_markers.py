@@ -305,7 +305,7 @@ def test_track_recordings_reports_missing_video(tmp_path):
 
 
 def real_video() -> Path:
-    from slipsense.config import gelsight_recordings
+    from slipsense.paths import gelsight_recordings
 
     return gelsight_recordings() / "cellotape" / "exp_num_2" / "camera_0.avi"
 

@@ -161,7 +161,7 @@ def test_register_refuses_a_class_outside_the_contract():
 #: The places outside slipsense/models that ask how a model trains: the recipe's tables of trainers,
 #: folds and evaluators and the run configuration's table of training settings, keyed by the model's
 #: ``training_task``. Data is read by the model's own ``clip_reader``.
-ASKS_HOW_IT_TRAINS = {"training/recipe.py": 2, "training/config.py": 1, "evaluation/checkpoints.py": 1}
+ASKS_HOW_IT_TRAINS = {"training/recipe.py": 2, "training/settings.py": 1, "evaluation/checkpoints.py": 1}
 
 
 @pytest.mark.parametrize("name", BUILT_IN)
@@ -188,7 +188,7 @@ def test_the_run_takes_the_recipe_under_what_the_tree_gives(grasp_recordings, tm
     motionnet on two-finger videos is the run it always was; recordings that are not there leave the
     trainer's defaults (reading them names the problem)."""
     from slipsense.measures.pergrasp import STARTUP
-    from slipsense.training.config import RunConfig
+    from slipsense.training.settings import RunConfig
 
     run = RunConfig.from_tree({"model": {"name": "motionnet"}, "data": {"recordings": str(grasp_recordings)}})
     assert run.model == {"name": "motionnet"} and run.train.startup == STARTUP and run.train.epochs == 20

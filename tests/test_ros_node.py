@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from conftest import needs_data
-from slipsense.config import gelsight_recordings
+from slipsense.paths import gelsight_recordings
 from slipsense.ros_node import ALARM_TOPIC, CAUSES, READING_TOPIC, STATUS_TOPIC, ReadingLoop, StampPairer
 from slipsense.streaming.detector import SlipDetector
 

@@ -1,4 +1,4 @@
-"""The configuration tree (slipsense/run_config.py): every configs/*.yaml is valid, layers override in
+"""The configuration tree (slipsense/config_tree.py): every configs/*.yaml is valid, layers override in
 order, the resolved tree is stored whole in checkpoints and repeats a run, bad files get one line."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 from slipsense.checkpoint import read_info
 from slipsense.cli import app
 from slipsense.errors import ConfigError, InputError
-from slipsense.run_config import empty_tree, given, load_tree, merge, parse_sets
+from slipsense.config_tree import empty_tree, given, load_tree, merge, parse_sets
 
 CONFIGS = sorted((Path(__file__).resolve().parent.parent / "configs").glob("*.yaml"))
 runner = CliRunner()
@@ -30,7 +30,7 @@ def test_every_shipped_config_builds(path):
     import torch
 
     from slipsense.training.clips import build_model
-    from slipsense.training.config import RunConfig
+    from slipsense.training.settings import RunConfig
     from slipsense.training.grasps import GraspTrainConfig
 
     run = RunConfig.from_tree(load_tree(path))  # a grasp detector's model is built there
@@ -184,9 +184,9 @@ def test_empty_tree_has_the_three_sections():
 
 
 def test_set_null_clears_and_yaml_spellings_are_typed(monkeypatch, tmp_path):
-    from slipsense.config import DATA_ENV
+    from slipsense.paths import DATA_ENV
     from slipsense.training.clips import TrainConfig
-    from slipsense.training.config import RunConfig
+    from slipsense.training.settings import RunConfig
 
     tree = merge({"data": {"fold": 2}}, parse_sets(["data.fold=null"]))
     assert tree["data"]["fold"] is None
@@ -200,7 +200,7 @@ def test_set_null_clears_and_yaml_spellings_are_typed(monkeypatch, tmp_path):
 
 
 def test_a_bare_training_key_goes_to_train_and_grasp_models_refuse_clip_settings():
-    from slipsense.training.config import RunConfig
+    from slipsense.training.settings import RunConfig
 
     run = RunConfig.from_tree({"model": {"name": "motionnet", "width": 4, "epochs": 2}, "data": {"size": [12, 16]}})
     assert run.train.epochs == 2 and run.model == {"name": "motionnet", "width": 4, "image_size": [12, 16]}

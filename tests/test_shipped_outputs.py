@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from conftest import needs_data
-from slipsense.config import gelsight_recordings
+from slipsense.paths import gelsight_recordings
 from slipsense.resources import shipped_model
 
 SUPPORT = Path(__file__).parent / "support"

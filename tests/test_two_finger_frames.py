@@ -182,7 +182,7 @@ def test_the_shared_grasps_as_two_finger_frames_replay_as_their_videos(tmp_path,
     """Two objects of the shared wiggle grasps as PNG frame folders: every run replays to the same
     probabilities as its videos, so the detector's per-grasp figures (judged from the first frame, as
     frame folders are) are the same; the frame folders are labelled as a whole (no moment of slip)."""
-    from slipsense.config import gelsight_recordings
+    from slipsense.paths import gelsight_recordings
     from slipsense.evaluation.judge import evaluate
     from studies.grasp.derive import two_finger_frame_folders
 

@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
-from slipsense import config
+from slipsense import paths
 from slipsense.errors import ConfigError, InputError
 from slipsense.recordings import video as video_mod
 from slipsense.recordings.folders import (
@@ -360,7 +360,7 @@ def test_validate_recordings(tmp_path):
 
 # -------------------------------------------------------------------------------------- real data
 
-REAL = config.gelsight_recordings()
+REAL = paths.gelsight_recordings()
 
 
 @pytest.mark.skipif(not REAL.is_dir(), reason="shared GelSight recordings not present")

@@ -33,7 +33,7 @@ def label(
     from slipsense.recordings.label_csv import read_overrides_csv, write_labels_csv
     from slipsense.sensors.spec import GELSIGHT_MINI
     from slipsense.atomic import check_output_file
-    from slipsense.config import gelsight_recordings
+    from slipsense.paths import gelsight_recordings
 
     check_output_file(csv, "--csv")
     root = recordings or gelsight_recordings()
@@ -107,7 +107,7 @@ def adapt(
     chosen and why. A killed run resumes."""
     from slipsense.adapt import adapt as run
     from slipsense.errors import ConfigError
-    from slipsense.run_config import check_seed
+    from slipsense.config_tree import check_seed
 
     if not 0.0 <= budget < 1.0:
         raise ConfigError(f"--budget must be a fraction in [0, 1), got {budget!r}")

@@ -11,7 +11,7 @@ from typing import Optional
 import typer
 
 from slipsense.errors import ConfigError, SlipsenseError
-from slipsense.run_config import check_seed  # noqa: F401  (the commands' seed check)
+from slipsense.config_tree import check_seed  # noqa: F401  (the commands' seed check)
 
 
 def one_line_warning(message, category, filename, lineno, file=None, line=None) -> str:

@@ -35,7 +35,7 @@ def register(app: typer.Typer) -> None:
         """Track the gel markers of real GelSight recordings (KLT) into labelled marker sequences."""
         from slipsense.atomic import check_output_file
         from slipsense.cli.common import check_seed
-        from slipsense.config import gelsight_recordings
+        from slipsense.paths import gelsight_recordings
         from slipsense.recordings.markers import marker_layout
         from slipsense.marker_sequences import real_marker_dataset, save_marker_npz
 

@@ -9,7 +9,7 @@ from typing import List, Optional
 import typer
 
 from slipsense.cli.common import command_line, friendly, parse_hw
-from slipsense.run_config import DEFAULT_MODEL, empty_tree, given, load_tree, merge, parse_sets
+from slipsense.config_tree import DEFAULT_MODEL, empty_tree, given, load_tree, merge, parse_sets
 
 SET_HELP = (
     "section.key=value, section model, data or train, e.g. train.lr=0.001, model.width=16, "

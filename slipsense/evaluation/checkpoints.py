@@ -14,7 +14,7 @@ from typing import Any, Callable
 
 from slipsense.atomic import write_text
 from slipsense.checkpoint import load_model
-from slipsense.config import portable_path
+from slipsense.paths import portable_path
 from slipsense.errors import ConfigError, InputError
 from slipsense.evaluation.judge import judge
 from slipsense.evaluation.predict import evaluate_clip_checkpoint

@@ -17,7 +17,7 @@ import numpy as np
 
 from slipsense.atomic import write_text
 from slipsense.checkpoint import load_model
-from slipsense.config import gelsight_recordings
+from slipsense.paths import gelsight_recordings
 from slipsense.data import label_runs
 from slipsense.errors import InputError
 from slipsense.evaluation.replay import replay_recordings

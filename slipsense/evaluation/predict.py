@@ -16,7 +16,7 @@ from torch import nn
 from torch.utils.data import DataLoader, Dataset, Subset
 
 from slipsense.atomic import write_text
-from slipsense.config import portable_path
+from slipsense.paths import portable_path
 from slipsense.errors import ConfigError, InputError, SlipsenseError
 from slipsense.evaluation.judge import judge
 from slipsense.measures.clips import metrics_from

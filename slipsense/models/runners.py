@@ -15,7 +15,7 @@ import torch
 from torch import nn
 
 from slipsense import __version__
-from slipsense.config import cache_root
+from slipsense.paths import cache_root
 from slipsense.errors import ConfigError
 from slipsense.models.onnx import cached_streaming_parts, onnx_session
 

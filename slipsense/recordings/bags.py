@@ -31,7 +31,7 @@ import numpy as np
 
 from slipsense.atomic import atomic_path, write_text
 from slipsense.cache import Entry
-from slipsense.config import cache_root
+from slipsense.paths import cache_root
 from slipsense.errors import ConfigError, InputError
 from slipsense.sensors.spec import check_fps
 

@@ -27,7 +27,7 @@ from typing import Any, Iterable, Mapping, Sequence
 import numpy as np
 from tqdm.auto import tqdm
 
-from .. import config
+from .. import paths
 from ..sensors.spec import GELSIGHT_MINI
 from ..cache import Entry, key
 from ..errors import ConfigError, InputError
@@ -364,7 +364,7 @@ def load_or_build_clips(
     """:func:`build_clips`, cached on disk.
 
     The cache entry is ``<cache_dir>/clips-<key>.npz`` (uncompressed; ``cache_dir`` defaults to
-    ``config.cache_root() / "clips"``), verified (:mod:`slipsense.cache`) and keyed by
+    ``paths.cache_root() / "clips"``), verified (:mod:`slipsense.cache`) and keyed by
     :func:`cache_key`'s inputs. An entry that fails its checks, holds other windows or labels than
     the labels give, or cannot be loaded is rebuilt with a :class:`CacheWarning`; a failure to write
     the cache only warns, since the clips are in hand.
@@ -373,7 +373,7 @@ def load_or_build_clips(
         As :func:`build_clips`.
     """
     recordings = list(recordings)
-    folder = Path(cache_dir) if cache_dir is not None else config.cache_root() / "clips"
+    folder = Path(cache_dir) if cache_dir is not None else paths.cache_root() / "clips"
     return Entry(folder, _inputs(recordings, labels, spec), "clip cache", prefix="clips-", suffix=".npz").get(
         lambda npz: _read_entry(npz, recordings, labels, spec),
         lambda: build_clips(recordings, labels, spec, progress=progress),

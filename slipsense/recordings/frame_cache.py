@@ -32,7 +32,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .. import config
+from .. import paths
 from ..cache import Entry
 from ..errors import InputError
 from ..parallel import run_jobs
@@ -51,7 +51,7 @@ _MARKERS = re.compile(r"^markers:([1-9]\d*)(?:x([1-9]\d*))?$")
 def _entry(path: Path, product: str) -> Entry:
     size, mtime = source_stat(path)
     inputs = [FRAMES_VERSION, product, {"path": str(path.resolve()), "bytes": size, "mtime_ns": mtime}]
-    return Entry(config.cache_root() / "frames", inputs, "frame cache", suffix=".npy")
+    return Entry(paths.cache_root() / "frames", inputs, "frame cache", suffix=".npy")
 
 
 def _compute(video: np.ndarray, product: str, made: dict) -> np.ndarray:

@@ -11,7 +11,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Sequence
 
-from .. import config
+from .. import paths
 from ..cache import Entry
 from .contact import Rule
 from .frames import source_stat
@@ -33,7 +33,7 @@ def _inputs(recs: Sequence[Recording], rule: Rule) -> list:
 
 def cache_entry(recs: Sequence[Recording], rule: Rule) -> Entry:
     """The run's entry: ``<cache_root>/labels/<key>.json``, keyed by its inputs (:func:`_inputs`)."""
-    return Entry(config.cache_root() / "labels", _inputs(recs, rule), "label cache", suffix=".json")
+    return Entry(paths.cache_root() / "labels", _inputs(recs, rule), "label cache", suffix=".json")
 
 
 def save_labels(entry: Entry, labels: Sequence[VideoLabel]) -> None:

@@ -55,7 +55,7 @@ from typing import Any, Iterable, Sequence
 import numpy as np
 from tqdm.auto import tqdm
 
-from ..config import cache_root
+from ..paths import cache_root
 from ..errors import ConfigError, InputError
 from .video import read_video
 from .marker_cache import read_track, track_entry

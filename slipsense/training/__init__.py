@@ -1,5 +1,5 @@
 """Training: every registered model through one entry, :func:`slipsense.training.recipe.fit` (what
-``slipsense train`` and :func:`slipsense.fit` call with the :class:`~slipsense.training.config.RunConfig`
+``slipsense train`` and :func:`slipsense.fit` call with the :class:`~slipsense.training.settings.RunConfig`
 made once from a configuration tree).
 
 One loop, :mod:`slipsense.training.trainer` (torchrun DDP, seeds, resume after a kill, best/last

@@ -1,5 +1,5 @@
 """Clips and marker sequences for the one training loop (:class:`ClipTask`), and ``slipsense train``
-for clip models: from a run configuration (:class:`~slipsense.training.config.RunConfig`) to a run
+for clip models: from a run configuration (:class:`~slipsense.training.settings.RunConfig`) to a run
 folder (:func:`run_training`).
 
 The loop (:mod:`slipsense.training.trainer`) gives the run its checkpoints, metrics, resume and
@@ -31,7 +31,7 @@ from torch.utils.data import DataLoader, Dataset, default_collate
 
 from slipsense.atomic import write_text
 from slipsense.checkpoint import load_model, load_resume_state, read_info, update_info
-from slipsense.config import resolve_path
+from slipsense.paths import resolve_path
 from slipsense.errors import ConfigError, InputError, SlipsenseError
 from slipsense.evaluation.predict import evaluate_model, predict
 from slipsense.measures.clips import metrics_from
@@ -39,7 +39,7 @@ from slipsense.models import available, build, model_class, settings_of
 from slipsense.parallel import end_with_parent
 from slipsense.readers import check_same_split
 from slipsense.recordings.folders import find_recordings
-from slipsense.run_config import dump_tree, typed
+from slipsense.config_tree import dump_tree, typed
 from slipsense.sensors.spec import sensor_of
 from slipsense.training.distributed import Dist, RankBatches, StepPlan, setup  # noqa: F401
 from slipsense.training.operating_point import choose_on_training_runs
@@ -90,7 +90,7 @@ class TrainConfig:
 
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> "TrainConfig":
-        """From ``train`` settings by name (YAML spellings typed: :func:`slipsense.run_config.typed`);
+        """From ``train`` settings by name (YAML spellings typed: :func:`slipsense.config_tree.typed`);
         ConfigError naming an unknown key or a bad value."""
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(values) - known)
@@ -270,7 +270,7 @@ def build_model(name: str, preset: str | None, overrides: dict[str, Any], data_c
 
 
 def run_training(run, out: Path, progress: bool = True, resume: bool = False) -> dict[str, Any]:
-    """Prepare ``run``'s data (a :class:`~slipsense.training.config.RunConfig` of a clip model: its
+    """Prepare ``run``'s data (a :class:`~slipsense.training.settings.RunConfig` of a clip model: its
     model's reader cuts the clips), build and train the model into ``out``, then evaluate
     ``last.safetensors`` on the held-out part. Returns (rank 0; ``{}`` on other ranks)
     ``{"checkpoint", "operating_point" (None unless one was chosen), "history" (a row per epoch),

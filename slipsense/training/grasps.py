@@ -31,7 +31,7 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 from slipsense.checkpoint import load_model, read_info
-from slipsense.config import portable_path, resolve_path
+from slipsense.paths import portable_path, resolve_path
 from slipsense.data import label_runs
 from slipsense.errors import ConfigError, InputError, SlipsenseError
 from slipsense.measures import pergrasp
@@ -39,7 +39,7 @@ from slipsense.models import build
 from slipsense.models.base import RecordingsShape
 from slipsense.recordings.folders import camera_counts, find_recordings, validate_recordings
 from slipsense.recordings.runs import GraspRun, load_runs
-from slipsense.run_config import DEFAULT_MODEL, typed
+from slipsense.config_tree import DEFAULT_MODEL, typed
 from slipsense.sensors.spec import GELSIGHT_MINI
 from slipsense.streaming.clock import resample, slower_camera_frames
 from slipsense.training.trainer import LoopSettings, Step, Task, train

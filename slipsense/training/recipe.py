@@ -23,15 +23,15 @@ from typing import Any, Callable
 import torch
 
 from slipsense.atomic import check_output_dir, write_text
-from slipsense.config import portable_path
+from slipsense.paths import portable_path
 from slipsense.errors import ConfigError
 from slipsense.models import build, model_class
 from slipsense.recordings.frame_folders import data_sensor
 from slipsense.recordings.runs import per_sensor
-from slipsense.run_config import dump_tree
+from slipsense.config_tree import dump_tree
 from slipsense.sensors.spec import GELSIGHT_MINI
 from slipsense.training.clips import run_training
-from slipsense.training.config import RunConfig, recordings_root, recordings_sensor
+from slipsense.training.settings import RunConfig, recordings_root, recordings_sensor
 from slipsense.training.folds import pool, run_folds
 from slipsense.training.grasp_detector import object_split, train_detector
 from slipsense.training.grasps import load_grasp_data, recordings_shape

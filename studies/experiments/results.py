@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from slipsense.atomic import write_text
-from slipsense.config import gelsight_recordings, resolve_path
+from slipsense.paths import gelsight_recordings, resolve_path
 from studies.experiments.report import machine_line
 from studies.experiments.settings import EXPERIMENTS, TITLES, quick_epochs_text
 from studies.experiments.stnet import QUICK_SIM_SEQUENCES

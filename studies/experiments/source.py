@@ -56,7 +56,7 @@ class DataSource:
         on_error: str = "raise",
         progress: bool = True,
     ):
-        from slipsense.config import gelsight_recordings
+        from slipsense.paths import gelsight_recordings
 
         self.root = Path(recordings) if recordings is not None else gelsight_recordings()
         self.overrides = default_overrides() if overrides == "default" else (Path(overrides) if overrides else None)
@@ -66,7 +66,7 @@ class DataSource:
         self._recs = None
 
     def describe(self) -> dict[str, Any]:
-        from slipsense.config import portable_path
+        from slipsense.paths import portable_path
 
         return {
             "recordings": portable_path(self.root),

@@ -122,7 +122,7 @@ def adaptation_study(
     shipped = shipped_model(ONE_SENSOR_MODEL)
     model, info = load_model(shipped)
     op = info["operating_point"]
-    from slipsense.config import resolve_path
+    from slipsense.paths import resolve_path
 
     recordings = resolve_path(recordings)
     runs, _ = load_grasp_data(recordings, None, tuple(model.image_size), progress=progress)

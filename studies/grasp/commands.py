@@ -13,7 +13,7 @@ from slipsense.atomic import check_output_dir, check_output_file, write_text
 from slipsense.checkpoint import read_info
 from slipsense.cli.common import check_seed, command_line, friendly
 from slipsense.cli.live import THREADS_HELP, set_threads
-from slipsense.config import data_root, gelsight_recordings, resolve_path
+from slipsense.paths import data_root, gelsight_recordings, resolve_path
 from slipsense.errors import ConfigError
 from slipsense.measures.pergrasp import promise_text
 from slipsense.resources import shipped_model

@@ -15,7 +15,7 @@ from typing import Any, Mapping, Optional, Sequence
 from slipsense import atomic
 from slipsense.atomic import check_output_dir
 from slipsense.checkpoint import read_info
-from slipsense.config import gelsight_recordings
+from slipsense.paths import gelsight_recordings
 from slipsense.errors import ConfigError, InputError
 from slipsense.evaluation.judge import shipped_for
 from slipsense.evaluation.replay import RunTrace, plot_tradeoff, replay_recordings

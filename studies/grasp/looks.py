@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 
 from slipsense import atomic
-from slipsense.config import portable_path
+from slipsense.paths import portable_path
 from slipsense.data import label_runs
 from slipsense.errors import InputError
 from slipsense.evaluation.replay import RunTrace

@@ -20,7 +20,7 @@ import numpy as np
 
 from slipsense import atomic
 from slipsense.checkpoint import read_info
-from slipsense.config import portable_path
+from slipsense.paths import portable_path
 from slipsense.data import label_runs
 from slipsense.evaluation.judge import evaluate
 from slipsense.evaluation.replay import RunTrace

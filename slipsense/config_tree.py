@@ -8,10 +8,10 @@ A run is described by a tree like ``configs/vivit-paper.yaml``::
 
 and built in layers, later ones winning: the command's defaults < the model's recipe and what the
 recordings are (:meth:`slipsense.models.base.SlipModel.training_defaults`, applied by
-:meth:`~slipsense.training.config.RunConfig.from_tree`) < ``--config FILE`` < the command's own
+:meth:`~slipsense.training.settings.RunConfig.from_tree`) < ``--config FILE`` < the command's own
 options (``--epochs 3``) < ``--set section.key=value`` (a bare ``key=value`` goes to ``model``). A
 tree is checked once, into the frozen run that training reads
-(:class:`slipsense.training.config.RunConfig`); the run's resolved tree is stored whole in every
+(:class:`slipsense.training.settings.RunConfig`); the run's resolved tree is stored whole in every
 checkpoint (``info["config"]``) and written as ``config.yaml`` beside it, so ``--config
 RUN/config.yaml`` repeats a run. This module is the torch-free part (``slipsense --help`` reads it).
 """

@@ -1,5 +1,5 @@
 """What a training run is configured with: one :class:`RunConfig`, built once from a configuration tree
-(:mod:`slipsense.run_config`: ``model``, ``data`` and ``train`` sections) by :meth:`RunConfig.from_tree`,
+(:mod:`slipsense.config_tree`: ``model``, ``data`` and ``train`` sections) by :meth:`RunConfig.from_tree`,
 which makes every check and resolves every path (a :class:`~slipsense.errors.ConfigError` names the
 key), and written back whole by :meth:`RunConfig.to_tree` (what checkpoints and ``config.yaml`` keep).
 
@@ -20,13 +20,13 @@ from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 from typing import Any, Mapping
 
-from slipsense.config import gelsight_recordings, portable_path, resolve_path
+from slipsense.paths import gelsight_recordings, portable_path, resolve_path
 from slipsense.datasets import check_marker_copies
 from slipsense.errors import ConfigError, SlipsenseError
 from slipsense.models import available, model_class, settings_of
 from slipsense.models.base import RecordingsShape
 from slipsense.recordings.frame_folders import data_sensor
-from slipsense.run_config import DEFAULT_MODEL, SECTIONS, check_keys, check_seed, to_plain
+from slipsense.config_tree import DEFAULT_MODEL, SECTIONS, check_keys, check_seed, to_plain
 from slipsense.sensors.spec import GELSIGHT_MINI, SensorSpec, sensor_named
 from slipsense.training.clips import TrainConfig, paper_settings
 from slipsense.training.grasps import GraspTrainConfig, make_config, recordings_shape
@@ -153,7 +153,7 @@ class RunConfig:
     @classmethod
     def from_tree(cls, tree: Mapping[str, Mapping[str, Any]]) -> "RunConfig":
         """Check a configuration tree and resolve it (the tree is left as it was given). The model is
-        ``model.name`` (default :data:`~slipsense.run_config.DEFAULT_MODEL`); a ``model`` key that is
+        ``model.name`` (default :data:`~slipsense.config_tree.DEFAULT_MODEL`); a ``model`` key that is
         not a setting of the model but a training setting goes to ``train`` (a bare ``--set KEY=VALUE``);
         unknown keys and bad values are refused naming them. Every run starts from its model's
         :meth:`~slipsense.models.base.SlipModel.training_defaults` (its recipe; a grasp detector's also
