@@ -86,6 +86,7 @@ _GRASP_ROWS = (
     ("`motionnet` (shipped), both fingers", "reports/grasp-motionnet-k5"),
     ("`motionnet-gelsight-1` recipe, one finger (each camera a grasp)", "reports/grasp-motionnet-1sensor-k5"),
     ("`motion-energy` (non-learned baseline)", "reports/grasp-motion-energy"),
+    ("`motionnet` recipe rerun by the code of one judge (2026-11-28)", "reports/grasp-motionnet-k5-judge"),
 )
 
 _SEED_ROWS = (
@@ -300,6 +301,7 @@ def readme(root: Path) -> str:
         for r in ("grasp-motionnet-k5", "grasp-motionnet-1sensor-k5", "grasp-motion-energy")
     )
     k5, one, base = pk5["grasp"], pone["grasp"], pbase["grasp"]
+    judged = _pooled(root, "reports/grasp-motionnet-k5-judge")
     lift = {r["row"]: r for r in _json(root, "reports/adaptation/adaptation.json")["rows"]}
     shear = next(v for k, v in lift.items() if k.startswith("shear retention"))
     sim = {r["model"]: r for r in _csv(root, "reports/stnet-sim-24seq/stnet.csv")}
@@ -317,6 +319,15 @@ def readme(root: Path) -> str:
             f"{_count(one['warned'], one['slip_runs'])} camera-slips in time, {one['premature']} too early"
             f"{_per_hour(pone, True)}. Its promise: {_promise('motionnet-gelsight-1')}",
             "`reports/grasp-motionnet-1sensor-k5`",
+        ],
+        [
+            "the same, how often a held grasp alarms",
+            "`motionnet` recipe, rerun",
+            f"false alarms per hour of holding: {_per_hour(judged)}: "
+            f"{judged['per_hour']['false_alarms']} in {60 * judged['per_hour']['hours']:.1f} minutes of contact "
+            f"(the recipe's folds rerun by today's code: {_count(judged['grasp']['warned'], judged['grasp']['slip_runs'])} "
+            "slips in time)",
+            "`reports/grasp-motionnet-k5-judge`",
         ],
         [
             "the same, non-learned baseline",
