@@ -108,6 +108,26 @@ def test_evaluate_opens_the_checkpoint_once_and_scans_the_folder_once(tmp_path, 
         assert len(scans) == 1, scans
 
 
+def test_a_frame_folder_set_is_scanned_once_too(tmp_path, cache, monkeypatch):
+    """The shipped detector of another sensor (gelsight-lift: its own file layout) is chosen from the
+    folder's one scan: grasps as frame folders read the same whatever the sensor says."""
+    from test_frame_folders import _grasp
+
+    root = tmp_path / "lift"
+    for i in range(2):
+        lines = []
+        for g, slipped in enumerate((True, False)):
+            name = f"06{g}_{i}0"
+            _grasp(root / f"object{i:03d}" / f"{name}_mm", slipped, seed=10 * i + g, n=8, size=(480, 640))
+            lines.append(f"6{g}.{i} {'fail 0' if slipped else 'ok 1'} 100 300 200 {name} _s09_")
+        (root / f"object{i:03d}_result.dat").write_text("\n".join(lines))
+    scans, visible = [], folders._visible_dirs
+    monkeypatch.setattr(folders, "_visible_dirs", lambda d: (scans.append(d) if d == root else None, visible(d))[1])
+    res = runner.invoke(app, ["evaluate", "--recordings", str(root), "--no-progress"])
+    assert res.exit_code == 0, res.output
+    assert "shear-retention-gelsight-lift" in res.stderr and len(scans) == 1, scans
+
+
 def _fold(k: int, runs: list[RunTrace]) -> dict:
     """A fold as ``slipsense train --cross-validate`` stores it (the figures the pooling reads)."""
     stored = [

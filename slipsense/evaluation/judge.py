@@ -92,11 +92,12 @@ class Evaluation:
 
     def judged(self, keys: Sequence[str] = ()) -> Judged:
         """The runs as the measures take them; the baselines' frames and the short clips are read
-        only where a measure of ``keys`` needs them."""
+        only where a measure of ``keys`` reads them (:attr:`~slipsense.measures.Measure.reads`)."""
         point, labels, base = (self.threshold, self.debounce, self.hold_s), self.labels or {}, None
-        if "grasp_measure" in keys and self.recordings is not None:
+        reads = {what for k in keys for what in MEASURES[k].reads}
+        if "baselines" in reads and self.recordings is not None:
             base = baseline_scores(self.runs, self.recordings, labels, self.startup)
-        clips = clip_scores(self.runs, [r.probability for r in self.runs], labels) if "clips" in keys else None
+        clips = clip_scores(self.runs, [r.probability for r in self.runs], labels) if "clips" in reads else None
         return Judged(self.runs, [point] * len(self.runs), self.horizon, self.startup, base, clips)
 
     def measure(self, key: str) -> dict[str, Any] | None:
@@ -247,8 +248,7 @@ def judge(
     path = Path(checkpoint) if checkpoint is not None else shipped_for(root, found)
     model, info = loaded if loaded is not None else load_model(path)
     sensor = sensor_of(info, path)
-    layout = ("experiment_pattern", "camera_glob", "slip_marker")  # what find_recordings reads of a sensor
-    if found is None or any(getattr(sensor, a) != getattr(scanned, a) for a in layout):
+    if found is None or not folders.reads_alike(root, sensor, scanned):
         found = folders.find_recordings(root, on_error=on_error, sensor=sensor)
     calibrated = ((info.get("operating_point") or {}).get("calibrated") or {}).get("objects") or ()
     # another data set's objects are stored as <folder>/<object> (data.also): they count by their own name

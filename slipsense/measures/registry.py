@@ -46,23 +46,26 @@ class Measure:
             ``context`` holds the evaluation's ``threshold``, ``debounce``, ``horizon`` and ``fps``.
         pools: computed again on the runs of every fold pooled (each at its own operating point) in a
             cross-validation report.
+        reads: what it needs of :class:`Judged` beyond the runs (``"baselines"``, ``"clips"``): the
+            judge reads those frames and labels only for a measure that asks.
     """
 
     key: str
     compute: Callable[[Judged], dict[str, Any] | None]
     words: Callable[[Mapping[str, Any], Mapping[str, Any]], list[str]]
     pools: bool = True
+    reads: tuple[str, ...] = ()
 
 
 #: key -> measure, in the order the summary says them
 MEASURES: dict[str, Measure] = {}
 
 
-def register(key: str, words: Callable, pools: bool = True) -> Callable:
+def register(key: str, words: Callable, pools: bool = True, reads: tuple[str, ...] = ()) -> Callable:
     """Decorator: ``@register("key", words)`` on a ``Judged -> dict`` function adds it to :data:`MEASURES`."""
 
     def add(compute: Callable) -> Callable:
-        MEASURES[key] = Measure(key, compute, words, pools)
+        MEASURES[key] = Measure(key, compute, words, pools, reads)
         return compute
 
     return add

@@ -234,7 +234,7 @@ def _not_beaten(d: Mapping[str, Any], baselines: Mapping[str, Mapping[str, Any]]
     return [f"  the detector does not beat {name}: {'; '.join(s)}" for name, s in said.items()]
 
 
-@register("grasp_measure", telling_apart, pools=False)
+@register("grasp_measure", telling_apart, pools=False, reads=("baselines",))
 def grasp_measure(judged: Judged, draws: int = BOOTSTRAP) -> dict[str, Any]:
     """Slipped against held grasps: the detector's ROC AUC of each grasp's
     :func:`peak_alarm_score`, accuracy and balanced accuracy at its operating point and with

@@ -89,12 +89,24 @@ def find_recordings(
     if is_frame_layout(root):
         found = find_frame_recordings(root, lambda path, problem: report(path, problem, on_error))
     else:
-        if not (sensor.experiment_pattern and sensor.camera_glob and sensor.slip_marker):
-            sensor = GELSIGHT_MINI  # a sensor of frame folders (a detector calibrated to one) reads videos as the study laid them out
+        sensor = _video_layout(sensor)
         found = sorted((r for obj in objects for r in _object_recordings(obj, on_error, sensor)), key=lambda r: r.key)
     if not found:
         raise InputError(root, "no usable recordings found")
     return found
+
+
+def _video_layout(sensor: SensorSpec) -> SensorSpec:
+    """The sensor whose folder layout a scan of videos reads: a sensor of frame folders (a detector
+    calibrated to one) reads videos as the study laid them out."""
+    return sensor if sensor.experiment_pattern and sensor.camera_glob and sensor.slip_marker else GELSIGHT_MINI
+
+
+def reads_alike(root: str | Path, a: SensorSpec, b: SensorSpec) -> bool:
+    """Whether :func:`find_recordings` of ``root`` finds the same recordings with sensor ``a`` as with
+    ``b``: grasps as frame folders whatever the sensor, videos where both read the same folder layout."""
+    layouts = [(s.experiment_pattern, s.camera_glob, s.slip_marker) for s in map(_video_layout, (a, b))]
+    return layouts[0] == layouts[1] or is_frame_layout(root)
 
 
 def camera_counts(recordings: Iterable[Recording]) -> list[int]:
