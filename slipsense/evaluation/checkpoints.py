@@ -51,10 +51,12 @@ def _grasps(
     overrides=None,
     progress: bool = True,
     dtype: str = "float32",
-    **clip_only: Any,
+    png=None,
+    noise_std: float = 0.0,
+    per_grasp: bool = True,
 ) -> dict[str, Any]:
-    """A grasp detector per grasp; the JSON holds every measure and each run's outcome (``clip_only``:
-    ``png``, ``noise_std`` and ``per_grasp``, for clip models, not used)."""
+    """A grasp detector per grasp; the JSON holds every measure and each run's outcome (``png``,
+    ``noise_std`` and ``per_grasp`` are for clip models and not used)."""
     if split is not None or markers is not None:
         raise InputError(
             split or markers,
