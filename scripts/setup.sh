@@ -1,13 +1,14 @@
 #!/usr/bin/env bash
 # Create .venv beside the checkout and install slipsense with pinned dependencies.
-#   bash scripts/setup.sh        everything: the library, ONNX export, the ROS 2 node, the test and lint tools
+#   bash scripts/setup.sh        everything: the library, ONNX export, the ROS 2 node, the test and lint tools,
+#                                DVC (the reports' pipeline, dvc.yaml)
 #   bash scripts/setup.sh core   the library alone (what scripts/main.sh needs; seconds less)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 if [ ! -x .venv/bin/python ]; then
     python3 -m venv .venv
 fi
-extras="[export,ros,test]"
+extras="[export,ros,test,pipeline]"
 if [ "${1:-}" = "core" ]; then
     extras=""
 fi

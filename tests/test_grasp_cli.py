@@ -325,21 +325,28 @@ def test_train_model_motionnet_under_torchrun_equals_one_process(tmp_path, grasp
     assert res.exit_code == 2 and "leave --workers out" in res.output
 
 
-def test_a_fold_file_is_reused_only_under_the_key_of_todays_whole_settings(tmp_path):
-    """A fold file written with other settings, or before one of today's settings existed, is
-    trained again."""
+def test_a_fold_file_is_reused_only_under_the_key_of_todays_whole_settings_and_code(tmp_path, monkeypatch):
+    """A fold file written with other settings, before one of today's settings existed, or by other
+    code, is trained again."""
     import hashlib
 
+    import slipsense.provenance
+    from slipsense.provenance import code_digest
     from slipsense.training.folds import _config_key, _load_fold
     from slipsense.training.grasps import GraspTrainConfig
 
     cfg = GraspTrainConfig()
     key = _config_key(cfg, 5, [])
-    today = json.dumps({"cfg": cfg.to_dict(), "folds": 5, "labels": []}, sort_keys=True)
+    today = json.dumps({"cfg": cfg.to_dict(), "code": code_digest(), "folds": 5, "labels": []}, sort_keys=True)
     assert key == hashlib.sha256(today.encode()).hexdigest()[:16]
     assert _config_key(GraspTrainConfig(lr=0.01), 5, []) != key
+    monkeypatch.setattr(slipsense.provenance, "code_digest", lambda: "other code")
+    assert _config_key(cfg, 5, []) != key
+    monkeypatch.undo()
     before = {k: v for k, v in cfg.to_dict().items() if k != "accumulate"}
-    old = hashlib.sha256(json.dumps({"cfg": before, "folds": 5, "labels": []}, sort_keys=True).encode())
+    old = hashlib.sha256(
+        json.dumps({"cfg": before, "code": code_digest(), "folds": 5, "labels": []}, sort_keys=True).encode()
+    )
     fold = tmp_path / "fold0.json"
     fold.write_text(json.dumps({"config_key": key, "fold": 0}))
     assert _load_fold(fold, key) == {"config_key": key, "fold": 0}

@@ -8,7 +8,8 @@ library imports the studies.
 Inside the library each floor imports only from its own floor and the floors below, and no module
 reaches itself through its imports (function-local imports count too).
 
-    base         errors, atomic, cache, paths, config_tree, plots, resources, parallel, progress, alarm
+    base         errors, atomic, cache, paths, config_tree, plots, resources, parallel, progress, alarm,
+                 provenance
     sensors      what a sensor is (specs) and the marker maths on one image
     measures     how well a detector did, from replayed traces alone: no I/O, models or training
     data in      recordings, data, datasets, readers, marker_sequences
@@ -34,7 +35,20 @@ ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "slipsense"
 STUDIES = ROOT / "studies"
 FLOORS = [
-    ["errors", "atomic", "cache", "paths", "config_tree", "plots", "resources", "parallel", "progress", "alarm", ""],
+    [
+        "errors",
+        "atomic",
+        "cache",
+        "paths",
+        "config_tree",
+        "plots",
+        "resources",
+        "parallel",
+        "progress",
+        "alarm",
+        "provenance",
+        "",
+    ],
     ["sensors"],
     ["measures"],
     ["recordings", "data", "datasets", "readers", "marker_sequences"],

@@ -5,13 +5,14 @@ from __future__ import annotations
 import importlib
 import json
 import os
+import time
 import warnings
 from pathlib import Path
 from typing import Optional
 
 import typer
 
-from slipsense.cli.common import friendly, one_line_warning
+from slipsense.cli.common import friendly, one_line_warning, record_provenance
 
 _HELP = "Slip detection and prediction from vision-based tactile sensors."
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False, help=_HELP)
@@ -131,6 +132,15 @@ for _module in ("train", "evaluate", "live", "sensors", "bags", "record"):
     importlib.import_module(f"slipsense.cli.{_module}").register(app)
 
 
+#: Commands whose ``--out`` folder is a report: ``provenance.json`` is written there when they succeed.
+REPORTING = {"train", "adapt"}
+
+
+def _rank() -> int:
+    """This process's rank under torchrun (0 alone): one process writes the provenance."""
+    return int(os.environ.get("RANK", "0"))
+
+
 def main() -> None:
     """The console script: the process-wide settings of a command-line run, then the command."""
     # PyTorch backs its large CPU tensors with huge pages where this is set before it starts (read once,
@@ -138,10 +148,13 @@ def main() -> None:
     # weights, fewer page faults for the frame differences and activations each step allocates again.
     os.environ.setdefault("THP_MEM_ALLOC_ENABLE", "1")
     warnings.formatwarning = one_line_warning
+    started = time.time()
     try:
         app()
     except SystemExit as done:
         _leave_process_group(wait=done.code in (0, None))  # a rank that failed does not wait for the others
+        if done.code in (0, None) and _rank() == 0:
+            record_provenance(started, REPORTING)
         raise
     _leave_process_group()
 

@@ -70,3 +70,15 @@ PROG = "slipsense"
 def command_line() -> str:
     """The command as it was typed (stored beside what it wrote, so a report names how it was made)."""
     return " ".join([PROG, *(shlex.quote(a) for a in sys.argv[1:])])
+
+
+def record_provenance(started: float, commands: Optional[set[str]] = None) -> None:
+    """After a command that succeeded: ``provenance.json`` in the folder its ``--out`` names
+    (:mod:`slipsense.provenance`), for the commands of ``commands`` (None: every command)."""
+    import time
+
+    from slipsense.provenance import out_folder, write_provenance
+
+    folder = out_folder(sys.argv[2:])
+    if folder is not None and len(sys.argv) > 1 and (commands is None or sys.argv[1] in commands):
+        write_provenance(folder, command_line(), started, time.time())

@@ -99,9 +99,13 @@ def pool(run_dirs: list[Path]) -> dict:
 
 
 def _config_key(cfg: GraspTrainConfig, folds: int, runs: Sequence[GraspRun]) -> str:
-    """What a finished fold depends on: the settings, the folds and every run's label."""
+    """What a finished fold depends on: the settings, the folds, every run's label and the code (a fold
+    finished by other code is trained again, never reused)."""
+    from slipsense.provenance import code_digest
+
     labels = sorted((r.object, r.experiment, r.slipped, r.moment_of_slip) for r in runs)
-    text = json.dumps({"cfg": cfg.to_dict(), "folds": folds, "labels": labels}, sort_keys=True)
+    cfg_text = {"cfg": cfg.to_dict(), "folds": folds, "labels": labels, "code": code_digest()}
+    text = json.dumps(cfg_text, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
