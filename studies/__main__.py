@@ -6,6 +6,8 @@ python -m studies grasp ceiling reports/...      the grasp analyses behind the f
 
 from __future__ import annotations
 
+import time
+
 import typer
 
 from slipsense.cli import common
@@ -26,7 +28,13 @@ app.add_typer(stnet_group, name="stnet")
 
 def main() -> None:
     common.PROG = "python -m studies"  # reports name the command that made them
-    app()
+    started = time.time()
+    try:
+        app()
+    except SystemExit as done:
+        if done.code in (0, None):
+            common.record_provenance(started)  # every study writes a report folder
+        raise
 
 
 if __name__ == "__main__":
