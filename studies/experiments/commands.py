@@ -206,13 +206,15 @@ def video_compare_cmd(
         None, help="start the 3D ResNet-50 from these weights (.safetensors/.pt; pytorchvideo names accepted)"
     ),
     inference_clips: int = typer.Option(50, help="held-out clips timed at batch 1"),
+    models: str = typer.Option("vivit,resnet3d50", help="the models compared: vivit, resnet3d50 or both"),
 ):
     """ViViT vs 3D ResNet-50 (ViViT paper III-B): parameters, training time, inference rate, held-out scores."""
     from studies.experiments.video_compare import run_video_compare
 
-    return run_video_compare(settings, _source(kw), resnet_weights=resnet_weights, inference_clips=inference_clips)[
-        "paths"
-    ]
+    chosen = [m.strip() for m in models.split(",") if m.strip()]
+    return run_video_compare(
+        settings, _source(kw), resnet_weights=resnet_weights, inference_clips=inference_clips, models=chosen
+    )["paths"]
 
 
 @_experiment("frames")

@@ -229,6 +229,14 @@ def test_video_compare(tmp_path, source):
     assert read_csv(tmp_path / "curves.csv")[0][:3] == ["model", "epoch", "lr"]
 
 
+def test_video_compare_of_one_model_trains_that_one_and_refuses_others(tmp_path, source):
+    res = run_video_compare(tiny(tmp_path), source, inference_clips=3, models=["vivit"])
+    assert [r["model"] for r in res["rows"]] == ["vivit"]
+    assert not (tmp_path / "runs" / "resnet3d50").exists()
+    with pytest.raises(ConfigError, match="--models takes vivit and/or resnet3d50, got resnet"):
+        run_video_compare(tiny(tmp_path / "x"), source, models=["resnet"])
+
+
 def test_frames_curves(tmp_path, source):
     cols = [
         "frames",
