@@ -4,7 +4,7 @@ one-finger detector (one camera per push), the paper's ViViT detector and, where
 ``gelsight-lift`` grasps are there, that GelSight's shipped detector (shear retention) on its 480 x 640
 frames.
 
-    .venv/bin/python bench/bench_detector.py --threads 1 --out reports/bench/detector.md
+    .venv/bin/python bench/bench_detector.py --threads 1 --out bench/results/detector.md
 
 What is timed: ``SlipDetector.from_checkpoint(path, sensors=2).push(left, right)`` (``push(left)`` for
 the one-finger detector) on the 240 x 320

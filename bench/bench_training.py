@@ -1,6 +1,6 @@
 """Training throughput, where the time goes, and the compute bound; replay speed; wall times.
 
-    .venv/bin/python bench/bench_training.py --out reports/bench/training.md
+    .venv/bin/python bench/bench_training.py --out bench/results/training.md
     .venv/bin/python bench/bench_training.py --wall main,fold --reference 1e1faa0 --out ...   # + commands
 
 What is measured, on one thread, on the shared recordings (fold 0's training objects):

@@ -176,15 +176,17 @@ BENCH_SCRIPTS = {
 
 
 def _live_and_speed_section(reports: Path, out: Path) -> list[str]:
-    """Links to the early-warning replays (``python -m studies grasp early-warning``) and the benchmark reports under
-    ``reports`` (``bench/<machine>/<name>.md``), for the end of the results page."""
+    """Links to the early-warning replays (``python -m studies grasp early-warning``) and the benchmark reports
+    beside ``reports`` (``bench/results/<machine>/<name>.md``: timings of this machine, not pipeline stages),
+    for the end of the results page."""
     lines = ["## Live detection and speed", ""]
     warnings = sorted(p.parent for p in reports.rglob("early_warning.json"))
-    bench = sorted(p for p in reports.rglob("*.md") if "bench" in p.relative_to(reports).parts)
+    bench_root = reports.parent / "bench" / "results"
+    bench = sorted(bench_root.rglob("*.md")) if bench_root.is_dir() else []
     if not warnings and not bench:
         return lines + [
             "No early-warning replay or benchmark report yet: `slipsense early-warning --checkpoint CKPT --recordings DIR --out "
-            "reports/early-warning` and `python bench/bench_*.py --out reports/bench/MACHINE/NAME.md`.",
+            "reports/early-warning` and `python bench/bench_*.py --out bench/results/MACHINE/NAME.md`.",
             "",
         ]
     for folder in warnings:
@@ -215,7 +217,7 @@ def _live_and_speed_section(reports: Path, out: Path) -> list[str]:
         for md in bench:
             rel = Path(os.path.relpath(md, out.parent)).as_posix()
             script = BENCH_SCRIPTS.get(md.stem.split("-")[0], "bench/")
-            lines.append(f"| [`{md.relative_to(reports).as_posix()}`]({rel}) | `python {script}` |")
+            lines.append(f"| [`{md.relative_to(bench_root.parent).as_posix()}`]({rel}) | `python {script}` |")
         lines.append("")
     return lines
 
@@ -223,7 +225,7 @@ def _live_and_speed_section(reports: Path, out: Path) -> list[str]:
 def _written_reports_section(reports: Path, out: Path) -> list[str]:
     """Links to reports written by hand around a few commands (a folder under ``reports`` holding a
     ``README.md`` whose first line is its title and which names its commands), for the end of the page."""
-    readmes = sorted(p for p in reports.rglob("README.md") if "bench" not in p.relative_to(reports).parts)
+    readmes = sorted(reports.rglob("README.md"))
     if not readmes:
         return []
     lines = [

@@ -467,17 +467,17 @@ def test_results_collects_latest_reports(tmp_path):
 def test_results_link_benchmarks_and_early_warning(tmp_path):
     reports, out = tmp_path / "reports", tmp_path / "docs" / "results.md"
     assert "No early-warning replay or benchmark report yet" in collect_results(reports, out).read_text()
-    (reports / "bench" / "avx2").mkdir(parents=True)
-    (reports / "bench" / "avx2" / "stream-1thread.md").write_text("# Streaming\n")
+    (tmp_path / "bench" / "results" / "avx2").mkdir(parents=True)
+    (tmp_path / "bench" / "results" / "avx2" / "stream-1thread.md").write_text("# Streaming\n")
     warn = reports / "early-warning-fold0"
-    warn.mkdir()
+    warn.mkdir(parents=True)
     (warn / "early_warning.json").write_text(
         json.dumps({"checkpoint": "/somewhere/last.safetensors", "model": "vivit", "recordings": "/data/gelsight-slip"})
     )
     (warn / "early_warning.png").write_bytes(b"png")
     text = collect_results(reports, out).read_text()
     assert (
-        "| [`bench/avx2/stream-1thread.md`](../reports/bench/avx2/stream-1thread.md) | `python bench/bench_stream.py` |"
+        "| [`results/avx2/stream-1thread.md`](../bench/results/avx2/stream-1thread.md) | `python bench/bench_stream.py` |"
         in text
     )
     assert "![early warning](../reports/early-warning-fold0/early_warning.png)" in text
