@@ -86,13 +86,12 @@ _GRASP_ROWS = (
     ("`motionnet` (shipped), both fingers", "reports/grasp-motionnet-k5"),
     ("`motionnet-gelsight-1` recipe, one finger (each camera a grasp)", "reports/grasp-motionnet-1sensor-k5"),
     ("`motion-energy` (non-learned baseline)", "reports/grasp-motion-energy"),
-    ("`motionnet` recipe rerun by the code of one judge (2026-11-28)", "reports/grasp-motionnet-k5-judge"),
 )
 
 _SEED_ROWS = (
-    ("seed 0", "reports/grasp-motionnet-fast"),
-    ("seed 1", "reports/grasp-motionnet-seeds/seed1"),
-    ("seed 2", "reports/grasp-motionnet-seeds/seed2"),
+    ("seed 0", "reports/grasp-motionnet-k5"),
+    ("seed 1", "reports/grasp-motionnet-seed1"),
+    ("seed 2", "reports/grasp-motionnet-seed2"),
 )
 
 
@@ -118,6 +117,15 @@ def _per_hour(p: dict, sentence: bool = False) -> str:
     v, (lo, hi) = h["per_hour"]["value"], h["per_hour"]["interval"]
     text = f"{v:.0f} ({lo:.0f}-{hi:.0f})" if lo is not None else f"{v:.0f}"
     return f"; false alarms per hour of holding: {text}" if sentence else text
+
+
+def _holding(p: dict) -> str:
+    """False alarms per hour of holding in a sentence, with the contact it rests on."""
+    h = p["per_hour"]
+    return (
+        f"false alarms per hour of holding: {_per_hour(p)}, {h['false_alarms']} in "
+        f"{60 * h['hours']:.1f} minutes of contact"
+    )
 
 
 def _rule(p: dict) -> str:
@@ -237,9 +245,9 @@ def adaptation(root: Path) -> str:
 
 
 _STNET_SIM = (
-    ("seed 0", "reports/stnet-sim-24seq"),
-    ("seed 1", "reports/stnet-sim-24seq-seed1"),
-    ("seed 2", "reports/stnet-sim-24seq-seed2"),
+    ("seed 0", "reports/stnet-sim-seed0"),
+    ("seed 1", "reports/stnet-sim-seed1"),
+    ("seed 2", "reports/stnet-sim-seed2"),
 )
 
 
@@ -270,14 +278,16 @@ def _frac(text: str) -> tuple[int, int]:
 def stnet_real(root: Path) -> str:
     totals: dict[str, list[int]] = {}
     for k in range(5):
-        for r in _csv(root, f"reports/stnet-real-grid/fold{k}/stnet.csv"):
+        for r in _csv(root, f"reports/stnet-real/fold{k}/stnet.csv"):
             w, ws = _frac(r["warned_in_time"])
             f, fs = _frac(r["false_positive_grasps"])
             t = totals.setdefault(r["model"], [0, 0, 0, 0, 0])
             for i, v in enumerate((w, ws, int(r["premature"]), f, fs)):
                 t[i] += v
     rows = [[m, _count(t[0], t[1]), str(t[2]), _count(t[3], t[4])] for m, t in totals.items()]
-    note = "Every tracked marker on a 7 x 9 grid, 5 folds by object, per grasp; report `reports/stnet-real-grid`.\n\n"
+    note = (
+        "Every tracked marker on a 7 x 9 grid, 5 folds by object, per grasp; reports `reports/stnet-real/fold0..4`.\n\n"
+    )
     return note + _table(
         ["model", "slips warned in time", "premature", "false-positive grasps"], rows, ["---", "---:", "---:", "---:"]
     )
@@ -301,16 +311,15 @@ def readme(root: Path) -> str:
         for r in ("grasp-motionnet-k5", "grasp-motionnet-1sensor-k5", "grasp-motion-energy")
     )
     k5, one, base = pk5["grasp"], pone["grasp"], pbase["grasp"]
-    judged = _pooled(root, "reports/grasp-motionnet-k5-judge")
     lift = {r["row"]: r for r in _json(root, "reports/adaptation/adaptation.json")["rows"]}
     shear = next(v for k, v in lift.items() if k.startswith("shear retention"))
-    sim = {r["model"]: r for r in _csv(root, "reports/stnet-sim-24seq/stnet.csv")}
+    sim = {r["model"]: r for r in _csv(root, "reports/stnet-sim-seed0/stnet.csv")}
     rows = [
         [
             "GelSight Mini, both fingers, unseen objects",
             "`motionnet` (shipped)",
             f"warns of {_count(k5['warned'], k5['slip_runs'])} slips in time (median lead {_lead(k5)}), "
-            f"{k5['premature']} too early{_per_hour(pk5, True)}. Its promise: {_promise('motionnet-gelsight')}",
+            f"{k5['premature']} too early; {_holding(pk5)}. Its promise: {_promise('motionnet-gelsight')}",
             "`reports/grasp-motionnet-k5`",
         ],
         [
@@ -319,15 +328,6 @@ def readme(root: Path) -> str:
             f"{_count(one['warned'], one['slip_runs'])} camera-slips in time, {one['premature']} too early"
             f"{_per_hour(pone, True)}. Its promise: {_promise('motionnet-gelsight-1')}",
             "`reports/grasp-motionnet-1sensor-k5`",
-        ],
-        [
-            "the same, how often a held grasp alarms",
-            "`motionnet` recipe, rerun",
-            f"false alarms per hour of holding: {_per_hour(judged)}: "
-            f"{judged['per_hour']['false_alarms']} in {60 * judged['per_hour']['hours']:.1f} minutes of contact "
-            f"(the recipe's folds rerun by today's code: {_count(judged['grasp']['warned'], judged['grasp']['slip_runs'])} "
-            "slips in time)",
-            "`reports/grasp-motionnet-k5-judge`",
         ],
         [
             "the same, non-learned baseline",
@@ -348,7 +348,7 @@ def readme(root: Path) -> str:
             "`stnet` (compact)",
             f"precision {_pct(float(sim['stnet']['precision']))}, recall {_pct(float(sim['stnet']['recall']))}, "
             f"F1 {_pct(float(sim['stnet']['f1']))}",
-            "`reports/stnet-sim-24seq`",
+            "`reports/stnet-sim-seed0`",
         ],
     ]
     return _table(
@@ -582,7 +582,7 @@ FIGURES: dict[str, Figure] = {
             "reports/grasp-motionnet-1sensor-k5",
             "reports/grasp-motion-energy",
             "reports/adaptation",
-            "reports/stnet-sim-24seq",
+            "reports/stnet-sim-seed0",
         ),
         readme,
     ),
@@ -591,7 +591,7 @@ FIGURES: dict[str, Figure] = {
     "precursors": Figure(("reports/precursors",), precursors),
     "adaptation": Figure(("reports/adaptation",), adaptation),
     "stnet-sim": Figure(tuple(r for _, r in _STNET_SIM), stnet_sim),
-    "stnet-real": Figure(("reports/stnet-real-grid",), stnet_real),
+    "stnet-real": Figure(tuple(f"reports/stnet-real/fold{k}" for k in range(5)), stnet_real),
     "rates": Figure(("reports/rates",), rates),
     "ros": Figure(("reports/ros",), ros),
     "looks": Figure(("reports/looks",), looks),
@@ -624,6 +624,18 @@ def _render(page: Path, root: Path, problems: list[str]) -> str:
         if figure is None:
             problems.append(f"{rel}: figures:{name} is not a known figure (studies/pages.py FIGURES)")
             return m.group(0)
+        missing = [r for r in figure.reports if not (root / r).exists()]
+        if missing:
+            unknown = [r for r in missing if not _a_stage_writes(root, r)]
+            if unknown:
+                problems.append(
+                    f"{rel}: figures:{name}: no report {', '.join(unknown)}, and no stage of dvc.yaml writes it"
+                )
+                return m.group(0)
+            new = _pending(missing)
+            if new != m.group("body"):
+                problems.append(f"{rel}: figures:{name} does not say that {', '.join(missing)} is still to be made")
+            return f"<!-- figures:{name} -->\n{new}<!-- /figures:{name} -->"
         try:
             new = figure.write(root)
         except (OSError, KeyError, ValueError, StopIteration) as e:
@@ -634,6 +646,23 @@ def _render(page: Path, root: Path, problems: list[str]) -> str:
         return f"<!-- figures:{name} -->\n{new}<!-- /figures:{name} -->"
 
     return _BLOCK.sub(body, text)
+
+
+def _a_stage_writes(root: Path, report: str) -> bool:
+    """Whether a stage of the DVC pipeline (``dvc.yaml``) has ``report`` as its output (a ``${item}``
+    of a ``foreach`` stage stands for any value)."""
+    try:
+        text = (root / "dvc.yaml").read_text(encoding="utf-8")
+    except OSError:
+        return False
+    outs = re.findall(r"^\s+- (reports/\S+):\s*$", text, re.M)
+    return any(re.fullmatch(re.escape(o).replace(re.escape("${item}"), r"[\w.-]+"), report) for o in outs)
+
+
+def _pending(missing: list[str]) -> str:
+    """The block of a figure whose reports today's code has not made yet: what makes them."""
+    names = ", ".join(f"`{r}`" for r in missing)
+    return f"*Not measured by today's code yet: `dvc repro` (dvc.yaml) writes {names}.*\n"
 
 
 def check(root: str | Path = ROOT) -> list[str]:
