@@ -36,10 +36,17 @@ def test_every_figure_is_on_some_page():
 def copy(tmp_path: Path) -> Path:
     """README, docs and the reports the figures read, copied to a temporary project."""
     shutil.copy(ROOT / "README.md", tmp_path / "README.md")
+    shutil.copy(ROOT / "dvc.yaml", tmp_path / "dvc.yaml")
     shutil.copytree(ROOT / "docs", tmp_path / "docs")
-    for figure in pages.FIGURES.values():
-        for report in figure.reports:
-            shutil.copytree(ROOT / report, tmp_path / report, dirs_exist_ok=True)
+    (tmp_path / "studies").mkdir()
+    shutil.copy(ROOT / "studies" / "README.md", tmp_path / "studies" / "README.md")
+    for stage in pages.pipeline_stages(ROOT):
+        for report in stage["outs"]:
+            if (ROOT / report).is_dir():
+                shutil.copytree(ROOT / report, tmp_path / report, dirs_exist_ok=True)
+            elif (ROOT / report).is_file():
+                (tmp_path / report).parent.mkdir(parents=True, exist_ok=True)
+                shutil.copy(ROOT / report, tmp_path / report)
     assert pages.check(tmp_path) == []
     return tmp_path
 
@@ -83,8 +90,20 @@ def test_unknown_unclosed_and_unreadable_blocks_are_named(copy: Path):
         "<!-- figures:nothing -->\nx\n<!-- /figures:nothing -->\n<!-- figures:precursors -->\nopen\n",
         encoding="utf-8",
     )
-    shutil.rmtree(copy / "reports/precursors")
+    (copy / "reports/precursors/precursors.json").write_text("{}", encoding="utf-8")
     problems = pages.check(copy)
     assert "docs/planted.md: figures:nothing is not a known figure (studies/pages.py FIGURES)" in problems
     assert any(p.startswith("docs/planted.md: figures:precursors has no matching") for p in problems)
     assert any("figures:precursors: its report cannot be read" in p for p in problems)
+
+
+def test_a_report_not_made_yet_is_said_so_and_one_no_stage_makes_is_an_error(copy: Path):
+    shutil.rmtree(copy / "reports/precursors")
+    problems = pages.check(copy)
+    assert any("figures:precursors does not say that reports/precursors is still to be made" in p for p in problems)
+    pages.write(copy)
+    assert pages.check(copy) == []
+    assert "`dvc repro` (dvc.yaml) writes `reports/precursors`" in (copy / "docs/detector.md").read_text()
+    dvc = copy / "dvc.yaml"
+    dvc.write_text(dvc.read_text().replace("reports/precursors", "reports/elsewhere"), encoding="utf-8")
+    assert any("no report reports/precursors, and no stage of dvc.yaml writes it" in p for p in pages.check(copy))
