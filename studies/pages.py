@@ -628,7 +628,10 @@ def pipeline_stages(root: Path) -> list[dict[str, Any]]:
     stages = []
     for name, body in doc["stages"].items():
         if "foreach" in body:
-            stages += [one(f"{name}@{item}", body["do"], item) for item in body["foreach"]]
+            items = body["foreach"]
+            if isinstance(items, str):  # "${folds}": a list of the file's vars
+                items = values[items.strip("${}")]
+            stages += [one(f"{name}@{item}", body["do"], item) for item in items]
         else:
             stages.append(one(name, body))
     return stages
