@@ -598,6 +598,9 @@ def adapt_derived(root: Path) -> str:
     what it keeps; and the learning curve of the lift sensor's kept family."""
     parts = []
     for title, report in ADAPT_REPORTS:
+        if not (root / report).exists():
+            parts.append(f"**{title}**: {_NOT_YET} (`{report}`).\n")
+            continue
         doc = _json(root, f"{report}/adapt.json")
         g = doc["kept"]["measure"] if doc.get("kept") else doc["candidates"][0]["measure"]
         parts.append(
@@ -682,7 +685,7 @@ FIGURES: dict[str, Figure] = {
     "rates": Figure(("reports/rates",), rates),
     "ros": Figure(("reports/ros",), ros),
     "looks": Figure(("reports/looks",), looks),
-    "adapt": Figure(tuple(r for _, r in ADAPT_REPORTS), adapt_derived),
+    "adapt": Figure(tuple(r for _, r in ADAPT_REPORTS), adapt_derived, rows_pending=True),
     "rates-folds": Figure(("reports/rates-folds",), rates_folds),
     "looks-folds": Figure(("reports/looks-folds",), lambda root: looks(root, "reports/looks-folds")),
     "stages": Figure(("dvc.yaml",), stages),
