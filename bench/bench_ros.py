@@ -30,6 +30,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from slipsense.paths import gelsight_recordings  # noqa: E402
+from slipsense.provenance import write_provenance  # noqa: E402
 from slipsense.recordings.video import read_video  # noqa: E402
 from slipsense.ros_node import READING_TOPIC  # noqa: E402
 
@@ -104,6 +105,7 @@ def main(argv=None) -> int:
         "--out", type=Path, default=None, help="report folder: README.md (the table, how it was made), ros.json"
     )
     args = ap.parse_args(argv)
+    started = time.time()
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     os.environ.setdefault("ROS_DOMAIN_ID", str(random.randint(1, 100)))
     runs = sorted(p for p in gelsight_recordings().glob("*/exp_num_*") if (p / "camera_2.avi").is_file())
@@ -139,6 +141,7 @@ def main(argv=None) -> int:
             f"{os.cpu_count()} cores, {datetime.date.today().isoformat()}; backend {args.backend}.\n\n"
             f"{table}\n\n{lost}.\n"
         )
+        write_provenance(args.out, command, started, time.time())  # last: the report is whole
     return 0
 
 
