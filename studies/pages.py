@@ -653,6 +653,10 @@ def pipeline_stages(root: Path) -> list[dict[str, Any]]:
 def stages(root: Path) -> str:
     """studies/README.md's table of the pipeline: every stage, its report, the command that writes the
     report and how long that command took on the machine its provenance names."""
+    import yaml
+
+    lock_path = root / "dvc.lock"
+    ran = yaml.safe_load(lock_path.read_text(encoding="utf-8")).get("stages", {}) if lock_path.is_file() else {}
     rows = []
     for stage in pipeline_stages(root):
         made = [root / o / "provenance.json" for o in stage["outs"] if (root / o / "provenance.json").is_file()]
@@ -660,6 +664,8 @@ def stages(root: Path) -> str:
         when = (
             "; ".join(f"{p['seconds']:.0f} s at `{p['commit']}`, {p['machine'].split(', ')[-1]}" for p in prov)
             if prov
+            else "made by `dvc repro` (a page: no time recorded)"
+            if stage["name"] in ran
             else "not yet made by today's code"
         )
         steps = len(stage["cmd"])
@@ -671,7 +677,12 @@ def stages(root: Path) -> str:
                 when,
             ]
         )
-    return _table(["stage", "report", "command", "the report's command took"], rows, ["---", "---", "---", "---"])
+    table = _table(["stage", "report", "command", "the report's command took"], rows, ["---", "---", "---", "---"])
+    cited = [root / r / "provenance.json" for r, _, _ in _README_ROWS]
+    if all(p.is_file() for p in cited):
+        total = sum(json.loads(p.read_text(encoding="utf-8"))["seconds"] for p in cited)
+        table += f"\nThe {len(cited)} stages the README's table cites took {total / 60:.0f} minutes together.\n"
+    return table
 
 
 FIGURES: dict[str, Figure] = {
