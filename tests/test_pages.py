@@ -37,6 +37,7 @@ def copy(tmp_path: Path) -> Path:
     """README, docs and the reports the figures read, copied to a temporary project."""
     shutil.copy(ROOT / "README.md", tmp_path / "README.md")
     shutil.copy(ROOT / "dvc.yaml", tmp_path / "dvc.yaml")
+    shutil.copy(ROOT / "dvc.lock", tmp_path / "dvc.lock")
     shutil.copytree(ROOT / "docs", tmp_path / "docs")
     (tmp_path / "studies").mkdir()
     shutil.copy(ROOT / "studies" / "README.md", tmp_path / "studies" / "README.md")
