@@ -258,12 +258,13 @@ class ShearRetention(GraspModel):
     def tracked(self, gray: Tensor) -> Tensor:
         """``(B, S, N, h, w)`` -> every cell's shift from the first frame ``(B, N, S, C)``, pixels.
 
-        Outside gradient training the shifts of frames seen before are looked up, not tracked again:
-        they depend on the frames and the tracking settings only, not on ``gate``, ``letgo`` or the
-        logit, so choosing those on a user's grasps (``recipe["choose"]``: 16 pairs) tracks each grasp
-        once, not 16 times. Never while an export traces the model: a looked-up shift would be baked
-        into the graph as a constant of that input's frame count."""
-        if torch.is_grad_enabled() or torch.jit.is_tracing() or torch.onnx.is_in_onnx_export():
+        The shifts of frames seen before are looked up, not tracked again: they depend on the frames
+        and the tracking settings only, not on ``gate``, ``letgo`` or the logit (no gradient flows
+        into them), so choosing those on a user's grasps (``recipe["choose"]``: 16 pairs) tracks each
+        grasp once, not 16 times, and gradient training tracks each run once, not once per epoch.
+        Never while an export traces the model: a looked-up shift would be baked into the graph as a
+        constant of that input's frame count."""
+        if torch.jit.is_tracing() or torch.onnx.is_in_onnx_export():
             return self._track(gray)
         data = gray.detach().contiguous().cpu().numpy()  # keyed by its shape, dtype and a digest of its bytes
         values = (tuple(data.shape), str(data.dtype), hashlib.blake2b(data.tobytes(), digest_size=16).hexdigest())
