@@ -207,9 +207,12 @@ def run_jobs(
                         results[i] = fut.result()  # a worker's error is raised here
                         on_done(i, results[i])
             except BaseException:
+                # the workers, taken before shutdown: it forgets them (``_processes = None``), and a
+                # kill loop run after it found none, so a Ctrl-C waited for the jobs under way
+                procs = list((getattr(pool, "_processes", None) or {}).values())
                 pool.shutdown(wait=False, cancel_futures=True)
                 # kill the workers now (their jobs are not wanted): else leaving the pool waits for them
-                for proc in list((getattr(pool, "_processes", None) or {}).values()):
+                for proc in procs:
                     if proc.is_alive():
                         proc.kill()
                 raise

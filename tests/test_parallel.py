@@ -42,3 +42,62 @@ def test_workers_forked_beside_a_dropped_onnx_detector_finish(tmp_path):
     done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=60)
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip().endswith("[10, 20, 30, 40]")
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="reads /proc")
+@pytest.mark.parametrize("after_s", [0.0, 1.5])
+def test_ctrl_c_ends_jobs_under_way_at_once(tmp_path, after_s):
+    """Ctrl-C (SIGINT to the process group) while workers run long jobs: run_jobs raises
+    KeyboardInterrupt within 3 s and no worker is left, at once and with the jobs well under way
+    (the workers used to be looked up after the pool had forgotten them: each ran its job to the end)."""
+    import os
+    import signal
+    import time
+
+    script = tmp_path / "long.py"
+    script.write_text(
+        textwrap.dedent(
+            """
+            import sys, time
+            from slipsense.parallel import run_jobs
+
+            def job(shared, seconds, tick):
+                time.sleep(seconds)
+
+            if __name__ == "__main__":
+                try:
+                    run_jobs(job, [60.0] * 4, None, workers=2, progress=False)
+                except KeyboardInterrupt:
+                    print("interrupted", flush=True)
+                    sys.exit(130)
+            """
+        )
+    )
+    proc = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, text=True, start_new_session=True)
+    deadline = time.monotonic() + 60
+    kids: set[int] = set()
+    while not kids and time.monotonic() < deadline:
+        kids = {int(p) for p in _children(proc.pid)}
+        time.sleep(0.01)
+    assert kids, "no worker started"
+    time.sleep(after_s)
+    os.killpg(proc.pid, signal.SIGINT)
+    sent = time.monotonic()
+    assert proc.wait(30) == 130 and time.monotonic() - sent < 3.0, time.monotonic() - sent
+    assert proc.stdout.read().strip() == "interrupted"
+    assert not [k for k in kids if os.path.exists(f"/proc/{k}") and _state(k) != "Z"], "workers left behind"
+
+
+def _children(pid: int) -> list[str]:
+    path = f"/proc/{pid}/task/{pid}/children"
+    try:
+        return open(path).read().split()
+    except OSError:
+        return []
+
+
+def _state(pid: int) -> str:
+    try:
+        return open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return "Z"

@@ -173,7 +173,9 @@ def test_sigkill_mid_run_leaves_no_worker_behind(name, commands, tmp_path):
 def test_ctrl_c_ends_everything_with_one_line(name, commands, tmp_path):
     proc, workers = _run_until_workers(commands(tmp_path)[name], _env(tmp_path), tmp_path)
     os.killpg(proc.pid, signal.SIGINT)  # as a terminal does: to the whole foreground group
+    sent = time.monotonic()
     code = proc.wait(30)
+    assert time.monotonic() - sent < 3.0, f"{name}: {time.monotonic() - sent:.1f} s to stop after Ctrl-C"
     text = (tmp_path / "stderr").read_text()  # the command's and its workers' (they share it)
     assert code == 130, (code, text)
     assert "Traceback" not in text and "KeyboardInterrupt" not in text, text
