@@ -4,8 +4,8 @@ One guided path from "the shipped detector never alarms on my sensor" to the bes
 library knows how to make for it, judged the way it will be used: on objects it never saw.
 
 1. **Read the grasps**: how many, of how many objects, slipped or held, cameras per grasp, frame size
-   and rate. Too few to judge anything (:data:`MIN_OBJECTS`, :data:`MIN_EACH`) ends here, saying what
-   to record next.
+   and rate. Too few to judge anything (:data:`MIN_OBJECTS`, :data:`MIN_EACH`,
+   :data:`MIN_OBJECTS_EACH`) ends here, saying what to record next.
 2. **Candidates**, cheap ones first, each judged leave-objects-out (every grasp scored by a detector
    whose threshold, and weights where it learns, never saw that grasp's object):
 
@@ -54,9 +54,12 @@ from slipsense.progress import progress_bar
 from slipsense.recordings.frame_folders import data_sensor
 
 #: The fewest objects, and the fewest slipped and held grasps, from which a leave-objects-out
-#: judgement says anything (one object out leaves at least two to choose a threshold on).
+#: judgement says anything (one object out leaves at least two to choose a threshold on); and the
+#: fewest objects with slipped grasps and with held ones (one object out still leaves a slip to learn
+#: from and a held grasp to set the threshold on).
 MIN_OBJECTS = 3
 MIN_EACH = 3
+MIN_OBJECTS_EACH = 2
 #: A kept detector's nested balanced accuracy below this is no detector: nothing is kept.
 USEFUL = 0.6
 #: Inner object folds on which every family's operating point is chosen (its threshold, and the settings
@@ -208,6 +211,10 @@ def _too_few(slipped: np.ndarray, objects: np.ndarray) -> str | None:
         missing.append(f"{MIN_EACH - n_slip} more grasp(s) that slipped")
     if n_held < MIN_EACH:
         missing.append(f"{MIN_EACH - n_held} more grasp(s) that held")
+    for kind, mask in (("slipped", slipped), ("held", ~slipped)):
+        n_with = len(set(objects[mask]))
+        if n_with < MIN_OBJECTS_EACH:
+            missing.append(f"{kind} grasps of {MIN_OBJECTS_EACH - n_with} more object(s)")
     if not missing:
         return None
     return (

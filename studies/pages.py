@@ -119,6 +119,9 @@ def _per_hour(p: dict, sentence: bool = False) -> str:
         return "" if sentence else "-"
     v, (lo, hi) = h["per_hour"]["value"], h["per_hour"]["interval"]
     text = f"{v:.0f} ({lo:.0f}-{hi:.0f})" if lo is not None else f"{v:.0f}"
+    if not h.get("enough", True):  # the measure's own rule: no rate over seconds of contact
+        minutes, least = 60 * h["hours"], h["minimum_minutes"]
+        text = f"not stated ({h['false_alarms']} in {minutes:.1f} minutes of contact, under {least:g})"
     return f"; false alarms per hour of holding: {text}" if sentence else text
 
 

@@ -220,3 +220,47 @@ def test_two_finger_frames_of_the_shared_grasps_get_the_two_finger_detector_and_
     else:
         assert advice[0].startswith(("nothing is kept", "keep using the shipped detector"))
     assert " or " not in " ".join(advice)
+
+
+def _grasps_of(root, kinds: dict[str, tuple[bool, ...]]):
+    """Frame-folder grasps in the gelsight-lift layout: ``{object: (slipped?, ...)}``."""
+    from tests.test_frame_folders import _grasp
+
+    for i, (obj, slips) in enumerate(kinds.items()):
+        lines = []
+        for g, slipped in enumerate(slips):
+            name = f"06{g}_{i}0"
+            _grasp(root / obj / f"{name}_mm", slipped, seed=10 * i + g)
+            lines.append(f"6{g}.{i} {'fail 0' if slipped else 'ok 1'} 100 300 200 {name} _s09_")
+        (root / f"{obj}_result.dat").write_text("\n".join(lines))
+    return root
+
+
+def test_adapt_at_its_minimum_with_objects_that_only_slipped_or_only_held(tmp_path, cache, one_thread):
+    """3 objects, one with 3 slipped and 3 held grasps, one that only held, one that only slipped:
+    at the documented minimum, every fold trains (inner folds that would train on no slip choose the
+    operating point on the training runs themselves, and say so); adapt ends with its table."""
+    root = _grasps_of(
+        tmp_path / "set", {"object000": (True, False) * 3, "object001": (False,) * 3, "object002": (True,) * 3}
+    )
+    out = tmp_path / "mine"
+    args = ["adapt", "--recordings", str(root), "--out", str(out), "--epochs", "1", "--folds", "3", "--no-progress"]
+    res = runner.invoke(app, args)
+    assert res.exit_code == 0, res.output
+    assert "your grasps: 12 (6 slipped, 6 held) of 3 objects" in res.output
+    assert "hold no slip" not in res.output
+    doc = json.loads((out / "adapt.json").read_text())
+    assert all(c["measure"]["grasps"] == 12 for c in doc["candidates"])
+
+
+def test_adapt_refuses_when_one_object_alone_slipped(tmp_path, cache):
+    """3 slipped and 6 held grasps of 3 objects, but every slip on one object: leaving it out leaves
+    nothing to learn a slip from. Said in a true sentence, no detector written."""
+    root = _grasps_of(
+        tmp_path / "set", {"object000": (True,) * 3, "object001": (False,) * 3, "object002": (False,) * 3}
+    )
+    out = tmp_path / "mine"
+    res = runner.invoke(app, ["adapt", "--recordings", str(root), "--out", str(out), "--no-progress"])
+    assert res.exit_code == 0, res.output
+    assert "too few" in res.output and "slipped grasps of 1 more object" in res.output, res.output
+    assert not (out / "detector.safetensors").exists()

@@ -56,6 +56,25 @@ def test_false_alarms_per_hour_always_off_is_zero_and_always_on_is_one_per_held_
     assert lo <= on["per_hour"]["value"] <= hi
 
 
+def test_a_rate_over_seconds_of_contact_is_not_stated_and_says_why():
+    """8 grasps of 20 s: under 10 minutes of contact, one alarm is no rate per hour; 40 grasps of 20 s
+    (13 minutes) state it."""
+    from slipsense.measures.holding import MIN_MINUTES, words
+
+    def once(r):
+        a = np.zeros(r.n_frames, bool)
+        a[100] = not r.slipped and r.object == "o0"
+        return a
+
+    few = false_alarms_per_hour(_judged(_with(_grasps(), once)))
+    assert few["false_alarms"] == 1 and few["enough"] is False and few["minimum_minutes"] == MIN_MINUTES
+    (line,) = words(few)
+    assert "not stated" in line and f"at least {MIN_MINUTES:g} minutes" in line
+    assert f"{few['per_hour']['value']:.0f}" not in line.split("over")[0]  # no rate before the counts
+    many = false_alarms_per_hour(_judged(_with([r for _ in range(5) for r in _grasps()], once)))
+    assert many["enough"] is True and "not stated" not in words(many)[0]
+
+
 def test_a_detector_that_warns_only_in_the_horizon_raises_no_false_alarm():
     def in_time(r):
         a = np.zeros(r.n_frames, bool)
@@ -83,7 +102,7 @@ def test_the_measure_is_in_the_json_and_the_summary_of_evaluate(tmp_path, cache,
     assert res.exit_code == 0, res.output
     doc = json.loads(out.read_text())
     fa = doc["false_alarms_per_hour"]
-    assert set(fa) == {"false_alarms", "hours", "grasps", "per_hour"} and fa["hours"] > 0
+    assert set(fa) == {"false_alarms", "hours", "grasps", "per_hour", "enough", "minimum_minutes"} and fa["hours"] > 0
     assert "False alarms per hour of holding" in res.stdout
 
 

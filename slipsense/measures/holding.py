@@ -15,6 +15,10 @@ Divided by the hours of contact of those frames (frames in contact at the run's 
 interval comes from a bootstrap over objects (ratio of sums), as in
 :mod:`slipsense.measures.slipped_or_held`. A detector always off scores 0; one always on, one onset
 per grasp with a held part.
+
+A rate over seconds of contact means nothing (one alarm in 6 s of holding is "600 an hour"): below
+:data:`MIN_MINUTES` of contact the sentence gives the count and the minutes, and says why no rate
+(the JSON keeps the value, with ``"enough": false`` and the ``"minimum_minutes"``).
 """
 
 from __future__ import annotations
@@ -27,6 +31,10 @@ import numpy as np
 from slipsense.alarm import alarm_trace, hold_frames, onsets
 from slipsense.measures.registry import Judged, plural, register
 from slipsense.measures.slipped_or_held import BOOTSTRAP, object_interval
+
+#: The fewest minutes of contact on which a rate per hour is stated (at 10 minutes, no alarm at all
+#: still leaves up to 18 an hour possible: Poisson, 95%).
+MIN_MINUTES = 10.0
 
 
 def held_part(run: Any, horizon: int, startup: int) -> tuple[int, int] | None:
@@ -64,6 +72,13 @@ def words(result: Mapping[str, Any], context: Mapping[str, Any] | None = None) -
     v, (lo, hi) = result["per_hour"]["value"], result["per_hour"]["interval"]
     if v is None or math.isnan(v):
         return ["False alarms per hour of holding: no held grasp in contact to count them on."]
+    minutes = 60 * result["hours"]
+    if minutes < MIN_MINUTES:
+        return [
+            f"False alarms per hour of holding: not stated: {plural(result['false_alarms'], 'alarm')} raised over "
+            f"{minutes:.1f} minutes of contact while {result['grasps']} grasps held (before any slip); a rate needs "
+            f"at least {MIN_MINUTES:g} minutes of contact."
+        ]
     span = "" if lo is None or math.isnan(lo) else f" (95% range {lo:.0f}-{hi:.0f}, objects drawn again at random)"
     return [
         f"False alarms per hour of holding: {v:.0f}{span}: {plural(result['false_alarms'], 'alarm')} raised "
@@ -73,8 +88,9 @@ def words(result: Mapping[str, Any], context: Mapping[str, Any] | None = None) -
 
 @register("false_alarms_per_hour", words)
 def false_alarms_per_hour(judged: Judged, draws: int = BOOTSTRAP, seed: int = 0) -> dict[str, Any]:
-    """``{"false_alarms", "hours", "grasps", "per_hour": {"value", "interval"}}``: alarm onsets on the
-    held part of every grasp per hour of contact (see the module notes)."""
+    """``{"false_alarms", "hours", "grasps", "per_hour": {"value", "interval"}, "enough"}``: alarm onsets
+    on the held part of every grasp per hour of contact (see the module notes); ``enough``: at least
+    :data:`MIN_MINUTES` of contact, the basis on which the rate is stated."""
     rows = [
         (r.object, *onsets_and_seconds(r, p, judged.horizon, judged.startup))
         for r, p in zip(judged.runs, judged.points)
@@ -90,4 +106,6 @@ def false_alarms_per_hour(judged: Judged, draws: int = BOOTSTRAP, seed: int = 0)
         "hours": float(seconds.sum() / 3600.0),
         "grasps": len(rows),
         "per_hour": {"value": _per_hour(counts, seconds), "interval": interval},
+        "enough": bool(seconds.sum() >= 60 * MIN_MINUTES),
+        "minimum_minutes": MIN_MINUTES,
     }

@@ -154,7 +154,7 @@ def run_folds(
         _, history, op, probs = finish_training(usable, plans[k], ordered, cfg)
         jobs_kept, results_kept = chosen_part(plans[k], ordered, op)  # of the settings train.choose kept
         test = [usable[i] for i in plans[k][0].predict]
-        inner = [usable[i] for i in judged_indices(usable, jobs_kept)] if cfg.inner_folds else []
+        inner = [usable[i] for i in judged_indices(usable, jobs_kept)] if len(jobs_kept) > 1 else []
         done[k] = {
             "config_key": key,
             "fold": k,

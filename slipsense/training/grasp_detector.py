@@ -96,13 +96,22 @@ def plan_training(runs: Sequence[GraspRun], held: Sequence[str], cfg: GraspTrain
 
     train, tested = split([i for i, r in enumerate(runs) if r.usable], set(held))
     inner = object_split([runs[i] for i in train], cfg.inner_folds, cfg.folds_seed) if cfg.inner_folds else []
-    judge = () if cfg.inner_folds else tuple(i for i in train if not runs[i].extra)
+    if not all(any(_teaches_slip(runs[i]) for i in split(train, objects)[0]) for objects in inner):
+        # an inner fold would train on no slip (its objects hold every slip of the training runs):
+        # the operating point is chosen on the training runs themselves, and says so
+        inner = []
+    judge = () if inner else tuple(i for i in train if not runs[i].extra)
     jobs = []
     for settings in candidates(cfg):
         s = tuple(settings.items())
         jobs += [FitJob(train, tested, True, settings=s, judge=judge)]
         jobs += [FitJob(*split(train, objects), settings=s) for objects in inner]
     return jobs
+
+
+def _teaches_slip(run: GraspRun) -> bool:
+    """A slipped run a detector can learn the slip from: with a known moment, or labelled as a whole."""
+    return run.slipped and (run.moment_of_slip is not None or run.whole)
 
 
 def finish_training(runs: Sequence[GraspRun], jobs: Sequence[FitJob], results: Sequence[dict], cfg: GraspTrainConfig):
@@ -119,8 +128,9 @@ def finish_training(runs: Sequence[GraspRun], jobs: Sequence[FitJob], results: S
         model.load_state_dict(rs[0]["state"])
         model.eval()
         judged = [runs[i] for i in judged_indices(runs, js)]
-        probs = inner_traces(runs, js, rs) if c.inner_folds else rs[0]["judged"]
-        op = _chosen_operating_point(probs, judged, c)
+        inner = len(js) > 1  # the plan's inner folds (none where one would train on no slip)
+        probs = inner_traces(runs, js, rs) if inner else rs[0]["judged"]
+        op = _chosen_operating_point(probs, judged, c, inner)
         rank = (op.get("score_on_training_runs", 0.0), _peak_auc(probs, judged, c.startup))
         tried.append({"settings": settings, "score": rank[0], "roc_auc": rank[1]})
         if best is None or rank > best[0]:
@@ -207,7 +217,9 @@ def held_alarm_of(probs: Sequence[np.ndarray], runs: Sequence[GraspRun], op: dic
     return pergrasp.held_alarm_promise(alarmed, [o for _, o in held])
 
 
-def _chosen_operating_point(probs: Sequence[np.ndarray], runs: Sequence[GraspRun], cfg: GraspTrainConfig) -> dict:
+def _chosen_operating_point(
+    probs: Sequence[np.ndarray], runs: Sequence[GraspRun], cfg: GraspTrainConfig, inner: bool
+) -> dict:
     """The threshold and debounce that best separate ``runs``' slips from their held grasps, and on what.
     Runs labelled as a whole (no moment to warn before) are judged per grasp: the threshold just above
     all but ``max_held_alarm`` (default 5%) of the held grasps' peaks
@@ -231,9 +243,15 @@ def _chosen_operating_point(probs: Sequence[np.ndarray], runs: Sequence[GraspRun
     else:
         moments = [r.moment_of_slip for r in runs]
         op = pergrasp.choose_operating_point(probs, moments, **at, max_held_alarm=cfg.max_held_alarm)
-    op["chosen_on"] = (
-        f"{cfg.inner_folds} inner folds of the training objects" if cfg.inner_folds else "the training runs themselves"
-    )
+    if inner:
+        op["chosen_on"] = f"{cfg.inner_folds} inner folds of the training objects"
+    elif cfg.inner_folds:
+        op["chosen_on"] = (
+            f"the training runs themselves ({cfg.inner_folds} inner folds of the training objects would "
+            "leave one fold no slip to learn from)"
+        )
+    else:
+        op["chosen_on"] = "the training runs themselves"
     op["held_alarm"] = held_alarm_of(probs, runs, op, cfg)
     return op
 
