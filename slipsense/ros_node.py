@@ -173,6 +173,8 @@ class ReadingLoop:
             self.lost[k] += missed
             index = None
             if k == 0:  # the first topic numbers the pairs, the lost ones included
+                if len(self._stamps) < 10:  # the source's rate: stamps as sent, not as judged (some are left out)
+                    self._stamps.append(stamp)
                 self.left_out["lost"] += missed
                 index = self.pairs + missed
                 self.pairs = index + 1
@@ -227,10 +229,11 @@ class ReadingLoop:
         record = reading_record(reading, stamp * 1e-9, latency_ms, frame=index)  # the pair as received
         with self._cond:
             self.judged += 1
-        if not self.rate_told:  # the source's rate, once ten pairs were judged
-            self._stamps.append(stamp)
-            if len(self._stamps) == 10:
-                fps = 1e9 / float(np.median(np.diff(self._stamps)))
+        if not self.rate_told:  # the source's rate, once ten messages of the first topic came
+            with self._cond:
+                stamps = sorted(self._stamps) if len(self._stamps) == 10 else None
+            if stamps is not None:
+                fps = 1e9 / float(np.median(np.diff(stamps)))
                 self.log(
                     f"{', '.join(self.topics)}: {fps:.3g} frames/s (the header stamps); "
                     f"the detector runs at {self.detector.sensor.fps:g} frames/s"

@@ -75,7 +75,26 @@ def test_every_frame_pair_is_judged_or_left_out_by_cause_and_its_number_shows_th
     assert "frame pairs judged 7 of 13, left out 6 (lost 1, unpaired 1, undecodable 1, late 1, behind 2)" in (
         loop.summary()
     )
-    assert len(logged) == 2 and "yuv422" in logged[0] and "backwards" in logged[1]  # one line each
+    faults = [line for line in logged if "frames/s (the header stamps)" not in line]  # the rate: told once
+    assert len(faults) == 2 and "yuv422" in faults[0] and "backwards" in faults[1]  # one line each
+    det.close()
+
+
+def test_the_sources_rate_is_read_from_the_stamps_sent_not_from_the_pairs_judged():
+    """Pairs stamped 40 ms apart, every other one left out while the detector is behind: the log says
+    25 frames/s, the source's rate (it said 12.5, the judged pairs' spacing)."""
+    det = SlipDetector.pretrained(sensors=2, backend="torch")
+    logged = []
+    loop = ReadingLoop(det, ["/l", "/r"], "sensor_msgs/msg/Image", lambda *a: None, logged.append, max_lag_s=0.03)
+    loop.inline = False
+    img = np.random.default_rng(1).integers(0, 255, (240, 320, 3), dtype=np.uint8)
+    for i in range(0, 24, 2):  # two pairs arrive between judgements: the older is left out, behind
+        for j in (i, i + 1):
+            loop.on_message(0, _msg(40_000_000 * j, img)), loop.on_message(1, _msg(40_000_000 * j, img))
+        loop.judge_pending()
+    assert loop.status()["left_out"]["behind"] == 12
+    (rate,) = [line for line in logged if "frames/s (the header stamps)" in line]
+    assert "/l, /r: 25 frames/s (the header stamps)" in rate, rate
     det.close()
 
 
