@@ -258,9 +258,9 @@ def adapt(
     "checkpoint", ...}``.
     """
     root, out = Path(recordings), Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     shipped = shipped_for(root)
     as_is = evaluate(shipped, root, progress=progress)
+    out.mkdir(parents=True, exist_ok=True)  # once the grasps were read: a bad folder leaves no empty --out
     slipped = np.array([r.slipped for r in as_is.runs], bool)
     objects = np.array([r.object for r in as_is.runs])
     sensor = data_sensor(root)

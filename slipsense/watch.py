@@ -37,9 +37,13 @@ def echo(message: str, err: bool = False) -> None:
 
 def checkpoint_or_shipped(path: Optional[Path], sensors: int | None = None) -> Path:
     """The checkpoint given, else the shipped detector for ``sensors`` (one finger or both)."""
-    path = path or shipped_model(default_model_name(sensors))
+    if path is not None:
+        if not Path(path).is_file():
+            raise InputError(path, "checkpoint not found (--checkpoint names a file that is not there)")
+        return Path(path)
+    path = shipped_model(default_model_name(sensors))
     if not Path(path).is_file():
-        raise InputError(path, "checkpoint not found (pass --checkpoint CKPT)")
+        raise InputError(path, "the shipped detector is missing from this installation (reinstall slipsense)")
     return Path(path)
 
 

@@ -215,3 +215,24 @@ MAX_README_LINES = 150
 def test_readme_is_at_most_150_lines():
     lines = README.read_text(encoding="utf-8").splitlines()
     assert len(lines) <= MAX_README_LINES, f"README.md has {len(lines)} lines; at most {MAX_README_LINES}"
+
+
+def test_words_that_said_something_untrue_now_say_what_is_wrong(tmp_path, monkeypatch):
+    """A --checkpoint that is not there is not told to pass --checkpoint; an empty folder names both
+    layouts; an empty grasp folder is called empty, not misnamed; adapt on a bad folder leaves no
+    empty --out behind; the promise says which objects are its units."""
+    monkeypatch.chdir(tmp_path)
+    res = runner.invoke(app, ["watch", str(tmp_path), "--checkpoint", "nope.safetensors", "--max-frames", "1"])
+    assert res.exit_code == 2 and "pass --checkpoint" not in res.output and "nope.safetensors" in res.output
+    (tmp_path / "empty").mkdir()
+    res = runner.invoke(app, ["evaluate", "--recordings", "empty", "--no-progress"])
+    assert res.exit_code == 2 and "camera_*.avi" in res.output and "frame folders" in res.output, res.output
+    (tmp_path / "set" / "object000" / "060_00_mm").mkdir(parents=True)
+    res = runner.invoke(app, ["evaluate", "--recordings", "set", "--no-progress"])
+    assert res.exit_code == 2 and "grasp folder is empty" in res.output and "does not match" not in res.output
+    res = runner.invoke(app, ["adapt", "--recordings", "empty", "--out", "mine", "--no-progress"])
+    assert res.exit_code == 2 and not (tmp_path / "mine").exists()
+    from slipsense.measures.pergrasp import held_alarm_promise, promise_text
+
+    promise = promise_text({"held_alarm": held_alarm_promise([False, True, False], ["a", "b", "b"])})
+    assert "counting each of the 2 objects with held grasps as one unit" in promise

@@ -294,7 +294,8 @@ def promise_text(op: Any) -> str:
         return (
             f"held grasps alarming: {100 * h['rate']:.1f}% ({h['alarming']} of {h['held_grasps']}) on "
             f"{op.get('chosen_on', 'the grasps it was chosen on')}; on new objects at most "
-            f"{100 * h['bound_counting_objects']:.0f}% (95%, counting the {h['held_objects']} objects as the units)"
+            f"{100 * h['bound_counting_objects']:.0f}% (95%, counting each of the {h['held_objects']} objects with held "
+            "grasps as one unit)"
         )
     rate = op.get("false_positive_rate_on_training_runs")
     if isinstance(rate, (int, float)):

@@ -84,7 +84,7 @@ def find_recordings(
     except PermissionError:
         raise InputError(root, "recordings folder is not readable (permission denied)") from None
     if not objects:
-        raise InputError(root, "no object folders (expected <object>/exp_num_<N>/camera_*.avi)")
+        raise InputError(root, f"no object folders (expected {_LAYOUTS})")
 
     if is_frame_layout(root):
         found = find_frame_recordings(root, lambda path, problem: report(path, problem, on_error))
@@ -94,6 +94,13 @@ def find_recordings(
     if not found:
         raise InputError(root, "no usable recordings found")
     return found
+
+
+#: The two layouts a recordings folder may have, in words for the errors that find neither.
+_LAYOUTS = (
+    "videos as <object>/exp_num_<N>/camera_*.avi, or grasps as frame folders: "
+    "<object>/<grasp>/ holding .jpg/.png/.bmp frames; see docs/new-sensor.md"
+)
 
 
 def _video_layout(sensor: SensorSpec) -> SensorSpec:
@@ -138,7 +145,11 @@ def _object_recordings(obj_dir: Path, on_error: str, sensor: SensorSpec = GELSIG
     for exp_dir in exp_dirs:
         m = experiment_re.match(exp_dir.name)
         if m is None:
-            report(exp_dir, f"folder name does not match {_hint(sensor.experiment_pattern)}", on_error)
+            named = any(experiment_re.match(d.name) for d in exp_dirs)
+            if not named and not any(exp_dir.iterdir()):  # no layout to go by: say what a grasp folder holds
+                report(exp_dir, f"grasp folder is empty (expected {_LAYOUTS})", on_error)
+            else:
+                report(exp_dir, f"folder name does not match {_hint(sensor.experiment_pattern)}", on_error)
             continue
         number = int(m.group(1))
         if number in seen:
