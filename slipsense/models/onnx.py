@@ -177,17 +177,57 @@ def streaming_names(model: nn.Module, geometry: Mapping[str, Any]) -> list[str]:
     return list(model.streaming_modules(geometry))
 
 
+#: The prefix of the metadata keys slipsense writes into every ONNX file it exports.
+META = "slipsense."
+
+
+def write_metadata(path: str | Path, metadata: Mapping[str, Any]) -> None:
+    """Store ``metadata`` in the ONNX file's ``metadata_props`` as ``slipsense.<key>``, each value as
+    JSON (strings too: every value reads back with one JSON parse); the file is rewritten atomically."""
+    import json
+
+    import onnx
+
+    proto = onnx.load(str(path))
+    keep = [p for p in proto.metadata_props if not p.key.startswith(META)]
+    del proto.metadata_props[:]
+    proto.metadata_props.extend(keep)
+    for key, value in metadata.items():
+        entry = proto.metadata_props.add()
+        entry.key, entry.value = META + key, json.dumps(value, sort_keys=True)
+    with atomic_path(path) as tmp:
+        onnx.save(proto, str(tmp))
+
+
+def onnx_metadata(path: str | Path) -> dict[str, Any]:
+    """What :func:`write_metadata` stored in an ONNX file, read with ONNX Runtime alone (as a user's
+    program without slipsense would): ``{key: value}``, JSON values decoded, without the prefix."""
+    import json
+
+    meta = onnx_session(path, threads=1).get_modelmeta().custom_metadata_map
+    return {key[len(META) :]: json.loads(value) for key, value in meta.items() if key.startswith(META)}
+
+
 def export_parts(
-    model: nn.Module, paths: Mapping[str, Path], *, geometry: Mapping[str, Any], batch: int | None = None, verify=True
+    model: nn.Module,
+    paths: Mapping[str, Path],
+    *,
+    geometry: Mapping[str, Any],
+    batch: int | None = None,
+    verify=True,
+    metadata: Mapping[str, Any] | None = None,
 ) -> ExportResult:
     """Write the model's ONNX files (:meth:`SlipModel.onnx_parts`) ``{name: path}``, in that order, each
-    verified against the model as it runs in PyTorch."""
+    verified against the model as it runs in PyTorch; ``metadata`` (the operating point, the sensor,
+    the model's settings) goes into every file with its ``part`` name (:func:`write_metadata`)."""
     parts = exportable(model).onnx_parts(geometry, batch)
     ref = {"model": model.eval(), **model.eval().streaming_modules(geometry)}
     result = ExportResult()
     for key, path in paths.items():
         part = parts[key]
         result.exporter[key] = export_module(part.module, part.example, path, part.inputs, part.outputs, part.dynamic)
+        if metadata is not None:
+            write_metadata(path, {**metadata, "part": key, "inputs": part.inputs, "outputs": part.outputs})
         result.paths[key] = path
         if verify:
             result.max_abs_diff[key] = max_abs_diff(path, ref[key], part.example)

@@ -27,6 +27,12 @@ the same function to ~1e-5.) It fails on STNet's S codecs
 ``dynamo=True`` (``torch.export`` + onnxscript, 3-12 s per file), which handles every model here. On
 the shared GelSight clips ONNX Runtime matches PyTorch to ~1e-6 (tests require <= 1e-4).
 Shapes other than the batch (frames, image size, markers) are fixed at export.
+
+Every file carries, in its ONNX ``metadata_props`` (keys ``slipsense.*``, values JSON), what a program
+running it without slipsense needs: ``model``, ``config`` (the model's settings), ``sensor`` and
+``fps``, ``operating_point`` (``threshold``, ``debounce`` frames, ``hold_s``, ``startup`` frames), its
+``promise``, and the file's ``part``, ``inputs`` and ``outputs``
+(:func:`slipsense.models.onnx.onnx_metadata` reads them back; so does any ONNX Runtime).
 """
 
 from __future__ import annotations
@@ -77,4 +83,23 @@ def export_onnx(
     paths, names = {"model": out_path}, streaming_names(model, geometry)
     if streaming and names != ["window"]:  # a lone window part is the whole model again
         paths.update({n: out_path.parent / f"{stem}.{n}.onnx" for n in names})
-    return export_parts(model, paths, geometry=geometry, batch=batch, verify=verify)
+    return export_parts(model, paths, geometry=geometry, batch=batch, verify=verify, metadata=_metadata(model, ck_info))
+
+
+def _metadata(model: nn.Module, info: Mapping[str, Any]) -> dict[str, Any]:
+    """What a program running the ONNX files alone needs besides them: the model and its settings, the
+    sensor (its frame rate), and the operating point the detector alarms at (threshold, debounce
+    frames, hold seconds, start-up frames), with its promise; ``null`` where the checkpoint has none."""
+    from slipsense.measures.pergrasp import promise_text
+
+    op = info.get("operating_point")
+    keys = ("threshold", "debounce", "hold_s", "startup", "horizon", "chosen_on", "rule")
+    sensor = info.get("sensor") or {}
+    return {
+        "model": getattr(model, "model_name", type(model).__name__),
+        "config": model.config() if hasattr(model, "config") else {},
+        "sensor": sensor,
+        "fps": sensor.get("fps"),
+        "operating_point": {k: op[k] for k in keys if k in op} if isinstance(op, dict) else None,
+        "promise": promise_text(op),
+    }
