@@ -147,6 +147,13 @@ def test_adapt_judges_every_family_that_fits_on_unseen_objects_and_resumes_after
         assert all(c["measure"]["grasps"] == 12 for c in doc["candidates"])
         assert set(doc["kept"]["chosen_without_each_object"]) == {"object000", "object001", "object002"}
         assert (out / "detector.safetensors").exists() == (doc["chosen"] not in (None, "as is"))
+        if doc["chosen"] not in (None, "as is"):  # one promise: what adapt's table said, in watch and models
+            from slipsense.checkpoint import read_info
+            from slipsense.measures.pergrasp import promise_text
+
+            chosen = next(c for c in doc["candidates"] if c["name"] == doc["chosen"])
+            promise = promise_text(read_info(out / "detector.safetensors")["operating_point"])
+            assert f"({chosen['held_alarming']} of 6)" in promise and "objects it never saw" in promise, promise
         folds = sorted(out.glob("folds/*/fold*/detector.safetensors"))
         assert len(folds) == 9
         before = [p.stat().st_mtime_ns for p in folds]

@@ -285,10 +285,20 @@ def held_alarm_promise(alarmed: Sequence[bool], objects: Sequence[str]) -> dict[
 
 
 def promise_text(op: Any) -> str:
-    """What a checkpoint's operating point (its ``held_alarm``, :func:`held_alarm_promise`) promises
-    about held grasps, in one line; older checkpoints say what they have."""
+    """What a checkpoint's operating point promises about held grasps, in one line, with where it was
+    measured: ``held_alarm_unseen`` (held grasps of objects its family never saw, as ``adapt`` judged
+    it) where there is one, else ``held_alarm`` (:func:`held_alarm_promise` on the grasps the operating
+    point was chosen on); older checkpoints say what they have."""
     if not isinstance(op, dict):
         return "no operating point stored: nothing is promised about held grasps"
+    unseen = op.get("held_alarm_unseen")
+    if isinstance(unseen, dict) and unseen.get("held_grasps"):  # measured on objects it never saw: the promise
+        h = unseen
+        return (
+            f"held grasps alarming on {h['measured_on']}: {100 * h['rate']:.1f}% ({h['alarming']} of "
+            f"{h['held_grasps']}); on new objects at most {100 * h['bound_counting_objects']:.0f}% (95%, counting "
+            f"each of the {h['held_objects']} objects with held grasps as one unit)"
+        )
     h = op.get("held_alarm")
     if isinstance(h, dict) and h.get("held_grasps"):
         return (
