@@ -99,3 +99,23 @@ def test_a_fresh_clone_is_up_to_date_until_the_recipes_seed_changes(tmp_path):
     assert trains_it, "no stage of the shipped recipe has run"
     assert all(recipe_changed(s) for s in trains_it), changed
     assert not any(recipe_changed(s) for s in changed if s not in trains_it)
+
+
+def test_a_shipped_detectors_promise_on_unseen_objects_is_its_reports():
+    """The promise `watch` and `models` state for a shipped detector, measured on objects it never saw,
+    is the figure of the cross-validation report it names (stamped by `python -m studies grasp promise
+    --unseen REPORT`): rebuilt reports and checkpoints cannot drift apart unnoticed."""
+    from slipsense.checkpoint import read_info
+    from slipsense.resources import shipped_model, shipped_models
+
+    stamped = 0
+    for name in shipped_models():
+        unseen = (read_info(shipped_model(name)).get("operating_point") or {}).get("held_alarm_unseen")
+        if not unseen or not (ROOT / unseen["report"] / "folds.json").is_file():
+            continue
+        pooled = json.loads((ROOT / unseen["report"] / "folds.json").read_text())["pooled"]["per_grasp"]
+        assert (unseen["alarming"], unseen["held_grasps"]) == (pooled["false_positive_grasps"], pooled["held_runs"]), (
+            f"{name}: run python -m studies grasp promise {shipped_model(name)} --unseen {unseen['report']}"
+        )
+        stamped += 1
+    assert stamped >= 2  # both GelSight Mini detectors

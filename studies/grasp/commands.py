@@ -29,7 +29,7 @@ from studies.grasp.looks import looks_folds_study, looks_study
 from studies.grasp.looks import table as looks_table
 from studies.grasp.looks import write as write_looks
 from studies.grasp.precursors import aligned_means, precursor_table, summary, write_report
-from studies.grasp.promise import restate_promise
+from studies.grasp.promise import promise_from_report, restate_promise
 from studies.grasp.rates import folds_study, lift_study, rates_study
 from studies.grasp.rates import folds_table as rates_folds_table
 from studies.grasp.rates import table as rates_table
@@ -199,12 +199,19 @@ def ceiling_cmd(
 def promise_cmd(
     checkpoint: Path = typer.Argument(..., help="a grasp detector whose operating point came from inner folds"),
     workers: Optional[int] = typer.Option(None, help="training processes (default: one per core)"),
+    unseen: Optional[Path] = typer.Option(
+        None, help="instead: the promise from this cross-validation report of its recipe (objects it never saw)"
+    ),
     progress: bool = typer.Option(True),
 ):
-    """State what a detector trained before checkpoints carried it promises on new objects: its
-    inner folds trained again, judged at its threshold (held-alarm rate, bound counting objects)."""
+    """State what a detector promises on new objects: its inner folds trained again, judged at its
+    threshold (held-alarm rate, bound counting objects); or, with --unseen, what its recipe's
+    leave-objects-out cross-validation measured on held grasps of objects it never saw."""
 
-    restate_promise(checkpoint, workers=workers, progress=progress)
+    if unseen is not None:
+        promise_from_report(checkpoint, unseen)
+    else:
+        restate_promise(checkpoint, workers=workers, progress=progress)
     typer.echo(f"{checkpoint}: {promise_text(read_info(checkpoint)['operating_point'])}")
 
 

@@ -1,4 +1,7 @@
-"""``promise``: state what a detector trained before checkpoints carried it promises on new objects."""
+"""``promise``: state what a detector promises on new objects: restated from its inner folds (a
+detector trained before checkpoints carried it), or, with ``--unseen REPORT``, what its recipe did on
+held grasps of objects it never saw (a leave-objects-out cross-validation report of the same recipe on
+the same grasps), the one promise ``watch``, ``models``, the README and the docs then state."""
 
 from __future__ import annotations
 
@@ -51,3 +54,39 @@ def restate_promise(checkpoint, workers: int | None = 1, progress: bool = False)
     op["held_alarm"]["restated"] = f"{cfg.inner_folds} inner folds trained again by `python -m studies grasp promise`"
     update_info(checkpoint, {"operating_point": op})
     return op["held_alarm"]
+
+
+def promise_from_report(checkpoint, report) -> dict[str, Any]:
+    """Write into ``checkpoint`` (weights untouched) the held-alarm promise its recipe's cross-validation
+    ``report`` (a folder with ``folds.json``) measured on objects each fold's detector never saw: the held
+    grasps alarming there, with the bound counting objects as units. The report must judge the same held
+    grasps the detector's own promise counts (its units, the objects with held grasps, are taken from
+    there: a report keeps no per-object outcome). Returns the promise."""
+    from pathlib import Path
+
+    from slipsense.measures.pergrasp import wilson
+
+    report = Path(report)
+    doc = json.loads((report / "folds.json").read_text())
+    pooled = doc["pooled"]["per_grasp"]
+    info = read_info(checkpoint)
+    own = (info.get("operating_point") or {}).get("held_alarm") or {}
+    if own.get("held_grasps") != pooled["held_runs"]:
+        raise InputError(
+            report,
+            f"judges {pooled['held_runs']} held grasps, the detector's promise {own.get('held_grasps')}: not the same grasps",
+        )
+    n, k, units = pooled["held_runs"], pooled["false_positive_grasps"], own["held_objects"]
+    rate = k / n
+    promise = {
+        "held_grasps": n,
+        "held_objects": units,
+        "alarming": k,
+        "rate": rate,
+        "bound_counting_objects": wilson(rate * units, units)[1],
+        "bound_counting_grasps": wilson(k, n)[1],
+        "measured_on": f"objects it never saw (its recipe's {doc['folds']} object folds, {report.as_posix()})",
+        "report": report.as_posix(),
+    }
+    update_info(checkpoint, {"operating_point": {**info["operating_point"], "held_alarm_unseen": promise}})
+    return promise
