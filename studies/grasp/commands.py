@@ -202,6 +202,7 @@ def promise_cmd(
     unseen: Optional[Path] = typer.Option(
         None, help="instead: the promise from this cross-validation report of its recipe (objects it never saw)"
     ),
+    row: Optional[str] = typer.Option(None, help="with --unseen: the adaptation study's row (its first words)"),
     progress: bool = typer.Option(True),
 ):
     """State what a detector promises on new objects: its inner folds trained again, judged at its
@@ -209,7 +210,7 @@ def promise_cmd(
     leave-objects-out cross-validation measured on held grasps of objects it never saw."""
 
     if unseen is not None:
-        promise_from_report(checkpoint, unseen)
+        promise_from_report(checkpoint, unseen, row)
     else:
         restate_promise(checkpoint, workers=workers, progress=progress)
     typer.echo(f"{checkpoint}: {promise_text(read_info(checkpoint)['operating_point'])}")

@@ -56,28 +56,42 @@ def restate_promise(checkpoint, workers: int | None = 1, progress: bool = False)
     return op["held_alarm"]
 
 
-def promise_from_report(checkpoint, report) -> dict[str, Any]:
-    """Write into ``checkpoint`` (weights untouched) the held-alarm promise its recipe's cross-validation
-    ``report`` (a folder with ``folds.json``) measured on objects each fold's detector never saw: the held
-    grasps alarming there, with the bound counting objects as units. The report must judge the same held
-    grasps the detector's own promise counts (its units, the objects with held grasps, are taken from
-    there: a report keeps no per-object outcome). Returns the promise."""
+def unseen_figures(report, row: str | None = None) -> tuple[int, int, str]:
+    """``(held grasps alarming, held grasps, where)`` on objects never seen, from a cross-validation
+    report (its ``folds.json``) or, with ``row``, the adaptation study's row of that name."""
+    from pathlib import Path
+
+    report = Path(report)
+    if row is None:
+        doc = json.loads((report / "folds.json").read_text())
+        pooled = doc["pooled"]["per_grasp"]
+        where = f"its recipe's {doc['folds']} object folds, {report.as_posix()}"
+        return pooled["false_positive_grasps"], pooled["held_runs"], where
+    rows = json.loads((report / "adaptation.json").read_text())["rows"]
+    found = [r for r in rows if r["row"].startswith(row)]
+    if len(found) != 1:
+        raise InputError(report, f"{len(found)} rows start with {row!r}: name one")
+    r = found[0]
+    return r["held_alarming"], r["grasps"] - r["slipped"], f"each object left out in turn, {report.as_posix()}"
+
+
+def promise_from_report(checkpoint, report, row: str | None = None) -> dict[str, Any]:
+    """Write into ``checkpoint`` (weights untouched) the held-alarm promise its recipe measured on held
+    grasps of objects never seen (:func:`unseen_figures`), with the bound counting objects as units. The
+    report must judge the same held grasps the detector's own promise counts (its units, the objects
+    with held grasps, are taken from there: a report keeps no per-object outcome). Returns the promise."""
     from pathlib import Path
 
     from slipsense.measures.pergrasp import wilson
 
-    report = Path(report)
-    doc = json.loads((report / "folds.json").read_text())
-    pooled = doc["pooled"]["per_grasp"]
+    k, n, where = unseen_figures(report, row)
     info = read_info(checkpoint)
     own = (info.get("operating_point") or {}).get("held_alarm") or {}
-    if own.get("held_grasps") != pooled["held_runs"]:
+    if own.get("held_grasps") != n:
         raise InputError(
-            report,
-            f"judges {pooled['held_runs']} held grasps, the detector's promise {own.get('held_grasps')}: not the same grasps",
+            report, f"judges {n} held grasps, the detector's promise {own.get('held_grasps')}: not the same grasps"
         )
-    n, k, units = pooled["held_runs"], pooled["false_positive_grasps"], own["held_objects"]
-    rate = k / n
+    units, rate = own["held_objects"], k / n
     promise = {
         "held_grasps": n,
         "held_objects": units,
@@ -85,8 +99,9 @@ def promise_from_report(checkpoint, report) -> dict[str, Any]:
         "rate": rate,
         "bound_counting_objects": wilson(rate * units, units)[1],
         "bound_counting_grasps": wilson(k, n)[1],
-        "measured_on": f"objects it never saw (its recipe's {doc['folds']} object folds, {report.as_posix()})",
-        "report": report.as_posix(),
+        "measured_on": f"objects it never saw ({where})",
+        "report": Path(report).as_posix(),
+        **({"row": row} if row else {}),
     }
     update_info(checkpoint, {"operating_point": {**info["operating_point"], "held_alarm_unseen": promise}})
     return promise
