@@ -4,7 +4,7 @@ timed, side by side with another commit's.
     .venv/bin/python bench/bench_main.py --baseline 89300cf --json reports-bench-main.json
 
 Each side is a ``git clone`` of the commit (beside a link to the shared data, as a checkout is) with no
-``.venv`` and its own empty ``SLIPSENSE_CACHE``; ``scripts/main.sh`` runs under ``bash -x`` with a
+``.venv`` and its own empty ``SLIPSENSE_CACHE``; ``scripts/main.sh`` runs traced (``set -x``) with a
 clock in its trace prompt, so each phase's start is read from the trace: set-up (``scripts/setup.sh``:
 the virtual environment and pip), ``label``, ``train`` (the inner folds and the final model: one
 command) and ``evaluate`` (the held-out objects, per grasp and per clip). The two sides run one after
@@ -46,11 +46,11 @@ def run_main(rev: str, work: Path) -> dict:
     subprocess.run(["git", "clone", "-q", str(ROOT), str(clone)], check=True)
     subprocess.run(["git", "checkout", "-q", "--detach", rev], cwd=clone, check=True)
     env = {k: v for k, v in os.environ.items() if k not in ("VIRTUAL_ENV", "PYTHONPATH")}
-    env.update(
-        SLIPSENSE_CACHE=str(work / "cache"), SLIPSENSE_DATA=str(work / "shared" / "data"), PS4="+@$EPOCHREALTIME "
-    )
+    env.update(SLIPSENSE_CACHE=str(work / "cache"), SLIPSENSE_DATA=str(work / "shared" / "data"))
+    # the trace prompt set inside: bash run as root ignores a PS4 from the environment
+    traced = r'PS4="+@\$EPOCHREALTIME "; set -x; . scripts/main.sh'
     t0 = time.time()
-    done = subprocess.run(["bash", "-x", "scripts/main.sh"], cwd=clone, env=env, capture_output=True, text=True)
+    done = subprocess.run(["bash", "-c", traced, "scripts/main.sh"], cwd=clone, env=env, capture_output=True, text=True)
     total = time.time() - t0
     if done.returncode != 0:
         raise SystemExit(f"main.sh of {rev} failed ({done.returncode}): {done.stderr[-2000:]}")
