@@ -210,17 +210,32 @@ def run_jobs(
                 # the workers, taken before shutdown: it forgets them (``_processes = None``), and a
                 # kill loop run after it found none, so a Ctrl-C waited for the jobs under way
                 procs = list((getattr(pool, "_processes", None) or {}).values())
+                manager = getattr(pool, "_executor_manager_thread", None)
                 pool.shutdown(wait=False, cancel_futures=True)
                 # kill the workers now (their jobs are not wanted): else leaving the pool waits for them
                 for proc in procs:
                     if proc.is_alive():
                         proc.kill()
+                _forget_manager(manager)
                 raise
             time.sleep(0.05)
             _drain(ticks, bar)
         return results
     finally:
         bar.close()
+
+
+def _forget_manager(manager: threading.Thread | None) -> None:
+    """Let the pool's manager thread end (it sees its workers killed and closes its wake-up pipe), then
+    drop it from the interpreter's exit hook: Python 3.11's hook would write to that closed pipe at exit
+    and print a traceback after the command's one line."""
+    if manager is None:
+        return
+    manager.join(timeout=2.0)
+    if not manager.is_alive():
+        from concurrent.futures import process
+
+        getattr(process, "_threads_wakeups", {}).pop(manager, None)
 
 
 def _drain(ticks: Any, bar: _Progress) -> None:

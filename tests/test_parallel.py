@@ -73,7 +73,15 @@ def test_ctrl_c_ends_jobs_under_way_at_once(tmp_path, after_s):
             """
         )
     )
-    proc = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, text=True, start_new_session=True)
+    from tests.test_workers_end import terminal_sigint
+
+    proc = subprocess.Popen(
+        [sys.executable, str(script)],
+        stdout=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+        preexec_fn=terminal_sigint,
+    )
     deadline = time.monotonic() + 60
     kids: set[int] = set()
     while not kids and time.monotonic() < deadline:

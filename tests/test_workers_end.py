@@ -124,6 +124,7 @@ def _run_until_workers(args: list[str], env: dict, tmp_path: Path) -> tuple[subp
         stdout=subprocess.DEVNULL,
         stderr=(tmp_path / "stderr").open("w"),
         start_new_session=True,  # its own process group, as a command started at a terminal
+        preexec_fn=terminal_sigint,  # and Ctrl-C's default action, whatever the test run inherited
     )
     deadline = time.monotonic() + 180
     while time.monotonic() < deadline and proc.poll() is None:
@@ -133,6 +134,13 @@ def _run_until_workers(args: list[str], env: dict, tmp_path: Path) -> tuple[subp
         time.sleep(0.005)
     proc.kill()
     pytest.fail(f"{args[3]}: no worker process seen (exit {proc.poll()}): {(tmp_path / 'stderr').read_text()}")
+
+
+def terminal_sigint() -> None:
+    """In a child before it runs: SIGINT's default action, as a terminal's foreground job has it. A test
+    run started in the background of a script inherits SIGINT ignored, and a Python started so never
+    raises KeyboardInterrupt (a command a user starts at a terminal always can)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def _gone_within(pids: set[int], seconds: float) -> set[int]:
