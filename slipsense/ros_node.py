@@ -13,8 +13,11 @@ older than the newest one waiting is skipped) and ``threads`` (0: torch's).
 
 In: each image topic best effort, volatile, keep last :data:`QUEUE_DEPTH`. Out, reliable:
 ``/slipsense/reading`` (a JSON reading per judged frame pair, the record of ``slipsense watch
---jsonl``), ``/slipsense/alarm`` (a ``std_msgs/Header`` with the frame's stamp, every judged frame
-while the alarm is on) and ``/slipsense/status`` (transient local, every second: every frame pair
+--jsonl``); the same reading in standard types for a controller that parses no JSON, every judged
+frame pair: ``/slipsense/alarm`` (``std_msgs/Bool``), ``/slipsense/probability`` (``std_msgs/Float32``,
+NaN while the detector has no answer) and ``/slipsense/slip_velocity`` (``geometry_msgs/Vector3Stamped``
+per finger in m/s, ``frame_id`` ``finger_<k>`` for the k-th topic, the frame's stamp; only while that
+finger touches and only for a sensor that states its pixel size); and ``/slipsense/status`` (transient local, every second: every frame pair
 judged or left out, by cause: :meth:`ReadingLoop.status`). The detector runs on its own clock from the
 header stamps. Faults are logged in one line each and the node keeps running.
 """
@@ -40,6 +43,7 @@ from slipsense.streaming.detector import SlipDetector
 from slipsense.streaming.readings import reading_record
 
 READING_TOPIC, ALARM_TOPIC, STATUS_TOPIC = "/slipsense/reading", "/slipsense/alarm", "/slipsense/status"
+PROBABILITY_TOPIC, VELOCITY_TOPIC = "/slipsense/probability", "/slipsense/slip_velocity"
 #: Why a frame pair got no reading, in the order the status lists them: the first topic's message never
 #: arrived (lost), no message of every other topic within the tolerance (unpaired), an image of the wrong
 #: encoding or size (undecodable), its stamp not after the last judged pair's (late), or a pair more than
@@ -307,6 +311,14 @@ class ReadingLoop:
         )
 
 
+def velocities_m_s(record: dict) -> list[tuple[float, float] | None]:
+    """Each finger's slip velocity of a reading in m/s (ROS's unit), None where not known; nothing
+    for a reading in px/s (the sensor states no pixel size) or without markers."""
+    if record.get("slip_velocity_unit") != "mm/s":
+        return []
+    return [None if v is None else (v[0] * 1e-3, v[1] * 1e-3) for v in record["slip_velocity"]]
+
+
 def _number(node: Any, name: str, default: float) -> float:
     """A numeric parameter that takes an integer too (``-p threshold:=1``)."""
     from rcl_interfaces.msg import ParameterDescriptor
@@ -326,7 +338,8 @@ def main(argv: Sequence[str] | None = None, overrides: dict[str, Any] | None = N
     from rclpy.parameter import Parameter
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import CompressedImage, Image
-    from std_msgs.msg import Header, String
+    from geometry_msgs.msg import Vector3Stamped
+    from std_msgs.msg import Bool, Float32, String
 
     rclpy.init(args=list(argv) if argv is not None else sys.argv)
     params = [Parameter(k, value=v) for k, v in (overrides or {}).items()]
@@ -360,7 +373,9 @@ def main(argv: Sequence[str] | None = None, overrides: dict[str, Any] | None = N
         log(promise_text(read_info(path).get("operating_point")))
     out_qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
     readings = node.create_publisher(String, READING_TOPIC, out_qos)
-    alarms = node.create_publisher(Header, ALARM_TOPIC, out_qos)
+    alarms = node.create_publisher(Bool, ALARM_TOPIC, out_qos)
+    probabilities = node.create_publisher(Float32, PROBABILITY_TOPIC, out_qos)
+    velocities = node.create_publisher(Vector3Stamped, VELOCITY_TOPIC, out_qos)
     latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
     statuses = node.create_publisher(String, STATUS_TOPIC, latched)
     best_effort = dict(reliability=ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.VOLATILE)
@@ -368,10 +383,16 @@ def main(argv: Sequence[str] | None = None, overrides: dict[str, Any] | None = N
 
     def publish(record: dict, stamp: int, alarm: bool) -> None:
         readings.publish(String(data=json.dumps(record)))
-        if alarm:
-            header = Header(frame_id="slip")
-            header.stamp.sec, header.stamp.nanosec = divmod(stamp, 1_000_000_000)
-            alarms.publish(header)
+        alarms.publish(Bool(data=bool(alarm)))
+        p = record["probability"]
+        probabilities.publish(Float32(data=float("nan") if p is None else float(p)))
+        for k, v in enumerate(velocities_m_s(record)):
+            if v is not None:
+                msg = Vector3Stamped()
+                msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp, 1_000_000_000)
+                msg.header.frame_id = f"finger_{k}"
+                msg.vector.x, msg.vector.y = v
+                velocities.publish(msg)
 
     loop = ReadingLoop(detector, topics, msgtype, publish, log, tolerance_s=tolerance or None, max_lag_s=max_lag)
     told: list[Any] = [None]
@@ -392,8 +413,8 @@ def main(argv: Sequence[str] | None = None, overrides: dict[str, Any] | None = N
     executor.add_node(node)
     loop.start(on_error=executor.wake)
     log(
-        f"listening on {', '.join(topics)}; readings on {READING_TOPIC}, alarms on {ALARM_TOPIC}, "
-        f"the account of every frame pair on {STATUS_TOPIC}"
+        f"listening on {', '.join(topics)}; readings on {READING_TOPIC} (and {ALARM_TOPIC}, {PROBABILITY_TOPIC}, "
+        f"{VELOCITY_TOPIC}), the account of every frame pair on {STATUS_TOPIC}"
     )
     try:
         while rclpy.ok() and loop.error is None:

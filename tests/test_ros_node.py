@@ -19,7 +19,8 @@ import pytest
 
 from conftest import needs_data
 from slipsense.paths import gelsight_recordings
-from slipsense.ros_node import ALARM_TOPIC, CAUSES, READING_TOPIC, STATUS_TOPIC, ReadingLoop, StampPairer
+from slipsense.ros_node import ALARM_TOPIC, CAUSES, PROBABILITY_TOPIC, READING_TOPIC, STATUS_TOPIC, VELOCITY_TOPIC
+from slipsense.ros_node import ReadingLoop, StampPairer
 from slipsense.streaming.detector import SlipDetector
 
 RUN = gelsight_recordings() / "blue_mug" / "exp_num_9"  # it slips, and the shipped detector warns
@@ -224,7 +225,8 @@ def test_the_node_reads_what_watch_reads_frame_for_frame(tmp_path):
     rclpy = pytest.importorskip("rclpy", reason='the ROS extra is not installed (pip install "slipsense[ros]")')
     from rclpy.qos import QoSProfile
     from sensor_msgs.msg import Image
-    from std_msgs.msg import Header, String
+    from geometry_msgs.msg import Vector3Stamped
+    from std_msgs.msg import Bool, Float32, String
 
     from slipsense.recordings.video import read_video
 
@@ -242,9 +244,11 @@ def test_the_node_reads_what_watch_reads_frame_for_frame(tmp_path):
     rclpy.init()
     me = rclpy.create_node("slipsense_test_player")
     try:
-        readings, alarms = [], []
+        readings, alarms, probabilities, velocities = [], [], [], []
         me.create_subscription(String, READING_TOPIC, lambda m: readings.append(json.loads(m.data)), 500)
-        me.create_subscription(Header, ALARM_TOPIC, lambda m: alarms.append(m), 500)
+        me.create_subscription(Bool, ALARM_TOPIC, lambda m: alarms.append(m.data), 500)
+        me.create_subscription(Float32, PROBABILITY_TOPIC, lambda m: probabilities.append(m.data), 500)
+        me.create_subscription(Vector3Stamped, VELOCITY_TOPIC, lambda m: velocities.append(m), 1000)
         pubs = [me.create_publisher(Image, t, QoSProfile(depth=50)) for t in ("/left/image_raw", "/right/image_raw")]
         _wait_for_node(rclpy, me, pubs, node)
         base, start = 1_700_000_000 * 10**9, time.monotonic()
@@ -272,7 +276,18 @@ def test_the_node_reads_what_watch_reads_frame_for_frame(tmp_path):
         assert (got["probability"] is None) == (want["probability"] is None)
         if want["probability"] is not None:
             assert got["probability"] == pytest.approx(want["probability"], abs=1e-6)
-    assert len(alarms) == sum(r["alarm"] for r in reference)
+    # the same reading in standard types: the alarm and the probability of every judged pair, and each
+    # finger's slip velocity in m/s where it touches (watch's mm/s), stamped with its frame
+    assert alarms == [r["alarm"] for r in reference]
+    want_p = [np.nan if r["probability"] is None else r["probability"] for r in reference]
+    np.testing.assert_allclose(probabilities, want_p, atol=1e-6)
+    assert all(r["slip_velocity_unit"] == "mm/s" and len(r["slip_velocity"]) == 2 for r in reference)
+    want_v = [(k, r["frame"], v) for r in reference for k, v in enumerate(r["slip_velocity"]) if v is not None]
+    got_v = [(int(m.header.frame_id[-1]), m.header.stamp.sec, m.header.stamp.nanosec, m.vector) for m in velocities]
+    assert len(want_v) > 50 and len(got_v) == len(want_v)
+    for (k, frame, v), (gk, sec, nsec, vec) in zip(want_v, got_v):
+        assert gk == k and (sec * 10**9 + nsec - 1_700_000_000 * 10**9) == frame * 40_000_000
+        assert (vec.x, vec.y, vec.z) == pytest.approx((v[0] * 1e-3, v[1] * 1e-3, 0.0), abs=1e-7)
     assert "25 frames/s (the header stamps)" in log and "alarm at" in log and "left out:" not in log, log
     assert "rosout" not in log, log  # the node stops cleanly on SIGTERM
     n = len(reference)

@@ -166,6 +166,95 @@ def _sample(image: np.ndarray, xy: np.ndarray) -> np.ndarray:
     return out.reshape(len(xy), -1)
 
 
+class MarkerFollower:
+    """Follows markers from one frame to the next with the checks of :func:`track_markers`, one step at
+    a time: what the batch tracker runs over a video, and a live stream runs frame by frame
+    (:class:`slipsense.sensors.gel_motion.GelMotionStream`).
+
+    Args: the reference frame (grey uint8), its marker centres ``(N, 2)`` px, the marker diameter px,
+    and ``win_size``, ``max_level``, ``fb_threshold``, ``max_jump`` as for :func:`track_markers`.
+    """
+
+    redetect: bool = True
+    min_contrast: float = 12.0
+
+    def __init__(
+        self,
+        ref_gray: np.ndarray,
+        ref: np.ndarray,
+        diameter: float,
+        win_size: int | None = None,
+        max_level: int = 3,
+        fb_threshold: float = 1.0,
+        max_jump: float | None = None,
+    ):
+        h, w = ref_gray.shape[:2]
+        self.h, self.w, self.ref, self.diameter, self.fb_threshold = h, w, ref, diameter, fb_threshold
+        spacing = _median_nn_distance(ref)
+        if not np.isfinite(spacing):
+            spacing = 2.0 * diameter  # a single marker: assume the usual grid pitch
+        self.spacing = float(spacing)
+        if win_size is None:
+            win_size = int(np.clip(_odd(0.7 * spacing), 11, 41))
+        self.jump = float(max_jump) if max_jump is not None else 0.25 * spacing
+        # Per-marker edge margin: half a marker radius (a marker cut that far loses about a fifth of
+        # its disc and its LK position drifts by up to ~1 px), but never more than the marker's own
+        # margin in the reference frame less 1 px. Losing markers as soon as they touch the edge
+        # instead would drop whole border rows at the slightest shear.
+        ref_margin = np.minimum(ref.min(axis=1), np.minimum(w - 1 - ref[:, 0], h - 1 - ref[:, 1]))
+        self.edge = np.clip(np.minimum(diameter / 4.0, ref_margin - 1.0), 0.0, None)
+        criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01)
+        self.lk_settings = dict(winSize=(int(win_size), int(win_size)), maxLevel=max_level, criteria=criteria)
+        self.nbrs = _neighbours(ref, _K_NEIGHBOURS)
+        # Each marker's darkness in the reference frame, for the appearance check.
+        self.ref_contrast = _sample(_blackhat(ref_gray, diameter).astype(np.float32), ref)[:, 0]
+
+    # The Python binding of calcOpticalFlowPyrLK in OpenCV 5 takes images only (not prebuilt
+    # pyramids), so each call builds its own; at 320 x 240 that costs well under a millisecond.
+    def _lk(self, src: Any, dst: Any, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        pts = pts.reshape(-1, 1, 2).astype(np.float32)
+        out, status, _err = cv2.calcOpticalFlowPyrLK(src, dst, pts, None, **self.lk_settings)
+        return out.reshape(-1, 2), status.reshape(-1).astype(bool)
+
+    def step(
+        self, prev_gray: np.ndarray, prev_pos: np.ndarray, prev_ok: np.ndarray, gray: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Positions ``(N, 2)`` and valid ``(N,)`` in ``gray`` from those in ``prev_gray``."""
+        n, h, w, spacing = len(self.ref), self.h, self.w, self.spacing
+        pos = prev_pos.copy()
+        ok = np.zeros(n, bool)
+        idx = np.flatnonzero(prev_ok)
+        blackhat = _blackhat(gray, self.diameter)
+        if len(idx):
+            p0 = prev_pos[idx]
+            p1, st1 = self._lk(prev_gray, gray, p0)
+            p0r, st2 = self._lk(gray, prev_gray, p1)
+            fb = np.full(n, np.inf)
+            fb[idx] = np.linalg.norm(p0r - p0, axis=1)
+            # A marker reaching the edge is cut by it and its LK position is biased: lost.
+            m = self.edge[idx]
+            inside = (p1[:, 0] >= m) & (p1[:, 0] <= w - 1 - m) & (p1[:, 1] >= m) & (p1[:, 1] <= h - 1 - m)
+            pos[idx] = p1
+            ok[idx] = st1 & st2 & inside & (fb[idx] <= self.fb_threshold)
+            # Jump check: compare each step with the median step of its valid neighbours.
+            motion = pos - prev_pos
+            med = _neighbour_median(motion, ok, self.nbrs)
+            dev = np.linalg.norm(motion - med, axis=1)
+            dev = np.where(np.isnan(dev), 0.0, dev)  # no valid neighbour: nothing to compare with
+            ok &= (dev <= self.jump) & (np.linalg.norm(motion, axis=1) <= 0.5 * spacing)
+            # Appearance check: LK happily holds a point on a flat patch where a marker vanished
+            # (covered, out of focus, left the gel), so the point must still be on a dark spot.
+            darkness = _sample(blackhat.astype(np.float32), pos)[:, 0]
+            ok &= darkness >= _MIN_CONTRAST_FRACTION * self.ref_contrast
+            _drop_collisions(pos, ok, fb, 0.35 * spacing)
+        lost = np.flatnonzero(~ok)
+        if len(lost):
+            pos[lost] = _estimate_lost(pos, ok, self.ref, self.nbrs, prev_pos, lost)
+            if self.redetect:
+                _reacquire(gray, blackhat, pos, ok, lost, self.diameter, spacing, self.min_contrast)
+        return pos, ok
+
+
 def track_markers(
     frames: np.ndarray,
     reference_index: int | None = None,
@@ -249,73 +338,16 @@ def track_markers(
         if len(ref) == 0:
             raise InputError(source, "no reference positions given")
         diameter = float(marker_diameter) if marker_diameter else _DEFAULT_DIAMETER
+    follow = MarkerFollower(grays[reference_index], ref, diameter, win_size, max_level, fb_threshold, max_jump)
+    follow.redetect, follow.min_contrast = redetect, min_contrast
     n = len(ref)
-    spacing = _median_nn_distance(ref)
-    if not np.isfinite(spacing):
-        spacing = 2.0 * diameter  # a single marker: assume the usual grid pitch
-    if win_size is None:
-        win_size = int(np.clip(_odd(0.7 * spacing), 11, 41))
-    jump = float(max_jump) if max_jump is not None else 0.25 * spacing
-    # Per-marker edge margin: half a marker radius (a marker cut that far loses about a fifth of
-    # its disc and its LK position drifts by up to ~1 px), but never more than the marker's own
-    # margin in the reference frame less 1 px. Losing markers as soon as they touch the edge
-    # instead would drop whole border rows at the slightest shear.
-    ref_margin = np.minimum(ref.min(axis=1), np.minimum(w - 1 - ref[:, 0], h - 1 - ref[:, 1]))
-    edge = np.clip(np.minimum(diameter / 4.0, ref_margin - 1.0), 0.0, None)
-    criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01)
-    lk_settings = dict(winSize=(int(win_size), int(win_size)), maxLevel=max_level, criteria=criteria)
-    nbrs = _neighbours(ref, _K_NEIGHBOURS)
-
     positions = np.empty((n_frames, n, 2), np.float32)
     valid = np.zeros((n_frames, n), bool)
     positions[reference_index] = ref
     valid[reference_index] = True
-    # Each marker's darkness in the reference frame, for the appearance check.
-    ref_contrast = _sample(_blackhat(grays[reference_index], diameter).astype(np.float32), ref)[:, 0]
-
-    # The Python binding of calcOpticalFlowPyrLK in OpenCV 5 takes images only (not prebuilt
-    # pyramids), so each call builds its own; at 320 x 240 that costs well under a millisecond.
-    def lk(src: Any, dst: Any, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        pts = pts.reshape(-1, 1, 2).astype(np.float32)
-        out, status, _err = cv2.calcOpticalFlowPyrLK(src, dst, pts, None, **lk_settings)
-        return out.reshape(-1, 2), status.reshape(-1).astype(bool)
 
     def step(t_prev: int, t: int) -> None:
-        prev_pos, prev_ok = positions[t_prev], valid[t_prev]
-        pos = prev_pos.copy()
-        ok = np.zeros(n, bool)
-        idx = np.flatnonzero(prev_ok)
-        blackhat = _blackhat(grays[t], diameter)
-        if len(idx):
-            p0 = prev_pos[idx]
-            src, dst = grays[t_prev], grays[t]
-            p1, st1 = lk(src, dst, p0)
-            p0r, st2 = lk(dst, src, p1)
-            fb = np.full(n, np.inf)
-            fb[idx] = np.linalg.norm(p0r - p0, axis=1)
-            # A marker reaching the edge is cut by it and its LK position is biased: lost.
-            m = edge[idx]
-            inside = (p1[:, 0] >= m) & (p1[:, 0] <= w - 1 - m) & (p1[:, 1] >= m) & (p1[:, 1] <= h - 1 - m)
-            pos[idx] = p1
-            ok[idx] = st1 & st2 & inside & (fb[idx] <= fb_threshold)
-            # Jump check: compare each step with the median step of its valid neighbours.
-            motion = pos - prev_pos
-            med = _neighbour_median(motion, ok, nbrs)
-            dev = np.linalg.norm(motion - med, axis=1)
-            dev = np.where(np.isnan(dev), 0.0, dev)  # no valid neighbour: nothing to compare with
-            ok &= (dev <= jump) & (np.linalg.norm(motion, axis=1) <= 0.5 * spacing)
-            # Appearance check: LK happily holds a point on a flat patch where a marker vanished
-            # (covered, out of focus, left the gel), so the point must still be on a dark spot.
-            darkness = _sample(blackhat.astype(np.float32), pos)[:, 0]
-            ok &= darkness >= _MIN_CONTRAST_FRACTION * ref_contrast
-            _drop_collisions(pos, ok, fb, 0.35 * spacing)
-        lost = np.flatnonzero(~ok)
-        if len(lost):
-            pos[lost] = _estimate_lost(pos, ok, ref, nbrs, prev_pos, lost)
-            if redetect:
-                _reacquire(grays[t], blackhat, pos, ok, lost, diameter, spacing, min_contrast)
-        positions[t] = pos
-        valid[t] = ok
+        positions[t], valid[t] = follow.step(grays[t_prev], positions[t_prev], valid[t_prev], grays[t])
 
     for t in range(reference_index + 1, n_frames):
         step(t - 1, t)
@@ -324,7 +356,7 @@ def track_markers(
 
     depth = _depth_proxy(frames, positions, reference_index, diameter)
     ref, size = ref.astype(np.float32), (int(h), int(w))
-    return MarkerTrack(positions, valid, depth, ref, int(reference_index), size, float(spacing), float(diameter))
+    return MarkerTrack(positions, valid, depth, ref, int(reference_index), size, float(follow.spacing), float(diameter))
 
 
 def _drop_collisions(pos: np.ndarray, ok: np.ndarray, fb: np.ndarray, radius: float) -> None:

@@ -60,6 +60,10 @@ class SensorSpec:
         slip_marker: file whose presence in an experiment folder says the object slipped.
         capture_format: the FOURCC a live camera is asked for (``"MJPG"``: compressed frames reach
             the full rate over USB where raw YUYV at the same size does not); None: the camera's own.
+        gel_markers: the gel carries a grid of markers (video sensors): readings then carry the slip
+            velocity and the shear field (:mod:`slipsense.sensors.gel_motion`).
+        mm_per_pixel: millimetres of gel per pixel at ``image_size`` (video sensors); None: not
+            stated, and lengths stay in pixels.
     """
 
     name: str
@@ -71,6 +75,8 @@ class SensorSpec:
     experiment_pattern: str | None = None
     slip_marker: str | None = None
     capture_format: str | None = None
+    gel_markers: bool = False
+    mm_per_pixel: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """The spec as JSON-ready data (what checkpoints keep under ``"sensor"``)."""
@@ -108,6 +114,11 @@ class SensorSpec:
         for key in ("camera_glob", "experiment_pattern", "slip_marker", "capture_format"):
             if d.get(key) is not None and not isinstance(d[key], str):
                 raise ValueError(f"sensor {key} must be text")
+        if "gel_markers" in d and not isinstance(d["gel_markers"], bool):
+            raise ValueError(f"sensor gel_markers must be true or false, got {d['gel_markers']!r}")
+        mm = d.get("mm_per_pixel")
+        if mm is not None and (isinstance(mm, bool) or not isinstance(mm, (int, float)) or not 0 < mm < 10):
+            raise ValueError(f"sensor mm_per_pixel must be a number of millimetres in (0, 10), got {mm!r}")
         # a spec written before a field existed takes it from the registered sensor of that name
         # (checkpoints of the GelSight Mini written before capture_format ask cameras for MJPG too)
         registered = SENSORS.get(d["name"])
@@ -128,6 +139,10 @@ GELSIGHT_MINI = SensorSpec(
     experiment_pattern=r"^exp_num_(\d+)$",
     slip_marker="slip.txt",
     capture_format="MJPG",
+    gel_markers=True,
+    # the GelSight Mini's sensing area, 18.6 x 14.3 mm (GelSight Inc., GelSight Mini datasheet), over
+    # 320 x 240 px: 0.0581 and 0.0596 mm per px; their mean
+    mm_per_pixel=0.0585,
 )
 
 #: The STNet study's binocular visuo-tactile sensor: 24 x 23 markers reconstructed in 3D, 20 Hz
@@ -138,7 +153,10 @@ BINOCULAR_MARKERS = SensorSpec(name="binocular-markers", output="markers", fps=2
 #: a dense grid of black markers, one finger, frames stored as JPEG files per grasp
 #: (:mod:`slipsense.recordings.frame_folders`). The data does not state its frame rate: 30 frames/s
 #: is assumed (the camera's usual rate); a ``sensor.json`` in the recordings folder states another.
-GELSIGHT_LIFT = SensorSpec(name="gelsight-lift", output="video", fps=30.0, image_size=(480, 640), camera_glob="*.jpg")
+#: Its pixel size is not published with the data: lengths stay in pixels.
+GELSIGHT_LIFT = SensorSpec(
+    name="gelsight-lift", output="video", fps=30.0, image_size=(480, 640), camera_glob="*.jpg", gel_markers=True
+)
 
 SENSORS = {s.name: s for s in (GELSIGHT_MINI, BINOCULAR_MARKERS, GELSIGHT_LIFT)}
 

@@ -33,6 +33,7 @@ from slipsense.errors import ConfigError, InputError
 from slipsense.models.base import SlipModel, window_geometry
 from slipsense.models.runners import check_backend, onnx_cache_dir, resolve_backend
 from slipsense.resources import default_model_name, shipped_model, shipped_models
+from slipsense.sensors.gel_motion import GelMotion, motion_stream
 from slipsense.sensors.spec import GELSIGHT_MINI, sensor_of
 from slipsense.streaming.clock import ModelClock, resample
 
@@ -55,13 +56,30 @@ class Reading:
     models that fuse the sensors into one answer (the shipped grasp detectors), and until the window
     is full;
     ``alarm``: the alarm rule (:mod:`slipsense.alarm`): ``probability >= threshold`` for ``debounce``
-    steps in a row, held for ``hold`` seconds after (False while None).
+    steps in a row, held for ``hold`` seconds after (False while None);
+    ``gel``: per sensor, what its gel's markers say (:class:`~slipsense.sensors.gel_motion.GelMotion`:
+    the slip velocity and the shear field; None for a sensor before its marker grid is found); None
+    where the sensor's gel has no markers (or the detector was made with ``gel_motion=False``).
     """
 
     index: int
     probability: float | None
     per_sensor: tuple[float, ...] | None
     alarm: bool
+    gel: tuple[GelMotion | None, ...] | None = None
+    #: the length unit of ``gel`` (``"mm"`` or ``"px"``); None where ``gel`` is None
+    gel_unit: str | None = None
+
+    @property
+    def slip_velocity(self) -> tuple[tuple[float, float] | None, ...] | None:
+        """Per sensor the object's slip velocity ``(vx, vy)`` in :attr:`slip_velocity_unit` (image
+        axes: x right, y down); None per sensor without contact; None where the gel has no markers."""
+        return None if self.gel is None else tuple(None if g is None else g.velocity for g in self.gel)
+
+    @property
+    def slip_velocity_unit(self) -> str | None:
+        """``"mm/s"`` where the sensor states its pixel size, ``"px/s"`` otherwise; None without markers."""
+        return None if self.gel_unit is None else f"{self.gel_unit}/s"
 
 
 @dataclass
@@ -120,6 +138,9 @@ class SlipDetector:
             the camera start-up of grasp models).
         onnx_dir: where the ONNX parts are written for ``backend="onnx"`` (default: a temporary folder).
             Parts already there are reused, so give each model its own folder.
+        gel_motion: follow the gel's markers in every pushed frame, where the sensor's gel has them
+            (:attr:`Reading.gel`: slip velocity, shear field; a few milliseconds a frame on one
+            thread); False: readings carry none.
 
     Attributes: ``geometry`` (what the model takes: ``kind``, ``frames``, ``image_size`` /
     ``markers`` / ``gray_size``), ``sensors``, ``threshold``, ``debounce``, ``sensor`` (the
@@ -139,6 +160,7 @@ class SlipDetector:
         dtype: str = "float32",
         debounce: int = 1,
         hold: float = 0.0,
+        gel_motion: bool = True,
     ):
         if not isinstance(model, SlipModel):
             raise ConfigError(f"{type(model).__name__} is not a slipsense model (see slipsense.models.base)")
@@ -168,6 +190,7 @@ class SlipDetector:
                 f"no per-sensor ones to combine (leave combine out)"
             )
         self.combine = combine or "max"
+        self.gel_motion = bool(gel_motion)
         self._hold_ticks = hold_frames(self.hold, self.sensor.fps)  # the model's steps run at its sensor's rate
         self.reset()
 
@@ -184,6 +207,7 @@ class SlipDetector:
         debounce: int | None = None,
         hold: float | None = None,
         loaded: tuple[Any, dict[str, Any]] | None = None,
+        gel_motion: bool = True,
     ) -> "SlipDetector":
         """Load a checkpoint (:func:`slipsense.checkpoint.load_model`) into a detector (``loaded``:
         its ``(model, info)`` where the caller has read it already).
@@ -207,6 +231,7 @@ class SlipDetector:
         settings = dict(
             threshold=threshold, sensors=sensors, combine=combine, dtype=dtype, debounce=debounce, hold=hold
         )
+        settings["gel_motion"] = gel_motion
         try:
             return cls(model, backend=backend, info=info, onnx_dir=onnx_dir, **settings)
         except ConfigError as exc:  # name the checkpoint: it is what the user chose
@@ -249,6 +274,19 @@ class SlipDetector:
         self._answer: tuple[float, tuple[float, ...]] | None = None  # the latest step's (combined, per sensor)
         self._clock = ModelClock(self.sensor.fps)
         self._stream.reset()
+        self._gel: list | None = None  # one gel-motion stream per sensor, made at the first push
+
+    def _gel_motion(self, frames: Sequence[Any], stamp: float | None) -> tuple[GelMotion | None, ...] | None:
+        """Each sensor's :class:`GelMotion` for this push (None: the gel has no markers)."""
+        if not self.gel_motion:
+            return None
+        if self._gel is None:
+            startup = int(self.geometry.get("startup", 0))
+            width = np.shape(frames[0])[1] if np.ndim(frames[0]) >= 2 else None
+            self._gel = [motion_stream(self.sensor, width, startup) for _ in frames]
+        if any(g is None for g in self._gel):
+            return None
+        return tuple(g.push(np.asarray(f), stamp) for g, f in zip(self._gel, frames))
 
     def push(self, *frames: Any, stamp: float | None = None) -> Reading:
         """Add one frame per sensor and classify the latest frames.
@@ -272,11 +310,13 @@ class SlipDetector:
         for inputs in [frames] if stamp is None else self._clock.ticks(stamp, frames):
             self._step(inputs)
         self._index += 1
+        gel = self._gel_motion(frames, stamp)
+        unit = None if gel is None else self._gel[0].unit
         if self._answer is None:
-            return Reading(index, None, None, False)
+            return Reading(index, None, None, False, gel, unit)
         p, per_sensor = self._answer
         alarm = self._since_alarm is not None and self._since_alarm <= self._hold_ticks
-        return Reading(index, p, per_sensor if self.per_sensor else None, alarm)
+        return Reading(index, p, per_sensor if self.per_sensor else None, alarm, gel, unit)
 
     def _step(self, frames: Sequence[Any]) -> None:
         """One step of the model on its clock: its answer and the debounce count."""
