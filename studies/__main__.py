@@ -2,6 +2,7 @@
 
 python -m studies experiment params --quick      the papers' experiments, one report folder each
 python -m studies grasp ceiling reports/...      the grasp analyses behind the findings
+python -m studies velocity --out reports/slip-velocity   the slip velocity checked where its truth is known
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from slipsense.cli import common
 from studies.experiments.commands import register as register_experiments
 from studies.grasp.commands import group as grasp_group
 from studies.stnet.commands import group as stnet_group
+from studies.velocity_command import velocity
 
 app = typer.Typer(
     add_completion=False,
@@ -24,6 +26,7 @@ app = typer.Typer(
 register_experiments(app)
 app.add_typer(grasp_group, name="grasp")
 app.add_typer(stnet_group, name="stnet")
+app.command("velocity")(velocity)
 
 
 def main() -> None:

@@ -13,7 +13,8 @@ Slip velocity
     that centroid's rate of change: the least-squares slope over the last ``window_s`` seconds
     (causal), in image axes (x right, y down), in mm/s where the sensor states its pixel size and
     px/s otherwise. A rolling object moves its footprint too, without sliding: it reads as slip here.
-    ``None``: no contact (fewer than :data:`MIN_CONTACT` markers touched) in the window.
+    ``None``: not in contact (at least :data:`MIN_CONTACT` markers touched) through the whole window:
+    a footprint that is still appearing or leaving moves its centroid without any sliding.
 Shear field
     ``displacement``: the contact markers' mean displacement since the reference (how far the object
     has dragged the gel); ``divergence`` and ``curl`` of the least-squares affine fit of displacement
@@ -45,8 +46,8 @@ SHADING_FLOOR = 0.02
 #: Indentation (mm) below which a marker of a marker sensor counts as untouched (chosen on simulated
 #: sequences of seed 1; the figures are on seed 2: ``python -m studies velocity simulated``).
 INDENT_FLOOR_MM = 0.15
-#: Seconds of footprint positions a velocity is fitted over.
-WINDOW_S = 0.2
+#: Seconds of footprint positions a velocity is fitted over (chosen with the floor above).
+WINDOW_S = 0.4
 
 
 @dataclass(frozen=True)
@@ -116,8 +117,8 @@ class VelocityWindow:
             self._seen.append((self._index, self._index / self.fps if stamp is None else float(stamp), centroid))
         self._index += 1
         recent = [(t, c) for i, t, c in self._seen if i > self._index - 1 - self.frames]
-        if len(recent) < 2 or self._seen[-1][0] != self._index - 1:
-            return None  # no contact now, or not enough of it in the window
+        if len(recent) < self.frames:
+            return None  # contact in part of the window only: a footprint coming or going is no slip
         t = np.array([t for t, _ in recent], np.float64)
         c = np.array([c for _, c in recent], np.float64)
         t = t - t.mean()
@@ -184,8 +185,9 @@ class CloudMotionStream:
 
     unit = "mm"
 
-    def __init__(self, fps: float, window_s: float = WINDOW_S):
+    def __init__(self, fps: float, window_s: float = WINDOW_S, floor_mm: float = INDENT_FLOOR_MM):
         self._velocity = VelocityWindow(fps, window_s)
+        self.floor_mm = float(floor_mm)
         self.reset()
 
     def reset(self) -> None:
@@ -196,7 +198,7 @@ class CloudMotionStream:
         cloud = np.asarray(cloud, np.float64)
         if self._material is None:
             self._material = cloud[:, :2].copy()
-        weight = np.maximum(-cloud[:, 2] - INDENT_FLOOR_MM, 0.0)
+        weight = np.maximum(-cloud[:, 2] - self.floor_mm, 0.0)
         return _motion(self._material, weight, cloud[:, :2] - self._material, self._velocity, self.unit, stamp)
 
 
@@ -210,18 +212,19 @@ def _motion(material, weight, displacement, velocity: VelocityWindow, unit: str,
     return GelMotion(v, (float(mean[0]), float(mean[1])), divergence, curl, contact, unit)
 
 
-def motion_stream(sensor, frame_width: int | None = None, startup: int = 0):
-    """The stream for one finger of ``sensor`` (a :class:`~slipsense.sensors.spec.SensorSpec`), or None
-    where its gel has no markers. ``frame_width``: the width of the frames pushed (px), which scales
-    the sensor's ``mm_per_pixel`` (stated at its ``image_size``); ``startup``: as for
-    :class:`GelMotionStream`."""
-    if sensor.output == "markers":
+def motion_stream(sensor, frame: np.ndarray, startup: int = 0):
+    """The stream for one finger of ``sensor`` (a :class:`~slipsense.sensors.spec.SensorSpec`) whose
+    first frame is ``frame``: a cloud ``(M, 3)`` of float marker positions in mm, or a camera image,
+    whose width scales the sensor's ``mm_per_pixel`` (stated at its ``image_size``). None where the
+    gel has no markers. ``startup``: as for :class:`GelMotionStream`."""
+    frame = np.asarray(frame)
+    if frame.ndim == 2 and frame.shape[-1] == 3 and frame.dtype.kind == "f":
         return CloudMotionStream(sensor.fps)
-    if not sensor.gel_markers:
+    if not sensor.gel_markers or frame.ndim < 2:
         return None
     mm = sensor.mm_per_pixel
-    if mm is not None and frame_width and sensor.image_size:
-        mm = mm * sensor.image_size[1] / frame_width
+    if mm is not None and sensor.image_size:
+        mm = mm * sensor.image_size[1] / frame.shape[1]
     return GelMotionStream(sensor.fps, mm, startup=startup)
 
 

@@ -49,12 +49,17 @@ class Annotator:
             heat = heatmaps[s] if s < len(heatmaps) else None
             cloud = clouds[s] if s < len(clouds) else None
             p = None if reading.per_sensor is None else reading.per_sensor[s]
-            panels.append(self._sensor_panel(frame, heat, cloud, s, p))
+            panel = self._sensor_panel(frame, heat, cloud, s, p)
+            velocity = None if reading.slip_velocity is None else reading.slip_velocity[s]
+            if velocity is not None:
+                _draw_velocity(panel, velocity, reading.slip_velocity_unit)
+            panels.append(panel)
         top = np.concatenate(panels, axis=1)
         width = top.shape[1]
         return np.concatenate([self._banner(reading, width), top, self._trace(width)], axis=0)
 
     def _sensor_panel(self, frame, heat, cloud, sensor, p) -> np.ndarray:
+        """One sensor's picture: its frame (or its cloud's markers), the heat map, its probability."""
         h = self.panel_height
         if frame is not None:
             w = max(1, int(round(frame.shape[1] * h / frame.shape[0])))
@@ -301,3 +306,20 @@ class AnnotatedWriter:
             atomic.__exit__(_Aborted, _Aborted(), None)  # removes the temporary file
         if self._gif is not None:
             self._gif = _GifFrames()
+
+
+#: Slip speeds drawn as an arrow half the panel long (faster ones are drawn that long too).
+_FULL_ARROW = {"mm/s": 20.0, "px/s": 400.0}
+
+
+def _draw_velocity(panel: np.ndarray, velocity: tuple[float, float], unit: str | None) -> None:
+    """The slip velocity as an arrow from the panel's centre (its direction in the image; its length
+    the speed, half the panel at :data:`_FULL_ARROW`) and the speed in words, in place."""
+    h, w = panel.shape[:2]
+    speed = math.hypot(*velocity)
+    if speed > 0:
+        length = 0.5 * min(h, w) * min(1.0, speed / _FULL_ARROW.get(unit or "", 20.0))
+        tip = (int(round(w / 2 + velocity[0] / speed * length)), int(round(h / 2 + velocity[1] / speed * length)))
+        cv2.arrowedLine(panel, (w // 2, h // 2), tip, (0, 255, 255), 2, cv2.LINE_AA, tipLength=0.25)
+    text = f"slip {speed:.1f} {unit or ''}"
+    cv2.putText(panel, text, (6, h - 8), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 255, 255), 1, cv2.LINE_AA)

@@ -282,8 +282,7 @@ class SlipDetector:
             return None
         if self._gel is None:
             startup = int(self.geometry.get("startup", 0))
-            width = np.shape(frames[0])[1] if np.ndim(frames[0]) >= 2 else None
-            self._gel = [motion_stream(self.sensor, width, startup) for _ in frames]
+            self._gel = [motion_stream(self.sensor, f, startup) for f in frames]
         if any(g is None for g in self._gel):
             return None
         return tuple(g.push(np.asarray(f), stamp) for g, f in zip(self._gel, frames))
