@@ -6,11 +6,13 @@ frames.
 
     .venv/bin/python bench/bench_detector.py --threads 1 --out bench/results/detector.md
 
-What is timed: ``SlipDetector.from_checkpoint(path, sensors=2).push(left, right)`` (``push(left)`` for
+What is timed: ``SlipDetector.from_checkpoint(path, sensors=2, gel_motion=False).push(left, right)`` (``push(left)`` for
 the one-finger detector) on the 240 x 320
 BGR frames of both cameras of a shared recording (looped), everything a live loop pays per frame
 pair. The detectors are timed in interleaved rounds (the machine may be shared), each push on its
 own; p50 / p99 / max over all timed pushes. Target (issue 11): p99 <= 2 ms per push, one thread.
+The model and its operating point only (``gel_motion=False``): what following the gel's markers for the
+slip velocity adds is timed by ``bench/bench_gel_motion.py``.
 """
 
 from __future__ import annotations
@@ -58,25 +60,27 @@ def main(argv=None) -> int:
         warnings.simplefilter("ignore")
         stem = args.checkpoint.stem
         detectors = {
-            f"shipped ({stem}), PyTorch": SlipDetector.from_checkpoint(args.checkpoint, sensors=2, backend="torch")
+            f"shipped ({stem}), PyTorch": SlipDetector.from_checkpoint(
+                args.checkpoint, sensors=2, backend="torch", gel_motion=False
+            )
         }
         if not args.no_onnx:
             detectors[f"shipped ({stem}), ONNX Runtime"] = SlipDetector.from_checkpoint(
-                args.checkpoint, sensors=2, backend="onnx"
+                args.checkpoint, sensors=2, backend="onnx", gel_motion=False
             )
         if ONE_FINGER.is_file():
             detectors["one finger (motionnet-gelsight-1), PyTorch"] = SlipDetector.from_checkpoint(
-                ONE_FINGER, sensors=1, backend="torch"
+                ONE_FINGER, sensors=1, backend="torch", gel_motion=False
             )
         if VIVIT_CHECKPOINT.is_file() and VIVIT_CHECKPOINT != args.checkpoint:
             detectors["paper ViViT (vivit-gelsight), PyTorch"] = SlipDetector.from_checkpoint(
-                VIVIT_CHECKPOINT, sensors=2, backend="torch"
+                VIVIT_CHECKPOINT, sensors=2, backend="torch", gel_motion=False
             )
         sources = {name: cams for name in detectors}
         for backend, label in (("torch", "PyTorch"), ("onnx", "ONNX Runtime")):
             if lift is not None and not (backend == "onnx" and args.no_onnx):
                 name = f"gelsight-lift (shear-retention-gelsight-lift, 480 x 640), {label}"
-                detectors[name] = SlipDetector.from_checkpoint(LIFT, sensors=1, backend=backend)
+                detectors[name] = SlipDetector.from_checkpoint(LIFT, sensors=1, backend=backend, gel_motion=False)
                 sources[name] = lift
     times: dict[str, list[float]] = {k: [] for k in detectors}
     for name, det in detectors.items():  # warm up: fill windows, first-call allocations

@@ -119,7 +119,8 @@ def register(app: typer.Typer) -> None:
         ),
     ):
         """Run the detector as a ROS 2 node: image topics in; /slipsense/reading (std_msgs/String, one JSON
-        reading per frame pair), /slipsense/alarm (stamped) and /slipsense/status (JSON, every second: every
+        reading per frame pair), /slipsense/alarm (Bool), /slipsense/probability, /slipsense/slip_velocity and
+        /slipsense/status (JSON, every second: every
         frame pair judged or left out, by cause) out (needs: pip install "slipsense\\[ros]")."""
         try:
             import rclpy  # noqa: F401  (the ROS extra)

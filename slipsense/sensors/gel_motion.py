@@ -169,13 +169,14 @@ class GelMotionStream:
             if self._pushed <= self.startup or not self._start(image, gray):
                 self._velocity.push(None, stamp)
                 return None
+            ref = self._follow.ref
+            weight = np.zeros(len(ref))  # the reference itself: its shading has not changed
         else:
             self._pos, self._ok = self._follow.step(self._gray, self._pos, self._ok, gray)
-            self._gray = gray
-        xy = self._pos / 2.0
-        shading = np.linalg.norm(_sample(_background(image, self._kernel), xy) - _sample(self._ref_bg, xy), axis=1)
-        weight = np.where(self._ok, np.maximum(shading / 255.0 - SHADING_FLOOR, 0.0), 0.0)
-        ref = self._follow.ref
+            self._gray, ref = gray, self._follow.ref
+            xy = self._pos / 2.0
+            shading = _sample(_background(image, self._kernel), xy) - _sample(self._ref_bg, xy)
+            weight = np.where(self._ok, np.maximum(np.linalg.norm(shading, axis=1) / 255.0 - SHADING_FLOOR, 0.0), 0.0)
         return _motion(ref * self.scale, weight, (self._pos - ref) * self.scale, self._velocity, self.unit, stamp)
 
 
