@@ -96,3 +96,19 @@ def test_a_sensor_spec_states_its_pixel_size_and_markers_or_is_refused():
     for bad in ({"mm_per_pixel": -1}, {"mm_per_pixel": "0.1"}, {"gel_markers": "yes"}):
         with pytest.raises(ValueError, match="mm_per_pixel|gel_markers"):
             SensorSpec.from_dict({**GELSIGHT_MINI.to_dict(), "name": "x", **bad})
+
+
+def test_the_slip_velocity_family_alarms_where_the_imprint_slides_not_where_it_rests():
+    import cv2
+    import torch
+
+    model = build("slip-velocity", sensors=1, image_size=[120, 160], window=5).eval()
+    video = _gel_video()
+    gray = np.stack(
+        [cv2.resize(cv2.cvtColor(f, cv2.COLOR_BGR2GRAY), (160, 120), interpolation=cv2.INTER_AREA) for f in video]
+    )
+    with torch.no_grad():
+        p = torch.softmax(model(torch.from_numpy(gray[None, None]).float() / 255.0)[0], -1)[:, 1].numpy()
+    resting, sliding = p[STILL + 6 : STILL + REST], p[STILL + REST + 6 :]
+    # 1 px a frame at half size: a speed of 1 against the bias 0.5 px a frame
+    assert resting.max() < 0.2 and np.median(sliding) > 0.8

@@ -21,7 +21,7 @@ from slipsense.models.base import MarkerModel, SlipModel, build_registered, regi
 from slipsense.models.base import registered, settings_of, window_geometry  # noqa: F401
 
 # Modules that register models on import; imported lazily so `import slipsense` stays fast.
-_MODULES = tuple(f"slipsense.models.{m}" for m in ("vivit", "resnet3d", "stnet", "motion", "shear"))
+_MODULES = tuple(f"slipsense.models.{m}" for m in ("vivit", "resnet3d", "stnet", "motion", "shear", "slip_velocity"))
 
 
 def _load_all() -> None:

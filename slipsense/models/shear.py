@@ -208,6 +208,11 @@ class ShearRetention(GraspModel):
     def displacements(self, ref: Tensor, cur: Tensor) -> Tensor:
         """Marker maps of reference frames ``(R, 1, h, w)`` and of ``n`` frames each ``(R, n, h, w)``
         -> per frame and cell the length of its shift from the reference, pixels, ``(R, n, C)``."""
+        fx, fy = self.cell_shifts(ref, cur)
+        return (fx.square() + fy.square()).add(1e-12).sqrt().flatten(2)
+
+    def cell_shifts(self, ref: Tensor, cur: Tensor) -> tuple[Tensor, Tensor]:
+        """As :meth:`displacements`, the shift itself: x and y, pixels, each ``(R, n, h / patch, w / patch)``."""
         p, (h, w) = self.patch, self.image_size
         pad_x, pad_y = F.pad(ref, (1, 1, 0, 0), mode="replicate"), F.pad(ref, (0, 0, 1, 1), mode="replicate")
         gx, gy = (pad_x[..., 2:] - pad_x[..., :-2]) / 2, (pad_y[..., 2:, :] - pad_y[..., :-2, :]) / 2
@@ -225,7 +230,7 @@ class ShearRetention(GraspModel):
             bx, by = F.avg_pool2d(gx * diff, p), F.avg_pool2d(gy * diff, p)
             fx = fx + ((b * by - c * bx) / det).clamp(-1.0, 1.0)
             fy = fy + ((b * bx - a * by) / det).clamp(-1.0, 1.0)
-        return (fx.square() + fy.square()).add(1e-12).sqrt().flatten(2)
+        return fx, fy
 
     def frame_shift(self, reference: Tensor, gray: Tensor) -> tuple[Tensor, Tensor]:
         """The frame part: the marker map of the grasp's first frame ``(B, S, h, w)`` (kept by the
