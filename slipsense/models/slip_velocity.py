@@ -4,8 +4,7 @@ Beyond the papers; a physical detector for GelSight sensors whose gel carries ma
 quantity the readings report (:mod:`slipsense.sensors.gel_motion`), computed here in a form that
 trains, judges and exports like every model. Per frame and sensor:
 
-* the gel's shading without its markers (a grey closing of ``close`` pixels, then the 4 x ``blur``
-  Gaussian) and, per ``patch`` x ``patch`` cell, how much it changed since the grasp's first frame,
+* the gel's shading without its markers (a grey closing of ``close`` pixels) and, per ``patch`` x ``patch`` cell, how much it changed since the grasp's first frame,
   above ``floor`` (grey levels in [0, 1]): where the object presses the gel;
 * each cell's shift since the first frame (Lucas-Kanade on the marker map, as shear retention):
   the cell's pixels came from ``centre - shift`` of the gel's material;
@@ -22,6 +21,7 @@ at the start of each grasp, before contact.
 
 from __future__ import annotations
 
+import hashlib
 from typing import Sequence
 
 import numpy as np
@@ -33,7 +33,7 @@ from torch import Tensor, nn
 from slipsense.errors import ConfigError
 from slipsense.models.base import GraspModel, ModelPart, OnnxPart, register
 from slipsense.models.grasp_stream import GraspStream
-from slipsense.models.shear import ShearRetention, _gaussian
+from slipsense.models.shear import _TRACKED, _TRACKED_MAX, ShearRetention
 from slipsense.models.streams import slip_probability
 
 #: Fewest changed cells for a sensor to count as in contact.
@@ -81,7 +81,7 @@ class SlipVelocity(GraspModel):
         sensors: sensors per frame (2: both fingers; a slip on either is the grasp's).
         image_size: ``(h, w)`` of the grey frames; both divisible by ``patch``.
         patch: cell size in pixels (about one marker spacing).
-        blur: sigma in pixels of the marker map's smoothing (the shading's: 4x it).
+        blur: sigma in pixels of the marker map's smoothing.
         close: side in pixels of the closing that removes the markers from the shading (odd, > a marker).
         iterations: Lucas-Kanade warping steps (each moves a cell at most a pixel).
         floor: change of the shading (grey levels in [0, 1]) a cell must exceed to be in the footprint.
@@ -129,7 +129,6 @@ class SlipVelocity(GraspModel):
         self.sensors, self.image_size, self.patch = self.shift.sensors, self.shift.image_size, self.shift.patch
         self.blur, self.iterations, self.close, self.window = self.shift.blur, self.shift.iterations, close, window
         self.floor, self.slope, self.bias = float(floor), float(slope), float(bias)
-        self.register_buffer("_shade_kernel", _gaussian(4 * self.blur), persistent=False)
         h, w, p = *self.image_size, self.patch
         ys, xs = torch.meshgrid(
             torch.arange(h // p) * p + (p - 1) / 2, torch.arange(w // p) * p + (p - 1) / 2, indexing="ij"
@@ -149,10 +148,10 @@ class SlipVelocity(GraspModel):
         return {**out, "slope": self.slope, "bias": self.bias}
 
     def shading(self, gray: Tensor) -> Tensor:
-        """``(B, 1, h, w)`` grey -> the gel's shading without its dark markers: closing, then smoothing."""
+        """``(B, 1, h, w)`` grey -> the gel's shading without its dark markers: a closing (the cells'
+        averages smooth it further)."""
         k, r = self.close, self.close // 2
-        closed = -F.max_pool2d(-F.max_pool2d(gray, k, 1, r), k, 1, r)  # dilation, then erosion
-        return self.shift._smooth(closed, self._shade_kernel)
+        return -F.max_pool2d(-F.max_pool2d(gray, k, 1, r), k, 1, r)  # dilation, then erosion
 
     def footprint(self, fx: Tensor, fy: Tensor, change: Tensor) -> Tensor:
         """Cell shifts ``(R, n, h/p, w/p)`` each and shading changes ``(R, n, C)`` -> per frame the
@@ -187,17 +186,38 @@ class SlipVelocity(GraspModel):
     def forward(self, gray: Tensor) -> Tensor:
         """``(B, S, N, h, w)`` grey frames in [0, 1] -> ``(B, N, 2)`` slip logits at every frame."""
         self.check_input(gray)
-        b, s, n = gray.shape[:3]
-        flat = rearrange(gray, "b s n h w -> (b s n) 1 h w")
-        markers = rearrange(self.shift.markers(flat), "(r n) 1 h w -> r n h w", n=n)
-        shade = rearrange(self.shading(flat), "(r n) 1 h w -> r n h w", n=n)
-        fx, fy = self.shift.cell_shifts(markers[:, :1], markers)
-        change = F.avg_pool2d((shade - shade[:, :1]).abs(), self.patch).flatten(2)
+        b, n = gray.shape[0], gray.shape[2]
+        fx, fy, change = self.tracked(gray)
         state = rearrange(self.footprint(fx, fy, change), "(b s) n k -> b n s k", b=b)  # (B, N, S, 3)
         # the first frame stands in before the start, as the stream's history is filled with it
         padded = torch.cat([state[:, :1].expand(-1, self.window - 1, -1, -1), state], 1)
         windows = torch.stack([padded[:, k : k + n] for k in range(self.window)], 2)  # (B, N, K, S, 3)
         return self.logits_of(windows)
+
+    def tracked(self, gray: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """``(B, S, N, h, w)`` -> every cell's shift from the first frame, x and y ``(B S, N, h/p, w/p)``,
+        and its shading change ``(B S, N, C)``. Looked up where these frames were seen before, as shear
+        retention does (:meth:`ShearRetention.tracked`): they depend on the frames and the tracking
+        settings only, not on ``floor`` or ``window``, so choosing those tracks each grasp once."""
+        if torch.jit.is_tracing() or torch.onnx.is_in_onnx_export():
+            return self._track(gray)
+        data = gray.detach().contiguous().cpu().numpy()
+        values = (tuple(data.shape), str(data.dtype), hashlib.blake2b(data.tobytes(), digest_size=16).hexdigest())
+        key = ("slip-velocity", values, self.patch, self.blur, self.iterations, self.close, tuple(self.image_size))
+        found = _TRACKED.get(key)
+        if found is None:
+            found = _TRACKED[key] = self._track(gray)
+            while len(_TRACKED) > _TRACKED_MAX:
+                _TRACKED.pop(next(iter(_TRACKED)))  # the oldest first
+        return found
+
+    def _track(self, gray: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        n = gray.shape[2]
+        flat = rearrange(gray, "b s n h w -> (b s n) 1 h w")
+        markers = rearrange(self.shift.markers(flat), "(r n) 1 h w -> r n h w", n=n)
+        shade = rearrange(self.shading(flat), "(r n) 1 h w -> r n h w", n=n)
+        fx, fy = self.shift.cell_shifts(markers[:, :1], markers)
+        return fx, fy, F.avg_pool2d((shade - shade[:, :1]).abs(), self.patch).flatten(2)
 
     def chunk_logits(self, runs: Sequence[tuple[Tensor, Sequence[int]]], n_out: int) -> Tensor:
         """Logits of chunks of whole runs (each run's frames computed once); see
