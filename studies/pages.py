@@ -89,6 +89,7 @@ _GRASP_ROWS = (
     ("`motionnet` (shipped), both fingers", "reports/grasp-motionnet-k5"),
     ("`motionnet-gelsight-1` recipe, one finger (each camera a grasp)", "reports/grasp-motionnet-1sensor-k5"),
     ("`motion-energy` (non-learned baseline)", "reports/grasp-motion-energy"),
+    ("`slip-velocity` (the footprint's speed over the gel)", "reports/grasp-slip-velocity"),
 )
 
 _SEED_ROWS = (
@@ -220,6 +221,7 @@ _ADAPTATION_ROWS = (
     ("the same, recalibrated on the other objects (`slipsense calibrate`)", "recalibrated"),
     ("the same, fine-tuned on all the other objects' grasps", "fine-tuned, all grasps"),
     ("shear retention (`shear-retention-gelsight-lift`)", "shear retention"),
+    ("slip velocity (`slip-velocity`: the footprint's speed over the gel)", "slip velocity"),
     ("best non-learned baseline (difference to the first frame in contact)", "baseline: difference_to_contact"),
 )
 

@@ -112,3 +112,16 @@ def test_the_slip_velocity_family_alarms_where_the_imprint_slides_not_where_it_r
     resting, sliding = p[STILL + 6 : STILL + REST], p[STILL + REST + 6 :]
     # 1 px a frame at half size: a speed of 1 against the bias 0.5 px a frame
     assert resting.max() < 0.2 and np.median(sliding) > 0.8
+
+
+def test_adapt_tries_the_slip_velocity_family_where_the_gel_has_markers_only():
+    from slipsense.adapt import Grasps, families
+
+    def grasps(markers: bool) -> Grasps:
+        found = (markers, "a marker grid" if markers else "no marker grid")
+        return Grasps(60, ["a", "b", "c"], 1, (480, 640), 30.0, [], found)
+
+    tried, why_not = families(grasps(True))
+    assert "slip-velocity" in tried and "shear-retention" in tried
+    tried, why_not = families(grasps(False))
+    assert "slip-velocity" not in tried and why_not["slip-velocity"] == "needs a gel with markers: no marker grid"

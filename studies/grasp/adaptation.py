@@ -13,6 +13,9 @@ in turn is held out and, from the other objects' grasps only:
 * ``this set alone``: the same recipe from random weights on all the other objects' grasps;
 * ``trained on both sets`` (with ``also``): the shipped detector's own recipe from random weights on
   the runs it was trained on and the other objects' grasps, the threshold chosen on those grasps;
+* ``slip velocity``: physics too (:mod:`slipsense.models.slip_velocity`): how fast the object's footprint
+  slides over the gel's material; its ``floor`` and ``window`` chosen among its recipe's on the other
+  objects, as shear retention's settings.
 * ``shear retention``: physics, no gradient training (:mod:`slipsense.models.shear`): how much of the
   shear the lift put on the gel's markers has been given up; its ``gate`` and ``letgo`` chosen among
   :attr:`~slipsense.models.shear.ShearRetention.recipe` and its threshold set on the other
@@ -44,6 +47,7 @@ from slipsense.measures import slipped_or_held
 SIZES = (5, 10, 20, None)
 BUDGET = 0.05
 SHEAR_ROW = "shear retention (gate and letgo chosen on the other objects)"
+VELOCITY_ROW = "slip velocity (floor and window chosen on the other objects)"
 #: Inner folds by object that choose the threshold of a detector trained on every other object's grasps
 #: (the shipped recipe's); one trained on a few grasps takes its threshold on those grasps.
 INNER_FOLDS = 2
@@ -154,6 +158,16 @@ def adaptation_study(
             SHEAR_ROW,
             "shear-retention",
             {"model.sensors": 1, "model.image_size": list(shear_size), **shear.recipe},
+            None,
+        )
+    )
+    velocity = model_class("slip-velocity")
+    velocity_size = list(velocity().image_size)
+    plans.append(
+        (
+            VELOCITY_ROW,
+            "slip-velocity",
+            {"model.sensors": 1, "model.image_size": velocity_size, **velocity.recipe},
             None,
         )
     )
