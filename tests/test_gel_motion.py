@@ -110,8 +110,8 @@ def test_the_slip_velocity_family_alarms_where_the_imprint_slides_not_where_it_r
     with torch.no_grad():
         p = torch.softmax(model(torch.from_numpy(gray[None, None]).float() / 255.0)[0], -1)[:, 1].numpy()
     resting, sliding = p[STILL + 6 : STILL + REST], p[STILL + REST + 6 :]
-    # 1 px a frame at half size: a speed of 1 against the bias 0.5 px a frame
-    assert resting.max() < 0.2 and np.median(sliding) > 0.8
+    # 1 px a frame at half size: a speed of 1 against the bias 0.5 px a frame (logit 2 ln 2)
+    assert resting.max() < 0.2 and np.median(sliding) > 0.75
 
 
 def test_adapt_tries_the_slip_velocity_family_where_the_gel_has_markers_only():

@@ -12,7 +12,7 @@ trains, judges and exports like every model. Per frame and sensor:
   least :data:`MIN_CELLS` cells changed;
 * the slip speed: the length of the centroid's least-squares slope over the last ``window`` frames
   (pixels at ``image_size`` per frame), 0 unless every one of those frames was in contact;
-* slip logit ``slope * (speed - bias)``, the largest over sensors.
+* slip logit ``slope * (log(speed + 0.01) - log(bias))``, the largest over sensors.
 
 Nothing is learned by gradient: ``floor`` and ``window`` are chosen on the user's grasps, then the
 threshold (:attr:`SlipVelocity.recipe`). The first frame pushed is the reference: reset the stream
@@ -22,6 +22,7 @@ at the start of each grasp, before contact.
 from __future__ import annotations
 
 import hashlib
+import math
 from typing import Sequence
 
 import numpy as np
@@ -86,7 +87,8 @@ class SlipVelocity(GraspModel):
         iterations: Lucas-Kanade warping steps (each moves a cell at most a pixel).
         floor: change of the shading (grey levels in [0, 1]) a cell must exceed to be in the footprint.
         window: frames the centroid's slope is fitted over.
-        slope, bias: the logit ``slope * (speed - bias)``, speed in pixels a frame.
+        slope, bias: the logit ``slope * (log(speed + 0.01) - log(bias))``, speed and bias in pixels a
+            frame (bias > 0).
     """
 
     auto_backend = "torch"
@@ -112,7 +114,7 @@ class SlipVelocity(GraspModel):
         iterations: int = 5,
         floor: float = 0.02,
         window: int = 10,
-        slope: float = 4.0,
+        slope: float = 2.0,
         bias: float = 0.5,
     ):
         super().__init__()
@@ -124,8 +126,8 @@ class SlipVelocity(GraspModel):
                 f"slip-velocity: close an odd 3..31 pixels and window 2..100 frames, got {close}, {window}"
             )
         numbers = {"floor": floor, "slope": slope, "bias": bias}
-        if not all(np.isfinite(float(v)) for v in numbers.values()) or not 0 <= float(floor) < 1:
-            raise ConfigError(f"slip-velocity: floor in [0, 1) and finite slope and bias, got {numbers}")
+        if not all(np.isfinite(float(v)) for v in numbers.values()) or not 0 <= float(floor) < 1 or float(bias) <= 0:
+            raise ConfigError(f"slip-velocity: floor in [0, 1), a finite slope and a bias above 0, got {numbers}")
         self.sensors, self.image_size, self.patch = self.shift.sensors, self.shift.image_size, self.shift.patch
         self.blur, self.iterations, self.close, self.window = self.shift.blur, self.shift.iterations, close, window
         self.floor, self.slope, self.bias = float(floor), float(slope), float(bias)
@@ -180,7 +182,9 @@ class SlipVelocity(GraspModel):
         v = torch.einsum("k,...ksc->...sc", self._slope_weights, windows[..., :2])
         touching = windows[..., 2].amin(dim=-2)  # every frame of the window in contact
         speed = (v.square().sum(-1) + 1e-12).sqrt() * touching
-        logit = (self.slope * (speed - self.bias)).amax(dim=-1)
+        # on the log of the speed: a slow slip and a fast one both stay short of probability 1 (a float
+        # at 1.0 leaves no threshold between them)
+        logit = (self.slope * (torch.log(speed + 0.01) - math.log(self.bias))).amax(dim=-1)
         return torch.stack([torch.zeros_like(logit), logit], dim=-1)
 
     def forward(self, gray: Tensor) -> Tensor:
