@@ -12,7 +12,7 @@ trains, judges and exports like every model. Per frame and sensor:
   least :data:`MIN_CELLS` cells changed;
 * the slip speed: the length of the centroid's least-squares slope over the last ``window`` frames
   (pixels at ``image_size`` per frame), 0 unless every one of those frames was in contact;
-* slip logit ``slope * (log(speed + 0.01) - log(bias))``, the largest over sensors.
+* slip logit ``slope * (log(speed + 0.1) - log(bias))``, the largest over sensors.
 
 Nothing is learned by gradient: ``floor`` and ``window`` are chosen on the user's grasps, then the
 threshold (:attr:`SlipVelocity.recipe`). The first frame pushed is the reference: reset the stream
@@ -87,7 +87,7 @@ class SlipVelocity(GraspModel):
         iterations: Lucas-Kanade warping steps (each moves a cell at most a pixel).
         floor: change of the shading (grey levels in [0, 1]) a cell must exceed to be in the footprint.
         window: frames the centroid's slope is fitted over.
-        slope, bias: the logit ``slope * (log(speed + 0.01) - log(bias))``, speed and bias in pixels a
+        slope, bias: the logit ``slope * (log(speed + 0.1) - log(bias))``, speed and bias in pixels a
             frame (bias > 0).
     """
 
@@ -184,7 +184,7 @@ class SlipVelocity(GraspModel):
         speed = (v.square().sum(-1) + 1e-12).sqrt() * touching
         # on the log of the speed: a slow slip and a fast one both stay short of probability 1 (a float
         # at 1.0 leaves no threshold between them)
-        logit = (self.slope * (torch.log(speed + 0.01) - math.log(self.bias))).amax(dim=-1)
+        logit = (self.slope * (torch.log(speed + 0.1) - math.log(self.bias))).amax(dim=-1)
         return torch.stack([torch.zeros_like(logit), logit], dim=-1)
 
     def forward(self, gray: Tensor) -> Tensor:
