@@ -690,6 +690,29 @@ def stages(root: Path) -> str:
     return table
 
 
+def slip_velocity(root: Path) -> str:
+    """docs/streaming.md: how well the slip velocity measures, from ``reports/slip-velocity``."""
+    d = _json(root, "reports/slip-velocity/velocity.json")
+    sim, lift = d["simulated"], d["lift"]
+    e, a = sim["speed_error_mm_s"], sim["angle_error_deg"]
+    loo, agree = lift["leave_one_object_out"], lift["direction_agreement"]
+    rows = [
+        [
+            "simulated marker sensor, objects sliding at 2-8 mm/s (seed the settings were not chosen on)",
+            f"speed error {e['mean']:.2f} mm/s mean ({e['p2.5']:.1f} to {e['p97.5']:.1f}); "
+            f"direction error {a['mean_abs']:.0f} degrees mean (95% under {a['p97.5']:.0f})",
+        ],
+        [
+            f"gelsight-lift, {lift['grasps']} grasps: slipped against held",
+            f"ROC AUC {lift['auc']:.2f}; a threshold from four objects right on {loo['right']} of {loo['grasps']} "
+            f"grasps of the fifth; directions agree {agree['slipped']['resultant']:.2f} (slipped), "
+            f"{agree['held']['resultant']:.2f} (held) of 1",
+        ],
+    ]
+    note = "From `reports/slip-velocity`, which also draws the GelSight Mini's speed over time.\n"
+    return note + "\n" + _table(["where", "how well"], rows, ["---", "---"])
+
+
 FIGURES: dict[str, Figure] = {
     "readme": Figure(tuple(r for r, _, _ in _README_ROWS), readme, rows_pending=True),
     "per-grasp": Figure(tuple(r for _, r in _GRASP_ROWS), per_grasp),
@@ -705,6 +728,7 @@ FIGURES: dict[str, Figure] = {
     "rates-folds": Figure(("reports/rates-folds",), rates_folds),
     "looks-folds": Figure(("reports/looks-folds",), lambda root: looks(root, "reports/looks-folds")),
     "stages": Figure(("dvc.yaml",), stages),
+    "slip-velocity": Figure(("reports/slip-velocity",), slip_velocity),
 }
 
 
