@@ -130,7 +130,14 @@ class SlipVelocity(GraspModel):
             raise ConfigError(f"slip-velocity: floor in [0, 1), a finite slope and a bias above 0, got {numbers}")
         self.sensors, self.image_size, self.patch = self.shift.sensors, self.shift.image_size, self.shift.patch
         self.blur, self.iterations, self.close, self.window = self.shift.blur, self.shift.iterations, close, window
-        self.floor, self.slope, self.bias = float(floor), float(slope), float(bias)
+        self.floor = float(floor)
+        self._init = {"slope": float(slope), "bias": float(bias)}
+        # the logit's two numbers can be learned by gradient (``slipsense train --set train.epochs=N``);
+        # the recipe learns none. The bias is kept as its log: it stays above 0.
+        self.slope = nn.Parameter(torch.tensor(float(slope)))
+        self.log_bias = nn.Parameter(torch.tensor(math.log(float(bias))))
+        for p in self.shift.parameters():  # shear retention's own logit numbers: not used here
+            p.requires_grad_(False)
         h, w, p = *self.image_size, self.patch
         ys, xs = torch.meshgrid(
             torch.arange(h // p) * p + (p - 1) / 2, torch.arange(w // p) * p + (p - 1) / 2, indexing="ij"
@@ -147,7 +154,7 @@ class SlipVelocity(GraspModel):
     def config(self) -> dict:
         out = {"sensors": self.sensors, "image_size": list(self.image_size), "patch": self.patch, "blur": self.blur}
         out.update(close=self.close, iterations=self.iterations, floor=self.floor, window=self.window)
-        return {**out, "slope": self.slope, "bias": self.bias}
+        return {**out, **self._init}
 
     def shading(self, gray: Tensor) -> Tensor:
         """``(B, 1, h, w)`` grey -> the gel's shading without its dark markers: a closing (the cells'
@@ -184,7 +191,7 @@ class SlipVelocity(GraspModel):
         speed = (v.square().sum(-1) + 1e-12).sqrt() * touching
         # on the log of the speed: a slow slip and a fast one both stay short of probability 1 (a float
         # at 1.0 leaves no threshold between them)
-        logit = (self.slope * (torch.log(speed + 0.1) - math.log(self.bias))).amax(dim=-1)
+        logit = (self.slope * (torch.log(speed + 0.1) - self.log_bias)).amax(dim=-1)
         return torch.stack([torch.zeros_like(logit), logit], dim=-1)
 
     def forward(self, gray: Tensor) -> Tensor:
