@@ -9,7 +9,8 @@ Install with ``pip install "slipsense[ros]"`` (no ROS installation needed). Para
 (default: the shipped detector for that many sensors), ``backend``, ``threshold`` and ``hold``
 (negative, the default: the checkpoint's operating point), ``tolerance`` (seconds between the stamps
 of a pair; 0: half a frame period of the detector's sensor), ``max_lag`` (seconds: a pair this much
-older than the newest one waiting is skipped) and ``threads`` (0: torch's).
+older than the newest one waiting is skipped), ``threads`` (0: torch's) and ``gel_motion`` (false: no
+slip velocity followed, readings carry null, the push is a few milliseconds faster).
 
 In: each image topic best effort, volatile, keep last :data:`QUEUE_DEPTH`. Out, reliable:
 ``/slipsense/reading`` (a JSON reading per judged frame pair, the record of ``slipsense watch
@@ -354,6 +355,7 @@ def main(argv: Sequence[str] | None = None, overrides: dict[str, Any] | None = N
     tolerance = _number(node, "tolerance", 0.0)
     max_lag = _number(node, "max_lag", MAX_LAG_S)
     threads = int(node.declare_parameter("threads", 0).value)
+    gel_motion = bool(node.declare_parameter("gel_motion", True).value)
     kind, msgtype = (CompressedImage, COMPRESSED) if compressed else (Image, IMAGE)
     if threads < 0 or tolerance < 0 or max_lag < 0:
         raise ConfigError(f"threads, tolerance and max_lag must be >= 0, got {threads}, {tolerance:g}, {max_lag:g}")
@@ -364,7 +366,9 @@ def main(argv: Sequence[str] | None = None, overrides: dict[str, Any] | None = N
     path = checkpoint or shipped_model(default_model_name(len(topics)))
     # the detector's alarm settings: the checkpoint's operating point unless set
     alarm_settings = {"threshold": None if threshold < 0 else threshold, "hold": None if hold < 0 else hold}
-    detector = SlipDetector.from_checkpoint(path, sensors=len(topics), backend=backend, **alarm_settings)
+    detector = SlipDetector.from_checkpoint(
+        path, sensors=len(topics), backend=backend, gel_motion=gel_motion, **alarm_settings
+    )
     log(
         f"{detector.model_name} on {detector.backend}, {len(topics)} sensor(s), alarm at {detector.threshold:g}"
         f"{'' if threshold < 0 else ' (set)'}, held {detector.hold:g} s, {torch.get_num_threads()} thread(s)"

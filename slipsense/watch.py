@@ -83,6 +83,7 @@ def watch_source(
     realtime: bool = False,
     fps: Optional[float] = None,
     hold: Optional[float] = None,
+    gel_motion: bool = True,
 ) -> dict[str, Any]:
     """Stream ``source`` through the detector; print a line per frame; optionally write an annotated
     GIF/video, the readings as JSON lines (``jsonl``, ``"-"`` for standard output) and into a new bag
@@ -94,8 +95,9 @@ def watch_source(
     mean of the sensors' probabilities, for models that judge each apart (refused for models that
     fuse them); ``heatmap``: None draws the model's heat map in ``out`` where it has one, True asks for
     it (refused for a model without one), False leaves it out; ``hold``: seconds an alarm holds
-    (default: the checkpoint's). Returns ``{"frames", "alarm_onsets", "first_alarm", "out",
-    "source"}`` (``source``: what the source reports of its delivery)."""
+    (default: the checkpoint's); ``gel_motion``: follow the gel's markers for the slip velocity.
+    Returns ``{"frames", "alarm_onsets", "first_alarm", "out", "source"}`` (``source``: what the source
+    reports of its delivery)."""
     if max_frames is not None and max_frames < 0:
         raise ConfigError(f"--max-frames must be 0 or more, got {max_frames}")
     if out is not None:
@@ -124,6 +126,7 @@ def watch_source(
     threshold, debounce = stored_operating_point(ckpt, info, threshold, None)
     backend = resolve_backend(backend, model)
     settings = dict(threshold=threshold, sensors=src.sensors, combine=combine, dtype=dtype, debounce=debounce)
+    settings["gel_motion"] = gel_motion
     try:
         onnx_dir = onnx_cache_dir(ckpt) if backend == "onnx" else None
         det = SlipDetector(

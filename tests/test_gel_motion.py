@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -11,6 +13,7 @@ from slipsense.sensors.gel_motion import CloudMotionStream, GelMotionStream, foo
 from slipsense.sensors.spec import GELSIGHT_MINI, SensorSpec
 from slipsense.streaming.detector import SlipDetector
 from slipsense.streaming.readings import reading_record
+from tests.conftest import REAL_RUN, needs_data
 from tests.test_markers import H, W, grid, render
 
 FPS = 25.0
@@ -125,3 +128,23 @@ def test_adapt_tries_the_slip_velocity_family_where_the_gel_has_markers_only():
     assert "slip-velocity" in tried and "shear-retention" in tried
     tried, why_not = families(grasps(False))
     assert "slip-velocity" not in tried and why_not["slip-velocity"] == "needs a gel with markers: no marker grid"
+
+
+@needs_data
+def test_watch_gives_each_fingers_slip_velocity_and_no_gel_motion_leaves_it_out(tmp_path):
+    from typer.testing import CliRunner
+
+    from slipsense.cli import app
+
+    got = {}
+    for flag in ("--gel-motion", "--no-gel-motion"):
+        out = tmp_path / f"{flag}.jsonl"
+        args = ["watch", str(REAL_RUN), "--max-frames", "40", "--jsonl", str(out), "--quiet", flag]
+        res = CliRunner().invoke(app, args)
+        assert res.exit_code == 0, res.output
+        got[flag] = [json.loads(line) for line in out.read_text().splitlines()]
+    on, off = got["--gel-motion"], got["--no-gel-motion"]
+    assert all(r["slip_velocity_unit"] == "mm/s" and len(r["slip_velocity"]) == 2 for r in on)
+    assert any(v is not None for r in on for v in r["slip_velocity"])  # the fingers touch within 40 frames
+    assert all(r["slip_velocity"] is None and r["slip_velocity_unit"] is None and r["shear"] is None for r in off)
+    assert [r["probability"] for r in on] == [r["probability"] for r in off]  # the detector's own answer unchanged

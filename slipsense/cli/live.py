@@ -10,6 +10,12 @@ import typer
 from slipsense.errors import ConfigError, InputError
 
 
+GEL_MOTION = typer.Option(
+    True,
+    "--gel-motion/--no-gel-motion",
+    help="follow the gel's markers for each finger's slip velocity and shear field in every reading "
+    "(a few ms a frame; where the gel has none, readings carry null either way)",
+)
 THREADS_HELP = (
     "intra-op threads for torch and ONNX Runtime (default: torch's). Use 1 on a busy machine: the "
     "small per-frame operations then wait for no descheduled worker thread"
@@ -90,13 +96,14 @@ def register(app: typer.Typer) -> None:
         realtime: bool = typer.Option(
             False, help="play a recorded source at the sensor's rate through the live capture path"
         ),
+        gel_motion: bool = GEL_MOTION,
     ):
         """Stream a video, an experiment folder, a ROS 2 bag or cameras through a slip detector."""
         from slipsense.watch import watch_source  # torch and OpenCV: when the command runs, not for --help
 
         set_threads(threads)
         options = dict(quiet=quiet, dtype=dtype, topics=topic, tolerance=tolerance, jsonl=jsonl, bag_out=bag_out)
-        options.update(realtime=realtime, fps=fps, hold=hold)
+        options.update(realtime=realtime, fps=fps, hold=hold, gel_motion=gel_motion)
         watch_source(source, checkpoint, threshold, out, combine, backend, max_frames, heatmap, **options)
 
     @app.command("ros")
@@ -117,6 +124,7 @@ def register(app: typer.Typer) -> None:
             help="seconds: while the detector is busy, a frame pair this much older than the newest one waiting "
             "is skipped (counted as behind), so readings keep up with the cameras",
         ),
+        gel_motion: bool = GEL_MOTION,
     ):
         """Run the detector as a ROS 2 node: image topics in; /slipsense/reading (std_msgs/String, one JSON
         reading per frame pair), /slipsense/alarm (Bool), /slipsense/probability, /slipsense/slip_velocity and
@@ -141,7 +149,7 @@ def register(app: typer.Typer) -> None:
             hold = check_hold(hold)
         given = dict(topics=list(topic) or None, checkpoint=checkpoint and str(checkpoint), threshold=threshold)
         given.update(hold=hold, threads=threads, tolerance=tolerance)  # typer hands floats and an int
-        overrides = {"backend": backend, "compressed": compressed, "max_lag": float(max_lag)}
+        overrides = {"backend": backend, "compressed": compressed, "max_lag": float(max_lag), "gel_motion": gel_motion}
         run_node(argv=[], overrides={**overrides, **{k: v for k, v in given.items() if v is not None}})
 
     @app.command("export")
