@@ -25,6 +25,8 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+from slipsense.paths import data_root  # noqa: E402
 
 
 def run_folds(tree: Path, work: Path) -> dict:
@@ -33,6 +35,7 @@ def run_folds(tree: Path, work: Path) -> dict:
     for d in (out, cache):
         shutil.rmtree(d, ignore_errors=True)
     env = {**os.environ, "SLIPSENSE_CACHE": str(cache), "PYTHONPATH": str(tree), "OMP_NUM_THREADS": "1"}
+    env["SLIPSENSE_DATA"] = str(data_root())  # the baseline's worktree has no shared data beside it
     cmd = [sys.executable, "-m", "slipsense.cli", "train", "--cross-validate", "--folds", "5"]
     cmd += ["--config", "configs/motionnet.yaml", "--workers", "2", "--out", str(out), "--no-progress"]
     t0 = time.perf_counter()
