@@ -46,12 +46,12 @@ from slipsense.atomic import write_text
 from slipsense.checkpoint import read_info, update_info
 from slipsense.measures import pergrasp, slipped_or_held
 from slipsense.evaluation.calibrate import calibrate, calibrated_threshold
-from slipsense.evaluation.judge import Evaluation, evaluate, shipped_for
+from slipsense.evaluation.judge import Evaluation, evaluate, recordings_set, shipped_for
 from slipsense.evaluation.summary import rate_lines
 from slipsense.measures.slipped_or_held import BASELINE_WORDS
 from slipsense.models import available, model_class
 from slipsense.progress import progress_bar
-from slipsense.recordings.frame_folders import data_sensor
+from slipsense.recordings.recording_set import Recordings
 
 #: The fewest objects, and the fewest slipped and held grasps, from which a leave-objects-out
 #: judgement says anything (one object out leaves at least two to choose a threshold on); and the
@@ -231,7 +231,7 @@ def families(grasps: Grasps) -> tuple[list[str], dict[str, str]]:
 
 
 def adapt(
-    recordings: str | Path,
+    recordings: str | Path | Recordings,
     out: str | Path,
     *,
     budget: float = 0.05,
@@ -246,7 +246,9 @@ def adapt(
     module notes).
 
     Args:
-        recordings: the user's grasps (any recordings layout; frame folders need a ``sensor.json``).
+        recordings: the user's grasps (any recordings layout; frame folders need a ``sensor.json``), a
+            :class:`~slipsense.recordings.recording_set.Recordings` or its folder: listed once, every
+            fold, training and judgement below reads that one listing.
         out: a folder: ``detector.safetensors``, ``adapt.json`` (every figure), ``folds/`` (the trainings).
         budget: the fraction of held grasps allowed to alarm where a threshold is chosen on held grasps.
         folds: object folds of the trained candidates' judgement (the objects are split into this many).
@@ -257,25 +259,24 @@ def adapt(
     Returns ``adapt.json``'s content: ``{"chosen", "why", "advice", "candidates", "kept", "baselines",
     "checkpoint", ...}``.
     """
-    root, out = Path(recordings), Path(out)
-    shipped = shipped_for(root)
-    as_is = evaluate(shipped, root, progress=progress)
+    data, out = recordings_set(recordings), Path(out)
+    shipped = shipped_for(data)
+    as_is = evaluate(shipped, data, progress=progress)
     out.mkdir(parents=True, exist_ok=True)  # once the grasps were read: a bad folder leaves no empty --out
     slipped = np.array([r.slipped for r in as_is.runs], bool)
     objects = np.array([r.object for r in as_is.runs])
-    sensor = data_sensor(root)
+    sensor = data.stated
     size = tuple(sensor.image_size) if sensor and sensor.image_size else None
     cameras = max(len(r.cameras) for r in as_is.runs)
-    grasps = Grasps(
-        len(slipped), sorted(set(objects)), cameras, size, sensor.fps if sensor else None, as_is.recordings or []
-    )
+    replayed = list(as_is.recordings or ())
+    grasps = Grasps(len(slipped), sorted(set(objects)), cameras, size, sensor.fps if sensor else None, replayed)
     echo(
         f"your grasps: {len(slipped)} ({int(slipped.sum())} slipped, {int((~slipped).sum())} held) of "
         f"{len(set(objects))} objects, {f'{size[1]}x{size[0]} px, ' if size else ''}{cameras} camera(s) a grasp"
     )
     for line in rate_lines(as_is.frame_rates()):
         echo(line)
-    doc: dict[str, Any] = {"recordings": str(root), "shipped": shipped.name, "budget": budget, "checkpoint": None}
+    doc: dict[str, Any] = {"recordings": str(data.root), "shipped": shipped.name, "budget": budget, "checkpoint": None}
     why = _too_few(slipped, objects)
     if why is not None:
         return _finish(doc, out, None, why, [why], echo)
@@ -306,11 +307,11 @@ def adapt(
     order = np.random.default_rng(seed).permutation(len(objs))
     parts = [sorted(objs[i] for i in part) for part in np.array_split(order, min(folds, len(objs)))]
     for name in names:
-        train = lambda held, k, name=name: _train(root, out / "folds" / name / f"fold{k}", name, seed + k, held)  # noqa: E731
-        s, a = _out_of_fold(keys, parts, train, root, f"{name}, one fold at a time", progress)
+        train = lambda held, k, name=name: _train(data, out / "folds" / name / f"fold{k}", name, seed + k, held)  # noqa: E731
+        s, a = _out_of_fold(keys, parts, train, data, f"{name}, one fold at a time", progress)
         add(Candidate(name, s, a, slipped, objects, model_class(name).adapt_words))
-    tuned = lambda held, k: _fine_tune(root, out / "folds" / "fine-tuned" / f"fold{k}", shipped, epochs, seed + k, held)  # noqa: E731
-    s, a = _out_of_fold(keys, parts, tuned, root, "fine-tuning, one fold at a time", progress)
+    tuned = lambda held, k: _fine_tune(data, out / "folds" / "fine-tuned" / f"fold{k}", shipped, epochs, seed + k, held)  # noqa: E731
+    s, a = _out_of_fold(keys, parts, tuned, data, "fine-tuning, one fold at a time", progress)
     words = f"the shipped {shipped.stem}'s weights trained further on your grasps"
     add(Candidate("fine-tuned", s, a, slipped, objects, words))
     echo(
@@ -328,12 +329,12 @@ def adapt(
     if chosen.name == "recalibrated":
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # the same grasps again: their warnings were given above
-            calibrate(path, shipped, root, budget=budget, progress=progress)
+            calibrate(path, shipped, data, budget=budget, progress=progress)
     else:
         if chosen.name == "fine-tuned":
-            trained = _fine_tune(root, out / "fine-tuned", shipped, epochs, seed, ())
+            trained = _fine_tune(data, out / "fine-tuned", shipped, epochs, seed, ())
         else:
-            trained = _train(root, out / "final" / chosen.name, chosen.name, seed, ())
+            trained = _train(data, out / "final" / chosen.name, chosen.name, seed, ())
         shutil.copyfile(trained, path.with_suffix(".partial"))
         path.with_suffix(".partial").replace(path)
     _promise_unseen(path, chosen, len(parts))
@@ -398,7 +399,7 @@ def advise(
     ]
 
 
-def _out_of_fold(keys, parts, train, root, desc, progress) -> tuple[np.ndarray, np.ndarray]:
+def _out_of_fold(keys, parts, train, data, desc, progress) -> tuple[np.ndarray, np.ndarray]:
     """Each grasp's peak score and alarm from the detector ``train(held, k)`` makes without its fold."""
     where = {key: i for i, key in enumerate(keys)}
     scores, alarmed = np.full(len(keys), -np.inf), np.zeros(len(keys), bool)
@@ -406,14 +407,14 @@ def _out_of_fold(keys, parts, train, root, desc, progress) -> tuple[np.ndarray, 
         ckpt = train(held, k)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # judged on its own held-out objects only
-            ev = evaluate(ckpt, root, objects=held, progress=False)
+            ev = evaluate(ckpt, data, objects=held, progress=False)
         for key, s in zip(_keys(ev), ev.peak_scores()):
             scores[where[key]], alarmed[where[key]] = s, s >= ev.threshold
     return scores, alarmed
 
 
-def _train(root: Path, out: Path, name: str, seed: int, held_out: Sequence[str], **settings) -> Path:
-    """Family ``name`` trained on ``root``'s grasps but ``held_out``'s into ``out``, with ``settings``
+def _train(data: Recordings, out: Path, name: str, seed: int, held_out: Sequence[str], **settings) -> Path:
+    """Family ``name`` trained on ``data``'s grasps but ``held_out``'s into ``out``, with ``settings``
     where given, else with its own recipe, its operating point chosen on :data:`INNER_FOLDS` inner folds
     (over a recipe that chooses it on the grasps themselves), then the family's own ``adapt_settings``.
     The detector a finished training left in ``out`` is kept; a half-done one's folder is cleared."""
@@ -424,14 +425,14 @@ def _train(root: Path, out: Path, name: str, seed: int, held_out: Sequence[str],
         shutil.rmtree(out)  # a training killed half-way: its folder holds no checkpoint yet
     settings = settings or {"inner_folds": INNER_FOLDS, **model_class(name).adapt_settings}
     return fit(
-        root, out, model=name, held_out=list(held_out), overrides=True, seed=seed, progress=False, **settings
+        data, out, model=name, held_out=list(held_out), overrides=True, seed=seed, progress=False, **settings
     ).checkpoint
 
 
-def _fine_tune(root: Path, out: Path, shipped: Path, epochs: int, seed: int, held_out: Sequence[str]) -> Path:
-    """The shipped weights trained further on ``root``'s grasps but ``held_out``'s into ``out``."""
+def _fine_tune(data: Recordings, out: Path, shipped: Path, epochs: int, seed: int, held_out: Sequence[str]) -> Path:
+    """The shipped weights trained further on ``data``'s grasps but ``held_out``'s into ``out``."""
     tuning = {"init": str(shipped), "epochs": epochs, "inner_folds": 0}
-    return _train(root, out, read_info(shipped)["model"], seed, held_out, **tuning)
+    return _train(data, out, read_info(shipped)["model"], seed, held_out, **tuning)
 
 
 def _finish(doc: dict[str, Any], out: Path, chosen: str | None, why: str, advice: list[str], echo) -> dict[str, Any]:

@@ -20,6 +20,7 @@ from typing import Any, Sequence
 
 from slipsense.evaluation.judge import Evaluation, evaluate, label_overrides, recordings_folder
 from slipsense.config_tree import DEFAULT_MODEL
+from slipsense.recordings.recording_set import Recordings
 
 
 @dataclass
@@ -47,7 +48,7 @@ class TrainedDetector:
 
 
 def fit(
-    recordings: str | Path | None = None,
+    recordings: str | Path | Recordings | None = None,
     out: str | Path = "runs/detector",
     *,
     model: str = DEFAULT_MODEL,
@@ -62,7 +63,8 @@ def fit(
     its configuration tree: the same checks, sensor spec, one-finger split and resume).
 
     Args:
-        recordings: the folder (default: the shared GelSight recordings, ``$SLIPSENSE_DATA``).
+        recordings: the folder (default: the shared GelSight recordings, ``$SLIPSENSE_DATA``), or a
+            :class:`~slipsense.recordings.recording_set.Recordings` read already.
         out: output folder (``detector.safetensors`` or ``last.safetensors``, ``metrics.csv``, ``curves.png``).
         model: a registered model: ``"motionnet"`` (the default detector), ``"motion-energy"`` (the
             non-learned baseline), or a clip model (``"vivit"``, ``"resnet3d50"``, ...).
@@ -77,7 +79,8 @@ def fit(
     tree = {
         "model": {"name": model, **settings},
         "data": {
-            "recordings": str(recordings_folder(recordings)),
+            # a set read already travels as it is (nothing listed again), a folder as its path
+            "recordings": recordings if isinstance(recordings, Recordings) else str(recordings_folder(recordings)),
             "overrides": label_overrides(overrides),
             "test_objects": list(held_out),
         },

@@ -46,6 +46,45 @@ def one_thread():
     torch.set_num_threads(before)
 
 
+class FolderOpens:
+    """Every folder listed while recording (``os.listdir`` / ``os.scandir`` audit events, by path)."""
+
+    _active: list["FolderOpens"] = []
+    _hooked = False
+
+    def __init__(self) -> None:
+        self.listed: list[Path] = []
+
+    @classmethod
+    def _audit(cls, event: str, args) -> None:
+        if cls._active and event in ("os.listdir", "os.scandir"):
+            path = Path(args[0] if args and args[0] is not None else ".")
+            for rec in cls._active:
+                rec.listed.append(path)
+
+    def __enter__(self) -> "FolderOpens":
+        if not FolderOpens._hooked:  # an audit hook stays for the process: one, idle unless recording
+            import sys
+
+            sys.addaudithook(FolderOpens._audit)
+            FolderOpens._hooked = True
+        self.listed.clear()
+        FolderOpens._active.append(self)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        FolderOpens._active.remove(self)
+
+    def count(self, folder: Path) -> int:
+        return sum(p == Path(folder) for p in self.listed)
+
+
+@pytest.fixture
+def folder_opens() -> FolderOpens:
+    """Counts the listings of each folder inside ``with folder_opens:``."""
+    return FolderOpens()
+
+
 @pytest.fixture
 def cache(tmp_path, monkeypatch) -> Path:
     """A private ``SLIPSENSE_CACHE`` for the test."""

@@ -16,7 +16,6 @@ from slipsense.cli import app
 from slipsense.measures import MEASURES, Judged, measure_all, register
 from slipsense.measures.holding import false_alarms_per_hour
 from slipsense.measures.pergrasp import RunTrace
-from slipsense.recordings import folders
 from slipsense.training.folds import _write_report
 
 runner = CliRunner()
@@ -106,30 +105,27 @@ def test_the_measure_is_in_the_json_and_the_summary_of_evaluate(tmp_path, cache,
     assert "False alarms per hour of holding" in res.stdout
 
 
-def test_evaluate_opens_the_checkpoint_once_and_scans_the_folder_once(tmp_path, cache, grasp_recordings, monkeypatch):
+def test_evaluate_opens_the_checkpoint_once_and_lists_each_folder_once(tmp_path, cache, grasp_recordings, monkeypatch, folder_opens):
     from slipsense.resources import shipped_model
 
-    weights, scans = [], []
-    load_file, visible = checkpoint_module.load_file, folders._visible_dirs
+    weights = []
+    load_file = checkpoint_module.load_file
     monkeypatch.setattr(checkpoint_module, "load_file", lambda p, *a, **k: weights.append(p) or load_file(p, *a, **k))
-
-    def listing(folder):
-        if folder == grasp_recordings:
-            scans.append(folder)
-        return visible(folder)
-
-    monkeypatch.setattr(folders, "_visible_dirs", listing)
+    runs = sorted({p.parent for p in grasp_recordings.glob("*/*/*.avi")})
     for given in ([], ["--checkpoint", str(shipped_model("motionnet-gelsight"))]):
-        weights.clear(), scans.clear()
-        res = runner.invoke(app, ["evaluate", "--recordings", str(grasp_recordings), "--no-progress", *given])
+        weights.clear()
+        with folder_opens:
+            res = runner.invoke(app, ["evaluate", "--recordings", str(grasp_recordings), "--no-progress", *given])
         assert res.exit_code == 0, res.output
         assert len(weights) == 1, weights
-        assert len(scans) == 1, scans
+        assert folder_opens.count(grasp_recordings) == 1, folder_opens.listed
+        assert len(runs) > 3 and [folder_opens.count(r) for r in runs] == [1] * len(runs)
 
 
-def test_a_frame_folder_set_is_scanned_once_too(tmp_path, cache, monkeypatch):
+def test_a_frame_folder_set_is_listed_once_too(tmp_path, cache, folder_opens):
     """The shipped detector of another sensor (gelsight-lift: its own file layout) is chosen from the
-    folder's one scan: grasps as frame folders read the same whatever the sensor says."""
+    folder's one listing: grasps as frame folders read the same whatever the sensor says; their rate
+    comes from the same listing (not looked up again for every grasp)."""
     from test_frame_folders import _grasp
 
     root = tmp_path / "lift"
@@ -140,11 +136,11 @@ def test_a_frame_folder_set_is_scanned_once_too(tmp_path, cache, monkeypatch):
             _grasp(root / f"object{i:03d}" / f"{name}_mm", slipped, seed=10 * i + g, n=8, size=(480, 640))
             lines.append(f"6{g}.{i} {'fail 0' if slipped else 'ok 1'} 100 300 200 {name} _s09_")
         (root / f"object{i:03d}_result.dat").write_text("\n".join(lines))
-    scans, visible = [], folders._visible_dirs
-    monkeypatch.setattr(folders, "_visible_dirs", lambda d: (scans.append(d) if d == root else None, visible(d))[1])
-    res = runner.invoke(app, ["evaluate", "--recordings", str(root), "--no-progress"])
+    with folder_opens:
+        res = runner.invoke(app, ["evaluate", "--recordings", str(root), "--no-progress"])
     assert res.exit_code == 0, res.output
-    assert "shear-retention-gelsight-lift" in res.stderr and len(scans) == 1, scans
+    assert "shear-retention-gelsight-lift" in res.stderr
+    assert folder_opens.count(root) == 1 and folder_opens.count(root / "object000") == 1, folder_opens.listed
 
 
 def _fold(k: int, runs: list[RunTrace]) -> dict:

@@ -24,10 +24,10 @@ import numpy as np
 from slipsense.atomic import atomic_path
 from slipsense.checkpoint import read_info, update_info
 from slipsense.errors import ConfigError, InputError
-from slipsense.evaluation.judge import judge, recordings_folder
+from slipsense.evaluation.judge import judge
 from slipsense.evaluation.summary import rate_lines
 from slipsense.measures import pergrasp
-from slipsense.recordings.frame_folders import data_sensor
+from slipsense.recordings.recording_set import Recordings
 from slipsense.sensors.spec import sensor_of
 
 
@@ -98,7 +98,7 @@ class Calibration:
 def calibrate(
     out: str | Path,
     checkpoint: str | Path | None = None,
-    recordings: str | Path | None = None,
+    recordings: str | Path | Recordings | None = None,
     *,
     budget: float = 0.05,
     overrides: str | Path | None | bool = True,
@@ -111,8 +111,9 @@ def calibrate(
     Args:
         out: the calibrated checkpoint's path (weights of ``checkpoint``, the new operating point).
         checkpoint: default: the shipped detector for the data (one finger for one camera per grasp).
-        recordings: the user's grasps (any recordings layout, e.g. frame folders labelled per grasp);
-            held grasps are required, slipped ones make the figures say what is caught.
+        recordings: the user's grasps (any recordings layout, e.g. frame folders labelled per grasp; a
+            :class:`~slipsense.recordings.recording_set.Recordings` or its folder); held grasps are
+            required, slipped ones make the figures say what is caught.
         budget: the fraction of held grasps allowed to alarm (on these grasps; the promise on new
             objects is the bound stated beside it).
         objects: only the grasps of these objects.
@@ -121,8 +122,9 @@ def calibrate(
     """
     if isinstance(budget, bool) or not isinstance(budget, (int, float)) or not 0.0 <= budget < 1.0:
         raise ConfigError(f"--budget must be a fraction in [0, 1), got {budget!r}")
-    root = recordings_folder(recordings)
-    ev = judge(checkpoint, root, overrides=overrides, progress=progress, objects=objects, on_error=on_error)
+    ev = judge(checkpoint, recordings, overrides=overrides, progress=progress, objects=objects, on_error=on_error)
+    data = ev.recordings  # as the judge read them, with the detector's layout
+    root = data.root
     source = ev.checkpoint
     scores = ev.peak_scores()
     slipped = np.array([r.slipped for r in ev.runs], bool)
@@ -148,7 +150,7 @@ def calibrate(
     }
 
     out = Path(out)
-    sensor = data_sensor(root)
+    sensor = data.stated
     with atomic_path(out) as tmp:  # copied and calibrated before it takes the name: never half of it
         shutil.copyfile(source, tmp)
         # the data's layout and frame size, but the clock the weights were trained on: frames at the
@@ -163,7 +165,7 @@ def calibrate(
 
 def check_by_objects(
     checkpoint: str | Path | None = None,
-    recordings: str | Path | None = None,
+    recordings: str | Path | Recordings | None = None,
     *,
     budget: float = 0.05,
     overrides: str | Path | None | bool = True,
@@ -175,8 +177,8 @@ def check_by_objects(
     left-out object's grasps judged at it. Returns per-object rows and the pooled figures: held grasps
     alarming on the left-out objects against the largest bound the calibrations stated, slipped grasps
     caught, accuracy. ``on_error`` as :func:`calibrate` takes it."""
-    root = recordings_folder(recordings)
-    ev = judge(checkpoint, root, overrides=overrides, progress=progress, on_error=on_error)
+    ev = judge(checkpoint, recordings, overrides=overrides, progress=progress, on_error=on_error)
+    root = ev.recordings.root
     scores = ev.peak_scores()
     slipped = np.array([r.slipped for r in ev.runs], bool)
     objects = np.array([r.object for r in ev.runs])

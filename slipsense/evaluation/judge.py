@@ -23,19 +23,30 @@ from slipsense.errors import InputError
 from slipsense.evaluation.replay import replay_recordings
 from slipsense.measures import MEASURES, Judged, measure_all, pergrasp, slipped_or_held
 from slipsense.measures.baselines import NAMES, SIZE, frame_scores
-from slipsense.recordings import folders
 from slipsense.recordings.clips import ClipSpec, plan_windows
-from slipsense.recordings.folders import SkippedInputWarning, camera_counts, validate_recordings
+from slipsense.recordings.folders import SkippedInputWarning, camera_counts
 from slipsense.recordings.frame_cache import video_products
-from slipsense.recordings.frame_folders import data_sensor
+from slipsense.recordings.recording_set import Recordings
 from slipsense.recordings.video import probe_video
 from slipsense.resources import shipped_model
 from slipsense.sensors.spec import GELSIGHT_MINI, sensor_of
 from slipsense.streaming.detector import SlipDetector, shipped_name
 
 
-def recordings_folder(recordings: str | Path | None) -> Path:
+def recordings_folder(recordings: str | Path | Recordings | None) -> Path:
+    """The folder of ``recordings`` (a set's own root), default the shared GelSight recordings."""
+    if isinstance(recordings, Recordings):
+        return recordings.root
     return Path(recordings) if recordings is not None else gelsight_recordings()
+
+
+def recordings_set(
+    recordings: str | Path | Recordings | None, sensor: SensorSpec = GELSIGHT_MINI, on_error: str = "raise"
+) -> Recordings:
+    """``recordings`` as a :class:`~slipsense.recordings.recording_set.Recordings` read with ``sensor``'s
+    layout: a given set as it is (nothing listed again), a folder scanned once (default: the shared
+    GelSight recordings)."""
+    return Recordings.of(recordings if isinstance(recordings, Recordings) else recordings_folder(recordings), sensor, on_error)
 
 
 def label_overrides(overrides: str | Path | None | bool) -> Path | None | bool:
@@ -46,17 +57,15 @@ def label_overrides(overrides: str | Path | None | bool) -> Path | None | bool:
     return False if overrides is False or overrides is None else Path(overrides)
 
 
-def shipped_for(recordings: str | Path | None, found: Sequence[Any] | None = None) -> Path:
-    """The shipped detector for a recordings folder (:func:`~slipsense.streaming.detector.shipped_name`):
+def shipped_for(recordings: str | Path | Recordings | None) -> Path:
+    """The shipped detector for a set of recordings (:func:`~slipsense.streaming.detector.shipped_name`):
     the one of its sensor where one is shipped (the frame size its ``sensor.json`` or layout states,
-    else its first recording's), for one finger where its grasps have one camera each. ``found``:
-    the folder's recordings where it was scanned already."""
-    root = recordings_folder(recordings)
-    if found is None:
+    else its first recording's), for one finger where its grasps have one camera each."""
+    if not isinstance(recordings, Recordings):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # the evaluation that follows reports them
-            found = folders.find_recordings(root, on_error="skip")
-    sensor = data_sensor(root)
+            recordings = recordings_set(recordings, on_error="skip")
+    found, sensor = recordings.listed, recordings.stated
     size = sensor.image_size if sensor is not None else None
     for rec in found if size is None else ():  # the first video that reads (the evaluation reports the others)
         try:
@@ -84,7 +93,7 @@ class Evaluation:
     debounce: int
     horizon: int = pergrasp.HORIZON
     labels: dict | None = None  # {(object, experiment, camera): VideoLabel} of the replayed videos
-    recordings: list | None = None  # the replayed Recordings (their frames feed the baselines)
+    recordings: Recordings | None = None  # the replayed recordings (their frames feed the baselines)
     startup: int = pergrasp.STARTUP  # leading frames never scored (0 for grasps labelled as a whole)
     hold_s: float = 0.0
     checkpoint: Path | None = None  # the detector judged
@@ -212,7 +221,7 @@ def _whole_runs(found: Sequence[Any], kept: Sequence[Any]) -> list[Any]:
 
 def judge(
     checkpoint: str | Path | None = None,
-    recordings: str | Path | None = None,
+    recordings: str | Path | Recordings | None = None,
     *,
     overrides: str | Path | None | bool = True,
     horizon: int = pergrasp.HORIZON,
@@ -227,7 +236,8 @@ def judge(
 
     Args:
         checkpoint: default: the shipped detector for the recordings (:func:`shipped_for`).
-        recordings: default: the shared GelSight recordings.
+        recordings: a :class:`~slipsense.recordings.recording_set.Recordings` or its folder (read once
+            here); default: the shared GelSight recordings.
         overrides: label overrides CSV; True = the shipped hand labels for runs of the shared
             recordings; False = none.
         horizon: frames before the moment of slip in which an alarm counts as a warning in time.
@@ -240,20 +250,18 @@ def judge(
     sensors (the grasp detectors) sees that many cameras per run (one: each camera is a grasp of its
     own); a clip model sees every camera of a run at once and alarms on either.
     """
-    root = recordings_folder(recordings)
-    found, scanned = None, None
+    root, scanned = recordings_folder(recordings), None
     if checkpoint is None:  # the folder says which shipped detector: scanned as the study laid it out
-        scanned = GELSIGHT_MINI
-        found = folders.find_recordings(root, on_error=on_error, sensor=scanned)
-    path = Path(checkpoint) if checkpoint is not None else shipped_for(root, found)
+        scanned = recordings_set(recordings, GELSIGHT_MINI, on_error)
+    path = Path(checkpoint) if checkpoint is not None else shipped_for(scanned)
     model, info = loaded if loaded is not None else load_model(path)
     sensor = sensor_of(info, path)
-    if found is None or not folders.reads_alike(root, sensor, scanned):
-        found = folders.find_recordings(root, on_error=on_error, sensor=sensor)
+    read = recordings_set(scanned or recordings, sensor, on_error)  # the detector's file layout, one listing
+    found = read.listed
     calibrated = ((info.get("operating_point") or {}).get("calibrated") or {}).get("objects") or ()
     # another data set's objects are stored as <folder>/<object> (data.also): they count by their own name
     trained_on = {o.rsplit("/", 1)[-1] for o in ((info.get("data") or {}).get("objects")) or ()} | set(calibrated)
-    recs = validate_recordings(found, on_error=on_error, expected_size=None)
+    recs = read.checked(on_error)
     sensors = info["model_config"].get("sensors")
     if sensors != 1:  # a run replayed with all its cameras is left out whole where one was skipped
         recs = _whole_runs(found, recs)
@@ -279,9 +287,12 @@ def judge(
 
     labels = label_runs(recs, label_overrides(overrides), on_error=on_error, progress=progress)
     recs = [r for r in recs if r.key in labels]  # left out by on_error="skip"
-    runs = replay_recordings(detector, recs, labels, progress=progress, keep_without_moment=True)
+    replayed = read.only(recs)
+    runs = replay_recordings(detector, replayed, labels, progress=progress, keep_without_moment=True)
     startup = 0 if recs and all(r.per_grasp for r in recs) else pergrasp.STARTUP
-    return Evaluation(runs, detector.threshold, detector.debounce, horizon, labels, recs, startup, detector.hold, path)
+    return Evaluation(
+        runs, detector.threshold, detector.debounce, horizon, labels, replayed, startup, detector.hold, path
+    )
 
 
 #: ``slipsense.evaluate`` (the name users know)

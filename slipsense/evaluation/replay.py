@@ -26,6 +26,7 @@ from slipsense.plots import _plt, save_figure
 from slipsense.progress import progress_bar
 from slipsense.recordings.contact import rest_mask
 from slipsense.recordings.frame_cache import video_products
+from slipsense.recordings.recording_set import Recordings
 from slipsense.recordings.types import by_run
 from slipsense.recordings.video import read_video
 from slipsense.streaming.sources import recording_rate
@@ -45,7 +46,8 @@ def replay_recordings(
     Args:
         detector: a :class:`~slipsense.streaming.detector.SlipDetector` on video frames or on the
             cameras' tracked markers (a marker model); ``sensors`` = cameras per run.
-        recordings: :class:`~slipsense.recordings.types.Recording` s (``find_recordings``).
+        recordings: a :class:`~slipsense.recordings.recording_set.Recordings` (its frame folders'
+            rate read once), or :class:`~slipsense.recordings.types.Recording` s (``find_recordings``).
         labels: ``{(object, experiment, camera): VideoLabel}``; default: the automatic labels with
             ``overrides`` (:func:`slipsense.data.label_runs`).
         limit: replay at most this many runs (in sorted order).
@@ -54,6 +56,7 @@ def replay_recordings(
             (nothing to warn of).
     """
     detector.model.check_video_replay(detector.geometry)
+    rate = recordings.rate if isinstance(recordings, Recordings) else (lambda rec: None)
     runs = by_run(recordings)
     keys = list(runs)[:limit] if limit is not None else list(runs)
     if labels is None:
@@ -63,14 +66,15 @@ def replay_recordings(
         cams = runs[key]
         # one finger: each camera is a grasp of its own
         for group in [[c] for c in cams] if detector.sensors == 1 and len(cams) > 1 else [cams]:
-            trace = _replay_run(detector, key, group, cams, labels, keep_without_moment)
+            trace = _replay_run(detector, key, group, cams, labels, keep_without_moment, rate(group[0]))
             if trace is not None:
                 out.append(trace)
     return out
 
 
-def _replay_run(detector, key, cams, run_cams, labels, keep=False) -> RunTrace | None:
-    """One run (or one camera of it) replayed; None for a slip without a moment of slip."""
+def _replay_run(detector, key, cams, run_cams, labels, keep=False, rate=None) -> RunTrace | None:
+    """One run (or one camera of it) replayed; None for a slip without a moment of slip. ``rate``:
+    ``(fps, where it was read)`` where known already, else read from the recording."""
     if len(cams) != detector.sensors:
         raise InputError(
             cams[0].path.parent,
@@ -93,7 +97,7 @@ def _replay_run(detector, key, cams, run_cams, labels, keep=False) -> RunTrace |
         counts = [{k: len(v) for k, v in c.items()} for c in cached]
         raise InputError(cams[0].path.parent, f"the cameras of this run differ in frame count: {counts}")
     # the detector runs on its own clock: frames taken at another rate are resampled to it
-    fps, fps_from = recording_rate(cams[0].path)
+    fps, fps_from = rate or recording_rate(cams[0].path)
     stamps = None if abs(fps - detector.sensor.fps) < 1e-6 * fps else np.arange(n) / fps
     if product:
         trace = detector.replay_cached(np.stack([c[product] for c in cached]), stamps=stamps)

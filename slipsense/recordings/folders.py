@@ -18,7 +18,8 @@ from typing import Iterable, Literal
 from ..errors import ConfigError, InputError
 from ..sensors.spec import GELSIGHT_MINI, SensorSpec
 from .bags import bag_cameras
-from .frame_folders import _dirs as _visible_dirs, find_frame_recordings, is_frame_layout
+from .frame_folders import find_frame_recordings, is_frame_layout
+from .listing import FolderTree
 from .types import Recording
 from .video import probe_video
 
@@ -50,7 +51,7 @@ def report(path: Path | str | None, problem: str, on_error: str) -> None:
 
 
 def find_recordings(
-    root: str | Path, on_error: OnError = "raise", sensor: SensorSpec = GELSIGHT_MINI
+    root: str | Path, on_error: OnError = "raise", sensor: SensorSpec = GELSIGHT_MINI, tree: FolderTree | None = None
 ) -> list[Recording]:
     """List every camera video under ``root``, sorted by (object, experiment, camera); or, where
     ``root`` holds grasps as folders of frames, every grasp folder
@@ -63,6 +64,9 @@ def find_recordings(
         on_error: ``"raise"`` or ``"skip"`` for problems inside object folders: an experiment
             folder whose name does not match ``exp_num_<N>``, one without ``camera_*.avi``
             videos, an object folder without experiments, two folders naming the same experiment.
+        tree: the folders listed already (:class:`~slipsense.recordings.listing.FolderTree`; a
+            :class:`~slipsense.recordings.recording_set.Recordings` carries its own): nothing is
+            listed twice.
 
     Returns:
         One :class:`Recording` per video; ``slipped`` is True when the experiment folder holds
@@ -74,23 +78,24 @@ def find_recordings(
         ConfigError: ``on_error`` is neither value.
     """
     check_on_error(on_error)
-    root = Path(root)
+    root, tree = Path(root), tree or FolderTree()
     if not root.exists():
         raise InputError(root, "recordings folder does not exist")
     if not root.is_dir():
         raise InputError(root, "is not a folder (expected the recordings folder)")
     try:
-        objects = _visible_dirs(root)
+        objects = tree.dirs(root)
     except PermissionError:
         raise InputError(root, "recordings folder is not readable (permission denied)") from None
     if not objects:
         raise InputError(root, f"no object folders (expected {_LAYOUTS})")
 
-    if is_frame_layout(root):
-        found = find_frame_recordings(root, lambda path, problem: report(path, problem, on_error))
+    if is_frame_layout(root, tree):
+        found = find_frame_recordings(root, lambda path, problem: report(path, problem, on_error), tree)
     else:
         sensor = _video_layout(sensor)
-        found = sorted((r for obj in objects for r in _object_recordings(obj, on_error, sensor)), key=lambda r: r.key)
+        listed = (r for obj in objects for r in _object_recordings(obj, on_error, sensor, tree))
+        found = sorted(listed, key=lambda r: r.key)
     if not found:
         raise InputError(root, "no usable recordings found")
     return found
@@ -109,11 +114,11 @@ def _video_layout(sensor: SensorSpec) -> SensorSpec:
     return sensor if sensor.experiment_pattern and sensor.camera_glob and sensor.slip_marker else GELSIGHT_MINI
 
 
-def reads_alike(root: str | Path, a: SensorSpec, b: SensorSpec) -> bool:
+def reads_alike(root: str | Path, a: SensorSpec, b: SensorSpec, tree: FolderTree | None = None) -> bool:
     """Whether :func:`find_recordings` of ``root`` finds the same recordings with sensor ``a`` as with
     ``b``: grasps as frame folders whatever the sensor, videos where both read the same folder layout."""
     layouts = [(s.experiment_pattern, s.camera_glob, s.slip_marker) for s in map(_video_layout, (a, b))]
-    return layouts[0] == layouts[1] or is_frame_layout(root)
+    return layouts[0] == layouts[1] or is_frame_layout(root, tree)
 
 
 def camera_counts(recordings: Iterable[Recording]) -> list[int]:
@@ -128,12 +133,12 @@ def _hint(pattern: str) -> str:
     return pattern.lstrip("^").rstrip("$").replace(r"(\d+)", "<N>")
 
 
-def _object_recordings(obj_dir: Path, on_error: str, sensor: SensorSpec = GELSIGHT_MINI) -> list[Recording]:
+def _object_recordings(obj_dir: Path, on_error: str, sensor: SensorSpec, tree: FolderTree) -> list[Recording]:
     experiment_re = re.compile(sensor.experiment_pattern)
     camera_glob, slip_marker = sensor.camera_glob, sensor.slip_marker
     camera_prefix = camera_glob.split("*")[0].lower()
     try:
-        exp_dirs = _visible_dirs(obj_dir)
+        exp_dirs = tree.dirs(obj_dir)
     except PermissionError:
         report(obj_dir, "object folder is not readable (permission denied)", on_error)
         return []
@@ -146,7 +151,7 @@ def _object_recordings(obj_dir: Path, on_error: str, sensor: SensorSpec = GELSIG
         m = experiment_re.match(exp_dir.name)
         if m is None:
             named = any(experiment_re.match(d.name) for d in exp_dirs)
-            if not named and not any(exp_dir.iterdir()):  # no layout to go by: say what a grasp folder holds
+            if not named and not tree.entries(exp_dir):  # no layout to go by: say what a grasp folder holds
                 report(exp_dir, f"grasp folder is empty (expected {_LAYOUTS})", on_error)
             else:
                 report(exp_dir, f"folder name does not match {_hint(sensor.experiment_pattern)}", on_error)
@@ -157,11 +162,11 @@ def _object_recordings(obj_dir: Path, on_error: str, sensor: SensorSpec = GELSIG
             report(exp_dir, f"experiment {number} also found as {seen[number].name}", on_error)
             continue
         try:
-            cameras = sorted(p for p in exp_dir.glob(camera_glob) if p.is_file())
+            cameras = tree.files(exp_dir, camera_glob)
         except PermissionError:
             report(exp_dir, "experiment folder is not readable (permission denied)", on_error)
             continue
-        if not cameras and (exp_dir / "metadata.yaml").is_file():  # a ROS 2 bag as the experiment
+        if not cameras and tree.is_file(exp_dir / "metadata.yaml"):  # a ROS 2 bag as the experiment
             try:
                 cameras = bag_cameras(exp_dir, sensor.fps)
             except InputError as exc:
@@ -169,8 +174,8 @@ def _object_recordings(obj_dir: Path, on_error: str, sensor: SensorSpec = GELSIG
                 continue
         # camera_2.AVI, Camera_0.avi, camera_0.mp4: look like sensor videos but are not read;
         # say so rather than label the run from the other camera alone without a word.
-        for p in sorted(exp_dir.iterdir()):
-            if p.is_file() and camera_prefix and p.name.lower().startswith(camera_prefix) and p not in cameras:
+        for p in tree.files(exp_dir):
+            if camera_prefix and p.name.lower().startswith(camera_prefix) and p not in cameras:
                 why = f"not used (sensor videos are read from files named {camera_glob}, lower case)"
                 warnings.warn(f"{p}: {why}", SkippedInputWarning, stacklevel=3)
         if not cameras:
@@ -180,7 +185,7 @@ def _object_recordings(obj_dir: Path, on_error: str, sensor: SensorSpec = GELSIG
             why = f"only one sensor video ({cameras[0].name}); the run is labelled from it alone"
             warnings.warn(f"{exp_dir}: {why}", IncompleteRunWarning, stacklevel=3)
         seen[number] = exp_dir
-        slipped = (exp_dir / slip_marker).exists()
+        slipped = tree.exists(exp_dir / slip_marker)
         out.extend(Recording(obj_dir.name, number, cam.stem, cam, slipped) for cam in cameras)
     return out
 

@@ -41,6 +41,7 @@ from typing import Callable
 from ..errors import InputError
 from ..sensors.spec import GELSIGHT_LIFT, SensorSpec
 from .frames import FRAME_SUFFIXES, frame_files
+from .listing import FolderTree
 from .types import Recording, by_run
 
 Report = Callable[[Path, str], None]
@@ -54,46 +55,43 @@ SLIPPED_WORDS = ("fail", "slip")
 HELD_WORDS = ("ok", "success")
 
 
-def _dirs(folder: Path) -> list[Path]:
-    # Hidden entries (.DS_Store, .git, editor folders) are never data.
-    return sorted(p for p in folder.iterdir() if p.is_dir() and not p.name.startswith("."))
-
-
-def camera_folders(grasp: str | Path) -> list[Path]:
+def camera_folders(grasp: str | Path, tree: FolderTree | None = None) -> list[Path]:
     """The per-camera frame folders of a grasp folder (its ``camera_*`` sub-folders), by name; empty
     for a grasp of one camera whose frames lie in the grasp folder itself (or for a run of videos)."""
-    return [p for p in _dirs(Path(grasp)) if p.name.startswith(CAMERA_FOLDER_PREFIX)]
+    return [p for p in (tree or FolderTree()).dirs(grasp) if p.name.startswith(CAMERA_FOLDER_PREFIX)]
 
 
-def is_frame_layout(root: str | Path) -> bool:
+def is_frame_layout(root: str | Path, tree: FolderTree | None = None) -> bool:
     """Whether ``root`` holds grasps as frame folders: it has ``*_result.dat`` files, or its first
     object's first grasp folder holds image files or ``camera_*`` folders of them (not
-    ``camera_*`` videos)."""
-    root = Path(root)
+    ``camera_*`` videos). ``tree``: where ``root`` was listed already."""
+    root, tree = Path(root), tree or FolderTree()
     if not root.is_dir():
         return False
-    if any(root.glob(f"*{RESULT_SUFFIX}")):
+    if tree.names(root, f"*{RESULT_SUFFIX}"):
         return True
-    objects = _dirs(root)
-    grasps = _dirs(objects[0]) if objects else []
-    if not grasps or any(p.is_file() for p in grasps[0].glob(f"{CAMERA_FOLDER_PREFIX}*")):
+    objects = tree.dirs(root)
+    grasps = tree.dirs(objects[0]) if objects else []
+    if not grasps or tree.files(grasps[0], f"{CAMERA_FOLDER_PREFIX}*"):
         return False
-    return bool(frame_files(grasps[0])) or any(frame_files(c) for c in camera_folders(grasps[0]))
+    first = grasps[0]
+    return bool(frame_files(first, tree)) or any(frame_files(c, tree) for c in camera_folders(first, tree))
 
 
-def grasp_cameras(folder: Path) -> list[tuple[str, Path]]:
+def grasp_cameras(folder: Path, tree: FolderTree | None = None) -> list[tuple[str, Path]]:
     """``[(camera, frame folder)]`` of one grasp folder: its ``camera_*`` folders by name, or the grasp
     folder itself as :data:`CAMERA`. InputError naming the folder where it holds frames beside camera
     folders, a camera folder holds no frames, or the cameras differ in frame count (listed, not
     decoded: a gap or an undecodable frame is found when the frames are read)."""
-    cameras = camera_folders(folder)
+    tree = tree or FolderTree()
+    cameras = camera_folders(folder, tree)
     if not cameras:
         return [(CAMERA, folder)]
-    if frame_files(folder):
+    if frame_files(folder, tree):
         raise InputError(folder, "holds frames beside its camera_* folders: put every frame into its camera's folder")
     counts = {}
     for cam in cameras:
-        counts[cam.name] = len(frame_files(cam))
+        counts[cam.name] = len(frame_files(cam, tree))
         if not counts[cam.name]:
             raise InputError(cam, f"camera folder holds no image files ({', '.join(FRAME_SUFFIXES)})")
     if len(set(counts.values())) != 1:
@@ -112,18 +110,22 @@ def _cameras_words(cameras: tuple[str, ...]) -> str:
     return "its frames in itself (one camera)" if cameras == (CAMERA,) else " and ".join(cameras)
 
 
-def data_sensor(root: str | Path) -> SensorSpec | None:
+def data_sensor(root: str | Path, tree: FolderTree | None = None) -> SensorSpec | None:
     """The sensor a frame-folder data set states: its ``sensor.json``, else the GelSight of the
     ``gelsight-lift`` data where the folder is laid out as that data is (``*_result.dat``), else
-    None (a video data set: the detector's own sensor applies)."""
-    root = Path(root)
+    None (a video data set: the detector's own sensor applies). ``tree``: where ``root`` was listed."""
+    root, tree = Path(root), tree or FolderTree()
     path = root / "sensor.json"
-    if path.is_file():
+    try:
+        stated = tree.is_file(path)
+    except (NotADirectoryError, FileNotFoundError, PermissionError):
+        return None
+    if stated:
         try:
             return SensorSpec.from_dict(json.loads(path.read_text(encoding="utf-8")))
         except (ValueError, UnicodeDecodeError) as exc:
             raise InputError(path, f"not a sensor spec ({exc})") from None
-    return GELSIGHT_LIFT if any(root.glob(f"*{RESULT_SUFFIX}")) else None
+    return GELSIGHT_LIFT if tree.names(root, f"*{RESULT_SUFFIX}") else None
 
 
 def read_result_file(path: Path) -> dict[str, bool]:
@@ -153,13 +155,13 @@ def read_result_file(path: Path) -> dict[str, bool]:
     return out
 
 
-def _object_grasps(root: Path, obj: Path, report: Report, with_results: bool) -> list[Recording]:
+def _object_grasps(root: Path, obj: Path, report: Report, with_results: bool, tree: FolderTree) -> list[Recording]:
     result = root / f"{obj.name}{RESULT_SUFFIX}"
-    if with_results and not result.is_file():  # its grasps would all read as held
+    if with_results and not tree.is_file(result):  # its grasps would all read as held
         report(obj, f"no {result.name} beside it, where the other objects have theirs")
         return []
-    outcomes = read_result_file(result) if result.is_file() else None
-    folders = {g.name: g for g in _dirs(obj)}
+    outcomes = read_result_file(result) if tree.is_file(result) else None
+    folders = {g.name: g for g in tree.dirs(obj)}
     found: list[Recording] = []
     named: set[str] = set()
     if outcomes is not None:
@@ -183,7 +185,7 @@ def _object_grasps(root: Path, obj: Path, report: Report, with_results: bool) ->
             report(folder, f"grasp {number} also found as {seen[number].name}")
             continue
         try:
-            cameras = grasp_cameras(folder)
+            cameras = grasp_cameras(folder, tree)
         except InputError as exc:
             report(exc.path, exc.problem)
             continue
@@ -191,25 +193,27 @@ def _object_grasps(root: Path, obj: Path, report: Report, with_results: bool) ->
         if outcomes is not None:
             slipped = outcomes.get(folder.name, outcomes.get(folder.name.removesuffix("_mm")))
         else:
-            slipped = (folder / "slip.txt").exists()
+            slipped = tree.exists(folder / "slip.txt")
         found.extend(Recording(obj.name, number, cam, path, bool(slipped), per_grasp=True) for cam, path in cameras)
     if not folders:
         report(obj, f"object folder holds no grasp folders of frames ({', '.join(FRAME_SUFFIXES)})")
     return found
 
 
-def find_frame_recordings(root: str | Path, report: Report) -> list[Recording]:
+def find_frame_recordings(root: str | Path, report: Report, tree: FolderTree | None = None) -> list[Recording]:
     """One :class:`Recording` per grasp folder under ``root`` (``path``: the folder; ``per_grasp``
     True), sorted by key. Frames are not read here (see
     :func:`~slipsense.recordings.folders.validate_recordings`). ``report(path, problem)`` raises or
-    warns (:func:`slipsense.recordings.folders.find_recordings` passes its ``on_error`` rule)."""
-    root = Path(root)
-    results = sorted(root.glob(f"*{RESULT_SUFFIX}"))
+    warns (:func:`slipsense.recordings.folders.find_recordings` passes its ``on_error`` rule).
+    ``tree``: where ``root`` was listed already."""
+    root, tree = Path(root), tree or FolderTree()
+    results = tree.names(root, f"*{RESULT_SUFFIX}")
+    objects = tree.dirs(root)
     for result in results:
         name = result.name.removesuffix(RESULT_SUFFIX)
-        if not (root / name).is_dir():
+        if root / name not in objects:
             report(result, f"names object {name}, which has no folder")
-    found = [r for obj in _dirs(root) for r in _object_grasps(root, obj, report, bool(results))]
+    found = [r for obj in objects for r in _object_grasps(root, obj, report, bool(results), tree)]
     return _same_cameras(sorted(found, key=lambda r: r.key), report)
 
 

@@ -22,6 +22,7 @@ import cv2
 import numpy as np
 
 from ..errors import InputError
+from .listing import FolderTree
 
 #: Image files read as frames (case-insensitive).
 FRAME_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp")
@@ -29,13 +30,14 @@ FRAME_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp")
 _LAST_NUMBER = re.compile(r"(\d+)(?!.*\d)")
 
 
-def frame_files(folder: str | Path) -> list[Path]:
+def frame_files(folder: str | Path, tree: FolderTree | None = None) -> list[Path]:
     """The image files of ``folder`` in frame order (by the last number in each name, then by name);
-    hidden files are not frames. Empty when the folder holds none."""
+    hidden files are not frames. Empty when the folder holds none. ``tree``: where the folder was
+    listed already (:class:`~slipsense.recordings.listing.FolderTree`)."""
     folder = Path(folder)
     try:
-        listed = [p for p in folder.iterdir() if p.suffix.lower() in FRAME_SUFFIXES]
-        files = [p for p in listed if not p.name.startswith(".") and p.is_file()]
+        listed = (tree or FolderTree()).files(folder)
+        files = [p for p in listed if p.suffix.lower() in FRAME_SUFFIXES and not p.name.startswith(".")]
     except PermissionError:
         raise InputError(folder, "frame folder is not readable (permission denied)") from None
 

@@ -20,6 +20,7 @@ from slipsense.recordings.bags import check_timing, is_bag, read_bag
 from slipsense.recordings.folders import CAMERA_GLOB
 from slipsense.recordings.frame_folders import CAMERA_FOLDER_PREFIX, data_sensor, grasp_cameras
 from slipsense.recordings.frames import is_frame_folder
+from slipsense.recordings.recording_set import STATE_FPS  # where it reads whole recordings folders
 from slipsense.recordings.video import probe_video, read_video
 from slipsense.sensors.spec import check_fps, fps_problem
 from slipsense.streaming.capture import CaptureThread, open_camera, paired
@@ -135,8 +136,6 @@ def open_source(
 
 #: What to do about a source whose rate cannot be known, where the command takes ``--fps``.
 GIVE_FPS = "give --fps"
-#: ... and where it reads whole recordings folders (``evaluate``, ``calibrate``, training).
-STATE_FPS = 'state it in a sensor.json ({"fps": 25}) in the recordings folder'
 
 
 def video_rate(path: Path, given: float | None = None, fix: str = GIVE_FPS) -> tuple[float, str]:

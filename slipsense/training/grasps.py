@@ -37,7 +37,8 @@ from slipsense.errors import ConfigError, InputError, SlipsenseError
 from slipsense.measures import pergrasp
 from slipsense.models import build
 from slipsense.models.base import RecordingsShape
-from slipsense.recordings.folders import camera_counts, find_recordings, validate_recordings
+from slipsense.recordings.folders import camera_counts
+from slipsense.recordings.recording_set import Recordings
 from slipsense.recordings.runs import GraspRun, load_runs
 from slipsense.config_tree import DEFAULT_MODEL, typed
 from slipsense.sensors.spec import GELSIGHT_MINI
@@ -447,13 +448,13 @@ def load_grasp_data(
     progress: bool = True,
     sensor=None,
 ) -> tuple[list[GraspRun], dict]:
-    """Labelled whole runs of a recordings folder (``(runs, labels)``), labels with overrides;
-    ``sensor`` (a :class:`~slipsense.sensors.spec.SensorSpec`, default the GelSight Mini) names the
-    folder layout."""
-    found = find_recordings(recordings, on_error=on_error, sensor=sensor or GELSIGHT_MINI)
-    recs = validate_recordings(found, on_error=on_error, expected_size=None)
+    """Labelled whole runs of a :class:`~slipsense.recordings.recording_set.Recordings` or its folder
+    (``(runs, labels)``), labels with overrides; ``sensor`` (a :class:`~slipsense.sensors.spec.SensorSpec`,
+    default the GelSight Mini) names the folder layout."""
+    read = Recordings.of(recordings, sensor or GELSIGHT_MINI, on_error)
+    recs = read.checked(on_error)
     if not recs:
-        raise InputError(recordings, "no usable recordings")
+        raise InputError(read.root, "no usable recordings")
     labels = label_runs(recs, overrides, on_error=on_error, progress=progress)
     recs = [r for r in recs if r.key in labels]  # runs left out by on_error="skip"
     sensors = cameras_per_grasp(recs)
@@ -468,13 +469,14 @@ def cameras_per_grasp(recordings) -> int:
 
 
 def recordings_shape(recordings, sensor=None, on_error: str = "raise") -> RecordingsShape | None:
-    """What the grasps of a recordings folder are, from its folder structure alone (nothing decoded):
-    the cameras per grasp and whether every grasp is labelled as a whole; None where the folder cannot
-    be read so (missing, empty, a bad layout: :func:`load_grasp_data` names the problem)."""
+    """What the grasps of a :class:`~slipsense.recordings.recording_set.Recordings` (or its folder) are,
+    from its folder structure alone (nothing decoded): the cameras per grasp and whether every grasp is
+    labelled as a whole; None where the folder cannot be read so (missing, empty, a bad layout:
+    :func:`load_grasp_data` names the problem)."""
     try:
         with warnings.catch_warnings():  # what on_error="skip" leaves out is said when the data is read
             warnings.simplefilter("ignore")
-            found = find_recordings(recordings, on_error=on_error, sensor=sensor or GELSIGHT_MINI)
+            found = Recordings.of(recordings, sensor or GELSIGHT_MINI, on_error).listed
     except SlipsenseError:
         return None
     return RecordingsShape(cameras_per_grasp(found), all(r.per_grasp for r in found)) if found else None

@@ -31,7 +31,7 @@ from slipsense.recordings.runs import per_sensor
 from slipsense.config_tree import dump_tree
 from slipsense.sensors.spec import GELSIGHT_MINI
 from slipsense.training.clips import run_training
-from slipsense.training.settings import RunConfig, recordings_root, recordings_sensor
+from slipsense.training.settings import RunConfig, recordings_read
 from slipsense.training.folds import pool, run_folds
 from slipsense.training.grasp_detector import object_split, train_detector
 from slipsense.training.grasps import load_grasp_data, recordings_shape
@@ -155,14 +155,14 @@ def grasp_data(run: RunConfig, progress: bool = True):
     checkpoints and reports keep (``config``: the run's tree)."""
     d, cfg = run.data, run.train
     image_size = tuple(cfg.model_config.get("image_size") or build(run.name).image_size)
-    root = recordings_root(d)
-    sensor = recordings_sensor(d)
+    read = recordings_read(d)  # the folder listed once (or the set the caller read)
+    root, sensor = read.root, read.layout
     model = build(run.name, **cfg.model_config)
     sensors = model.sensors
-    shape = recordings_shape(root, sensor, d.on_error)
+    shape = recordings_shape(read)
     if shape is not None:  # before any frame is decoded (else the reading below names the problem)
         model.check_cameras([shape.cameras], f"the recordings ({root})")
-    runs, labels = load_grasp_data(root, d.overrides, image_size, d.on_error, progress, sensor=sensor)
+    runs, labels = load_grasp_data(read, d.overrides, image_size, d.on_error, progress, sensor=sensor)
     model.check_cameras([r.gray.shape[0] for r in runs], f"the recordings ({root})")
     if d.also is not None:
         if d.also.resolve() == root.resolve():

@@ -16,7 +16,7 @@ it and never changes it.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -26,6 +26,7 @@ from slipsense.errors import ConfigError, SlipsenseError
 from slipsense.models import available, model_class, settings_of
 from slipsense.models.base import RecordingsShape
 from slipsense.recordings.frame_folders import data_sensor
+from slipsense.recordings.recording_set import Recordings
 from slipsense.config_tree import DEFAULT_MODEL, SECTIONS, check_keys, check_seed, to_plain
 from slipsense.sensors.spec import GELSIGHT_MINI, SensorSpec, sensor_named
 from slipsense.training.clips import TrainConfig, paper_settings
@@ -54,12 +55,18 @@ class DataConfig:
     overrides: Path | bool | None = None  # CSV of hand labels; None: the shipped ones; False: none
     sensor: str | None = None  # a registered sensor's name; None: the GelSight Mini (grasps: the data's own)
     also: Path | None = None  # grasp detectors: another data set's recordings, trained on alongside
+    # the recordings as read already where the caller holds them (``recordings`` is then their folder):
+    # not a setting, never stored; training lists nothing again
+    read: Recordings | None = field(default=None, compare=False, repr=False)
 
     @classmethod
     def from_section(cls, values: Mapping[str, Any]) -> "DataConfig":
         """From a tree's ``data`` section whose keys are known: paths resolved, ``size`` and
         ``test_objects`` (a list, or comma-separated names) checked."""
         data = {k: v for k, v in values.items() if v is not None}
+        if isinstance(data.get("recordings"), Recordings):
+            data["read"] = data["recordings"]
+            data["recordings"] = data["read"].root
         for key in ("recordings", "markers", "overrides", "also"):
             if data.get(key) not in (None, False):  # overrides False: no hand labels at all
                 data[key] = resolve_path(data[key])
@@ -82,19 +89,32 @@ def recordings_root(data: DataConfig) -> Path:
 def recordings_sensor(data: DataConfig) -> SensorSpec:
     """The sensor a grasp detector's recordings are read with: ``data.sensor`` by name, else the
     data's own (a frame-folder set's ``sensor.json`` or layout), else the GelSight Mini."""
-    root = recordings_root(data)
-    return sensor_named(data.sensor) if data.sensor else data_sensor(root) or GELSIGHT_MINI
+    if data.sensor:
+        return sensor_named(data.sensor)
+    stated = data.read.stated if data.read is not None else data_sensor(recordings_root(data))
+    return stated or GELSIGHT_MINI
+
+
+def recordings_read(data: DataConfig) -> Recordings:
+    """The run's recordings read with its sensor's layout: the set it was given, else its folder scanned once."""
+    return Recordings.of(data.read or recordings_root(data), recordings_sensor(data), data.on_error)
+
+
+def read_once(data: DataConfig) -> DataConfig:
+    """``data`` holding its recordings as read (:func:`recordings_read`): the scan the run's recipe
+    defaults look at is the one its training reads; as it was where they cannot be read here (the
+    trainer names the problem when it reads them)."""
+    try:
+        return replace(data, read=recordings_read(data))
+    except SlipsenseError:
+        return data
 
 
 def data_shape(data: DataConfig) -> RecordingsShape | None:
     """The run's recordings as the model's :meth:`~slipsense.models.base.SlipModel.training_defaults`
     take them (cameras per grasp, labelled as a whole), from the folder structure alone; None where
-    they cannot be looked at here (the trainer names the problem when it reads them)."""
-    try:
-        sensor = recordings_sensor(data)
-    except SlipsenseError:
-        return None
-    return recordings_shape(recordings_root(data), sensor, data.on_error)
+    they cannot be looked at here."""
+    return recordings_shape(data.read) if data.read is not None else None
 
 
 def under(defaults: Mapping[str, Any], model: dict, train: dict) -> tuple[dict, dict]:
@@ -106,7 +126,7 @@ def under(defaults: Mapping[str, Any], model: dict, train: dict) -> tuple[dict, 
 
 
 #: ``data`` keys of a clip model, in the order its stored tree lists them
-CLIP_DATA_KEYS = tuple(f.name for f in fields(DataConfig) if f.name != "also")
+CLIP_DATA_KEYS = tuple(f.name for f in fields(DataConfig) if f.name not in ("also", "read"))
 #: ``data`` keys of a grasp detector that its stored tree keeps (what it held out is in its checkpoint)
 GRASP_STORED_KEYS = ("recordings", "overrides", "on_error", "sensor", "also")
 #: every ``data`` key of a grasp detector (``size`` becomes its ``model.image_size``)
@@ -204,6 +224,7 @@ class RunConfig:
             model["image_size"] = list(data_config.size)
             data_config = replace(data_config, size=None)
         # the model's recipe and what the recordings imply, under every setting the tree gives
+        data_config = read_once(data_config)
         defaults = model_class(name).training_defaults(data_shape(data_config), init=train.get("init") is not None)
         model, train = under(defaults, model, train)
         settings = make_config(name, {**train, **{f"model.{k}": v for k, v in model.items()}})
