@@ -46,7 +46,7 @@ from slipsense.atomic import write_text
 from slipsense.checkpoint import read_info, update_info
 from slipsense.measures import pergrasp, slipped_or_held
 from slipsense.evaluation.calibrate import calibrate, calibrated_threshold
-from slipsense.evaluation.judge import Evaluation, evaluate, recordings_set, shipped_for
+from slipsense.evaluation.judge import Evaluation, judge, recordings_set, shipped_for
 from slipsense.evaluation.summary import rate_lines
 from slipsense.measures.slipped_or_held import BASELINE_WORDS
 from slipsense.models import available, model_class
@@ -261,7 +261,7 @@ def adapt(
     """
     data, out = recordings_set(recordings), Path(out)
     shipped = shipped_for(data)
-    as_is = evaluate(shipped, data, progress=progress)
+    as_is = judge(shipped, data, progress=progress)
     out.mkdir(parents=True, exist_ok=True)  # once the grasps were read: a bad folder leaves no empty --out
     slipped = np.array([r.slipped for r in as_is.runs], bool)
     objects = np.array([r.object for r in as_is.runs])
@@ -407,7 +407,7 @@ def _out_of_fold(keys, parts, train, data, desc, progress) -> tuple[np.ndarray, 
         ckpt = train(held, k)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # judged on its own held-out objects only
-            ev = evaluate(ckpt, data, objects=held, progress=False)
+            ev = judge(ckpt, data, objects=held, progress=False)
         for key, s in zip(_keys(ev), ev.peak_scores()):
             scores[where[key]], alarmed[where[key]] = s, s >= ev.threshold
     return scores, alarmed
@@ -424,9 +424,7 @@ def _train(data: Recordings, out: Path, name: str, seed: int, held_out: Sequence
     if out.exists():
         shutil.rmtree(out)  # a training killed half-way: its folder holds no checkpoint yet
     settings = settings or {"inner_folds": INNER_FOLDS, **model_class(name).adapt_settings}
-    return fit(
-        data, out, model=name, held_out=list(held_out), overrides=True, seed=seed, progress=False, **settings
-    ).checkpoint
+    return fit(data, out, model=name, held_out=list(held_out), seed=seed, progress=False, **settings).checkpoint
 
 
 def _fine_tune(data: Recordings, out: Path, shipped: Path, epochs: int, seed: int, held_out: Sequence[str]) -> Path:

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from slipsense.atomic import write_with
-from slipsense.data import label_runs
+from slipsense.recordings.labelling import label_runs
 from slipsense.errors import InputError
 from slipsense.recordings.clips import ClipSpec, plan_windows
 from slipsense.recordings.folders import find_recordings, validate_recordings

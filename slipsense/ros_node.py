@@ -129,7 +129,7 @@ class ReadingLoop:
     gets no reading is counted by cause (:meth:`status`).
 
     ``on_message`` (the subscriptions' callback) only counts and pairs. With ``inline`` the pairs are
-    judged there and then; else by :meth:`judge_pending`, which :meth:`start` runs on a thread of its
+    judged there and then; else by :meth:`read_pending`, which :meth:`start` runs on a thread of its
     own, so the subscriptions' queues are emptied while the detector works."""
 
     def __init__(
@@ -191,9 +191,9 @@ class ReadingLoop:
             if self._ready:
                 self._cond.notify()
         if self.inline:
-            self.judge_pending()
+            self.read_pending()
 
-    def judge_pending(self) -> None:
+    def read_pending(self) -> None:
         """Judge the pairs waiting, oldest first; one more than ``max_lag`` older than the newest
         waiting is left out as ``behind``."""
         while True:
@@ -204,7 +204,7 @@ class ReadingLoop:
                 if self._ready and self._ready[-1][1] - stamp > self.max_lag_ns:
                     self.left_out["behind"] += 1
                     continue
-            self.judge(index, stamp, msgs)
+            self.read_pair(index, stamp, msgs)
 
     def _leave_out(self, cause: str, why: str | None = None) -> None:
         with self._cond:
@@ -212,7 +212,7 @@ class ReadingLoop:
         if why is not None:
             self.log(f"left out ({cause}): {why}")
 
-    def judge(self, index: int, stamp: int, msgs: Sequence[Any]) -> None:
+    def read_pair(self, index: int, stamp: int, msgs: Sequence[Any]) -> None:
         where = f"{', '.join(self.topics)} at {stamp * 1e-9:.6f} s"
         if self.last_judged_ns is not None and stamp <= self.last_judged_ns:
             before = self.last_judged_ns * 1e-9
@@ -257,7 +257,7 @@ class ReadingLoop:
                         self._cond.wait_for(lambda: self._ready or self._stopping)
                         if self._stopping:
                             return
-                    self.judge_pending()
+                    self.read_pending()
             except BaseException as exc:  # noqa: BLE001  (handed to the node, which stops on it)
                 self.error = exc
                 self.log(f"the detector stopped: {type(exc).__name__}: {exc}")

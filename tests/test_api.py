@@ -57,7 +57,7 @@ def test_fit_then_evaluate_return_objects(tmp_path, grasp_recordings, cache, one
     assert len(trained.history) == 2 and "epoch" in trained.history[0]
     assert trained.held_out["per_grasp"]["slip_runs"] + trained.held_out["per_grasp"]["held_runs"] == 2
     report = slipsense.evaluate(trained.checkpoint, grasp_recordings, progress=False)
-    summary = report.summary()
+    summary = report.per_grasp()
     assert summary["slip_runs"] == 4 and summary["held_runs"] == 4
     assert report.threshold == trained.operating_point["threshold"]
     assert report.to_json(tmp_path / "eval.json").is_file()
@@ -141,7 +141,7 @@ def test_shipped_overrides_apply_to_the_shared_recordings_only(tmp_path):
     """One data path: every command labels through data.label_runs, which gives runs of the shared
     recordings the shipped hand labels unless told otherwise."""
     from slipsense.paths import gelsight_recordings
-    from slipsense.data import shipped_overrides_for
+    from slipsense.recordings.labelling import shipped_overrides_for
     from slipsense.recordings.types import Recording
 
     def rec(root, obj, exp, cam):
@@ -218,6 +218,6 @@ def test_a_model_of_tracked_markers_is_judged_per_grasp_on_recordings(tmp_path, 
     for run in ("exp_num_2", "exp_num_4"):
         (recordings / run).symlink_to(REAL_RUN.parent / run)
     ev = slipsense.evaluate(tmp_path / "r" / "last.safetensors", recordings.parent, threshold=0.5, progress=False)
-    summary = ev.summary()
+    summary = ev.per_grasp()
     assert (summary["slip_runs"], summary["held_runs"]) == (1, 1)
     assert all(len(r.probability) == r.n_frames and np.isfinite(r.probability[20:]).all() for r in ev.runs)

@@ -93,6 +93,8 @@ def test_marker_model_replays_a_real_run_from_its_tracked_markers(cache, one_thr
 
     from slipsense.evaluation.replay import replay_recordings
     from slipsense.models import build
+    from slipsense.recordings.labelling import label_runs
+    from slipsense.recordings.recording_set import Recordings
     from slipsense.recordings.markers import marker_sequences, track_recording
     from slipsense.streaming.detector import SlipDetector
 
@@ -101,8 +103,10 @@ def test_marker_model_replays_a_real_run_from_its_tracked_markers(cache, one_thr
     det = SlipDetector(model.eval(), sensors=2, info={"data": {"clip_spec": {"marker_layout": "40"}}})
     assert det.cache_product == "markers:40"
     held = REAL_RUN.parent / "exp_num_4"  # a grasp that held (REAL_RUN's slip has no moment)
-    recs = [r for r in find_recordings(REAL_RUN.parent.parent) if r.path.parent == held]
-    (trace,) = replay_recordings(det, recs, progress=False)
+    data = Recordings.open(REAL_RUN.parent.parent)
+    recs = data.only([r for r in data.listed if r.path.parent == held])
+    labels = label_runs(recs.listed, progress=False)
+    (trace,) = replay_recordings(det, recs, labels, progress=False)
     assert not trace.slipped and trace.cameras == ("camera_0", "camera_2")
     clouds = [marker_sequences(track_recording(held / f"{c}.avi"), 40, normalise=False) for c in trace.cameras]
     assert clouds[0].shape == (trace.n_frames, 40, 3)
@@ -115,7 +119,7 @@ def test_marker_model_replays_a_real_run_from_its_tracked_markers(cache, one_thr
     on_grid = build("temnet", frames=6, markers=63, d_model=8, heads=2, blocks=1, ff_dim=8, head_hidden=0)
     det = SlipDetector(on_grid.eval(), sensors=2, info={"data": {"clip_spec": {"marker_layout": "7x9"}}})
     assert det.cache_product == "markers:7x9"
-    (trace,) = replay_recordings(det, recs, progress=False)
+    (trace,) = replay_recordings(det, recs, labels, progress=False)
     clouds = [grid_sequences(track_recording(held / f"{c}.avi"), (7, 9)) for c in trace.cameras]
     np.testing.assert_allclose(trace.probability, det.replay(*clouds).probability, rtol=0, atol=1e-6)
     with pytest.raises(ConfigError, match="marker layout '7x8' holds 56 markers"):

@@ -246,11 +246,11 @@ def test_grasps_labelled_as_a_whole_fine_tune_the_shipped_detector(tmp_path, cac
     """Slipped grasps without a moment train as bags of frames (the most slip-like frame is slip); the
     detector starts from the shipped weights and its threshold is chosen per grasp."""
     from slipsense.checkpoint import read_info
-    from slipsense.resources import ONE_SENSOR_MODEL, shipped_model
+    from slipsense.resources import ONE_SENSOR_DETECTOR, shipped_model
 
     root = _lift_data(tmp_path / "lift")
     out = tmp_path / "tuned"
-    init = str(shipped_model(ONE_SENSOR_MODEL))
+    init = str(shipped_model(ONE_SENSOR_DETECTOR))
     args = ["train", "--recordings", str(root), "--set", f"train.init={init}", "--set", "train.startup=0"]
     res = runner.invoke(app, [*args, "--epochs", "2", "--inner-folds", "0", "--out", str(out), "--no-progress"])
     assert res.exit_code == 0, res.output
@@ -335,11 +335,11 @@ def test_review_cases_of_frame_folders_are_refused_in_one_line(tmp_path, cache):
 
 
 def test_held_out_grasps_labelled_as_a_whole_are_not_counted_as_held(tmp_path, cache, one_thread):
-    from slipsense.resources import ONE_SENSOR_MODEL, shipped_model
+    from slipsense.resources import ONE_SENSOR_DETECTOR, shipped_model
 
     root = _lift_data(tmp_path / "lift")
     out = tmp_path / "tuned"
-    init = str(shipped_model(ONE_SENSOR_MODEL))
+    init = str(shipped_model(ONE_SENSOR_DETECTOR))
     args = ["train", "--recordings", str(root), "--set", f"train.init={init}", "--set", "train.startup=0"]
     res = runner.invoke(
         app, [*args, "--epochs", "1", "--fold", "0", "--folds", "3", "--out", str(out), "--no-progress"]

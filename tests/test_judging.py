@@ -105,7 +105,9 @@ def test_the_measure_is_in_the_json_and_the_summary_of_evaluate(tmp_path, cache,
     assert "False alarms per hour of holding" in res.stdout
 
 
-def test_evaluate_opens_the_checkpoint_once_and_lists_each_folder_once(tmp_path, cache, grasp_recordings, monkeypatch, folder_opens):
+def test_evaluate_opens_the_checkpoint_once_and_lists_each_folder_once(
+    tmp_path, cache, grasp_recordings, monkeypatch, folder_opens
+):
     from slipsense.resources import shipped_model
 
     weights = []

@@ -345,4 +345,4 @@ def test_a_marker_file_on_a_grid_makes_a_checkpoint_that_replays_on_that_grid(tm
     untracked = SlipDetector.from_checkpoint(tmp_path / "t" / "last.safetensors", threshold=0.5)
     assert untracked.cache_product is None
     with pytest.raises(ConfigError, match="not tracked in videos"):
-        replay_recordings(untracked, [], progress=False)
+        replay_recordings(untracked, [], {}, progress=False)

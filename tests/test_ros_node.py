@@ -46,7 +46,7 @@ def test_every_frame_pair_is_judged_or_left_out_by_cause_and_its_number_shows_th
     det = SlipDetector.pretrained(sensors=2, backend="torch")
     published, logged = [], []
     loop = ReadingLoop(det, ["/l", "/r"], "sensor_msgs/msg/Image", lambda *a: published.append(a), logged.append)
-    loop.inline = False  # judged when judge_pending is called, as the node's detector thread does
+    loop.inline = False  # read when read_pending is called, as the node's detector thread does
     img = np.random.default_rng(1).integers(0, 255, (240, 320, 3), dtype=np.uint8)
     seq = [0, 0]
 
@@ -59,12 +59,12 @@ def test_every_frame_pair_is_judged_or_left_out_by_cause_and_its_number_shows_th
     for i in range(7):  # pairs 0-6
         send(0, 40 * i, lost=i == 3)
         send(1, 40 * i + 3, lost=i == 4, encoding="yuv422" if i == 5 else "bgr8")
-        loop.judge_pending()
+        loop.read_pending()
     send(0, 80), send(1, 80)  # pair 7: a stamp already judged
-    loop.judge_pending()
+    loop.read_pending()
     for i in range(7, 12):  # pairs 8-12 arrive while the detector is busy
         send(0, 40 * i), send(1, 40 * i + 3)
-    loop.judge_pending()  # 8 and 9 are more than max_lag (0.1 s) older than 12: skipped
+    loop.read_pending()  # 8 and 9 are more than max_lag (0.1 s) older than 12: skipped
     status = loop.status()
     assert status["left_out"] == {"lost": 1, "unpaired": 1, "undecodable": 1, "late": 1, "behind": 2}
     assert status["pairs"] == 13 and status["judged"] == 7 and status["pending"] == 0
@@ -92,7 +92,7 @@ def test_the_sources_rate_is_read_from_the_stamps_sent_not_from_the_pairs_judged
     for i in range(0, 24, 2):  # two pairs arrive between judgements: the older is left out, behind
         for j in (i, i + 1):
             loop.on_message(0, _msg(40_000_000 * j, img)), loop.on_message(1, _msg(40_000_000 * j, img))
-        loop.judge_pending()
+        loop.read_pending()
     assert loop.status()["left_out"]["behind"] == 12
     (rate,) = [line for line in logged if "frames/s (the header stamps)" in line]
     assert "/l, /r: 25 frames/s (the header stamps)" in rate, rate

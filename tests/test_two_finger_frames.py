@@ -73,7 +73,7 @@ def test_camera_folders_are_read_as_two_camera_runs_with_both_cameras_in_order(t
 def test_evaluate_judges_two_finger_frames_with_the_two_finger_detector(tmp_path, cache):
     """At the GelSight Mini's 240 x 320 the shipped two-finger detector is chosen and replays both
     cameras of every grasp; with one camera folder per grasp the one-finger detector is."""
-    from slipsense.evaluation.judge import evaluate, shipped_for
+    from slipsense.evaluation.judge import judge, shipped_for
 
     root = _two_finger_data(tmp_path / "mine", objects=2, n=6, size=(240, 320))
     assert shipped_for(root).stem == "motionnet-gelsight"
@@ -84,7 +84,7 @@ def test_evaluate_judges_two_finger_frames_with_the_two_finger_detector(tmp_path
     assert "2 of 4 grasps slipped, 2 objects" in res.output
     doc = json.loads(out.read_text())
     assert doc["frame_rate"]["recordings"] == [{"fps": 25.0, "from": str(root / "sensor.json"), "runs": 4}]
-    ev = evaluate(None, root, progress=False)
+    ev = judge(None, root, progress=False)
     assert [r.cameras for r in ev.runs] == [CAMERAS] * 4 and ev.startup == 0  # labelled as a whole
     for grasp in root.glob("*/*"):
         shutil.rmtree(grasp / "camera_2")
@@ -92,10 +92,10 @@ def test_evaluate_judges_two_finger_frames_with_the_two_finger_detector(tmp_path
 
 
 def test_small_two_finger_frames_replay_as_two_camera_runs(tmp_path, cache):
-    from slipsense.evaluation.judge import evaluate
+    from slipsense.evaluation.judge import judge
 
     root = _two_finger_data(tmp_path / "mine", objects=2, n=8)
-    ev = evaluate(None, root, progress=False)
+    ev = judge(None, root, progress=False)
     assert len(ev.runs) == 4 and all(r.cameras == CAMERAS and r.n_frames == 8 for r in ev.runs)
 
 
@@ -183,7 +183,7 @@ def test_the_shared_grasps_as_two_finger_frames_replay_as_their_videos(tmp_path,
     probabilities as its videos, so the detector's per-grasp figures (judged from the first frame, as
     frame folders are) are the same; the frame folders are labelled as a whole (no moment of slip)."""
     from slipsense.paths import gelsight_recordings
-    from slipsense.evaluation.judge import evaluate
+    from slipsense.evaluation.judge import judge
     from studies.grasp.derive import two_finger_frame_folders
 
     objects = ["glass_box", "jute_basket"]
@@ -192,8 +192,8 @@ def test_the_shared_grasps_as_two_finger_frames_replay_as_their_videos(tmp_path,
     sensor = json.loads((frames / "sensor.json").read_text())
     assert sensor["fps"] == 25.0 and sensor["image_size"] == [240, 320]
     assert sorted(p.name for p in (frames / "glass_box" / "exp_num_1").iterdir()) == [*CAMERAS, "slip.txt"]
-    videos = evaluate(None, gelsight_recordings(), objects=objects, progress=False)
-    ours = evaluate(None, frames, progress=False)
+    videos = judge(None, gelsight_recordings(), objects=objects, progress=False)
+    ours = judge(None, frames, progress=False)
     assert [(r.object, r.experiment, r.cameras, r.slipped) for r in ours.runs] == [
         (r.object, r.experiment, r.cameras, r.slipped) for r in videos.runs
     ]

@@ -28,18 +28,18 @@ def label(
     progress: bool = typer.Option(True, help="progress bars on long work (--no-progress: none)"),
 ):
     """Find the moment of slip in every video and write it as CSV."""
-    from slipsense.data import label_runs
-    from slipsense.recordings.folders import find_recordings, validate_recordings
-    from slipsense.recordings.frame_folders import data_sensor
+    from slipsense.recordings.labelling import label_runs
+    from slipsense.recordings.folders import validate_recordings
+    from slipsense.recordings.recording_set import Recordings
     from slipsense.recordings.label_csv import read_overrides_csv, write_labels_csv
     from slipsense.sensors.spec import GELSIGHT_MINI
     from slipsense.atomic import check_output_file
     from slipsense.paths import gelsight_recordings
 
     check_output_file(csv, "--csv")
-    root = recordings or gelsight_recordings()
-    sensor = data_sensor(root) or GELSIGHT_MINI  # frame folders state their own size
-    recs = validate_recordings(find_recordings(root, on_error=on_error), on_error, sensor.image_size)
+    data = Recordings.open(recordings or gelsight_recordings(), on_error=on_error)
+    sensor = data.stated or GELSIGHT_MINI  # frame folders state their own size
+    recs = validate_recordings(data.listed, on_error, sensor.image_size)
     if overrides:
         read_overrides_csv(overrides)  # a malformed file is refused before any video is decoded
     # the path, not the parsed rows: label_recordings reads it against the recordings, so an error
@@ -74,7 +74,6 @@ def calibrate(
 
     if (out is None) == (check is None):
         raise ConfigError("give --out (write a calibrated checkpoint) or --check (judge calibration by objects)")
-    overrides = True if overrides is None else overrides
     if check is not None:
         check_output_file(check, "--check")
         doc = calibration.check_by_objects(

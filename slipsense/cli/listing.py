@@ -82,7 +82,7 @@ def models_text() -> str:
     """Both tables, as ``slipsense models`` prints them."""
     from slipsense.checkpoint import read_info
     from slipsense.models import model_class
-    from slipsense.resources import DEFAULT_MODEL, ONE_SENSOR_MODEL, shipped_model, shipped_models
+    from slipsense.resources import DEFAULT_DETECTOR, ONE_SENSOR_DETECTOR, shipped_model, shipped_models
 
     counts = default_parameter_counts()
     docs = {name: inspect.getdoc(model_class(name)) or "" for name in counts}  # what it is, in its own words
@@ -99,8 +99,8 @@ def models_text() -> str:
     registered = table(("model", "what it is", "parameters"), registered_rows, right=(2,))
     shipped = table(("detector", "model", "sensor", "cameras", "frames/s", "promise"), shipped_rows, right=(3, 4))
     head = (
-        f"Shipped detectors (`SlipDetector.pretrained(NAME)`; the default: {DEFAULT_MODEL}, "
-        f"for one camera {ONE_SENSOR_MODEL}; files: {shipped_model(DEFAULT_MODEL).parent}):"
+        f"Shipped detectors (`SlipDetector.pretrained(NAME)`; the default: {DEFAULT_DETECTOR}, "
+        f"for one camera {ONE_SENSOR_DETECTOR}; files: {shipped_model(DEFAULT_DETECTOR).parent}):"
     )
     return "\n".join(
         ["Registered models (`--model NAME`; parameters at default settings):", registered, "", head, shipped]

@@ -101,7 +101,7 @@ def calibrate(
     recordings: str | Path | Recordings | None = None,
     *,
     budget: float = 0.05,
-    overrides: str | Path | None | bool = True,
+    overrides: str | Path | None | bool = None,
     objects: Sequence[str] | None = None,
     progress: bool = True,
     on_error: str = "raise",
@@ -168,7 +168,7 @@ def check_by_objects(
     recordings: str | Path | Recordings | None = None,
     *,
     budget: float = 0.05,
-    overrides: str | Path | None | bool = True,
+    overrides: str | Path | None | bool = None,
     progress: bool = True,
     on_error: str = "raise",
 ) -> dict[str, Any]:

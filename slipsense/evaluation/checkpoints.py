@@ -65,7 +65,7 @@ def _grasps(
         )
     if dtype != "float32":
         raise ConfigError(f"a grasp detector is evaluated in float32 (--dtype {dtype} is for clip and marker models)")
-    overrides = True if overrides is None else overrides
+
     ev = judge(checkpoint, recordings, overrides=overrides, progress=progress, on_error=on_error, loaded=loaded)
     if checkpoint is None:
         checkpoint = ev.checkpoint

@@ -18,18 +18,18 @@ import numpy as np
 from slipsense.atomic import write_text
 from slipsense.checkpoint import load_model
 from slipsense.paths import gelsight_recordings
-from slipsense.data import label_runs
 from slipsense.errors import InputError
 from slipsense.evaluation.replay import replay_recordings
 from slipsense.measures import MEASURES, Judged, measure_all, pergrasp, slipped_or_held
 from slipsense.measures.baselines import NAMES, SIZE, frame_scores
 from slipsense.recordings.clips import ClipSpec, plan_windows
-from slipsense.recordings.folders import SkippedInputWarning, camera_counts
+from slipsense.recordings.folders import camera_counts
 from slipsense.recordings.frame_cache import video_products
+from slipsense.recordings.labelling import label_runs
 from slipsense.recordings.recording_set import Recordings
 from slipsense.recordings.video import probe_video
 from slipsense.resources import shipped_model
-from slipsense.sensors.spec import GELSIGHT_MINI, sensor_of
+from slipsense.sensors.spec import GELSIGHT_MINI, SensorSpec, sensor_of
 from slipsense.streaming.detector import SlipDetector, shipped_name
 
 
@@ -46,15 +46,9 @@ def recordings_set(
     """``recordings`` as a :class:`~slipsense.recordings.recording_set.Recordings` read with ``sensor``'s
     layout: a given set as it is (nothing listed again), a folder scanned once (default: the shared
     GelSight recordings)."""
-    return Recordings.of(recordings if isinstance(recordings, Recordings) else recordings_folder(recordings), sensor, on_error)
-
-
-def label_overrides(overrides: str | Path | None | bool) -> Path | None | bool:
-    """As :func:`slipsense.data.label_runs` takes them: ``True`` (default) -> None (the shipped hand
-    labels for runs of the shared recordings), ``False``/None -> False (none), else the CSV's path."""
-    if overrides is True:
-        return None
-    return False if overrides is False or overrides is None else Path(overrides)
+    return Recordings.of(
+        recordings if isinstance(recordings, Recordings) else recordings_folder(recordings), sensor, on_error
+    )
 
 
 def shipped_for(recordings: str | Path | Recordings | None) -> Path:
@@ -133,8 +127,9 @@ class Evaluation:
             return self.measure("grasp_measure")
         return slipped_or_held.grasp_measure(self.judged(["grasp_measure"]), draws)
 
-    def summary(self) -> dict[str, Any]:
-        """Early warning per grasp (:func:`slipsense.measures.pergrasp.per_grasp`)."""
+    def per_grasp(self) -> dict[str, Any]:
+        """Early warning per grasp (:func:`slipsense.measures.pergrasp.per_grasp`); every measure:
+        :meth:`measures`."""
         return self.measure("per_grasp")
 
     def frame_rates(self) -> dict[str, Any]:
@@ -201,29 +196,11 @@ def baseline_scores(runs: Sequence, recordings: Sequence, labels: Mapping, start
     return out
 
 
-def _whole_runs(found: Sequence[Any], kept: Sequence[Any]) -> list[Any]:
-    """``kept`` without the runs that lost a camera video among ``found`` (skipped with
-    ``on_error="skip"``), each named in a :class:`~slipsense.recordings.folders.SkippedInputWarning`:
-    a detector on both fingers cannot judge a grasp from one."""
-    have = {r.key for r in kept}
-    broken = {}
-    for r in found:
-        if r.key not in have:
-            broken.setdefault((r.object, r.experiment), (r.path.parent, r.path.name))
-    for folder, name in broken.values():
-        warnings.warn(
-            f"{folder}: run left out, its video {name} was skipped and the detector needs every camera of a run",
-            SkippedInputWarning,
-            stacklevel=3,
-        )
-    return [r for r in kept if (r.object, r.experiment) not in broken]
-
-
 def judge(
     checkpoint: str | Path | None = None,
     recordings: str | Path | Recordings | None = None,
     *,
-    overrides: str | Path | None | bool = True,
+    overrides: str | Path | None | bool = None,
     horizon: int = pergrasp.HORIZON,
     threshold: float | None = None,
     debounce: int | None = None,
@@ -238,8 +215,8 @@ def judge(
         checkpoint: default: the shipped detector for the recordings (:func:`shipped_for`).
         recordings: a :class:`~slipsense.recordings.recording_set.Recordings` or its folder (read once
             here); default: the shared GelSight recordings.
-        overrides: label overrides CSV; True = the shipped hand labels for runs of the shared
-            recordings; False = none.
+        overrides: None (default) = the shipped hand labels for runs of the shared recordings
+            (:mod:`~slipsense.recordings.labelling`; True says the same); False = none; else a CSV.
         horizon: frames before the moment of slip in which an alarm counts as a warning in time.
         threshold, debounce: default: the checkpoint's operating point.
         objects: only the runs of these objects (default: every run).
@@ -257,14 +234,13 @@ def judge(
     model, info = loaded if loaded is not None else load_model(path)
     sensor = sensor_of(info, path)
     read = recordings_set(scanned or recordings, sensor, on_error)  # the detector's file layout, one listing
-    found = read.listed
     calibrated = ((info.get("operating_point") or {}).get("calibrated") or {}).get("objects") or ()
     # another data set's objects are stored as <folder>/<object> (data.also): they count by their own name
     trained_on = {o.rsplit("/", 1)[-1] for o in ((info.get("data") or {}).get("objects")) or ()} | set(calibrated)
     recs = read.checked(on_error)
     sensors = info["model_config"].get("sensors")
     if sensors != 1:  # a run replayed with all its cameras is left out whole where one was skipped
-        recs = _whole_runs(found, recs)
+        recs = read.complete_runs(recs)
     if objects is not None:
         recs = [r for r in recs if r.object in set(objects)]
     if not recs:
@@ -285,7 +261,7 @@ def judge(
             stacklevel=2,
         )
 
-    labels = label_runs(recs, label_overrides(overrides), on_error=on_error, progress=progress)
+    labels = label_runs(recs, overrides, on_error=on_error, progress=progress)
     recs = [r for r in recs if r.key in labels]  # left out by on_error="skip"
     replayed = read.only(recs)
     runs = replay_recordings(detector, replayed, labels, progress=progress, keep_without_moment=True)
@@ -293,7 +269,3 @@ def judge(
     return Evaluation(
         runs, detector.threshold, detector.debounce, horizon, labels, replayed, startup, detector.hold, path
     )
-
-
-#: ``slipsense.evaluate`` (the name users know)
-evaluate = judge

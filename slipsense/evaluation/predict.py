@@ -153,7 +153,7 @@ def _replayed(checkpoint, loaded, *, recordings, overrides, progress, objects, o
             ev = judge(
                 checkpoint,
                 recordings,
-                overrides=True if overrides is None else overrides,
+                overrides=overrides,
                 progress=progress,
                 objects=objects,
                 on_error=on_error,
@@ -163,7 +163,7 @@ def _replayed(checkpoint, loaded, *, recordings, overrides, progress, objects, o
         warnings.warn(f"per-grasp replay left out ({exc}); the clip metrics stand", stacklevel=2)
         return {"skipped": str(exc)}
     return {
-        **ev.summary(),
+        **ev.per_grasp(),
         "threshold": ev.threshold,
         "debounce": ev.debounce,
         "horizon": ev.horizon,

@@ -15,11 +15,10 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any, Iterable, Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from slipsense.data import label_runs
 from slipsense.errors import InputError
 from slipsense.measures.pergrasp import RunTrace
 from slipsense.plots import _plt, save_figure
@@ -27,18 +26,15 @@ from slipsense.progress import progress_bar
 from slipsense.recordings.contact import rest_mask
 from slipsense.recordings.frame_cache import video_products
 from slipsense.recordings.recording_set import Recordings
-from slipsense.recordings.types import by_run
 from slipsense.recordings.video import read_video
-from slipsense.streaming.sources import recording_rate
 
 
 def replay_recordings(
     detector,
-    recordings: Iterable[Any],
-    labels: Mapping[tuple, Any] | None = None,
+    recordings: Recordings,
+    labels: Mapping[tuple, Any],
     progress: bool = True,
     limit: int | None = None,
-    overrides=None,
     keep_without_moment: bool = False,
 ) -> list[RunTrace]:
     """Replay every run (all cameras of an experiment as the detector's sensors) through ``detector``.
@@ -46,35 +42,32 @@ def replay_recordings(
     Args:
         detector: a :class:`~slipsense.streaming.detector.SlipDetector` on video frames or on the
             cameras' tracked markers (a marker model); ``sensors`` = cameras per run.
-        recordings: a :class:`~slipsense.recordings.recording_set.Recordings` (its frame folders'
-            rate read once), or :class:`~slipsense.recordings.types.Recording` s (``find_recordings``).
-        labels: ``{(object, experiment, camera): VideoLabel}``; default: the automatic labels with
-            ``overrides`` (:func:`slipsense.data.label_runs`).
+        recordings: the :class:`~slipsense.recordings.recording_set.Recordings` to replay (each run's
+            rate read from it).
+        labels: ``{(object, experiment, camera): VideoLabel}``
+            (:func:`slipsense.recordings.labelling.label_runs`).
         limit: replay at most this many runs (in sorted order).
         keep_without_moment: replay slipped runs without a moment of slip too (grasps labelled as a
             whole, judged by :mod:`slipsense.measures.slipped_or_held`); by default they are left out
             (nothing to warn of).
     """
     detector.model.check_video_replay(detector.geometry)
-    rate = recordings.rate if isinstance(recordings, Recordings) else (lambda rec: None)
-    runs = by_run(recordings)
+    runs = recordings.runs()
     keys = list(runs)[:limit] if limit is not None else list(runs)
-    if labels is None:
-        labels = label_runs([r for k in keys for r in runs[k]], overrides, progress=progress)
     out = []
     for key in progress_bar(keys, progress, "replaying runs"):
         cams = runs[key]
         # one finger: each camera is a grasp of its own
         for group in [[c] for c in cams] if detector.sensors == 1 and len(cams) > 1 else [cams]:
-            trace = _replay_run(detector, key, group, cams, labels, keep_without_moment, rate(group[0]))
+            trace = _replay_run(detector, key, group, cams, labels, keep_without_moment, recordings.rate(group[0]))
             if trace is not None:
                 out.append(trace)
     return out
 
 
-def _replay_run(detector, key, cams, run_cams, labels, keep=False, rate=None) -> RunTrace | None:
+def _replay_run(detector, key, cams, run_cams, labels, keep, rate) -> RunTrace | None:
     """One run (or one camera of it) replayed; None for a slip without a moment of slip. ``rate``:
-    ``(fps, where it was read)`` where known already, else read from the recording."""
+    ``(fps, where it was read)``."""
     if len(cams) != detector.sensors:
         raise InputError(
             cams[0].path.parent,
@@ -97,7 +90,7 @@ def _replay_run(detector, key, cams, run_cams, labels, keep=False, rate=None) ->
         counts = [{k: len(v) for k, v in c.items()} for c in cached]
         raise InputError(cams[0].path.parent, f"the cameras of this run differ in frame count: {counts}")
     # the detector runs on its own clock: frames taken at another rate are resampled to it
-    fps, fps_from = rate or recording_rate(cams[0].path)
+    fps, fps_from = rate
     stamps = None if abs(fps - detector.sensor.fps) < 1e-6 * fps else np.arange(n) / fps
     if product:
         trace = detector.replay_cached(np.stack([c[product] for c in cached]), stamps=stamps)

@@ -194,16 +194,21 @@ def validate_recordings(
     recordings: Iterable[Recording],
     on_error: OnError = "raise",
     expected_size: tuple[int, int] | None = GELSIGHT_MINI.image_size,
+    probed: dict | None = None,
 ) -> list[Recording]:
     """The ``recordings`` (from :func:`find_recordings`) whose videos pass a probe
     (:func:`~slipsense.recordings.video.probe_video`, a few ms each; at least 2 frames, and
     ``expected_size`` ``(height, width)`` in pixels unless None), in the given order; ``on_error`` as
-    the module notes say (``"skip"``: a video that fails is named in a warning and dropped)."""
+    the module notes say (``"skip"``: a video that fails is named in a warning and dropped).
+    ``probed``: where given, each good recording's :class:`~slipsense.recordings.video.VideoInfo` goes
+    there under its key."""
     check_on_error(on_error)
     good: list[Recording] = []
     for rec in recordings:
         try:
-            probe_video(rec.path, expected_size=expected_size, min_frames=2)
+            info = probe_video(rec.path, expected_size=expected_size, min_frames=2)
+            if probed is not None:
+                probed[rec.key] = info
         except InputError as exc:
             if on_error == "raise":
                 raise

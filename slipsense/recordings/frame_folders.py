@@ -117,15 +117,15 @@ def data_sensor(root: str | Path, tree: FolderTree | None = None) -> SensorSpec 
     root, tree = Path(root), tree or FolderTree()
     path = root / "sensor.json"
     try:
-        stated = tree.is_file(path)
-    except (NotADirectoryError, FileNotFoundError, PermissionError):
+        stated, results = tree.is_file(path), tree.names(root, f"*{RESULT_SUFFIX}")
+    except OSError:  # no folder to read (the scan names the problem)
         return None
     if stated:
         try:
             return SensorSpec.from_dict(json.loads(path.read_text(encoding="utf-8")))
         except (ValueError, UnicodeDecodeError) as exc:
             raise InputError(path, f"not a sensor spec ({exc})") from None
-    return GELSIGHT_LIFT if tree.names(root, f"*{RESULT_SUFFIX}") else None
+    return GELSIGHT_LIFT if results else None
 
 
 def read_result_file(path: Path) -> dict[str, bool]:

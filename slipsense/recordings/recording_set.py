@@ -17,11 +17,12 @@ from pathlib import Path
 from typing import Iterable, Iterator, Sequence
 
 from ..errors import InputError
-from ..sensors.spec import GELSIGHT_MINI, SensorSpec, check_fps
-from .folders import OnError, check_on_error, find_recordings, reads_alike, validate_recordings
+from ..sensors.spec import GELSIGHT_MINI, SensorSpec, check_fps, fps_problem
+from .folders import OnError, SkippedInputWarning, check_on_error, find_recordings, reads_alike, validate_recordings
 from .frame_folders import data_sensor, is_frame_layout
 from .listing import FolderTree
 from .types import Recording, by_run
+from .video import probe_video
 
 #: How to give a folder of frames its rate (frames carry no time of their own).
 STATE_FPS = 'state it in a sensor.json ({"fps": 25}) in the recordings folder'
@@ -52,28 +53,38 @@ class Recordings:
     _probed: dict = field(default_factory=dict, repr=False, compare=False)
 
     @classmethod
-    def open(cls, root: str | Path, sensor: SensorSpec = GELSIGHT_MINI, on_error: OnError = "raise") -> "Recordings":
+    def open(
+        cls, root: str | Path, sensor: SensorSpec | None = GELSIGHT_MINI, on_error: OnError = "raise"
+    ) -> "Recordings":
         """Scan ``root`` once (:func:`~slipsense.recordings.folders.find_recordings`: InputError for a
-        missing folder or one without usable recordings; ``on_error`` for problems inside it)."""
+        missing folder or one without usable recordings; ``on_error`` for problems inside it) with
+        ``sensor``'s file layout (None: the sensor the data states, else the GelSight Mini's)."""
         check_on_error(on_error)
         root, tree = Path(root), FolderTree()
+        stated = data_sensor(root, tree)
+        sensor = sensor or stated or GELSIGHT_MINI
         listed = find_recordings(root, on_error=on_error, sensor=sensor, tree=tree)
-        frames = is_frame_layout(root, tree)
-        return cls(root, tuple(listed), frames, data_sensor(root, tree), sensor, on_error, tree)
+        return cls(root, tuple(listed), is_frame_layout(root, tree), stated, sensor, on_error, tree)
 
     @classmethod
-    def of(cls, recordings: "str | Path | Recordings", sensor: SensorSpec = GELSIGHT_MINI, on_error: OnError = "raise"):
-        """``recordings`` as a set read with ``sensor``'s file layout: the given set itself where it is one
-        (re-read from its listing where the layout differs), else a fresh :meth:`open` of the folder."""
+    def of(
+        cls,
+        recordings: "str | Path | Recordings",
+        sensor: SensorSpec | None = GELSIGHT_MINI,
+        on_error: OnError = "raise",
+    ):
+        """``recordings`` as a set read with ``sensor``'s file layout (None: the data's own, else the
+        GelSight Mini's): the given set itself where it is one (re-read from its listing where the
+        layout differs), else a fresh :meth:`open` of the folder."""
         if isinstance(recordings, Recordings):
-            return recordings.read_with(sensor)
+            return recordings.read_with(sensor or recordings.stated or GELSIGHT_MINI)
         return cls.open(recordings, sensor, on_error)
 
     def read_with(self, sensor: SensorSpec) -> "Recordings":
         """The set as ``sensor``'s file layout lists it: this one where both layouts read alike (frame
         folders always do), else listed again from the folders listed already (nothing opened twice)."""
         if reads_alike(self.root, sensor, self.layout, self.tree):
-            return self
+            return self if sensor == self.layout else replace(self, layout=sensor)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # the first listing said them
             listed = find_recordings(self.root, on_error=self.on_error, sensor=sensor, tree=self.tree)
@@ -117,15 +128,38 @@ class Recordings:
         on_error = on_error or self.on_error
         todo = [r for r in self.listed if r.key not in self._probed]
         if todo:
-            good = {r.key for r in validate_recordings(todo, on_error=on_error, expected_size=None)}
-            self._probed.update({r.key: r.key in good for r in todo})
-        return [r for r in self.listed if self._probed[r.key]]
+            infos: dict = {}
+            validate_recordings(todo, on_error=on_error, expected_size=None, probed=infos)
+            self._probed.update({r.key: infos.get(r.key) for r in todo})
+        return [r for r in self.listed if self._probed[r.key] is not None]
 
-    def rate(self, recording: Recording) -> tuple[float, str] | None:
-        """A frame folder's rate and where it was read (the data's ``sensor.json`` or layout); None for a
-        video, whose container states its own. InputError for frames of a set that states none."""
+    def complete_runs(self, kept: Sequence[Recording]) -> list[Recording]:
+        """``kept`` (some of this set's recordings) without the runs that lost a camera (a video skipped
+        with ``on_error="skip"``), each named in a :class:`~slipsense.recordings.folders.SkippedInputWarning`:
+        a detector on both fingers cannot judge a grasp from one."""
+        have = {r.key for r in kept}
+        broken: dict[tuple[str, int], tuple[Path, str]] = {}
+        for r in self.listed:
+            if r.key not in have:
+                broken.setdefault((r.object, r.experiment), (r.path.parent, r.path.name))
+        for folder, name in broken.values():
+            warnings.warn(
+                f"{folder}: run left out, its video {name} was skipped and the detector needs every camera of a run",
+                SkippedInputWarning,
+                stacklevel=3,
+            )
+        return [r for r in kept if (r.object, r.experiment) not in broken]
+
+    def rate(self, recording: Recording) -> tuple[float, str]:
+        """The rate a recording was taken at and where it was read: a frame folder's from the data's
+        ``sensor.json`` or layout, a video's from its container (read by the probe). InputError where
+        none can be known, saying to state it in a sensor.json."""
         if not self.frames:
-            return None
+            info = self._probed.get(recording.key) or probe_video(recording.path, expected_size=None, min_frames=1)
+            problem = fps_problem(info.fps)
+            if problem is not None:
+                raise InputError(recording.path, f"the video states no usable frame rate ({problem}): {STATE_FPS}")
+            return float(info.fps), "the video's stated rate"
         if self.stated is None:
             raise InputError(recording.path, f"a folder of frames states no frame rate: {STATE_FPS}")
         where = self.root / "sensor.json"

@@ -14,9 +14,9 @@ from importlib.resources import files
 from pathlib import Path
 
 #: The default detector: motionnet trained on every shared run with a known outcome (see docs/models.md).
-DEFAULT_MODEL = "motionnet-gelsight"
+DEFAULT_DETECTOR = "motionnet-gelsight"
 #: The default for one finger: the same recipe trained on each camera alone (configs/motionnet-1sensor.yaml).
-ONE_SENSOR_MODEL = "motionnet-gelsight-1"
+ONE_SENSOR_DETECTOR = "motionnet-gelsight-1"
 
 
 def _path(*parts: str) -> Path:
@@ -24,14 +24,14 @@ def _path(*parts: str) -> Path:
     return Path(str(files(__name__).joinpath(*parts)))
 
 
-def shipped_model(name: str = DEFAULT_MODEL) -> Path:
+def shipped_model(name: str = DEFAULT_DETECTOR) -> Path:
     """Path of a shipped checkpoint (:func:`shipped_models`; ``"motionnet-gelsight"`` by default)."""
     return _path("models", f"{name}.safetensors")
 
 
 def default_model_name(sensors: int | None = None) -> str:
     """The shipped detector for ``sensors`` sensors per push: one finger or both (the default)."""
-    return ONE_SENSOR_MODEL if sensors == 1 else DEFAULT_MODEL
+    return ONE_SENSOR_DETECTOR if sensors == 1 else DEFAULT_DETECTOR
 
 
 def shipped_models() -> list[str]:
@@ -45,8 +45,8 @@ def shipped_overrides() -> Path:
 
 
 __all__ = [
-    "DEFAULT_MODEL",
-    "ONE_SENSOR_MODEL",
+    "DEFAULT_DETECTOR",
+    "ONE_SENSOR_DETECTOR",
     "default_model_name",
     "shipped_model",
     "shipped_models",

@@ -20,7 +20,6 @@ from slipsense.recordings.bags import check_timing, is_bag, read_bag
 from slipsense.recordings.folders import CAMERA_GLOB
 from slipsense.recordings.frame_folders import CAMERA_FOLDER_PREFIX, data_sensor, grasp_cameras
 from slipsense.recordings.frames import is_frame_folder
-from slipsense.recordings.recording_set import STATE_FPS  # where it reads whole recordings folders
 from slipsense.recordings.video import probe_video, read_video
 from slipsense.sensors.spec import check_fps, fps_problem
 from slipsense.streaming.capture import CaptureThread, open_camera, paired
@@ -166,13 +165,6 @@ def frame_folder_rate(
             where = root / "sensor.json"
             return check_fps(spec.fps, str(where)), str(where) if where.is_file() else f"the {spec.name} layout"
     raise InputError(folder, f"a folder of frames states no frame rate: {fix}")
-
-
-def recording_rate(path: Path) -> tuple[float, str]:
-    """The rate of one recording of a recordings folder (a video, or a folder of one sensor's frames)
-    and where it was read; a rate that cannot be known is refused, saying to state it in a sensor.json."""
-    path = Path(path)
-    return frame_folder_rate(path, STATE_FPS) if path.is_dir() else video_rate(path, fix=STATE_FPS)
 
 
 def _videos_source(path: Path, paths: list[Path], model: Any, geometry, rate: tuple[float, str], what: str) -> Source:

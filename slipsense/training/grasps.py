@@ -32,7 +32,7 @@ import torch.nn.functional as F
 
 from slipsense.checkpoint import load_model, read_info
 from slipsense.paths import portable_path, resolve_path
-from slipsense.data import label_runs
+from slipsense.recordings.labelling import label_runs
 from slipsense.errors import ConfigError, InputError, SlipsenseError
 from slipsense.measures import pergrasp
 from slipsense.models import build

@@ -34,7 +34,7 @@ def choose_on_training_runs(
         ev = judge(
             checkpoint,
             recordings,
-            overrides=True if overrides is None else overrides,
+            overrides=overrides,
             objects=objects,
             on_error="skip",
             progress=progress,

@@ -26,12 +26,11 @@ from slipsense.atomic import check_output_dir, write_text
 from slipsense.paths import portable_path
 from slipsense.errors import ConfigError
 from slipsense.models import build, model_class
-from slipsense.recordings.frame_folders import data_sensor
+from slipsense.recordings.recording_set import Recordings
 from slipsense.recordings.runs import per_sensor
 from slipsense.config_tree import dump_tree
-from slipsense.sensors.spec import GELSIGHT_MINI
 from slipsense.training.clips import run_training
-from slipsense.training.settings import RunConfig, recordings_read
+from slipsense.training.settings import RunConfig, recordings_read, recordings_sensor
 from slipsense.training.folds import pool, run_folds
 from slipsense.training.grasp_detector import object_split, train_detector
 from slipsense.training.grasps import load_grasp_data, recordings_shape
@@ -156,7 +155,7 @@ def grasp_data(run: RunConfig, progress: bool = True):
     d, cfg = run.data, run.train
     image_size = tuple(cfg.model_config.get("image_size") or build(run.name).image_size)
     read = recordings_read(d)  # the folder listed once (or the set the caller read)
-    root, sensor = read.root, read.layout
+    root, sensor = read.root, recordings_sensor(dataclasses.replace(d, read=read))
     model = build(run.name, **cfg.model_config)
     sensors = model.sensors
     shape = recordings_shape(read)
@@ -167,8 +166,8 @@ def grasp_data(run: RunConfig, progress: bool = True):
     if d.also is not None:
         if d.also.resolve() == root.resolve():
             raise ConfigError(f"data.also ({d.also}) is the training recordings themselves")
-        sensor_also = data_sensor(d.also) or GELSIGHT_MINI
-        extra, _ = load_grasp_data(d.also, None, image_size, d.on_error, progress, sensor=sensor_also)
+        also = Recordings.open(d.also, None, d.on_error)  # read with the sensor it states, else the Mini's
+        extra, _ = load_grasp_data(also, None, image_size, d.on_error, progress, sensor=also.layout)
         model.check_cameras([r.gray.shape[0] for r in extra], f"data.also ({d.also})")
         runs = runs + [dataclasses.replace(r, object=f"{d.also.name}/{r.object}", extra=True) for r in extra]
     if sensors == 1:  # a one-finger detector: each camera of a run is a grasp of its own

@@ -96,8 +96,10 @@ def recordings_sensor(data: DataConfig) -> SensorSpec:
 
 
 def recordings_read(data: DataConfig) -> Recordings:
-    """The run's recordings read with its sensor's layout: the set it was given, else its folder scanned once."""
-    return Recordings.of(data.read or recordings_root(data), recordings_sensor(data), data.on_error)
+    """The run's recordings read with its sensor's layout (:func:`recordings_sensor`): the set it was
+    given, else its folder scanned once."""
+    named = sensor_named(data.sensor) if data.sensor else None
+    return Recordings.of(data.read or recordings_root(data), named, data.on_error)
 
 
 def read_once(data: DataConfig) -> DataConfig:

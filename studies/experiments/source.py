@@ -1,7 +1,7 @@
 """Where the experiments' data come from: :class:`DataSource` and the held-out objects.
 
 Video experiments use the GelSight recordings, labelled and cut as ``slipsense train`` does
-(:func:`slipsense.data.label_runs`, cached clips), with the shipped hand-label overrides
+(:func:`slipsense.recordings.labelling.label_runs`, cached clips), with the shipped hand-label overrides
 (:func:`default_overrides`) when present. Held-out objects are fixed for every condition of an
 experiment: fold ``fold`` of ``folds`` object folds (:func:`slipsense.recordings.clips.object_folds`,
 seeded by ``data_seed``) of the objects that give clips at 5 frames, horizon 0 — the same objects
@@ -64,6 +64,7 @@ class DataSource:
         self.progress = progress
         self._labels = None
         self._recs = None
+        self._set = None
 
     def describe(self) -> dict[str, Any]:
         from slipsense.paths import portable_path
@@ -74,32 +75,40 @@ class DataSource:
             "on_error": self.on_error,
         }
 
-    def recordings(self):
-        """The validated recordings (listed once)."""
-        if self._recs is None:
-            from slipsense.recordings.folders import find_recordings, validate_recordings
+    def recordings_set(self):
+        """The recordings folder as one :class:`~slipsense.recordings.recording_set.Recordings` (listed once)."""
+        if self._set is None:
+            from slipsense.recordings.recording_set import Recordings
 
-            recs = validate_recordings(find_recordings(self.root, on_error=self.on_error), on_error=self.on_error)
+            self._set = Recordings.open(self.root, on_error=self.on_error)
+        return self._set
+
+    def recordings(self):
+        """The validated recordings (listed and probed once)."""
+        if self._recs is None:
+            from slipsense.recordings.folders import validate_recordings
+
+            recs = validate_recordings(self.recordings_set().listed, on_error=self.on_error)  # the Mini's frame size
             if not recs:
                 raise InputError(self.root, "no usable recordings")
             self._recs = recs
         return self._recs
 
     def label_overrides(self):
-        """The hand labels, as :func:`slipsense.data.label_runs` takes them. A user's file is passed as
+        """The hand labels, as :func:`slipsense.recordings.labelling.label_runs` takes them. A user's file is passed as
         its path (read against the recordings: it must fit them exactly, errors name its line); the
         shipped file is None, which label_runs turns into its rows for the runs of the shared
-        recordings (:func:`slipsense.data.shipped_overrides_for`)."""
+        recordings (:func:`slipsense.recordings.labelling.shipped_overrides_for`)."""
         if self.overrides is None:
             return False  # --no-overrides: automatic labels only, not even the shipped ones
         return None if self.overrides == default_overrides() else self.overrides
 
     def labels(self):
         """``{key: VideoLabel}`` of the recordings, labelled as ``slipsense train`` labels them
-        (:func:`slipsense.data.label_runs`: label cache, hand labels applied; with ``on_error="skip"``
+        (:func:`slipsense.recordings.labelling.label_runs`: label cache, hand labels applied; with ``on_error="skip"``
         a run that cannot be labelled is left out with a warning)."""
         if self._labels is None:
-            from slipsense.data import label_runs
+            from slipsense.recordings.labelling import label_runs
 
             self._labels = label_runs(
                 self.recordings(), overrides=self.label_overrides(), on_error=self.on_error, progress=self.progress
@@ -157,7 +166,7 @@ class DataSource:
 
         labels, keep = self.labels(), set(objects)
         recs = [r for r in self.recordings() if r.object in keep and r.key in labels]
-        return replay_recordings(detector, recs, labels, progress=self.progress)
+        return replay_recordings(detector, self.recordings_set().only(recs), labels, progress=self.progress)
 
 
 def clip_spec(settings: Settings, frames: int = 5, horizon: int = 0, size: tuple[int, int] | None = None):

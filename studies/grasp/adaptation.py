@@ -119,11 +119,11 @@ def adaptation_study(
     from slipsense.checkpoint import load_model
     from slipsense.measures.baselines import frame_scores
     from slipsense.progress import progress_bar
-    from slipsense.resources import ONE_SENSOR_MODEL, shipped_model
+    from slipsense.resources import ONE_SENSOR_DETECTOR, shipped_model
     from slipsense.training.grasp_detector import train_with_operating_point
     from slipsense.training.grasps import load_grasp_data, make_config
 
-    shipped = shipped_model(ONE_SENSOR_MODEL)
+    shipped = shipped_model(ONE_SENSOR_DETECTOR)
     model, info = load_model(shipped)
     op = info["operating_point"]
     from slipsense.paths import resolve_path

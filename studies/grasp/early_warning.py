@@ -20,7 +20,9 @@ from slipsense.errors import ConfigError, InputError
 from slipsense.evaluation.judge import shipped_for
 from slipsense.evaluation.replay import RunTrace, plot_tradeoff, replay_recordings
 from slipsense.measures import pergrasp
-from slipsense.recordings.folders import camera_counts, find_recordings
+from slipsense.recordings.folders import camera_counts
+from slipsense.recordings.labelling import label_runs
+from slipsense.recordings.recording_set import Recordings
 from slipsense.recordings.label_csv import LABEL_COLUMNS, Key, _open_csv, _parse_int
 from slipsense.recordings.types import VideoLabel
 from slipsense.sensors.spec import GELSIGHT_MINI, check_fps, sensor_of
@@ -210,7 +212,8 @@ def run_early_warning(
         checkpoint = shipped_for(root)  # one camera per grasp: the one-finger detector
     ckpt = checkpoint_or_shipped(checkpoint)
     info = read_info(ckpt)
-    recs = find_recordings(root, on_error=on_error, sensor=sensor_of(info, ckpt))
+    data = Recordings.open(root, sensor_of(info, ckpt), on_error)
+    recs = data.listed
     if all(r.per_grasp for r in recs):
         raise InputError(
             root, "grasps labelled as a whole have no moment of slip to warn before: judge them with slipsense evaluate"
@@ -218,7 +221,12 @@ def run_early_warning(
     counts = camera_counts(recs)
     if len(counts) != 1:
         raise InputError(root, f"runs hold different numbers of camera videos ({counts}); early warning needs the same")
-    lab = read_labels_csv(labels) if labels is not None else None
+    if labels is not None:
+        lab = read_labels_csv(labels)
+    else:
+        first = sorted({(r.object, r.experiment) for r in recs})[:limit] if limit is not None else None
+        todo = [r for r in recs if first is None or (r.object, r.experiment) in first]
+        lab = label_runs(todo, overrides, progress=progress)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # a checkpoint without a threshold: the table covers thresholds anyway
         fixed = info["model_config"].get("sensors")  # a model trained on so many fingers
@@ -228,7 +236,7 @@ def run_early_warning(
     if det.threshold not in ths:
         ths = sorted(ths + [det.threshold])
     try:
-        runs = replay_recordings(det, recs, lab, progress=progress, limit=limit, overrides=overrides)
+        runs = replay_recordings(det, data, lab, progress=progress, limit=limit)
     finally:
         det.close()
     meta = {

@@ -15,7 +15,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from slipsense.alarm import debounce, hold, hold_frames, onsets
-from slipsense.evaluation.judge import evaluate
+from slipsense.evaluation.judge import judge
 
 HOLDS_S = (0.0, 0.1, 0.2, 0.3, 0.5, 1.0, 2.0)
 
@@ -23,7 +23,7 @@ HOLDS_S = (0.0, 0.1, 0.2, 0.3, 0.5, 1.0, 2.0)
 def hold_study(checkpoint: Path | None, recordings: Path | None, holds: Sequence[float] = HOLDS_S) -> dict[str, Any]:
     """Per hold time: alarm onsets on slip runs (before contact is lost) and on held runs, slip runs
     alarming more than once; and every dip (seconds) between two alarms inside one slip."""
-    ev = evaluate(checkpoint, recordings, progress=False)
+    ev = judge(checkpoint, recordings, progress=False)
     traces = []
     for r in ev.runs:
         alarm = debounce(r.probability, ev.threshold, ev.debounce)

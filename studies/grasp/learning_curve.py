@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from slipsense.api import fit
-from slipsense.evaluation.judge import evaluate
+from slipsense.evaluation.judge import judge
 from slipsense.measures import slipped_or_held
 from slipsense.progress import progress_bar
 from slipsense.recordings.folders import find_recordings
@@ -48,7 +48,7 @@ def learning_curve(
                 fit(sensor, out, model=family, held_out=held, seed=seed + d, progress=False)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                ev = evaluate(ckpt, sensor, objects=held, progress=False)
+                ev = judge(ckpt, sensor, objects=held, progress=False)
             a = ev.peak_scores() >= ev.threshold
             y = np.array([r.slipped for r in ev.runs], bool)
             rows.append(

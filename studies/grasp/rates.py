@@ -21,8 +21,8 @@ import numpy as np
 from slipsense import atomic
 from slipsense.checkpoint import read_info
 from slipsense.paths import portable_path
-from slipsense.data import label_runs
-from slipsense.evaluation.judge import evaluate
+from slipsense.recordings.labelling import label_runs
+from slipsense.evaluation.judge import judge
 from slipsense.evaluation.replay import RunTrace
 from slipsense.measures import pergrasp
 from slipsense.progress import progress_bar
@@ -215,7 +215,7 @@ def lift_study(lift: Path, progress: bool = True) -> list[dict[str, Any]]:
         for name, root in (("as recorded (30 frames/s)", lift), ("frames taken at 15 per second", half)):
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")  # the detector's own objects: said in the report's text
-                ev = evaluate(None, root, progress=progress)
+                ev = judge(None, root, progress=progress)
             m = ev.grasp_measure()["detector"]
             slipped = np.array([r.slipped for r in ev.runs], bool)
             alarmed = ev.peak_scores() >= ev.threshold

@@ -69,16 +69,15 @@ def test_the_folds_pool_every_held_out_run_once(tmp_path, cache, grasp_recording
 
 
 def test_a_frame_folder_set_at_half_its_rate_is_read_back_at_that_rate(tmp_path):
-    from slipsense.recordings.folders import find_recordings
+    from slipsense.recordings.recording_set import Recordings
     from slipsense.recordings.video import read_video
-    from slipsense.streaming.sources import recording_rate
     from studies.grasp.derive import slower_frame_folders
     from tests.test_frame_folders import _lift_data
 
     root = _lift_data(tmp_path / "lift")
     assert slower_frame_folders(root, tmp_path / "half", every=2) == 12
-    full, half = find_recordings(root), find_recordings(tmp_path / "half")
+    full, half = Recordings.open(root).listed, Recordings.open(tmp_path / "half")
     assert [(r.object, r.slipped) for r in full] == [(r.object, r.slipped) for r in half]
-    a, b = read_video(full[0].path, expected_size=None), read_video(half[0].path, expected_size=None)
+    a, b = read_video(full[0].path, expected_size=None), read_video(half.listed[0].path, expected_size=None)
     assert len(b) == 6 and np.array_equal(a[::2], b)  # the same frames, every other one
-    assert recording_rate(half[0].path)[0] == 15.0
+    assert half.rate(half.listed[0]) == (15.0, str(tmp_path / "half" / "sensor.json"))
