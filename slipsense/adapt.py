@@ -35,7 +35,8 @@ from __future__ import annotations
 import json
 import shutil
 import warnings
-from dataclasses import dataclass, field
+import math
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
@@ -44,7 +45,7 @@ import numpy as np
 from slipsense.api import fit
 from slipsense.atomic import write_text
 from slipsense.checkpoint import read_info, update_info
-from slipsense.measures import pergrasp, slipped_or_held
+from slipsense.measures import MEASURES, Judged, cell, measure_all, pergrasp, ranked, slipped_or_held
 from slipsense.evaluation.calibrate import calibrate, calibrated_threshold
 from slipsense.evaluation.judge import Evaluation, judge, recordings_set, shipped_for
 from slipsense.evaluation.summary import rate_lines
@@ -62,6 +63,9 @@ MIN_EACH = 3
 MIN_OBJECTS_EACH = 2
 #: A kept detector's nested balanced accuracy below this is no detector: nothing is kept.
 USEFUL = 0.6
+#: The registered measure adapt ranks candidates by (its value: balanced accuracy of slipped against
+#: held grasps at the candidate's operating points; the grasps adapt judges are labelled as a whole).
+RANK_BY = "grasp_measure"
 #: Inner object folds on which every family's operating point is chosen (its threshold, and the settings
 #: a recipe chooses among): on grasps of objects the model in question never saw, for the detectors
 #: judged and for the one kept alike.
@@ -130,6 +134,12 @@ class Candidate:
         alarmed: ``(N,)`` whether the grasp alarmed at the operating point chosen without its object.
         slipped, objects: ``(N,)`` the grasps' labels and objects.
         words: what it is, in words.
+        judged: its grasps replayed, each at the operating point chosen without its object, where it
+            has them (the nested choice has alarms only): every registered measure is read from them.
+
+    ``measure`` is the slipped-against-held figure of :data:`RANK_BY` that adapt ranks by; ``measures``
+    the value each registered measure that ranks gives (:func:`~slipsense.measures.ranked`), for its
+    table and ``adapt.json``.
     """
 
     name: str
@@ -138,9 +148,14 @@ class Candidate:
     slipped: np.ndarray
     objects: np.ndarray
     words: str = ""
+    judged: Judged | None = field(default=None, repr=False)
 
     def __post_init__(self):
         self.measure = slipped_or_held.outcome_measure(self.scores, self.slipped, self.objects, self.alarmed)
+        others = [k for k in MEASURES if k != RANK_BY]  # that one is ``measure``, computed above
+        self.measures = {RANK_BY: MEASURES[RANK_BY].value({"detector": self.measure})}
+        if self.judged is not None:
+            self.measures.update(ranked(measure_all(self.judged, others)))
 
     @property
     def catches(self) -> bool:
@@ -154,14 +169,25 @@ class Candidate:
     def line(self) -> str:
         caught, loud = int(self.alarmed[self.slipped].sum()), int(self.alarmed[~self.slipped].sum())
         op = self.measure["operating_point"]
+        others = [
+            f"{MEASURES[k].label} {cell(k, v)}" for k, v in self.measures.items() if k != RANK_BY and not math.isnan(v)
+        ]
         return (
             f"{_pct(op['balanced_accuracy'])} balanced, right on {_pct(op['accuracy'], False)}; {caught} of "
             f"{int(self.slipped.sum())} slips caught, {loud} of {int((~self.slipped).sum())} held grasps alarm"
+            + "".join(f"; {o}" for o in others)
         )
 
     def to_dict(self) -> dict[str, Any]:
         caught, loud = int(self.alarmed[self.slipped].sum()), int(self.alarmed[~self.slipped].sum())
-        return dict(name=self.name, words=self.words, measure=self.measure, slips_caught=caught, held_alarming=loud)
+        return dict(
+            name=self.name,
+            words=self.words,
+            measure=self.measure,
+            measures=self.measures,
+            slips_caught=caught,
+            held_alarming=loud,
+        )
 
 
 def _pct(m: dict[str, Any], ranged: bool = True) -> str:
@@ -170,11 +196,17 @@ def _pct(m: dict[str, Any], ranged: bool = True) -> str:
 
 
 def best_of(candidates: Sequence[Candidate], mask: np.ndarray | None = None) -> Candidate:
-    """The candidate of best balanced accuracy on the grasps of ``mask`` (ties: ROC AUC, then the
-    one listed first, the cheaper)."""
+    """The candidate best by the value :data:`RANK_BY` ranks by (a registered measure: balanced accuracy
+    of slipped against held at the candidate's operating points) on the grasps of ``mask`` (ties: ROC
+    AUC, then the one listed first, the cheaper)."""
     mask = np.ones(len(candidates[0].slipped), bool) if mask is None else mask
-    ba, auc = slipped_or_held.balanced_accuracy, slipped_or_held.roc_auc
-    ranks = [[ba(c.alarmed[mask], c.slipped[mask]), auc(c.scores[mask], c.slipped[mask])] for c in candidates]
+    rank, auc = MEASURES[RANK_BY], slipped_or_held.roc_auc
+
+    def figure(c: Candidate) -> dict[str, Any]:  # the measure on those grasps (its value, no intervals)
+        m = slipped_or_held.outcome_measure(c.scores[mask], c.slipped[mask], c.objects[mask], c.alarmed[mask], 0)
+        return {"detector": m}
+
+    ranks = [(rank.better_first(figure(c)), auc(c.scores[mask], c.slipped[mask])) for c in candidates]
     ranks = [tuple(float(np.nan_to_num(v, nan=-np.inf)) for v in r) for r in ranks]
     top = max(range(len(candidates)), key=lambda i: (ranks[i], -i))
     return candidates[top]
@@ -292,14 +324,16 @@ def adapt(
         candidates.append(c)
         echo(f"  {c.name:16s} {c.line()}")
 
-    scores = as_is.peak_scores()
-    add(Candidate("as is", scores, scores >= as_is.threshold, slipped, objects, f"the shipped {shipped.stem}"))
-    recal = np.zeros(len(scores), bool)
+    scores, judged = as_is.peak_scores(), as_is.judged()
+    add(Candidate("as is", scores, scores >= as_is.threshold, slipped, objects, f"the shipped {shipped.stem}", judged))
+    recal, thresholds = np.zeros(len(scores), bool), np.zeros(len(scores))
     for o in sorted(set(objects)):
         other, mine = objects != o, objects == o
-        recal[mine] = scores[mine] >= calibrated_threshold(scores[other & ~slipped], scores[other & slipped], budget)
+        thresholds[mine] = calibrated_threshold(scores[other & ~slipped], scores[other & slipped], budget)
+        recal[mine] = scores[mine] >= thresholds[mine]
     words = f"the shipped {shipped.stem}, its threshold chosen on your grasps"
-    add(Candidate("recalibrated", scores, recal, slipped, objects, words))
+    points = [(float(t), as_is.debounce, as_is.hold_s) for t in thresholds]
+    add(Candidate("recalibrated", scores, recal, slipped, objects, words, replace(judged, points=points)))
     names, not_tried = families(grasps)
     for reason in dict.fromkeys(not_tried.values()):  # families alike in why said once
         echo(f"  {', '.join(n for n, r in not_tried.items() if r == reason):16s} not tried: {reason}")
@@ -308,12 +342,12 @@ def adapt(
     parts = [sorted(objs[i] for i in part) for part in np.array_split(order, min(folds, len(objs)))]
     for name in names:
         train = lambda held, k, name=name: _train(data, out / "folds" / name / f"fold{k}", name, seed + k, held)  # noqa: E731
-        s, a = _out_of_fold(keys, parts, train, data, f"{name}, one fold at a time", progress)
-        add(Candidate(name, s, a, slipped, objects, model_class(name).adapt_words))
+        s, a, j = _out_of_fold(keys, parts, train, data, f"{name}, one fold at a time", progress)
+        add(Candidate(name, s, a, slipped, objects, model_class(name).adapt_words, j))
     tuned = lambda held, k: _fine_tune(data, out / "folds" / "fine-tuned" / f"fold{k}", shipped, epochs, seed + k, held)  # noqa: E731
-    s, a = _out_of_fold(keys, parts, tuned, data, "fine-tuning, one fold at a time", progress)
+    s, a, j = _out_of_fold(keys, parts, tuned, data, "fine-tuning, one fold at a time", progress)
     words = f"the shipped {shipped.stem}'s weights trained further on your grasps"
-    add(Candidate("fine-tuned", s, a, slipped, objects, words))
+    add(Candidate("fine-tuned", s, a, slipped, objects, words, j))
     echo(
         f"  {'best baseline':16s} {_pct(best)} balanced: {best_name} ({BASELINE_WORDS.get(best_name, best_name)}; not kept)"
     )
@@ -399,10 +433,12 @@ def advise(
     ]
 
 
-def _out_of_fold(keys, parts, train, data, desc, progress) -> tuple[np.ndarray, np.ndarray]:
-    """Each grasp's peak score and alarm from the detector ``train(held, k)`` makes without its fold."""
+def _out_of_fold(keys, parts, train, data, desc, progress) -> tuple[np.ndarray, np.ndarray, Judged]:
+    """Each grasp's peak score and alarm from the detector ``train(held, k)`` makes without its fold, and
+    every fold's replayed grasps pooled, each at its fold's operating point (what the measures read)."""
     where = {key: i for i, key in enumerate(keys)}
     scores, alarmed = np.full(len(keys), -np.inf), np.zeros(len(keys), bool)
+    runs, points, ev = [], [], None
     for k, held in enumerate(progress_bar(parts, progress, desc)):
         ckpt = train(held, k)
         with warnings.catch_warnings():
@@ -410,7 +446,10 @@ def _out_of_fold(keys, parts, train, data, desc, progress) -> tuple[np.ndarray, 
             ev = judge(ckpt, data, objects=held, progress=False)
         for key, s in zip(_keys(ev), ev.peak_scores()):
             scores[where[key]], alarmed[where[key]] = s, s >= ev.threshold
-    return scores, alarmed
+        fold = ev.judged()
+        runs += list(fold.runs)
+        points += list(fold.points)
+    return scores, alarmed, Judged(runs, points, ev.horizon, ev.startup)
 
 
 def _train(data: Recordings, out: Path, name: str, seed: int, held_out: Sequence[str], **settings) -> Path:

@@ -18,6 +18,26 @@ from __future__ import annotations
 
 # imported in the order the summary says their measures
 from slipsense.measures import slipped_or_held, pergrasp, holding, clips  # noqa: F401  (each registers its own)
-from slipsense.measures.registry import MEASURES, Judged, Measure, measure_all, measure_lines, register
+from slipsense.measures.registry import (
+    MEASURES,
+    Judged,
+    Measure,
+    cell,
+    measure_all,
+    measure_lines,
+    ranked,
+    ranked_columns,
+    register,
+)
 
-__all__ = ["MEASURES", "Judged", "Measure", "measure_all", "measure_lines", "register"]
+__all__ = [
+    "MEASURES",
+    "Judged",
+    "Measure",
+    "cell",
+    "measure_all",
+    "measure_lines",
+    "ranked",
+    "ranked_columns",
+    "register",
+]

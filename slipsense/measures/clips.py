@@ -88,7 +88,9 @@ def clip_lines(result: Mapping[str, Any], context: Mapping[str, Any] | None = No
     ]
 
 
-@register("clips", clip_lines, pools=False, reads=("clips",))
+@register(
+    "clips", clip_lines, pools=False, reads=("clips",), rank=lambda r: r["operating_point"]["f1"], label="clip F1"
+)
 def clips(judged: Judged) -> dict[str, Any] | None:
     """The papers' protocol on the replayed traces (``judged.clips``: every 5-frame clip scored by the
     probability at its last frame), at the operating point and at 0.5."""

@@ -86,7 +86,13 @@ def words(result: Mapping[str, Any], context: Mapping[str, Any] | None = None) -
     ]
 
 
-@register("false_alarms_per_hour", words)
+@register(
+    "false_alarms_per_hour",
+    words,
+    rank=lambda r: r["per_hour"]["value"],
+    label="false alarms per hour",
+    lower_is_better=True,
+)
 def false_alarms_per_hour(judged: Judged, draws: int = BOOTSTRAP, seed: int = 0) -> dict[str, Any]:
     """``{"false_alarms", "hours", "grasps", "per_hour": {"value", "interval"}, "enough"}``: alarm onsets
     on the held part of every grasp per hour of contact (see the module notes); ``enough``: at least

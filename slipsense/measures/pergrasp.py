@@ -359,7 +359,7 @@ def early_warning_lines(g: Mapping[str, Any], context: Mapping[str, Any]) -> lis
     return lines + [fp]
 
 
-@register("per_grasp", early_warning_lines, pools=False)
+@register("per_grasp", early_warning_lines, pools=False, rank=lambda g: g["warned_rate"], label="slips warned in time")
 def per_grasp(judged: Judged) -> dict[str, Any]:
     """Slips warned in time / premature / missed, false-positive grasps, alarms at rest, lead times
     (:func:`summarise`), and ``slips_without_moment``: the slipped runs whose moment of slip was not

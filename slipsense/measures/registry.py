@@ -48,6 +48,10 @@ class Measure:
             cross-validation report.
         reads: what it needs of :class:`Judged` beyond the runs (``"baselines"``, ``"clips"``): the
             judge reads those frames and labels only for a measure that asks.
+        rank: ``its dict -> the one value detectors are ranked by`` (a float; NaN where it cannot
+            say), shown as the measure's column in the fold tables and adapt's table; None: not ranked.
+        label: that value's name in a table's heading.
+        lower_is_better: the value is a cost (false alarms), not a score.
     """
 
     key: str
@@ -55,20 +59,63 @@ class Measure:
     words: Callable[[Mapping[str, Any], Mapping[str, Any]], list[str]]
     pools: bool = True
     reads: tuple[str, ...] = ()
+    rank: Callable[[Mapping[str, Any]], float] | None = None
+    label: str = ""
+    lower_is_better: bool = False
+
+    def value(self, result: Mapping[str, Any] | None) -> float:
+        """The value this measure ranks by in ``result`` (NaN where there is none)."""
+        if self.rank is None or result is None:
+            return math.nan
+        v = self.rank(result)
+        return math.nan if v is None else float(v)
+
+    def better_first(self, result: Mapping[str, Any] | None) -> float:
+        """:meth:`value` turned so that larger is better (NaN last): what ``max`` ranks by."""
+        v = self.value(result)
+        return -math.inf if math.isnan(v) else (-v if self.lower_is_better else v)
 
 
 #: key -> measure, in the order the summary says them
 MEASURES: dict[str, Measure] = {}
 
 
-def register(key: str, words: Callable, pools: bool = True, reads: tuple[str, ...] = ()) -> Callable:
-    """Decorator: ``@register("key", words)`` on a ``Judged -> dict`` function adds it to :data:`MEASURES`."""
+def register(
+    key: str,
+    words: Callable,
+    pools: bool = True,
+    reads: tuple[str, ...] = (),
+    rank: Callable[[Mapping[str, Any]], float] | None = None,
+    label: str = "",
+    lower_is_better: bool = False,
+) -> Callable:
+    """Decorator: ``@register("key", words, rank=..., label=...)`` on a ``Judged -> dict`` function adds
+    it to :data:`MEASURES`: its result reaches the JSON, the printed summary and (where it ranks) the
+    fold tables and adapt's table."""
 
     def add(compute: Callable) -> Callable:
-        MEASURES[key] = Measure(key, compute, words, pools, reads)
+        MEASURES[key] = Measure(key, compute, words, pools, reads, rank, label or key, lower_is_better)
         return compute
 
     return add
+
+
+def ranked(results: Mapping[str, Any]) -> dict[str, float]:
+    """``{key: value}``: the value each registered measure that ranks gives for ``results`` (as
+    :func:`measure_all` gives them), in the registry's order."""
+    return {k: m.value(results[k]) for k, m in MEASURES.items() if m.rank is not None and k in results}
+
+
+def ranked_columns(rows: Sequence[Mapping[str, float]]) -> list[str]:
+    """The registered measures that rank and have a value in any of ``rows`` (:func:`ranked`), in order."""
+    return [k for k, m in MEASURES.items() if m.rank is not None and any(k in r for r in rows)]
+
+
+def cell(key: str, value: float) -> str:
+    """A ranked value as a table shows it: a fraction in percent, a cost or count as a number."""
+    if value is None or math.isnan(value):
+        return "-"
+    return f"{value:.2f}" if MEASURES[key].lower_is_better or abs(value) > 1 else pct(value)
 
 
 def measure_all(judged: Judged, only: Sequence[str] | None = None) -> dict[str, Any]:

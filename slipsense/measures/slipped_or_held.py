@@ -234,7 +234,12 @@ def _not_beaten(d: Mapping[str, Any], baselines: Mapping[str, Mapping[str, Any]]
     return [f"  the detector does not beat {name}: {'; '.join(s)}" for name, s in said.items()]
 
 
-@register("grasp_measure", telling_apart, pools=False, reads=("baselines",))
+def _balanced(m: Mapping[str, Any]) -> float:
+    op = m["detector"].get("operating_point")
+    return op["balanced_accuracy"]["value"] if op else math.nan
+
+
+@register("grasp_measure", telling_apart, pools=False, reads=("baselines",), rank=_balanced, label="balanced accuracy")
 def grasp_measure(judged: Judged, draws: int = BOOTSTRAP) -> dict[str, Any]:
     """Slipped against held grasps: the detector's ROC AUC of each grasp's
     :func:`peak_alarm_score`, accuracy and balanced accuracy at its operating point and with

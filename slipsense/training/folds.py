@@ -25,7 +25,7 @@ import numpy as np
 from slipsense import atomic
 from slipsense.errors import ConfigError, InputError
 from slipsense.evaluation.replay import plot_tradeoff
-from slipsense.measures import MEASURES, Judged, measure_all, measure_lines, pergrasp
+from slipsense.measures import MEASURES, Judged, cell, measure_all, measure_lines, pergrasp, ranked, ranked_columns
 from slipsense.measures.clips import clip_metrics, scores
 from slipsense.sensors.spec import GELSIGHT_MINI
 from slipsense.parallel import run_jobs
@@ -195,14 +195,20 @@ def _write_report(out: Path, head: dict[str, Any], folds: list[dict[str, Any]], 
     """``head`` with the ``folds`` pooled, written into ``out`` as folds.json, README.md and
     tradeoff.png; returns the report."""
     fps = float((head.get("sensor") or {}).get("fps") or GELSIGHT_MINI.fps)
-    judged = pooled_runs(folds, fps, head["train_config"]["horizon"])
+    horizon = head["train_config"]["horizon"]
+    judged = pooled_runs(folds, fps, horizon)
     pooled = {**pool_folds(folds, judged.runs), **measure_all(judged, pooled_measures())}
     report = {
         **head,
         "pooled": {k: v for k, v in pooled.items() if k != "curve"},
         "curve": pooled["curve"],
         "per_fold": [
-            {k: f[k] for k in ("fold", "objects", "operating_point", "per_grasp", "clips", "seconds")} for f in folds
+            {
+                **{k: f[k] for k in ("fold", "objects", "operating_point", "per_grasp", "clips", "seconds")},
+                # every registered measure that ranks, on the fold's own held-out runs (the registry's value)
+                "measures": ranked(measure_all(pooled_runs([f], fps, horizon))),
+            }
+            for f in folds
         ],
     }
     atomic.write_text(out / "folds.json", json.dumps(_json_safe(report), indent=1))
@@ -341,5 +347,19 @@ def summary_markdown(report: dict[str, Any]) -> str:
             f"{fg['warned']}/{fg['slip_runs']} | {fg['false_positive_grasps']}/{fg['held_runs']} | "
             f"{_pct(f['clips']['f1'])} | {f['seconds']} |"
         )
-    lines += ["", "![trade-off](tradeoff.png)", ""]
+    lines += ["", *_measures_table(report), "![trade-off](tradeoff.png)", ""]
     return "\n".join(lines)
+
+
+def _measures_table(report: dict[str, Any]) -> list[str]:
+    """Every registered measure that ranks (:data:`~slipsense.measures.MEASURES`), fold by fold: the
+    value each ranks detectors by, on the fold's held-out runs at its own operating point."""
+    rows = [f.get("measures") or {} for f in report["per_fold"]]
+    keys = ranked_columns(rows)
+    if not keys:
+        return []
+    head = " | ".join(MEASURES[k].label + (" (lower is better)" if MEASURES[k].lower_is_better else "") for k in keys)
+    lines = ["## Every registered measure, fold by fold", "", f"| fold | {head} |", "|---:|" + "---:|" * len(keys)]
+    for f, row in zip(report["per_fold"], rows):
+        lines.append(f"| {f['fold']} | " + " | ".join(cell(k, row.get(k, math.nan)) for k in keys) + " |")
+    return [*lines, ""]
