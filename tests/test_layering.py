@@ -12,7 +12,10 @@ reaches itself through its imports (function-local imports count too).
                  provenance
     sensors      what a sensor is (specs) and the marker maths on one image
     measures     how well a detector did, from replayed traces alone: no I/O, models or training
-    data in      recordings, data, datasets, readers, marker_sequences
+    recordings   a set of recordings read once (the folder listed once, its sensor, rates, probes), frames
+                 and their caches, labels (the hand labels applied), clips, markers tracked in videos
+    data in      data, datasets, readers, marker_sequences: what training and evaluation read, built
+                 on the recordings
     models       models (the contract, one file per network, streams, runners, ONNX parts), checkpoint
     streaming    the live detector, sources, capture, export: what runs on the robot
     evaluation   the judge: a detector opened once, recordings read once, every run replayed once
@@ -51,7 +54,8 @@ FLOORS = [
     ],
     ["sensors"],
     ["measures"],
-    ["recordings", "data", "datasets", "readers", "marker_sequences"],
+    ["recordings"],
+    ["data", "datasets", "readers", "marker_sequences"],
     ["models", "checkpoint"],
     ["streaming"],
     ["evaluation"],
