@@ -52,7 +52,10 @@ def test_a_new_measure_reaches_the_json_the_summary_and_the_fold_table(
     assert "share slipped (test)" in table.splitlines()[2] and "| 0 |" in table and "50%" in table
 
 
-def test_adapt_ranks_by_a_registered_measure_and_its_table_shows_every_one(tmp_path, cache, one_thread, share_slipped):
+def test_adapt_ranks_by_a_registered_measure_and_its_table_shows_every_one(
+    tmp_path, cache, one_thread, share_slipped, folder_opens
+):
+    """... and adapt lists its folder once (in this process: `strace -f` of the command finds once in all)."""
     from test_adapt import _grasps_of
 
     from slipsense.adapt import RANK_BY
@@ -64,8 +67,10 @@ def test_adapt_ranks_by_a_registered_measure_and_its_table_shows_every_one(tmp_p
     )
     out = tmp_path / "mine"
     args = ["adapt", "--recordings", str(root), "--out", str(out), "--epochs", "1", "--folds", "3", "--no-progress"]
-    res = runner.invoke(app, args)
+    with folder_opens:
+        res = runner.invoke(app, args)
     assert res.exit_code == 0, res.output
+    assert folder_opens.count(root) == 1 and folder_opens.count(root / "object000") == 1
     doc = json.loads((out / "adapt.json").read_text())
     replayed = [c for c in doc["candidates"]]
     assert all(c["measures"][share_slipped] == 0.5 for c in replayed), [c["measures"] for c in replayed]

@@ -1,0 +1,62 @@
+"""One set of recordings, read once: ``Recordings.open`` lists each folder once, and whatever is asked
+of the set after (another sensor's layout, a fold, a rate, a worker's pickled copy) lists nothing again."""
+
+from __future__ import annotations
+
+import json
+import pickle
+
+import pytest
+
+from slipsense.errors import InputError
+from slipsense.recordings.recording_set import Recordings
+from slipsense.sensors.spec import GELSIGHT_LIFT, GELSIGHT_MINI
+
+
+def test_a_video_set_is_listed_once_and_folds_rates_and_copies_list_nothing(grasp_recordings, folder_opens):
+    with folder_opens:
+        data = Recordings.open(grasp_recordings)
+    runs = sorted({r.path.parent for r in data.listed})
+    assert folder_opens.count(grasp_recordings) == 1 and all(folder_opens.count(r) == 1 for r in runs)
+    assert data.objects == ["obj0", "obj1", "obj2", "obj3"] and len(data) == 16 and not data.frames
+    with folder_opens:
+        fold = data.without(["obj0"])
+        again = pickle.loads(pickle.dumps(fold))  # what a worker process receives
+        lift_layout = again.read_with(GELSIGHT_LIFT)
+        checked = again.checked()
+        rate = again.rate(checked[0])
+    assert folder_opens.listed == []
+    assert fold.objects == again.objects == ["obj1", "obj2", "obj3"] and len(checked) == 12
+    assert lift_layout.listed == again.listed  # a layout of frame folders reads videos as the study laid them out
+    assert rate == (25.0, "the video's stated rate")
+    assert data.subset(["obj2"]).objects == ["obj2"] and data.only(checked[:2]).listed == tuple(checked[:2])
+
+
+def test_a_frame_folder_set_states_its_sensor_and_rate_once(tmp_path, folder_opens):
+    from test_frame_folders import _lift_data
+
+    root = _lift_data(tmp_path / "lift")
+    with folder_opens:
+        data = Recordings.open(root, sensor=None)
+        rates = {data.rate(r) for r in data.listed}
+    assert folder_opens.count(root) == 1
+    assert data.frames and data.stated == GELSIGHT_LIFT and data.layout == GELSIGHT_LIFT
+    assert rates == {(GELSIGHT_LIFT.fps, "the gelsight-lift layout")}
+    (root / "sensor.json").write_text(json.dumps({"name": "my-gelsight", "output": "video", "fps": 12.5}))
+    mine = Recordings.open(root)
+    assert mine.stated.name == "my-gelsight" and mine.layout == GELSIGHT_MINI  # the layout asked for
+    assert mine.rate(mine.listed[0]) == (12.5, str(root / "sensor.json"))
+
+
+def test_frames_that_state_no_rate_are_refused_saying_how_to_state_it(tmp_path):
+    from test_frame_folders import _grasp
+
+    root = tmp_path / "mine"
+    for i, slipped in enumerate((True, False)):
+        _grasp(root / "cup" / f"grasp_{i}", slipped, seed=i, n=6, size=(48, 64))
+    data = Recordings.open(root)
+    assert data.frames and data.stated is None
+    with pytest.raises(InputError, match=r"states no frame rate: state it in a sensor.json"):
+        data.rate(data.listed[0])
+    with pytest.raises(InputError, match="recordings folder does not exist"):
+        Recordings.open(tmp_path / "nope")
