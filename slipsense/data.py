@@ -17,21 +17,23 @@ import numpy as np
 
 from slipsense.errors import ConfigError, InputError
 from slipsense.recordings.clips import ClipSpec, load_or_build_clips
-from slipsense.recordings.folders import find_recordings, validate_recordings
+from slipsense.recordings.recording_set import Recordings
 from slipsense.recordings.labelling import label_runs
 from slipsense.sensors.marker_npz import load_marker_npz
 from slipsense.sensors.spec import GELSIGHT_MINI
 
 
-def gelsight_clips(recordings_dir: str | Path, spec, on_error="raise", overrides=None, progress=True, sensor=None):
-    """Labelled clips of every video under ``recordings_dir`` (labels and clips are cached).
+def gelsight_clips(recordings_dir, spec, on_error="raise", overrides=None, progress=True, sensor=None):
+    """Labelled clips of every video of a :class:`~slipsense.recordings.recording_set.Recordings` or its
+    folder ``recordings_dir`` (labels and clips are cached).
 
     Returns ``(clipset, labels)``; ``spec`` is a :class:`~slipsense.recordings.clips.ClipSpec`;
     ``sensor`` (default the GelSight Mini) names the folder layout.
     """
-    recordings = find_recordings(recordings_dir, on_error=on_error, sensor=sensor or GELSIGHT_MINI)
+    read = Recordings.of(recordings_dir, sensor or GELSIGHT_MINI, on_error)
+    recordings_dir = read.root
     # any frame size: clips are resized to the spec's size, as grasps and the live detector resize
-    recordings = validate_recordings(recordings, on_error=on_error, expected_size=None)
+    recordings = read.checked(on_error)
     if not recordings:
         raise InputError(recordings_dir, "no usable recordings")
     labels = label_runs(recordings, overrides=overrides, on_error=on_error, progress=progress)

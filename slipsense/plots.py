@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Sequence
+import math
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -62,3 +63,32 @@ def plot_confusion(cm, path: str | Path, title: str = "") -> Path:
     ax.set_yticks([0, 1], ["true wiggle", "true slip"])
     ax.set_title(title)
     return save_figure(fig, path)
+
+
+def plot_tradeoff(rows: Sequence[Mapping[str, Any]], path: str | Path, title: str = "") -> None:
+    """Slips warned in time against grasps that held yet alarmed, one labelled point per threshold
+    (with 95% bootstrap intervals over runs where the rows carry them)."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(5.2, 4.2))
+    xs = [r["false_positive_rate"] for r in rows]
+    ys = [r["warned_rate"] for r in rows]
+    if all("warned_low" in r for r in rows):  # bootstrap intervals over runs (pergrasp.table)
+        xerr = [[x - r["fp_low"] for x, r in zip(xs, rows)], [r["fp_high"] - x for x, r in zip(xs, rows)]]
+        yerr = [[y - r["warned_low"] for y, r in zip(ys, rows)], [r["warned_high"] - y for y, r in zip(ys, rows)]]
+        ax.errorbar(xs, ys, xerr=xerr, yerr=yerr, fmt="none", ecolor="tab:blue", alpha=0.25, lw=1)
+    ax.plot(xs, ys, marker="o")
+    points: dict[tuple[float, float], list[float]] = {}  # thresholds landing on one point share a label
+    for r, x, y in zip(rows, xs, ys):
+        if not (math.isnan(x) or math.isnan(y)):
+            points.setdefault((x, y), []).append(r["threshold"])
+    for xy, ths in points.items():
+        label = f"{ths[0]:g}" if len(ths) == 1 else f"{min(ths):g}-{max(ths):g}"
+        ax.annotate(label, xy, fontsize=7, xytext=(3, 3), textcoords="offset points")
+    ax.plot([0, 1], [0, 1], ls=":", color="gray", lw=0.8)
+    ax.set_xlabel("grasps that held yet alarmed (false-positive grasps)")
+    ax.set_ylabel("slips warned in time (first alarm within the horizon)")
+    ax.set_xlim(-0.02, 1.02)
+    ax.set_ylim(-0.02, 1.02)
+    ax.grid(alpha=0.3)
+    ax.set_title(title or "per-grasp early warning (labels: thresholds)", fontsize=9)
+    save_figure(fig, path)

@@ -19,6 +19,7 @@ The stream's modules run on PyTorch or ONNX Runtime (``backend``); heat maps
 
 from __future__ import annotations
 
+import functools
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -409,14 +410,24 @@ class SlipDetector:
         self._stream.close()
 
 
+@functools.lru_cache(maxsize=1)
+def shipped_inputs() -> dict[str, tuple[tuple[int, int] | None, int | None]]:
+    """``{name: (frame size (h, w) or None, sensors)}`` of every shipped detector, its metadata read
+    once a process (the shipped files are part of the installed package: they do not change under it)."""
+    out = {}
+    for name in shipped_models():
+        info = read_info(shipped_model(name))
+        size = (info.get("sensor") or {}).get("image_size")
+        out[name] = (tuple(size) if size else None, info["model_config"].get("sensors"))
+    return out
+
+
 def shipped_name(sensors: int | None = None, image_size: tuple[int, int] | None = None) -> str:
     """The shipped detector for an input: the one whose sensor has frames of ``image_size`` ``(h, w)``
     and that takes ``sensors`` sensors (default 2), else the GelSight Mini's for that many fingers."""
     if image_size is not None:
-        for name in shipped_models():
-            info = read_info(shipped_model(name))
-            size = (info.get("sensor") or {}).get("image_size")
-            if size and tuple(size) == tuple(image_size) and info["model_config"].get("sensors") == (sensors or 2):
+        for name, (size, takes) in shipped_inputs().items():
+            if size == tuple(image_size) and takes == (sensors or 2):
                 return name
     return default_model_name(sensors)
 

@@ -38,7 +38,7 @@ from slipsense.measures.clips import metrics_from
 from slipsense.models import available, build, model_class, settings_of
 from slipsense.parallel import end_with_parent
 from slipsense.readers import check_same_split
-from slipsense.recordings.folders import find_recordings
+from slipsense.recordings.recording_set import Recordings
 from slipsense.config_tree import dump_tree, typed
 from slipsense.sensors.spec import sensor_of
 from slipsense.training.distributed import Dist, RankBatches, StepPlan, setup  # noqa: F401
@@ -232,7 +232,8 @@ def _store_operating_point(out: Path, split_info: dict[str, Any], overrides, pro
     root = resolve_path(split_info["recordings"])
     held = set(split_info.get("test_objects") or ())
     sensor = sensor_of(read_info(out / "last.safetensors"))
-    objects = sorted({r.object for r in find_recordings(root, on_error="skip", sensor=sensor)} - held)
+    data = Recordings.open(root, sensor, on_error="skip")  # listed once for both checkpoints' judges
+    objects = sorted(set(data.objects) - held)
     chosen: list[tuple[dict, dict]] = []  # (weights, operating point): best often holds last's weights
     for name in ("last.safetensors", "best.safetensors"):
         path = out / name
@@ -242,7 +243,7 @@ def _store_operating_point(out: Path, split_info: dict[str, Any], overrides, pro
         op = next((o for w, o in chosen if w.keys() == weights.keys() and all(w[k].equal(weights[k]) for k in w)), None)
         if op is None:
             try:
-                op = choose_on_training_runs(path, root, objects, overrides, progress)
+                op = choose_on_training_runs(path, data, objects, overrides, progress)
             except SlipsenseError as exc:  # the training stands; the checkpoint alarms at 0.5 with a warning
                 warnings.warn(f"{path}: no operating point chosen ({exc})", stacklevel=2)
                 continue

@@ -24,7 +24,7 @@ import numpy as np
 
 from slipsense import atomic
 from slipsense.errors import ConfigError, InputError
-from slipsense.evaluation.replay import plot_tradeoff
+from slipsense.plots import plot_tradeoff
 from slipsense.measures import MEASURES, Judged, cell, measure_all, measure_lines, pergrasp, ranked, ranked_columns
 from slipsense.measures.clips import clip_metrics, scores
 from slipsense.sensors.spec import GELSIGHT_MINI

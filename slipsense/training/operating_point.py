@@ -18,11 +18,12 @@ from typing import Any, Sequence
 from slipsense.errors import ConfigError
 from slipsense.evaluation.judge import judge
 from slipsense.measures import pergrasp
+from slipsense.recordings.recording_set import Recordings
 
 
 def choose_on_training_runs(
     checkpoint: str | Path,
-    recordings: str | Path,
+    recordings: str | Path | Recordings,
     objects: Sequence[str],
     overrides=None,
     progress: bool = True,

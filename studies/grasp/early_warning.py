@@ -18,7 +18,8 @@ from slipsense.checkpoint import read_info
 from slipsense.paths import gelsight_recordings
 from slipsense.errors import ConfigError, InputError
 from slipsense.evaluation.judge import shipped_for
-from slipsense.evaluation.replay import RunTrace, plot_tradeoff, replay_recordings
+from slipsense.evaluation.replay import RunTrace, replay_recordings
+from slipsense.plots import plot_tradeoff
 from slipsense.measures import pergrasp
 from slipsense.recordings.folders import camera_counts
 from slipsense.recordings.labelling import label_runs
