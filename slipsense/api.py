@@ -87,7 +87,7 @@ def fit(
         "train": {"seed": seed},
     }
     res = fit_recipe(RunConfig.from_tree(tree), out, progress=progress)
-    held = {k: res[k] for k in ("per_grasp", "clips") if res.get(k) is not None} if held_out else None
+    held = {k: res[k] for k in ("per_grasp", "clips", "measures") if res.get(k) is not None} if held_out else None
     return TrainedDetector(Path(res["checkpoint"]), res.get("operating_point") or {}, res.get("history") or [], held)
 
 

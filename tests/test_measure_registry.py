@@ -31,7 +31,7 @@ def share_slipped():
     MEASURES.pop("share_slipped")
 
 
-def test_a_new_measure_reaches_the_json_the_summary_and_the_fold_table(
+def test_a_new_measure_reaches_the_json_the_summary_the_held_out_result_and_the_fold_table(
     tmp_path, cache, one_thread, grasp_recordings, share_slipped
 ):
     out = tmp_path / "e.json"
@@ -39,6 +39,13 @@ def test_a_new_measure_reaches_the_json_the_summary_and_the_fold_table(
     assert res.exit_code == 0, res.output
     assert json.loads(out.read_text())[share_slipped] == {"share": 0.5, "grasps": 8}
     assert "Share of grasps that slipped (a test measure): 50%." in res.stdout
+
+    import slipsense
+
+    trained = slipsense.fit(
+        grasp_recordings, tmp_path / "fit", model="motion-energy", held_out=["obj1"], progress=False
+    )
+    assert trained.held_out["measures"][share_slipped] == 0.5  # the held-out object's grasps: 1 of 2 slipped
 
     folds = tmp_path / "folds"
     args = ["train", "--cross-validate", "--out", str(folds), "--recordings", str(grasp_recordings), "--folds", "2",

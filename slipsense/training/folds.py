@@ -25,12 +25,13 @@ import numpy as np
 from slipsense import atomic
 from slipsense.errors import ConfigError, InputError
 from slipsense.plots import plot_tradeoff
-from slipsense.measures import MEASURES, Judged, cell, measure_all, measure_lines, pergrasp, ranked, ranked_columns
+from slipsense.measures import MEASURES, cell, measure_all, measure_lines, pergrasp, ranked, ranked_columns
 from slipsense.measures.clips import clip_metrics, scores
 from slipsense.sensors.spec import GELSIGHT_MINI
 from slipsense.parallel import run_jobs
 from slipsense.recordings.runs import GraspRun, runs_summary
 from slipsense.training.grasp_detector import (
+    pooled_runs,
     chosen_part,
     finish_training,
     fit_job,
@@ -43,12 +44,6 @@ from slipsense.training.grasp_detector import (
     traces_json,
 )
 from slipsense.training.grasps import GraspTrainConfig
-
-
-def stored_trace(run: dict[str, Any]) -> np.ndarray:
-    """``(N,)`` float64 P(slip) of a run as a fold file keeps it (``null`` where the detector gave
-    no answer, NaN here)."""
-    return np.array([np.nan if v is None else v for v in run["probability"]], dtype=np.float64)
 
 
 def pool_folds(folds: Sequence[dict[str, Any]], runs: Sequence[pergrasp.RunTrace]) -> dict[str, Any]:
@@ -220,22 +215,6 @@ def _write_report(out: Path, head: dict[str, Any], folds: list[dict[str, Any]], 
 def pooled_measures() -> list[str]:
     """The registered measures a cross-validation report computes on its folds pooled."""
     return [k for k, m in MEASURES.items() if m.pools]
-
-
-def pooled_runs(folds: Sequence[dict[str, Any]], fps: float, horizon: int) -> Judged:
-    """Every fold's held-out runs as the measures take them, each at its fold's operating point
-    (``fps``: the rate the runs were read at, the detector's)."""
-    runs, points = [], []
-    for f in folds:
-        op = f["operating_point"]
-        for r in f["runs"]:
-            p, rest = stored_trace(r), np.zeros(len(r["probability"]), dtype=bool)
-            rest[r["rest"]] = True
-            at = (r["object"], r["experiment"], r["slipped"], r["moment_of_slip"], len(p), p, rest, tuple(r["cameras"]))
-            runs.append(pergrasp.RunTrace(*at, fps, fps))
-            points.append((op["threshold"], op["debounce"], op.get("hold_s", 0.0)))
-    startup = int(folds[0]["operating_point"].get("startup", pergrasp.STARTUP)) if folds else pergrasp.STARTUP
-    return Judged(runs, points, horizon, startup)
 
 
 def _echo_fold(echo, k: int, held: Sequence[str], done: dict[str, Any], resumed: bool = False) -> None:

@@ -22,7 +22,7 @@ from slipsense import atomic
 from slipsense.alarm import HOLD_S, debounce
 from slipsense.checkpoint import save_checkpoint, update_info
 from slipsense.errors import ConfigError
-from slipsense.measures import pergrasp
+from slipsense.measures import Judged, measure_all, pergrasp, ranked
 from slipsense.evaluation.calibrate import calibrated_threshold
 from slipsense.evaluation.judge import clip_scores
 from slipsense.measures.clips import clip_metrics
@@ -317,7 +317,10 @@ def train_detector(
     if held:
         test = [r for r in usable if r.object in set(held)]
         judged = held_out_result(test, probs, op, labels, cfg.horizon)
-        result.update({k: judged[k] for k in ("per_grasp", "clips")})
+        fps = float(((data or {}).get("sensor") or {}).get("fps") or GELSIGHT_MINI.fps)
+        # every registered measure that ranks, on the held-out runs (as the fold tables show them)
+        measures = ranked(measure_all(pooled_runs([{**judged, "operating_point": op}], fps, cfg.horizon)))
+        result.update({**{k: judged[k] for k in ("per_grasp", "clips")}, "measures": measures})
     if not d.main:
         return result
     info = _checkpoint_info(cfg, train, data, operating_point=op, history=history)
@@ -342,6 +345,28 @@ def traces_json(runs: Sequence[GraspRun], probs) -> list[dict[str, Any]]:
     """Runs with their P(slip) traces (6 decimals: thresholds go up to 0.9999; None for no answer)."""
     rounded = [[None if math.isnan(v) else round(float(v), 6) for v in p] for p in probs]
     return [{**pergrasp.run_fields(r), "probability": p} for r, p in zip(runs, rounded)]
+
+
+def stored_trace(run: dict[str, Any]) -> np.ndarray:
+    """``(N,)`` float64 P(slip) of a run as a fold file keeps it (``null`` where the detector gave
+    no answer, NaN here)."""
+    return np.array([np.nan if v is None else v for v in run["probability"]], dtype=np.float64)
+
+
+def pooled_runs(folds: Sequence[dict[str, Any]], fps: float, horizon: int) -> Judged:
+    """Every fold's held-out runs as the measures take them, each at its fold's operating point
+    (``fps``: the rate the runs were read at, the detector's)."""
+    runs, points = [], []
+    for f in folds:
+        op = f["operating_point"]
+        for r in f["runs"]:
+            p, rest = stored_trace(r), np.zeros(len(r["probability"]), dtype=bool)
+            rest[r["rest"]] = True
+            at = (r["object"], r["experiment"], r["slipped"], r["moment_of_slip"], len(p), p, rest, tuple(r["cameras"]))
+            runs.append(pergrasp.RunTrace(*at, fps, fps))
+            points.append((op["threshold"], op["debounce"], op.get("hold_s", 0.0)))
+    startup = int(folds[0]["operating_point"].get("startup", pergrasp.STARTUP)) if folds else pergrasp.STARTUP
+    return Judged(runs, points, horizon, startup)
 
 
 def held_out_result(runs: Sequence[GraspRun], probs, op: dict[str, Any], labels: dict, horizon: int) -> dict:

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from slipsense.errors import InputError
-from slipsense.training.folds import stored_trace
+from slipsense.training.grasp_detector import stored_trace
 from slipsense.measures import pergrasp
 from slipsense.measures.pergrasp import STARTUP
 

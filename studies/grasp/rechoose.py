@@ -12,7 +12,7 @@ import numpy as np
 
 from slipsense.errors import ConfigError, InputError
 from slipsense.measures.clips import clip_metrics
-from slipsense.training.folds import stored_trace
+from slipsense.training.grasp_detector import stored_trace
 from slipsense.measures import pergrasp
 from slipsense.training.folds import _echo_fold, _pct, _rule, _write_report
 
