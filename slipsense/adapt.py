@@ -45,7 +45,8 @@ import numpy as np
 from slipsense.api import fit
 from slipsense.atomic import write_text
 from slipsense.checkpoint import read_info, update_info
-from slipsense.measures import MEASURES, Judged, cell, measure_all, pergrasp, ranked, slipped_or_held
+from slipsense.measures import MEASURES, Judged, cell, measure_all, ranked, slipped_or_held
+from slipsense.measures.promise import held_alarm_promise
 from slipsense.evaluation.calibrate import calibrate, calibrated_threshold
 from slipsense.evaluation.judge import Evaluation, judge, recordings_set, shipped_for
 from slipsense.evaluation.summary import rate_lines
@@ -379,9 +380,9 @@ def adapt(
 def _promise_unseen(path: Path, chosen: Candidate, folds: int) -> None:
     """The kept detector's promise, in its checkpoint: what its family did on the held grasps of objects
     it never saw (adapt's table), not what its operating point measured on the objects it was chosen on,
-    so ``watch`` and ``models`` state the figure adapt printed (:func:`~slipsense.measures.pergrasp.promise_text`)."""
+    so ``watch`` and ``models`` state the figure adapt printed (:func:`~slipsense.measures.promise.promise_text`)."""
     held = ~chosen.slipped
-    promise = pergrasp.held_alarm_promise(chosen.alarmed[held], chosen.objects[held])
+    promise = held_alarm_promise(chosen.alarmed[held], chosen.objects[held])
     promise["measured_on"] = f"objects it never saw ({folds} object folds of these grasps, slipsense adapt)"
     op = dict(read_info(path).get("operating_point") or {})
     update_info(path, {"operating_point": {**op, "held_alarm_unseen": promise}})

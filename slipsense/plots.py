@@ -72,7 +72,7 @@ def plot_tradeoff(rows: Sequence[Mapping[str, Any]], path: str | Path, title: st
     fig, ax = plt.subplots(figsize=(5.2, 4.2))
     xs = [r["false_positive_rate"] for r in rows]
     ys = [r["warned_rate"] for r in rows]
-    if all("warned_low" in r for r in rows):  # bootstrap intervals over runs (pergrasp.table)
+    if all("warned_low" in r for r in rows):  # bootstrap intervals over runs (operating_points.table)
         xerr = [[x - r["fp_low"] for x, r in zip(xs, rows)], [r["fp_high"] - x for x, r in zip(xs, rows)]]
         yerr = [[y - r["warned_low"] for y, r in zip(ys, rows)], [r["warned_high"] - y for y, r in zip(ys, rows)]]
         ax.errorbar(xs, ys, xerr=xerr, yerr=yerr, fmt="none", ecolor="tab:blue", alpha=0.25, lw=1)

@@ -37,7 +37,7 @@ import numpy as np
 
 from slipsense.checkpoint import read_info
 from slipsense.errors import ConfigError, SlipsenseError
-from slipsense.measures.pergrasp import promise_text
+from slipsense.measures.promise import promise_text
 from slipsense.recordings.bags import COMPRESSED, IMAGE, decode_image
 from slipsense.resources import default_model_name, shipped_model
 from slipsense.streaming.detector import SlipDetector

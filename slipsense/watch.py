@@ -14,7 +14,7 @@ from slipsense.alarm import shown_probability
 from slipsense.atomic import check_output_file
 from slipsense.checkpoint import load_model
 from slipsense.errors import ConfigError, InputError
-from slipsense.measures.pergrasp import promise_text
+from slipsense.measures.promise import promise_text
 from slipsense.models.base import window_geometry
 from slipsense.models.runners import resolve_backend
 from slipsense.recordings.frame_folders import camera_folders

@@ -311,9 +311,9 @@ def stnet_real(root: Path) -> str:
 
 def _promise(name: str) -> str:
     """A shipped detector's promise about held grasps, as every command prints it: read from the
-    checkpoint (its one source), in the one wording of :func:`slipsense.measures.pergrasp.promise_text`."""
+    checkpoint (its one source), in the one wording of :func:`slipsense.measures.promise.promise_text`."""
     from slipsense.checkpoint import read_info
-    from slipsense.measures.pergrasp import promise_text
+    from slipsense.measures.promise import promise_text
     from slipsense.resources import shipped_model
 
     return promise_text(read_info(shipped_model(name)).get("operating_point"))

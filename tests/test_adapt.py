@@ -149,7 +149,7 @@ def test_adapt_judges_every_family_that_fits_on_unseen_objects_and_resumes_after
         assert (out / "detector.safetensors").exists() == (doc["chosen"] not in (None, "as is"))
         if doc["chosen"] not in (None, "as is"):  # one promise: what adapt's table said, in watch and models
             from slipsense.checkpoint import read_info
-            from slipsense.measures.pergrasp import promise_text
+            from slipsense.measures.promise import promise_text
 
             chosen = next(c for c in doc["candidates"] if c["name"] == doc["chosen"])
             promise = promise_text(read_info(out / "detector.safetensors")["operating_point"])

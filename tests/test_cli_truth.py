@@ -232,7 +232,7 @@ def test_words_that_said_something_untrue_now_say_what_is_wrong(tmp_path, monkey
     assert res.exit_code == 2 and "grasp folder is empty" in res.output and "does not match" not in res.output
     res = runner.invoke(app, ["adapt", "--recordings", "empty", "--out", "mine", "--no-progress"])
     assert res.exit_code == 2 and not (tmp_path / "mine").exists()
-    from slipsense.measures.pergrasp import held_alarm_promise, promise_text
+    from slipsense.measures.promise import held_alarm_promise, promise_text
 
     promise = promise_text({"held_alarm": held_alarm_promise([False, True, False], ["a", "b", "b"])})
     assert "counting each of the 2 objects with held grasps as one unit" in promise

@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from slipsense.errors import ConfigError, InputError
-from slipsense.measures.pergrasp import choose_operating_point
+from slipsense.measures.operating_points import choose_operating_point
 from slipsense.training.grasps import GraspTrainConfig, fit_runs, frame_targets, predict_runs
 from slipsense.streaming.detector import SlipDetector
 from slipsense.models import build

@@ -4,6 +4,8 @@ import numpy as np
 import pytest
 
 from slipsense.measures import pergrasp
+from slipsense.measures import promise
+from slipsense.measures import operating_points
 from slipsense.recordings.contact import rest_mask
 
 
@@ -81,7 +83,7 @@ def test_operating_point_prefers_separating_threshold():
         if m is not None:
             p[m - 5 : m + 1] = 0.8
         probs.append(p)
-    op = pergrasp.choose_operating_point(probs, moments)
+    op = operating_points.choose_operating_point(probs, moments)
     assert 0.3 <= op["threshold"] < 0.8 and op["score_on_training_runs"] == pytest.approx(1.0)
 
 
@@ -104,36 +106,36 @@ def _peaks(slip_peak: float, held_peaks, n=200, moment=150):
 def test_at_most_k_percent_of_held_grasps_rule():
     held = [i / 20 for i in range(20)]  # 0 .. 0.95: the quietest held grasp never alarms above 0.95
     probs, moments = _peaks(0.97, held)
-    op = pergrasp.choose_operating_point(probs, moments, max_held_alarm=0.05)
+    op = operating_points.choose_operating_point(probs, moments, max_held_alarm=0.05)
     assert op["threshold"] == 0.97 and op["warned_rate_on_training_runs"] == 1.0
     assert op["false_positive_rate_on_training_runs"] == 0.0 and "5%" in op["rule"]
     # slips no louder than the held grasps: the rule keeps its promise and warns of nothing
     probs, moments = _peaks(0.5, held)
-    op = pergrasp.choose_operating_point(probs, moments, max_held_alarm=0.05)
+    op = operating_points.choose_operating_point(probs, moments, max_held_alarm=0.05)
     assert op["false_positive_rate_on_training_runs"] <= 0.05 and op["warned_rate_on_training_runs"] == 0.0
     # an always-on detector: no point is quiet enough, the quietest is taken (still 100%)
     on = [np.ones(200) for _ in moments]
-    op = pergrasp.choose_operating_point(on, moments, max_held_alarm=0.05)
+    op = operating_points.choose_operating_point(on, moments, max_held_alarm=0.05)
     assert op["false_positive_rate_on_training_runs"] == 1.0
     with pytest.raises(Exception, match="fraction"):
-        pergrasp.choose_operating_point(probs, moments, max_held_alarm=5)
+        operating_points.choose_operating_point(probs, moments, max_held_alarm=5)
 
 
 def test_bootstrap_intervals_hold_the_rates_and_trivial_detectors_have_none():
     probs, moments = _peaks(0.97, [i / 20 for i in range(20)])
-    rows = pergrasp.table(probs, moments, [0.5, 0.97], intervals=500)
+    rows = operating_points.table(probs, moments, [0.5, 0.97], intervals=500)
     for r in rows:
         assert r["warned_low"] <= r["warned_rate"] <= r["warned_high"]
         assert r["fp_low"] <= r["false_positive_rate"] <= r["fp_high"]
     assert rows[0]["false_positive_rate"] == 0.5 and rows[0]["fp_low"] < 0.5 < rows[0]["fp_high"]  # peaks 0.5 .. 0.95
-    on = pergrasp.table([np.ones(200) for _ in moments], moments, [0.5], intervals=200)[0]
+    on = operating_points.table([np.ones(200) for _ in moments], moments, [0.5], intervals=200)[0]
     assert on["fp_low"] == on["fp_high"] == 1.0 and on["warned_low"] == on["warned_high"] == 0.0
 
 
 def test_wilson_interval_is_not_zero_width_at_zero_events():
-    lo, hi = pergrasp.wilson(0, 85)
+    lo, hi = promise.wilson(0, 85)
     assert lo == 0.0 and 0.03 < hi < 0.05  # none of 85 held grasps alarmed: the rate may still be ~4%
-    lo, hi = pergrasp.wilson(11, 51)
+    lo, hi = promise.wilson(11, 51)
     assert lo < 11 / 51 < hi
     rates = pergrasp.bootstrap_rates(["warned"] * 11 + ["missed"] * 40 + ["clean"] * 85, samples=300)
     assert rates["fp_low"] == rates["fp_high"] == 0.0 and rates["fp_wilson"][1] > 0.03

@@ -18,7 +18,7 @@ from slipsense.alarm import alarm_trace, hold, onsets, shown_probability
 from slipsense.checkpoint import read_info
 from slipsense.cli import app
 from slipsense.errors import ConfigError
-from slipsense.measures.pergrasp import promise_text
+from slipsense.measures.promise import promise_text
 from slipsense.models import build
 from slipsense.resources import shipped_model, shipped_models
 from slipsense.streaming.detector import Reading, SlipDetector

@@ -19,7 +19,7 @@ _VALUE_ONLY = frozenset(
 
 def detector_promise(info: Mapping[str, Any]) -> str:
     """What a shipped detector promises about held grasps, in one line: the one place that reads it."""
-    from slipsense.measures.pergrasp import promise_text
+    from slipsense.measures.promise import promise_text
 
     return promise_text(info.get("operating_point"))
 

@@ -7,7 +7,7 @@ costs minutes, not a data set: :func:`calibrate` replays them through the detect
 :func:`slipsense.evaluation.judge.judge` does, puts the threshold just above all but a
 ``budget`` fraction of the held grasps' peak scores (:func:`calibrated_threshold`) and writes a copy
 of the checkpoint with that operating point, what it was chosen on and what it promises on new
-objects (:func:`slipsense.measures.pergrasp.held_alarm_promise`, objects as the unit). The weights
+objects (:func:`slipsense.measures.promise.held_alarm_promise`, objects as the unit). The weights
 are not touched.
 """
 
@@ -26,7 +26,7 @@ from slipsense.checkpoint import read_info, update_info
 from slipsense.errors import ConfigError, InputError
 from slipsense.evaluation.judge import judge
 from slipsense.evaluation.summary import rate_lines
-from slipsense.measures import pergrasp
+from slipsense.measures.promise import held_alarm_promise
 from slipsense.recordings.recording_set import Recordings
 from slipsense.sensors.spec import sensor_of
 
@@ -132,7 +132,7 @@ def calibrate(
         raise InputError(root, "no grasp that held: calibration needs held grasps (slipped ones are optional)")
     threshold = min(1.0, calibrated_threshold(scores[~slipped], scores[slipped], budget))
     held_objects = [r.object for r in ev.runs if not r.slipped]
-    promise = pergrasp.held_alarm_promise(scores[~slipped] >= threshold, held_objects)
+    promise = held_alarm_promise(scores[~slipped] >= threshold, held_objects)
     before = {
         "threshold": ev.threshold,
         "held_alarming": int((scores[~slipped] >= ev.threshold).sum()),
@@ -189,7 +189,7 @@ def check_by_objects(
         if not held_rest.any():
             raise InputError(root, f"leaving out {o} leaves no held grasp to calibrate on")
         th = min(1.0, calibrated_threshold(scores[held_rest], scores[rest & slipped], budget))
-        promise = pergrasp.held_alarm_promise(scores[held_rest] >= th, objects[held_rest])
+        promise = held_alarm_promise(scores[held_rest] >= th, objects[held_rest])
         alarm = scores[mine] >= th
         rows.append(
             {

@@ -3,11 +3,14 @@
 Nothing here reads a file, runs a model or trains one; every function takes arrays and labels.
 :func:`slipsense.evaluation.judge.judge` replays the runs once and hands one :class:`Judged` to every
 measure of :data:`MEASURES`; ``slipsense evaluate``'s JSON (under each measure's key), its printed
-summary and the cross-validation reports (:mod:`slipsense.training.folds`) iterate that registry, so
-a new measure is one function and one :func:`register` call.
+summary, held-out results, the cross-validation's fold tables (:mod:`slipsense.training.folds`) and
+adapt's table iterate that registry, and each measure names the one value it ranks detectors by, so a
+new measure is one function and one :func:`register` call.
 
 * :mod:`~slipsense.measures.pergrasp`: early warning per grasp (warned in time, premature, missed,
-  false-positive grasps) and operating points;
+  false-positive grasps) from the replayed traces;
+* :mod:`~slipsense.measures.operating_points`: the (threshold, debounce) chosen on training runs;
+* :mod:`~slipsense.measures.promise`: what an operating point promises about held grasps, in words;
 * :mod:`~slipsense.measures.slipped_or_held`: ranking and accuracy of slipped against held grasps,
   with intervals over objects, beside the non-learned :mod:`~slipsense.measures.baselines`;
 * :mod:`~slipsense.measures.clips`: the papers' short-clip metrics;

@@ -24,15 +24,10 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from slipsense.alarm import HOLD_S, debounce  # the alarm rule every outcome is judged by
-from slipsense.errors import ConfigError
+from slipsense.alarm import debounce  # the alarm rule every outcome is judged by
 from slipsense.sensors.spec import GELSIGHT_MINI
+from slipsense.measures.promise import wilson
 from slipsense.measures.registry import HORIZON, STARTUP, Judged, plural, register
-
-
-#: Thresholds an operating point is chosen among: class-balanced training inflates probabilities,
-#: so the grid is dense near 1.
-THRESHOLDS = tuple(float(t) for t in np.round(np.linspace(0.05, 0.95, 19), 3)) + (0.97, 0.98, 0.99, 0.995, 0.998, 0.999)
 
 
 @dataclass(frozen=True)
@@ -157,85 +152,6 @@ def summarise(outcomes: Sequence[GraspOutcome], fps: float = GELSIGHT_MINI.fps) 
     }
 
 
-def table(
-    probabilities: Sequence[np.ndarray],
-    moments: Sequence[int | None],
-    thresholds: Sequence[float],
-    debounces: Sequence[int] = (1,),
-    horizon: int = HORIZON,
-    startup: int = STARTUP,
-    rests: Sequence[np.ndarray | None] | None = None,
-    fps: float = GELSIGHT_MINI.fps,
-    intervals: int = 0,
-) -> list[dict[str, Any]]:
-    """One row (``threshold``, ``debounce``, :func:`summarise`) per (threshold, debounce) over runs given as
-    probability traces; with ``intervals`` bootstrap draws, also ``warned_low``/``warned_high`` and
-    ``fp_low``/``fp_high``: 95% intervals over runs (:func:`bootstrap_rates`, the same draws for every row)."""
-    rests = rests if rests is not None else [None] * len(probabilities)
-    rows = []
-    for k in debounces:
-        for th in thresholds:
-            outs = [
-                grasp_outcome(debounce(p, th, k), m, horizon, startup, r)
-                for p, m, r in zip(probabilities, moments, rests)
-            ]
-            rows.append({"threshold": float(th), "debounce": int(k), **summarise(outs, fps)})
-            if intervals:
-                ci = bootstrap_rates([o.outcome for o in outs], intervals)
-                rows[-1].update({c: ci[c] for c in ("warned_low", "warned_high", "fp_low", "fp_high")})
-    return rows
-
-
-#: Thresholds the "at most K% of held grasps alarm" rule may also take: a class-balanced detector
-#: puts many calm frames above 0.999.
-FINE_TAIL = (0.9995, 0.9998, 0.9999)
-
-
-def choose_operating_point(
-    probabilities: Sequence[np.ndarray],
-    moments: Sequence[int | None],
-    thresholds: Sequence[float] | None = None,
-    debounces: Sequence[int] = (1, 2, 3, 5),
-    horizon: int = HORIZON,
-    startup: int = STARTUP,
-    max_held_alarm: float | None = None,
-) -> dict[str, Any]:
-    """The (threshold, debounce) to alarm at, chosen on these runs. Call it on training runs only
-    (out-of-fold predictions of inner folds): choosing it on test runs is tuning on the test set.
-
-    ``max_held_alarm`` None: the best :func:`summarise` score (warned rate minus false-positive
-    rate; ties: the shortest debounce, then the middle of the tying thresholds, for a margin on both
-    sides). ``max_held_alarm=K``: the rule a user states, "at most a fraction K of the grasps that
-    hold may alarm": among the points whose false-positive grasps are at most ``K`` of the held runs,
-    the one that warns in time of the most slips (ties: fewer false positives, fewer premature
-    warnings, the shortest debounce, the middle threshold); when none is that quiet, the quietest.
-    """
-    if thresholds is None:
-        thresholds = THRESHOLDS if max_held_alarm is None else tuple(sorted(set(THRESHOLDS) | set(FINE_TAIL)))
-    rows = table(probabilities, moments, thresholds, debounces, horizon, startup)
-    if max_held_alarm is None:
-        top = max(round(r["score"], 9) for r in rows)
-        tied = [r for r in rows if round(r["score"], 9) == top]
-        rule = "best score (warned rate - false-positive rate)"
-    else:
-        if not 0.0 <= float(max_held_alarm) <= 1.0:
-            raise ConfigError(f"max_held_alarm must be a fraction in [0, 1], got {max_held_alarm!r}")
-        ok = [r for r in rows if r["false_positive_grasps"] <= max_held_alarm * r["held_runs"] + 1e-9]
-        if not ok:
-            least = min(r["false_positive_grasps"] for r in rows)
-            ok = [r for r in rows if r["false_positive_grasps"] == least]
-        key = lambda r: (r["warned"], -r["false_positive_grasps"], -r["premature"])  # noqa: E731
-        top = max(key(r) for r in ok)
-        tied = [r for r in ok if key(r) == top]
-        rule = f"at most {100 * max_held_alarm:g}% of held grasps alarming"
-    k = min(r["debounce"] for r in tied)
-    tied = sorted((r for r in tied if r["debounce"] == k), key=lambda r: r["threshold"])
-    best = tied[(len(tied) - 1) // 2]
-    point = {"threshold": best["threshold"], "debounce": best["debounce"], "hold_s": HOLD_S}
-    on_training_runs = {f"{k}_on_training_runs": best[k] for k in ("score", "warned_rate", "false_positive_rate")}
-    return {**point, "horizon": horizon, "startup": startup, "rule": rule, **on_training_runs}
-
-
 def bootstrap_rates(outcomes: Sequence[str], samples: int = 2000, seed: int = 0, level: float = 0.95) -> dict[str, Any]:
     """Bootstrap intervals over runs of the warned-in-time and false-positive rates of fixed
     outcomes (e.g. folds pooled, each at its own operating point): ``{"warned_low", "warned_high",
@@ -254,76 +170,6 @@ def bootstrap_rates(outcomes: Sequence[str], samples: int = 2000, seed: int = 0,
         # resampling none (or all) of n events gives a zero-width interval: the Wilson interval does not
         out[f"{name}_wilson"] = list(wilson(int(hits.sum()), hits.size))
     return out
-
-
-def held_alarm_promise(alarmed: Sequence[bool], objects: Sequence[str]) -> dict[str, Any]:
-    """What a held-alarm rate promises on objects not seen: the rate over these held grasps with the
-    upper end of its 95% Wilson interval counting *objects*, not grasps, as the independent units.
-
-    The grasps of one object share its surface, weight and the way it was grasped: when one alarms,
-    others tend to. Counting each object as one trial, with the pooled rate (a design effect with
-    the within-object correlation taken as 1), is the conservative reading: 0 alarms on 85 held
-    grasps of 21 objects promises at most 15.5% on new objects, not the 4.3% that counting grasps
-    gives. Both bounds are returned.
-
-    Args:
-        alarmed: ``(N,)`` whether each held grasp alarmed at the operating point.
-        objects: ``(N,)`` each held grasp's object.
-    """
-    a, objs = np.asarray(alarmed, bool), np.asarray(objects)
-    n, k = len(a), int(a.sum())
-    units = len(np.unique(objs))
-    rate = k / n if n else math.nan
-    return {
-        "held_grasps": n,
-        "held_objects": units,
-        "alarming": k,
-        "rate": rate,
-        "bound_counting_objects": wilson(rate * units, units)[1] if n else math.nan,
-        "bound_counting_grasps": wilson(k, n)[1] if n else math.nan,
-    }
-
-
-def promise_text(op: Any) -> str:
-    """What a checkpoint's operating point promises about held grasps, in one line, with where it was
-    measured: ``held_alarm_unseen`` (held grasps of objects its family never saw, as ``adapt`` judged
-    it) where there is one, else ``held_alarm`` (:func:`held_alarm_promise` on the grasps the operating
-    point was chosen on); older checkpoints say what they have."""
-    if not isinstance(op, dict):
-        return "no operating point stored: nothing is promised about held grasps"
-    unseen = op.get("held_alarm_unseen")
-    if isinstance(unseen, dict) and unseen.get("held_grasps"):  # measured on objects it never saw: the promise
-        h = unseen
-        return (
-            f"held grasps alarming on {h['measured_on']}: {100 * h['rate']:.1f}% ({h['alarming']} of "
-            f"{h['held_grasps']}); on new objects at most {100 * h['bound_counting_objects']:.0f}% (95%, counting "
-            f"each of the {h['held_objects']} objects with held grasps as one unit)"
-        )
-    h = op.get("held_alarm")
-    if isinstance(h, dict) and h.get("held_grasps"):
-        return (
-            f"held grasps alarming: {100 * h['rate']:.1f}% ({h['alarming']} of {h['held_grasps']}) on "
-            f"{op.get('chosen_on', 'the grasps it was chosen on')}; on new objects at most "
-            f"{100 * h['bound_counting_objects']:.0f}% (95%, counting each of the {h['held_objects']} objects with held "
-            "grasps as one unit)"
-        )
-    rate = op.get("false_positive_rate_on_training_runs")
-    if isinstance(rate, (int, float)):
-        return (
-            f"held grasps alarming: {100 * rate:.1f}% on {op.get('chosen_on', 'its training runs')} "
-            "(no bound counting objects stored: `slipsense calibrate` states one)"
-        )
-    return "nothing is promised about held grasps (no rate stored)"
-
-
-def wilson(k: float, n: int, z: float = 1.959964) -> tuple[float, float]:
-    """The 95% Wilson score interval of a rate of ``k`` events in ``n`` runs (``(0, 0.043)`` for 0 of 85)."""
-    if n == 0:
-        return (math.nan, math.nan)
-    p = k / n
-    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
-    return (max(0.0, centre - half), min(1.0, centre + half))
 
 
 def early_warning_lines(g: Mapping[str, Any], context: Mapping[str, Any]) -> list[str]:

@@ -90,7 +90,7 @@ def _metadata(model: nn.Module, info: Mapping[str, Any]) -> dict[str, Any]:
     """What a program running the ONNX files alone needs besides them: the model and its settings, the
     sensor (its frame rate), and the operating point the detector alarms at (threshold, debounce
     frames, hold seconds, start-up frames), with its promise; ``null`` where the checkpoint has none."""
-    from slipsense.measures.pergrasp import promise_text
+    from slipsense.measures.promise import promise_text
 
     op = info.get("operating_point")
     keys = ("threshold", "debounce", "hold_s", "startup", "horizon", "chosen_on", "rule")

@@ -26,6 +26,7 @@ from slipsense import atomic
 from slipsense.errors import ConfigError, InputError
 from slipsense.plots import plot_tradeoff
 from slipsense.measures import MEASURES, cell, measure_all, measure_lines, pergrasp, ranked, ranked_columns
+from slipsense.measures import operating_points
 from slipsense.measures.clips import clip_metrics, scores
 from slipsense.sensors.spec import GELSIGHT_MINI
 from slipsense.parallel import run_jobs
@@ -66,7 +67,9 @@ def pool_folds(folds: Sequence[dict[str, Any]], runs: Sequence[pergrasp.RunTrace
         "clips": clip_metrics(decisions.astype(np.float64), y, 0.5),
         "clips_at_half": clip_metrics(p_all, y, 0.5),
         "operating_points": [f["operating_point"] for f in folds],
-        "curve": pergrasp.table(traces, moments, pergrasp.THRESHOLDS, (debounce,), rests=rests, intervals=2000),
+        "curve": operating_points.table(
+            traces, moments, operating_points.THRESHOLDS, (debounce,), rests=rests, intervals=2000
+        ),
     }
 
 

@@ -23,6 +23,8 @@ from slipsense.alarm import HOLD_S, debounce
 from slipsense.checkpoint import save_checkpoint, update_info
 from slipsense.errors import ConfigError
 from slipsense.measures import Judged, measure_all, pergrasp, ranked
+from slipsense.measures import promise
+from slipsense.measures import operating_points
 from slipsense.evaluation.calibrate import calibrated_threshold
 from slipsense.evaluation.judge import clip_scores
 from slipsense.measures.clips import clip_metrics
@@ -211,10 +213,10 @@ def train_with_operating_point(
 
 
 def held_alarm_of(probs: Sequence[np.ndarray], runs: Sequence[GraspRun], op: dict, cfg: GraspTrainConfig) -> dict:
-    """:func:`~slipsense.measures.pergrasp.held_alarm_promise` of the held ``runs`` at ``op``."""
+    """:func:`~slipsense.measures.promise.held_alarm_promise` of the held ``runs`` at ``op``."""
     held = [(p, r.object) for p, r in zip(probs, runs) if not r.slipped]
     alarmed = [bool(debounce(p, op["threshold"], op["debounce"])[cfg.startup :].any()) for p, _ in held]
-    return pergrasp.held_alarm_promise(alarmed, [o for _, o in held])
+    return promise.held_alarm_promise(alarmed, [o for _, o in held])
 
 
 def _chosen_operating_point(
@@ -242,7 +244,7 @@ def _chosen_operating_point(
         }
     else:
         moments = [r.moment_of_slip for r in runs]
-        op = pergrasp.choose_operating_point(probs, moments, **at, max_held_alarm=cfg.max_held_alarm)
+        op = operating_points.choose_operating_point(probs, moments, **at, max_held_alarm=cfg.max_held_alarm)
     if inner:
         op["chosen_on"] = f"{cfg.inner_folds} inner folds of the training objects"
     elif cfg.inner_folds:

@@ -5,7 +5,7 @@ A grasp model chooses its threshold and debounce on inner folds of its training 
 several times, so after training its last checkpoint is replayed over every run of its training
 objects (both fingers, as :func:`slipsense.evaluation.judge.judge` replays), and the (threshold,
 debounce) that best separates their slips from their held grasps is stored in the checkpoint
-(:func:`slipsense.measures.pergrasp.choose_operating_point`). Chosen on runs the model trained on,
+(:func:`slipsense.measures.operating_points.choose_operating_point`). Chosen on runs the model trained on,
 it is optimistic, and says so (``chosen_on``); it never sees a held-out object.
 """
 
@@ -17,7 +17,7 @@ from typing import Any, Sequence
 
 from slipsense.errors import ConfigError
 from slipsense.evaluation.judge import judge
-from slipsense.measures import pergrasp
+from slipsense.measures import operating_points
 from slipsense.recordings.recording_set import Recordings
 
 
@@ -45,6 +45,6 @@ def choose_on_training_runs(
     runs = [r for r in ev.runs if not (r.slipped and r.moment_of_slip is None)]
     if not any(r.moment_of_slip is not None for r in runs):
         raise ConfigError("the training runs hold no slip with a known moment: no operating point can be chosen")
-    op = pergrasp.choose_operating_point([r.probability for r in runs], [r.moment_of_slip for r in runs])
+    op = operating_points.choose_operating_point([r.probability for r in runs], [r.moment_of_slip for r in runs])
     op["chosen_on"] = f"the {len(runs)} training runs themselves, replayed per grasp (optimistic)"
     return op

@@ -73,11 +73,14 @@ def _per_grasp(model, info, source, train_objects: Sequence[str], test_objects: 
     the operating point chosen on the training objects' runs replayed the same way (best warned
     rate minus false-positive rate, as for the papers' clip models)."""
     from slipsense.measures import pergrasp
+    from slipsense.measures import operating_points
     from slipsense.streaming.detector import SlipDetector
 
     det = SlipDetector(model.eval(), sensors=2, info=info)
     fit_runs = source.replay(det, train_objects)
-    op = pergrasp.choose_operating_point([r.probability for r in fit_runs], [r.moment_of_slip for r in fit_runs])
+    op = operating_points.choose_operating_point(
+        [r.probability for r in fit_runs], [r.moment_of_slip for r in fit_runs]
+    )
     runs = source.replay(det, test_objects)
     s = pergrasp.summarise([r.outcome(op["threshold"], op["debounce"]) for r in runs])
     return {

@@ -15,7 +15,7 @@ from slipsense.cli.common import check_seed, command_line, friendly
 from slipsense.cli.live import THREADS_HELP, set_threads
 from slipsense.paths import data_root, gelsight_recordings, resolve_path
 from slipsense.errors import ConfigError
-from slipsense.measures.pergrasp import promise_text
+from slipsense.measures.promise import promise_text
 from slipsense.resources import shipped_model
 from slipsense.training.grasps import load_grasp_data
 from studies.grasp.adaptation import adaptation_study, table, write

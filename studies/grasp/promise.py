@@ -82,7 +82,7 @@ def promise_from_report(checkpoint, report, row: str | None = None) -> dict[str,
     with held grasps, are taken from there: a report keeps no per-object outcome). Returns the promise."""
     from pathlib import Path
 
-    from slipsense.measures.pergrasp import wilson
+    from slipsense.measures.promise import wilson
 
     k, n, where = unseen_figures(report, row)
     info = read_info(checkpoint)

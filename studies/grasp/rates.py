@@ -25,6 +25,7 @@ from slipsense.recordings.labelling import label_runs
 from slipsense.evaluation.judge import judge
 from slipsense.evaluation.replay import RunTrace
 from slipsense.measures import pergrasp
+from slipsense.measures import promise
 from slipsense.progress import progress_bar
 from slipsense.recordings.contact import rest_mask
 from slipsense.recordings.folders import find_recordings
@@ -121,8 +122,8 @@ def _replayed(det: SlipDetector, recs: list, labels: dict, rng_for, modes=("cloc
 def _counts(outs: list) -> dict[str, Any]:
     s = pergrasp.summarise(outs)
     row = {k: s[k] for k in ("slip_runs", "warned", "premature", "missed", "held_runs", "false_positive_grasps")}
-    row["warned_interval"] = pergrasp.wilson(row["warned"], row["slip_runs"])
-    row["false_positive_interval"] = pergrasp.wilson(row["false_positive_grasps"], row["held_runs"])
+    row["warned_interval"] = promise.wilson(row["warned"], row["slip_runs"])
+    row["false_positive_interval"] = promise.wilson(row["false_positive_grasps"], row["held_runs"])
     return row
 
 

@@ -14,6 +14,8 @@ from slipsense.errors import ConfigError, InputError
 from slipsense.measures.clips import clip_metrics
 from slipsense.training.grasp_detector import stored_trace
 from slipsense.measures import pergrasp
+from slipsense.measures import promise
+from slipsense.measures import operating_points
 from slipsense.training.folds import _echo_fold, _pct, _rule, _write_report
 
 
@@ -65,7 +67,7 @@ def rechoose(src, out, max_held_alarm: float | None, command: str = "", echo=pri
                 path, f"was written with other settings than the folds before it (config keys {sorted(map(str, keys))})"
             )
         probs = [stored_trace(r) for r in fold["inner"]]
-        op = pergrasp.choose_operating_point(
+        op = operating_points.choose_operating_point(
             probs, [r["moment_of_slip"] for r in fold["inner"]], horizon=cfg["horizon"], max_held_alarm=max_held_alarm
         )
         op["chosen_on"] = f"{cfg['inner_folds']} inner folds of the training objects (kept traces)"
@@ -95,7 +97,7 @@ def _read_fold(path: Path) -> dict[str, Any]:
 def _count(n: int, of: int) -> str:
     """``n/of (low-high)``: a count with its 95% Wilson interval."""
 
-    low, high = pergrasp.wilson(n, of)
+    low, high = promise.wilson(n, of)
     return f"{n}/{of} ({_pct(low)}-{_pct(high)})"
 
 
