@@ -5,6 +5,7 @@ adapt ranks by the value a registered measure names."""
 from __future__ import annotations
 
 import json
+import math
 
 import numpy as np
 import pytest
@@ -85,3 +86,7 @@ def test_adapt_ranks_by_a_registered_measure_and_its_table_shows_every_one(
         c["measures"][RANK_BY] == c["measure"]["operating_point"]["balanced_accuracy"]["value"] for c in replayed
     )
     assert res.output.count("share slipped (test) 50%") == len(replayed)
+    # a rate the measure does not state (minutes of contact too few) is neither ranked nor shown
+    rates = [c["measures"]["false_alarms_per_hour"] for c in replayed if "false_alarms_per_hour" in c["measures"]]
+    assert rates and all(math.isnan(r) for r in rates)
+    assert "false alarms per hour" not in res.output

@@ -89,7 +89,7 @@ def words(result: Mapping[str, Any], context: Mapping[str, Any] | None = None) -
 @register(
     "false_alarms_per_hour",
     words,
-    rank=lambda r: r["per_hour"]["value"],
+    rank=lambda r: r["per_hour"]["value"] if r["enough"] else math.nan,  # a rate it does not state is no rank
     label="false alarms per hour",
     lower_is_better=True,
 )
