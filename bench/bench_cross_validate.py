@@ -28,6 +28,8 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 from slipsense.paths import data_root  # noqa: E402
 
+from markdown import emit  # bench/markdown.py: run as python bench/NAME.py
+
 
 def run_folds(tree: Path, work: Path) -> dict:
     """One cross-validation with ``tree``'s code: its seconds and pooled per-grasp figures."""
@@ -79,11 +81,7 @@ def main() -> None:
             f"| {r['false_positive_grasps']} of {r['held_runs']} |"
         )
     lines += ["", f"Ratio (`{args.baseline}` over `{head}`): {base['seconds'] / now['seconds']:.2f}x faster now."]
-    text = "\n".join(lines) + "\n"
-    print(text)
-    if args.out:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(text)
+    emit(lines, args.out)
 
 
 if __name__ == "__main__":

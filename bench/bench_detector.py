@@ -33,6 +33,8 @@ from slipsense.streaming.detector import DEFAULT_CHECKPOINT, SlipDetector  # noq
 from slipsense.recordings.video import read_video  # noqa: E402
 from slipsense.resources import shipped_model  # noqa: E402
 
+from markdown import emit  # bench/markdown.py: run as python bench/NAME.py
+
 TARGET_P99_MS = 2.0
 VIVIT_CHECKPOINT = shipped_model("vivit-gelsight")
 ONE_FINGER = shipped_model("motionnet-gelsight-1")
@@ -124,11 +126,7 @@ def main(argv=None) -> int:
             f"| {r['detector']} | {r['pushes']} | {r['p50_ms']:.3f} | {r['p99_ms']:.3f} | {r['max_ms']:.2f} | "
             f"{r['p50_ms'] / rows[0]['p50_ms']:.2f}x | {'met' if r['p99_ms'] <= TARGET_P99_MS else 'missed'} |"
         )
-    text = "\n".join(lines) + "\n"
-    print(text)
-    if args.out:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(text)
+    emit(lines, args.out)
     if args.json:
         args.json.write_text(json.dumps({"threads": args.threads, "rows": rows}, indent=1))
     return 0

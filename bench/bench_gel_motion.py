@@ -27,6 +27,8 @@ from slipsense.recordings.video import read_video  # noqa: E402
 from slipsense.resources import shipped_model  # noqa: E402
 from slipsense.streaming.detector import SlipDetector  # noqa: E402
 
+from markdown import emit  # bench/markdown.py: run as python bench/NAME.py
+
 TARGET_P99_MS = 33.0
 CASES = {
     "gelsight-lift grasp, shear-retention-gelsight-lift, 1 finger": (
@@ -79,11 +81,7 @@ def main() -> None:
             f"| {case} | {n} | {off[0]:.2f} / {off[1]:.2f} / {off[2]:.2f} | {on[0]:.2f} / {on[1]:.2f} / {on[2]:.2f} "
             f"| {on[1] / off[1]:.1f}x | {'yes' if on[1] <= TARGET_P99_MS else 'NO'} |"
         )
-    text = "\n".join(lines) + "\n"
-    print(text)
-    if args.out:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(text)
+    emit(lines, args.out)
 
 
 if __name__ == "__main__":
