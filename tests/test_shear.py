@@ -102,3 +102,29 @@ def test_sharp_steps_export_to_onnx(tmp_path):
     sharp = build("shear-retention", sensors=1, image_size=(H, W), softness=0).eval()
     result = export_onnx(sharp, tmp_path / "sharp.onnx")
     assert set(result.paths) == {"model", "frame", "step"} and max(result.max_abs_diff.values()) <= 1e-4
+
+
+def test_tracked_shifts_are_read_back_from_disk_and_never_written_while_training(cache, monkeypatch):
+    """A grasp tracked once is read back (another process, or after this one forgot it), the same
+    numbers; gradient training's frames (flipped, at another gain every epoch) stay off the disk."""
+    from slipsense.models import tracking
+
+    for name in ("shear-retention", "slip-velocity"):
+        model = build(name, sensors=1, image_size=[H, W]).eval()
+        gray = torch.from_numpy(_gel([(0.2 * t, 0.0) for t in range(12)])).float()[None, None] / 255.0
+        with torch.no_grad():
+            first = model(gray)
+        written = sorted((cache / "tracked").glob("*.safetensors"))
+
+        def untracked(*_):
+            raise AssertionError("tracked again")
+
+        with monkeypatch.context() as m:
+            m.setattr(tracking, "_MEMO", {})
+            m.setattr(type(model), "_track", untracked)
+            with torch.no_grad():
+                assert torch.equal(model(gray), first)
+        with torch.no_grad():
+            model.train()(gray.flip(-1))
+        assert sorted((cache / "tracked").glob("*.safetensors")) == written
+    assert len(written) == 2

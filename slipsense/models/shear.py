@@ -24,7 +24,6 @@ The first frame pushed is the reference: reset the stream at the start of each g
 
 from __future__ import annotations
 
-import hashlib
 from typing import Sequence
 
 import numpy as np
@@ -34,6 +33,7 @@ from einops import rearrange
 from torch import Tensor, nn
 
 from slipsense.errors import ConfigError
+from slipsense.models import tracking
 from slipsense.models.base import GraspModel, ModelPart, OnnxPart, register
 from slipsense.models.grasp_stream import GraspStream
 from slipsense.models.streams import slip_probability
@@ -58,12 +58,6 @@ def running_max(x: Tensor, dim: int) -> Tensor:
     for k in (2**i for i in range(_DOUBLINGS)):  # the first frame stands in before the start
         x = torch.maximum(x, x.index_select(0, (at - k).clamp(min=0)))
     return x.movedim(0, dim)
-
-
-#: Tracked shifts of frames seen before (:meth:`ShearRetention.tracked`), by their frames' digest and
-#: the tracking settings; at most this many grasps (a grasp of 200 frames: 150 KB).
-_TRACKED: dict[tuple, Tensor] = {}
-_TRACKED_MAX = 512
 
 
 class _Frame(ModelPart):
@@ -263,23 +257,12 @@ class ShearRetention(GraspModel):
     def tracked(self, gray: Tensor) -> Tensor:
         """``(B, S, N, h, w)`` -> every cell's shift from the first frame ``(B, N, S, C)``, pixels.
 
-        The shifts of frames seen before are looked up, not tracked again: they depend on the frames
-        and the tracking settings only, not on ``gate``, ``letgo`` or the logit (no gradient flows
+        Frames tracked before are looked up (:mod:`slipsense.models.tracking`): the shifts depend on the
+        frames and the tracking settings only, not on ``gate``, ``letgo`` or the logit (no gradient flows
         into them), so choosing those on a user's grasps (``recipe["choose"]``: 16 pairs) tracks each
-        grasp once, not 16 times, and gradient training tracks each run once, not once per epoch.
-        Never while an export traces the model: a looked-up shift would be baked into the graph as a
-        constant of that input's frame count."""
-        if torch.jit.is_tracing() or torch.onnx.is_in_onnx_export():
-            return self._track(gray)
-        data = gray.detach().contiguous().cpu().numpy()  # keyed by its shape, dtype and a digest of its bytes
-        values = (tuple(data.shape), str(data.dtype), hashlib.blake2b(data.tobytes(), digest_size=16).hexdigest())
-        key = (values, self.patch, self.blur, self.iterations, tuple(self.image_size))
-        shift = _TRACKED.get(key)
-        if shift is None:
-            shift = _TRACKED[key] = self._track(gray)
-            while len(_TRACKED) > _TRACKED_MAX:
-                _TRACKED.pop(next(iter(_TRACKED)))  # the oldest first
-        return shift
+        grasp once, not 16 times, and gradient training tracks each run once, not once per epoch."""
+        settings = (self.patch, self.blur, self.iterations, list(self.image_size))
+        return tracking.tracked("shear-retention", gray, settings, lambda g: (self._track(g),), not self.training)[0]
 
     def _track(self, gray: Tensor) -> Tensor:
         b, s = gray.shape[:2]

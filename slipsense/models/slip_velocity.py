@@ -21,7 +21,6 @@ at the start of each grasp, before contact.
 
 from __future__ import annotations
 
-import hashlib
 import math
 from typing import Sequence
 
@@ -32,9 +31,10 @@ from einops import rearrange
 from torch import Tensor, nn
 
 from slipsense.errors import ConfigError
+from slipsense.models import tracking
 from slipsense.models.base import GraspModel, ModelPart, OnnxPart, register
 from slipsense.models.grasp_stream import GraspStream
-from slipsense.models.shear import _TRACKED, _TRACKED_MAX, ShearRetention
+from slipsense.models.shear import ShearRetention
 from slipsense.models.streams import slip_probability
 
 #: Fewest changed cells for a sensor to count as in contact.
@@ -207,20 +207,11 @@ class SlipVelocity(GraspModel):
 
     def tracked(self, gray: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         """``(B, S, N, h, w)`` -> every cell's shift from the first frame, x and y ``(B S, N, h/p, w/p)``,
-        and its shading change ``(B S, N, C)``. Looked up where these frames were seen before, as shear
-        retention does (:meth:`ShearRetention.tracked`): they depend on the frames and the tracking
-        settings only, not on ``floor`` or ``window``, so choosing those tracks each grasp once."""
-        if torch.jit.is_tracing() or torch.onnx.is_in_onnx_export():
-            return self._track(gray)
-        data = gray.detach().contiguous().cpu().numpy()
-        values = (tuple(data.shape), str(data.dtype), hashlib.blake2b(data.tobytes(), digest_size=16).hexdigest())
-        key = ("slip-velocity", values, self.patch, self.blur, self.iterations, self.close, tuple(self.image_size))
-        found = _TRACKED.get(key)
-        if found is None:
-            found = _TRACKED[key] = self._track(gray)
-            while len(_TRACKED) > _TRACKED_MAX:
-                _TRACKED.pop(next(iter(_TRACKED)))  # the oldest first
-        return found
+        and its shading change ``(B S, N, C)``. Frames tracked before are looked up
+        (:mod:`slipsense.models.tracking`): these depend on the frames and the tracking settings only,
+        not on ``floor`` or ``window``, so choosing those tracks each grasp once."""
+        settings = (self.patch, self.blur, self.iterations, self.close, list(self.image_size))
+        return tracking.tracked("slip-velocity", gray, settings, self._track, not self.training)
 
     def _track(self, gray: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         n = gray.shape[2]
