@@ -60,3 +60,18 @@ def test_frames_that_state_no_rate_are_refused_saying_how_to_state_it(tmp_path):
         data.rate(data.listed[0])
     with pytest.raises(InputError, match="recordings folder does not exist"):
         Recordings.open(tmp_path / "nope")
+
+
+def test_a_video_skipped_once_still_raises_when_asked_to(grasp_recordings, tmp_path):
+    import shutil
+
+    from slipsense.recordings.folders import SkippedInputWarning
+
+    root = tmp_path / "grasps"
+    shutil.copytree(grasp_recordings, root)
+    (root / "obj1" / "exp_num_2" / "camera_0.avi").write_bytes(b"not a video")
+    data = Recordings.open(root)
+    with pytest.warns(SkippedInputWarning):
+        assert len(data.checked("skip")) == 15
+    with pytest.raises(InputError, match="camera_0.avi"):
+        data.checked("raise")

@@ -124,9 +124,12 @@ class Recordings:
     def checked(self, on_error: str | None = None) -> list[Recording]:
         """The recordings whose videos (or frame folders) pass a probe
         (:func:`~slipsense.recordings.folders.validate_recordings`), each probed once for the set's life:
-        a fold or a second judge of the same set reads the verdicts."""
+        a fold or a second judge of the same set reads the verdicts. With ``on_error="raise"`` a recording
+        an earlier ``"skip"`` left out is probed again, so that it raises its error rather than go missing."""
         on_error = on_error or self.on_error
         todo = [r for r in self.listed if r.key not in self._probed]
+        if on_error == "raise":
+            todo += [r for r in self.listed if r.key in self._probed and self._probed[r.key] is None]
         if todo:
             infos: dict = {}
             validate_recordings(todo, on_error=on_error, expected_size=None, probed=infos)

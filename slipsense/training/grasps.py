@@ -253,6 +253,7 @@ class GraspTask(Task):
         if not any(m is not None or y[0] == BAG for _, y, m in self.data.items):
             raise ConfigError("the training runs hold no slip (with a known moment, or labelled as a whole)")
         self.hardness: list[np.ndarray] | None = None
+        self._slower: dict[tuple[int, float], np.ndarray] = {}
         self.weight = torch.ones(2)
         self._stats: dict[str, Any] = {}
         trained_on = [[r.object, r.experiment, list(r.cameras), r.slipped, r.moment_of_slip, r.n_frames] for r in runs]
@@ -292,7 +293,7 @@ class GraspTask(Task):
                         rng = np.random.default_rng([self.cfg.seed, epoch, k, i])
                         rate = rates[rng.integers(len(rates))]
                         if rate < 1:  # the same seconds as a slower camera gives them, on the model's clock
-                            g = as_slower_camera(g, rate)
+                            g = self._slower_camera(i, rate)
                             ends = [min(e, g.shape[1] - 1) for e in ends]
                         if self.cfg.gain:  # another unit's exposure
                             gain = rng.uniform(*self.cfg.gain)
@@ -300,6 +301,14 @@ class GraspTask(Task):
                         g = torch.from_numpy(g)
                         x.append(((g.flip(dims) if dims else g).float().div_(255.0), ends))
                     yield x, torch.from_numpy(np.concatenate([c[2] for c in runs])), weight
+
+    def _slower_camera(self, item: int, rate: float) -> np.ndarray:
+        """:func:`as_slower_camera` of a run, made once a training: it depends on the run and the rate
+        alone, and making it again each epoch was a seventh of the shipped recipe's training time."""
+        key = (item, rate)
+        if key not in self._slower:
+            self._slower[key] = as_slower_camera(self.data.items[item][0], rate)
+        return self._slower[key]
 
     def loss(self, net, batch, step_weight: float, world: int):
         x, y, weight = batch
