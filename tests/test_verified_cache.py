@@ -1,7 +1,7 @@
 """Caches are verified, never trusted (slipsense.cache): an entry that is damaged, half written, made
 from other inputs, or whose check file is missing or garbled is rebuilt from its inputs with a
 CacheWarning, and what the next read returns is the right data, never the damaged one. One test per
-cache: labels, frames, clips, markers, ONNX parts, bag cameras."""
+cache: labels, frames, clips, markers, ONNX parts, bag cameras, tracked markers."""
 
 from __future__ import annotations
 
@@ -290,3 +290,24 @@ def test_bag_camera_damaged_in_the_cache_is_converted_again(tmp_path, cache):
     quiet_or_one_warning(lambda: find_recordings(tmp_path / "bags"), "camera_0.avi")
     assert np.array_equal(read_video(recs[0].path, expected_size=None), v[0])
     quiet_or_one_warning(lambda: find_recordings(tmp_path / "bags"), None)
+
+
+# ---------------------------------------------------------------------------------------- tracked markers
+def test_tracked_markers_damaged_are_tracked_again(cache, monkeypatch):
+    import torch
+
+    from slipsense.models import build, tracking
+
+    model = build("shear-retention", sensors=1, image_size=[40, 60]).eval()
+    gray = torch.rand(1, 1, 6, 40, 60, generator=torch.Generator().manual_seed(0))
+    calls = []
+    real = type(model)._track
+    monkeypatch.setattr(type(model), "_track", lambda self, g: calls.append(1) or real(self, g))
+    first = model.tracked(gray)
+    (entry,) = (cache / "tracked").glob("*.safetensors")
+    flip_byte(entry, at=0.99)
+    monkeypatch.setattr(tracking, "_MEMO", {})  # as another process finds it
+    again = quiet_or_one_warning(lambda: model.tracked(gray), "checksum mismatch")
+    assert torch.equal(again, first) and len(calls) == 2
+    monkeypatch.setattr(tracking, "_MEMO", {})
+    assert torch.equal(quiet_or_one_warning(lambda: model.tracked(gray), None), first) and len(calls) == 2
