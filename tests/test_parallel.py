@@ -109,3 +109,21 @@ def _state(pid: int) -> str:
         return open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()[0]
     except OSError:
         return "Z"
+
+
+def _started(shared, job, tick):
+    import time
+
+    started = time.monotonic()
+    time.sleep(shared[job] / 250)  # as long as its weight says (0.3-0.4 s: a slow fork stays well inside)
+    return started, job
+
+
+def test_longest_first_starts_the_heaviest_jobs_first_and_keeps_job_order():
+    from slipsense.parallel import run_jobs
+
+    jobs, weights = ["a", "b", "c", "d"], [110, 71, 68, 81]
+    kept = run_jobs(_started, jobs, dict(zip(jobs, weights)), 2, weights, progress=False, longest_first=True)
+    assert [job for _, job in kept] == jobs  # results in job order
+    started = [job for _, job in sorted(kept)]
+    assert started[:2] in (["a", "d"], ["d", "a"]) and started[2:] == ["b", "c"]

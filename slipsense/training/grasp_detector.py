@@ -207,7 +207,14 @@ def train_with_operating_point(
     if not jobs[0].train:
         raise ConfigError("no usable training runs (every run excluded, or slip runs without a moment)")
     results = run_jobs(
-        fit_job, jobs, (runs, cfg), workers, [job_weight(j, cfg) for j in jobs], progress=progress, desc=cfg.model
+        fit_job,
+        jobs,
+        (runs, cfg),
+        workers,
+        [job_weight(j, cfg) for j in jobs],
+        progress=progress,
+        desc=cfg.model,
+        longest_first=True,  # the detector's result is wanted with all the others: none is written early
     )
     return finish_training(runs, jobs, results, cfg)
 
