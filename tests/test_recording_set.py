@@ -75,3 +75,24 @@ def test_a_video_skipped_once_still_raises_when_asked_to(grasp_recordings, tmp_p
         assert len(data.checked("skip")) == 15
     with pytest.raises(InputError, match="camera_0.avi"):
         data.checked("raise")
+
+
+def test_grasps_are_read_once_per_set_and_read_only(grasp_recordings, cache, monkeypatch):
+    import numpy as np
+
+    from slipsense.training import grasps
+
+    reads = []
+    real = grasps._read_grasp_data
+    monkeypatch.setattr(grasps, "_read_grasp_data", lambda *a: reads.append(1) or real(*a))
+    data = Recordings.open(grasp_recordings)
+    runs, labels = grasps.load_grasp_data(data, progress=False)
+    again, _ = grasps.load_grasp_data(data.without([]), progress=False)  # a fold of the same set
+    assert len(reads) == 1 and [r.key for r in again] == [r.key for r in runs]
+    with pytest.raises(ValueError):
+        runs[0].gray[0, 0, 0, 0] = 1  # shared by every training: never written in place
+    grasps.load_grasp_data(data, overrides=False, progress=False)  # other labels: read
+    grasps.load_grasp_data(data.without(["obj0"]), progress=False)  # other runs: read
+    assert len(reads) == 3
+    copy = pickle.loads(pickle.dumps(data))  # what a spawned worker receives: names, never frames
+    assert copy._kept == {} and len(pickle.dumps(data)) < 100_000 and isinstance(runs[0].gray, np.ndarray)

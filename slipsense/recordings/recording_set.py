@@ -14,7 +14,7 @@ from __future__ import annotations
 import warnings
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Iterable, Iterator, Sequence
+from typing import Callable, Hashable, Iterable, Iterator, Sequence, TypeVar
 
 from ..errors import InputError
 from ..sensors.spec import GELSIGHT_MINI, SensorSpec, check_fps, fps_problem
@@ -23,6 +23,8 @@ from .frame_folders import data_sensor, is_frame_layout
 from .listing import FolderTree
 from .types import Recording, by_run
 from .video import probe_video
+
+T = TypeVar("T")
 
 #: How to give a folder of frames its rate (frames carry no time of their own).
 STATE_FPS = 'state it in a sensor.json ({"fps": 25}) in the recordings folder'
@@ -51,6 +53,7 @@ class Recordings:
     on_error: str = "raise"
     tree: FolderTree = field(default_factory=FolderTree, repr=False, compare=False)
     _probed: dict = field(default_factory=dict, repr=False, compare=False)
+    _kept: dict = field(default_factory=dict, repr=False, compare=False)
 
     @classmethod
     def open(
@@ -121,6 +124,19 @@ class Recordings:
         return replace(self, listed=tuple(r for r in self.listed if r.key in keep))
 
     # ---- checks and facts read once
+    def kept(self, what: Hashable, make: Callable[[], T]) -> T:
+        """``make()``, made once for this listing and kept with the set (and the folds and copies made
+        from it in this process; a pickled copy leaves it behind): what commands read of the set again
+        and again is read once (``adapt`` trains 26 detectors on the same labelled grasps). ``what``
+        names it; the recordings listed and their layout are part of the name."""
+        key = (what, repr(self.layout), tuple(str(r.path) for r in self.listed))
+        if key not in self._kept:
+            self._kept[key] = make()
+        return self._kept[key]
+
+    def __getstate__(self) -> dict:
+        return {**self.__dict__, "_kept": {}}
+
     def checked(self, on_error: str | None = None) -> list[Recording]:
         """The recordings whose videos (or frame folders) pass a probe
         (:func:`~slipsense.recordings.folders.validate_recordings`), each probed once for the set's life:

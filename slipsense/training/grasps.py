@@ -22,6 +22,7 @@ import itertools
 import json
 import math
 import warnings
+from pathlib import Path
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any, Callable, Sequence
 
@@ -459,15 +460,37 @@ def load_grasp_data(
 ) -> tuple[list[GraspRun], dict]:
     """Labelled whole runs of a :class:`~slipsense.recordings.recording_set.Recordings` or its folder
     (``(runs, labels)``), labels with overrides; ``sensor`` (a :class:`~slipsense.sensors.spec.SensorSpec`,
-    default the GelSight Mini) names the folder layout."""
+    default the GelSight Mini) names the folder layout. Read once per set (:meth:`Recordings.kept`):
+    the frames come back read-only, shared by every training that asks for the same runs."""
     read = Recordings.of(recordings, sensor or GELSIGHT_MINI, on_error)
+    what = ("grasp runs", _overrides_key(overrides), tuple(image_size), on_error)
+    runs, labels = read.kept(what, lambda: _read_grasp_data(read, overrides, image_size, on_error, progress))
+    return list(runs), dict(labels)
+
+
+def _overrides_key(overrides) -> Any:
+    """What names a labels' overrides argument: a CSV by its path, size and modification time."""
+    if isinstance(overrides, (str, Path)):
+        try:
+            stat = Path(overrides).stat()
+        except OSError:  # reading it names the problem
+            return str(overrides)
+        return (str(Path(overrides).resolve()), stat.st_size, stat.st_mtime_ns)
+    return repr(overrides)
+
+
+def _read_grasp_data(read: Recordings, overrides, image_size, on_error: str, progress: bool):
     recs = read.checked(on_error)
     if not recs:
         raise InputError(read.root, "no usable recordings")
     labels = label_runs(recs, overrides, on_error=on_error, progress=progress)
     recs = [r for r in recs if r.key in labels]  # runs left out by on_error="skip"
     sensors = cameras_per_grasp(recs)
-    return load_runs(recs, labels, image_size, sensors=sensors, progress=progress), labels
+    runs = load_runs(recs, labels, image_size, sensors=sensors, progress=progress)
+    for r in runs:  # shared by every training of the set: a write in place would change the others' data
+        r.gray.setflags(write=False)
+        r.contact.setflags(write=False)
+    return runs, labels
 
 
 def cameras_per_grasp(recordings) -> int:
