@@ -461,7 +461,7 @@ def load_grasp_data(
     """Labelled whole runs of a :class:`~slipsense.recordings.recording_set.Recordings` or its folder
     (``(runs, labels)``), labels with overrides; ``sensor`` (a :class:`~slipsense.sensors.spec.SensorSpec`,
     default the GelSight Mini) names the folder layout. Read once per set (:meth:`Recordings.kept`):
-    the frames come back read-only, shared by every training that asks for the same runs."""
+    every training that asks for the same runs shares their frames, so nothing writes into them."""
     read = Recordings.of(recordings, sensor or GELSIGHT_MINI, on_error)
     what = ("grasp runs", _overrides_key(overrides), tuple(image_size), on_error)
     runs, labels = read.kept(what, lambda: _read_grasp_data(read, overrides, image_size, on_error, progress))
@@ -486,11 +486,7 @@ def _read_grasp_data(read: Recordings, overrides, image_size, on_error: str, pro
     labels = label_runs(recs, overrides, on_error=on_error, progress=progress)
     recs = [r for r in recs if r.key in labels]  # runs left out by on_error="skip"
     sensors = cameras_per_grasp(recs)
-    runs = load_runs(recs, labels, image_size, sensors=sensors, progress=progress)
-    for r in runs:  # shared by every training of the set: a write in place would change the others' data
-        r.gray.setflags(write=False)
-        r.contact.setflags(write=False)
-    return runs, labels
+    return load_runs(recs, labels, image_size, sensors=sensors, progress=progress), labels
 
 
 def cameras_per_grasp(recordings) -> int:
