@@ -39,6 +39,7 @@ from slipsense.measures import pergrasp
 from slipsense.models import build
 from slipsense.models.base import RecordingsShape
 from slipsense.recordings.folders import camera_counts
+from slipsense.recordings.frames import source_stat
 from slipsense.recordings.recording_set import Recordings
 from slipsense.recordings.runs import GraspRun, load_runs
 from slipsense.config_tree import DEFAULT_MODEL, typed
@@ -472,10 +473,9 @@ def _overrides_key(overrides) -> Any:
     """What names a labels' overrides argument: a CSV by its path, size and modification time."""
     if isinstance(overrides, (str, Path)):
         try:
-            stat = Path(overrides).stat()
+            return (str(Path(overrides).resolve()), *source_stat(overrides))
         except OSError:  # reading it names the problem
             return str(overrides)
-        return (str(Path(overrides).resolve()), stat.st_size, stat.st_mtime_ns)
     return repr(overrides)
 
 
