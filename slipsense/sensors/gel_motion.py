@@ -52,15 +52,27 @@ WINDOW_S = 0.4
 
 @dataclass(frozen=True)
 class GelMotion:
-    """One finger's gel at one frame (see the module notes). Lengths in ``unit`` (``"mm"`` or
-    ``"px"``); ``velocity`` in ``unit`` per second, None without contact."""
+    """One finger's gel at one frame (see the module notes). Lengths in ``unit`` (``"mm"`` or ``"px"``).
 
-    velocity: tuple[float, float] | None
+    ``translation``: the object's in-plane velocity against the gel's surface ``(vx, vy)`` in ``unit``
+    per second (image axes: x right, y down); ``omega``: its rotation rate against the gel about the
+    contact's centre, rad/s (positive: from +x towards +y, i.e. clockwise as the image is drawn);
+    ``stick``: the share of the contact (0-1) where the object still moves with the gel. All three
+    None only where there is no contact."""
+
+    translation: tuple[float, float] | None
+    omega: float | None
+    stick: float | None
     displacement: tuple[float, float]
     divergence: float
     curl: float
     contact: float
     unit: str
+
+    @property
+    def speed(self) -> float | None:
+        """``|translation|`` in ``unit`` per second (None without contact)."""
+        return None if self.translation is None else float(np.hypot(*self.translation))
 
     def to_dict(self) -> dict:
         """JSON-ready (rounded) form: what a reading's ``shear`` list holds per finger."""
@@ -71,6 +83,13 @@ class GelMotion:
             "curl": r(self.curl),
             "contact": r(self.contact),
         }
+
+    def slip_dict(self) -> dict | None:
+        """JSON-ready (rounded) slip: ``{"translation": [vx, vy], "omega": w, "stick": s}``; None without contact."""
+        if self.translation is None:
+            return None
+        r = lambda v: round(float(v), 4)  # noqa: E731
+        return {"translation": [r(v) for v in self.translation], "omega": r(self.omega), "stick": r(self.stick)}
 
 
 def footprint(material: np.ndarray, weight: np.ndarray, displacement: np.ndarray):
@@ -207,10 +226,10 @@ def _motion(material, weight, displacement, velocity: VelocityWindow, unit: str,
     seen = footprint(material, weight, displacement)
     if seen is None:
         velocity.push(None, stamp)
-        return GelMotion(None, (0.0, 0.0), 0.0, 0.0, 0.0, unit)
+        return GelMotion(None, None, None, (0.0, 0.0), 0.0, 0.0, 0.0, unit)
     centroid, mean, divergence, curl, contact = seen
     v = velocity.push(centroid, stamp)
-    return GelMotion(v, (float(mean[0]), float(mean[1])), divergence, curl, contact, unit)
+    return GelMotion(v, None if v is None else 0.0, None if v is None else 1.0, (float(mean[0]), float(mean[1])), divergence, curl, contact, unit)
 
 
 def motion_stream(sensor, frame: np.ndarray, startup: int = 0):
