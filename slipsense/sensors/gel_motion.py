@@ -1,28 +1,32 @@
-"""What the gel says beyond "slip": the object's slip velocity and the shear field, frame by frame.
+"""How the object moves against the gel, frame by frame: translation, turn and the share that sticks.
 
-The markers ride on the gel's surface. Where the object presses the gel, each marker carries a
-*contact weight* ``w >= 0``: the indentation of a marker sensor (``-z``, mm) or, on a camera-in-gel
-sensor, how much the gel's shading changed at the marker since the reference frame
-(:attr:`~slipsense.sensors.marker_tracking.MarkerTrack.depth`) above its no-contact floor.
+Slip is the object moving against the gel's surface; while it sticks, the gel's surface moves with it.
+A camera-in-gel sensor sees both: the object's *imprint* in the gel's shading moves with the object,
+the markers move with the gel's surface. Per finger and frame (:class:`GelMotionStream`):
 
-Slip velocity
-    The footprint's centroid in the gel's *material* coordinates (each marker's reference position,
-    weighted by ``w``) is where the object touches the gel's material. While the object sticks, the
-    gel's surface moves with it and the centroid stays; when the object slides, its footprint moves
-    across the material at the object's speed relative to the gel. The slip velocity ``[vx, vy]`` is
-    that centroid's rate of change: the least-squares slope over the last ``window_s`` seconds
-    (causal), in image axes (x right, y down), in mm/s where the sensor states its pixel size and
-    px/s otherwise. A rolling object moves its footprint too, without sliding: it reads as slip here.
-    ``None``: not in contact (at least :data:`MIN_CONTACT` markers touched) through the whole window:
-    a footprint that is still appearing or leaving moves its centroid without any sliding.
-Shear field
-    ``displacement``: the contact markers' mean displacement since the reference (how far the object
-    has dragged the gel); ``divergence`` and ``curl`` of the least-squares affine fit of displacement
-    over position, weighted by contact (unitless; divergence > 0: the gel spreads, as under pressing;
-    curl: twice the rotation angle, as under a twist); ``contact``: the share of tracked markers
-    touched.
+* the frame at :data:`WORK_WIDTH` px wide; a closing fills the dark markers and leaves the shading;
+  its change since the reference frame is the imprint, and where it exceeds :data:`CONTACT_FLOOR`
+  the contact;
+* the imprint's rigid motion ``(tx, ty, omega)`` over the last :data:`LAG_S` seconds, fitted directly
+  on the brightness over the contact (a rigid Lucas-Kanade: only textured parts of the imprint
+  speak, a featureless one says nothing);
+* the gel's surface motion over the same time: dense optical flow (OpenCV's DIS) from the reference,
+  its change at the contact's points, fitted with the same rigid model;
+* **the object's motion against the gel** = the imprint's minus the gel's: ``translation`` ``(vx, vy)``
+  at the contact's centre (image axes: x right, y down; mm/s where the sensor states its pixel size,
+  px/s of the frame otherwise) and ``omega`` (rad/s, from +x towards +y), a causal median over
+  :data:`SMOOTH_S` seconds; **stick**: the share of contact points where the gel's surface kept up
+  with the object's rigid motion (within :data:`STICK_TOLERANCE_PX`).
 
-The first frame pushed is the reference: reset at the start of each grasp, before contact.
+All three are None only where there is no contact (or less than :data:`LAG_S` of it), and the whole
+reading is None on a gel without a marker grid: nothing there says how the gel's surface moves.
+A marker sensor (``(M, 3)`` clouds) shows no imprint texture: :class:`CloudMotionStream` says what it
+reads instead. The shear field rides along: ``displacement`` (the contact's mean displacement since
+the reference), ``divergence`` and ``curl`` of its affine fit (unitless; divergence > 0: the gel
+spreads, as under pressing; curl: twice the rotation angle), ``contact`` (the share of the gel touched).
+
+The first frame pushed (after any start-up) is the reference: reset at the start of each grasp, before
+contact. How well it follows the object: ``python -m studies velocity`` (docs/gel-motion.md).
 """
 
 from __future__ import annotations
@@ -33,8 +37,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from slipsense.sensors.marker_detection import _as_gray, _closing_kernel, _detect_scaled, order_markers
-from slipsense.sensors.marker_tracking import MarkerFollower, _background, _sample
+from slipsense.sensors.marker_detection import _as_gray, _detect_scaled, _odd
 
 #: Fewest markers in contact for a footprint.
 MIN_CONTACT = 3
@@ -48,6 +51,31 @@ SHADING_FLOOR = 0.02
 INDENT_FLOOR_MM = 0.15
 #: Seconds of footprint positions a velocity is fitted over (chosen with the floor above).
 WINDOW_S = 0.4
+#: A footprint's motion counts as sliding where the contact's mean shear points with it (cosine) and is
+#: at least this long (mm): Coulomb friction drags the gel along a sliding object, not a rolling one.
+COULOMB_COSINE, SHEAR_FLOOR_MM = 0.5, 0.05
+#: mm/s by which a contact marker may differ from the object's motion and still stick.
+STICK_TOLERANCE_MM_S = 1.0
+#: A footprint whose second moments differ by less than this ratio is round: it shows no turn.
+ROUND_RATIO = 1.5
+#: Camera-in-gel frames are measured at this width (px): the shading and the gel's flow vary over
+#: several of these pixels on a GelSight Mini (320 px) and the lift's GelSight (640 px) alike.
+WORK_WIDTH = 160
+#: Blur (working px) of the marker-free shading: smooth enough for a rigid fit to converge.
+IMPRINT_BLUR = 1.0
+#: Change of the marker-free shading (grey levels) where the object touches the gel.
+CONTACT_FLOOR = 10.0
+#: Grey levels by which a marker is darker than the shading the closing fills in (markers' rims included).
+MARKER_LEVEL = 6
+#: Fewest working pixels in contact for a motion.
+MIN_CONTACT_PX = 30
+#: Seconds between the two frames a motion is measured over (at least one frame), and how long the
+#: readings' causal median runs.
+LAG_S, SMOOTH_S = 0.07, 0.07
+#: Gauss-Newton steps of the imprint's rigid fit per pyramid level.
+ITERATIONS = 4
+#: Working px over the lag by which the gel may lag the object's motion and still stick.
+STICK_TOLERANCE_PX = 0.35
 
 
 @dataclass(frozen=True)
@@ -57,22 +85,21 @@ class GelMotion:
     ``translation``: the object's in-plane velocity against the gel's surface ``(vx, vy)`` in ``unit``
     per second (image axes: x right, y down); ``omega``: its rotation rate against the gel about the
     contact's centre, rad/s (positive: from +x towards +y, i.e. clockwise as the image is drawn);
-    ``stick``: the share of the contact (0-1) where the object still moves with the gel. All three
-    None only where there is no contact."""
+    ``stick``: the share of the contact (0-1) where the object still moves with the gel; ``speed``:
+    how fast the object moves against the gel, on average over the contact (the root mean square of
+    the translation and the turn's speed at each contact point, ``sqrt(|v|^2 + omega^2 r^2)``, in
+    ``unit`` per second): a pivot about the contact's centre slips as much as a slide. All four None
+    only where there is no contact."""
 
     translation: tuple[float, float] | None
     omega: float | None
     stick: float | None
+    speed: float | None
     displacement: tuple[float, float]
     divergence: float
     curl: float
     contact: float
     unit: str
-
-    @property
-    def speed(self) -> float | None:
-        """``|translation|`` in ``unit`` per second (None without contact)."""
-        return None if self.translation is None else float(np.hypot(*self.translation))
 
     def to_dict(self) -> dict:
         """JSON-ready (rounded) form: what a reading's ``shear`` list holds per finger."""
@@ -85,11 +112,17 @@ class GelMotion:
         }
 
     def slip_dict(self) -> dict | None:
-        """JSON-ready (rounded) slip: ``{"translation": [vx, vy], "omega": w, "stick": s}``; None without contact."""
+        """JSON-ready (rounded) slip: ``{"translation": [vx, vy], "omega": w, "stick": s, "speed": v}``; None
+        without contact."""
         if self.translation is None:
             return None
         r = lambda v: round(float(v), 4)  # noqa: E731
-        return {"translation": [r(v) for v in self.translation], "omega": r(self.omega), "stick": r(self.stick)}
+        return {
+            "translation": [r(v) for v in self.translation],
+            "omega": r(self.omega),
+            "stick": r(self.stick),
+            "speed": r(self.speed),
+        }
 
 
 def footprint(material: np.ndarray, weight: np.ndarray, displacement: np.ndarray):
@@ -147,89 +180,281 @@ class VelocityWindow:
         return float(slope[0]), float(slope[1])
 
 
+def rigid_fit(points: np.ndarray, flow: np.ndarray, weight: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    """Least-squares ``(tx, ty, omega)`` of a small rigid motion ``flow = t + omega * k x (points - centre)``
+    (``(N, 2)`` each, ``weight`` ``(N,)`` >= 0): the translation at ``centre`` and the rotation (rad)."""
+    x, y = points[:, 0] - centre[0], points[:, 1] - centre[1]
+    w = weight / max(float(weight.sum()), 1e-12)
+    # normal equations of [1 0 -y; 0 1 x] p = flow, weighted
+    sxx, syy = float(w @ (x * x)), float(w @ (y * y))
+    sx, sy = float(w @ x), float(w @ y)
+    h = np.array([[1.0, 0.0, -sy], [0.0, 1.0, sx], [-sy, sx, sxx + syy]])
+    fx, fy = flow[:, 0], flow[:, 1]
+    b = np.array([float(w @ fx), float(w @ fy), float(w @ (x * fy - y * fx))])
+    try:
+        return np.linalg.solve(h + 1e-9 * np.eye(3), b)
+    except np.linalg.LinAlgError:
+        return np.zeros(3)
+
+
+def imprint_motion(before: np.ndarray, after: np.ndarray, mask: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    """``(tx, ty, omega)``: the rigid motion (px, rad; about ``centre``, in px) that carries the imprint
+    ``before`` onto ``after`` (float32 images of one size) over ``mask``: direct Gauss-Newton on the
+    brightness (Lucas-Kanade with a rigid model; a coarse level first), so texture weighs itself in
+    and featureless parts of the contact say nothing."""
+    ys, xs = np.nonzero(mask)
+    y0, y1 = max(ys.min() - 4, 0), min(ys.max() + 5, mask.shape[0])
+    x0, x1 = max(xs.min() - 4, 0), min(xs.max() + 5, mask.shape[1])
+    a, b, m = before[y0:y1, x0:x1], after[y0:y1, x0:x1], mask[y0:y1, x0:x1]
+    c = np.asarray(centre, np.float64) - (x0, y0)
+    p = np.zeros(3)
+    levels = [(a, b, m, 1.0)]
+    if min(a.shape) >= 16:
+        levels.insert(0, (cv2.pyrDown(a), cv2.pyrDown(b), None, 0.5))
+    for ia, ib, im, s in levels:
+        if im is None:
+            im = cv2.resize(m.astype(np.uint8), (ia.shape[1], ia.shape[0]), interpolation=cv2.INTER_NEAREST) > 0
+        yy, xx = np.nonzero(im)
+        if len(xx) < 6:
+            continue
+        gx = cv2.Sobel(ia, cv2.CV_32F, 1, 0, ksize=3)[yy, xx] / 8.0
+        gy = cv2.Sobel(ia, cv2.CV_32F, 0, 1, ksize=3)[yy, xx] / 8.0
+        rx, ry = xx - c[0] * s, yy - c[1] * s
+        jac = np.stack([gx, gy, gy * rx - gx * ry], 1).astype(np.float64)
+        hess = jac.T @ jac + 1e-6 * np.eye(3)
+        base = ia[yy, xx]
+        for _ in range(ITERATIONS):
+            cos, sin = np.cos(p[2]), np.sin(p[2])
+            mx = (cos * rx - sin * ry + c[0] * s + p[0] * s).astype(np.float32)
+            my = (sin * rx + cos * ry + c[1] * s + p[1] * s).astype(np.float32)
+            warped = cv2.remap(ib, mx[:, None], my[:, None], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+            step = -np.linalg.solve(hess, jac.T @ (warped[:, 0] - base))
+            p += step / np.array([s, s, 1.0])
+            if np.abs(step).max() < 1e-3:
+                break
+    return p
+
+
 class GelMotionStream:
-    """Slip velocity and shear field of one camera-in-gel sensor, frame by frame (module notes).
+    """The object's motion against the gel of one camera-in-gel sensor, frame by frame (module notes).
 
-    ``fps``: the frames' rate; ``mm_per_pixel``: the pixel size at the frames' size (None: lengths
-    in px); ``startup``: frames at the start that are a camera's start-up transient, not the scene
-    (never the reference). :meth:`push` takes a uint8 BGR (or grey) frame and returns a
-    :class:`GelMotion`, or None while no marker grid has been found (the reference is the first frame
-    after the start-up with one)."""
+    ``fps``: the frames' rate; ``mm_per_pixel``: the pixel size at the frames' size (None: lengths in
+    px); ``startup``: frames at the start that are a camera's start-up transient, not the scene (never
+    the reference). :meth:`push` takes a uint8 BGR (or grey) frame and returns a :class:`GelMotion`, or
+    None while the gel shows no marker grid (the reference is the first frame after the start-up with
+    one; a gel without markers never gets one: nothing says how its surface moves)."""
 
-    def __init__(self, fps: float, mm_per_pixel: float | None = None, window_s: float = WINDOW_S, startup: int = 0):
-        self.startup = int(startup)
-        self.scale = 1.0 if mm_per_pixel is None else float(mm_per_pixel)
+    def __init__(
+        self,
+        fps: float,
+        mm_per_pixel: float | None = None,
+        startup: int = 0,
+        lag_s: float = LAG_S,
+        smooth_s: float = SMOOTH_S,
+        contact_floor: float = CONTACT_FLOOR,
+    ):
+        self.fps, self.startup = float(fps), int(startup)
+        self.lag = max(1, int(round(lag_s * self.fps)))
+        self.smooth = max(1, int(round(smooth_s * self.fps)) + 1)
+        self.contact_floor = float(contact_floor)
+        self.mm_per_pixel = mm_per_pixel
         self.unit = "px" if mm_per_pixel is None else "mm"
-        self._velocity = VelocityWindow(fps, window_s)
+        self._flow = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST)
         self.reset()
 
     def reset(self) -> None:
-        self._follow: MarkerFollower | None = None
+        self._ref = None
         self._pushed = 0
-        self._velocity.reset()
+        self._past: deque = deque(maxlen=self.lag)  # (imprint, gel displacement, contact) of the last frames
+        self._recent: deque = deque(maxlen=self.smooth)  # the last instant (tx, ty, omega, stick, speed)
 
-    def _start(self, frame: np.ndarray, gray: np.ndarray) -> bool:
+    def _small(self, frame: np.ndarray):
+        """The working-size markers (uint8, bright on dark) and marker-free shading ``(h, w, C)`` float32."""
+        h, w = frame.shape[:2]
+        self._scale = w / WORK_WIDTH  # frame px per working px
+        small = cv2.resize(frame, (WORK_WIDTH, max(8, int(round(h / self._scale)))), interpolation=cv2.INTER_AREA)
+        # the closing fills the dark markers: what is left is the shading, and in it the object's
+        # imprint, in colour where the lights are coloured (a GelSight's are); what it filled is the
+        # markers alone, without the imprint, whose flow is the gel's surface
+        closed = cv2.morphologyEx(small, cv2.MORPH_CLOSE, self._kernel)
+        gray = lambda im: im if im.ndim == 2 else cv2.cvtColor(im, cv2.COLOR_BGR2GRAY)  # noqa: E731
+        markers = cv2.subtract(gray(closed), gray(small))
+        shading = cv2.GaussianBlur(closed.astype(np.float32), (0, 0), IMPRINT_BLUR)
+        return markers, shading.reshape(markers.shape + (-1,))
+
+    def _start(self, frame: np.ndarray) -> bool:
+        gray = _as_gray(frame, None)
         blobs, diameter = _detect_scaled(gray, None, 12.0, 1)
         if len(blobs.centres) < MIN_MARKERS:
             return False
-        ref = blobs.centres[order_markers(blobs.centres)].astype(np.float32)
-        self._follow = MarkerFollower(gray, ref, diameter)
-        self._kernel = _closing_kernel(diameter / 2.0)  # backgrounds are at half resolution
-        self._ref_bg = _background(frame, self._kernel)
-        self._gray, self._pos, self._ok = gray, ref.copy(), np.ones(len(ref), bool)
+        size = _odd(max(3.0, 1.6 * diameter * WORK_WIDTH / frame.shape[1]))
+        self._kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
+        self._dot = np.ones((3, 3), np.uint8)
+        self._ref = self._small(frame)
+        h, w = self._ref[0].shape
+        self._grid = np.stack(np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32)), -1)
         return True
 
     def push(self, frame: np.ndarray, stamp: float | None = None) -> GelMotion | None:
-        """This frame's :class:`GelMotion` (``stamp``: when it was taken, s; else its number over fps)."""
-        gray = _as_gray(frame, None)
-        image = frame if frame.ndim == 3 else cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR)
+        """This frame's :class:`GelMotion` (``stamp`` is accepted for the stream's interface; the lag
+        and smoothing count frames at ``fps``)."""
         self._pushed += 1
-        if self._follow is None:
-            if self._pushed <= self.startup or not self._start(image, gray):
-                self._velocity.push(None, stamp)
+        if self._ref is None:
+            if self._pushed <= self.startup or not self._start(frame):
                 return None
-            ref = self._follow.ref
-            weight = np.zeros(len(ref))  # the reference itself: its shading has not changed
+        markers, shading = self._small(frame)
+        ref_markers, ref_shading = self._ref
+        change = shading - ref_shading
+        # contact: the shading changed (summed over colours); the imprint fitted: its mean over colours
+        contact = cv2.blur(np.abs(change).sum(-1), (5, 5)) > self.contact_floor
+        imprint = np.ascontiguousarray(change.mean(-1))
+        gel = self._flow.calc(ref_markers, markers, None)  # where each reference point of the gel went
+        # where the closing filled a marker the shading is made up, and moves with the gel: not imprint
+        seen = cv2.dilate(markers, self._dot) <= MARKER_LEVEL
+        past = self._past[0] if len(self._past) == self.lag else None
+        self._past.append((imprint, gel, contact, seen))
+        motion = self._slip(imprint, gel, contact, past)
+        return self._reading(motion, gel, contact)
+
+    def _slip(self, imprint, gel, contact, past):
+        """The instant ``(tx, ty, omega, stick, speed)`` in working px/s, rad/s: the imprint's rigid motion
+        over the lag minus the gel's, over the contact of both frames; None without that contact."""
+        if past is None:
+            return None
+        both = contact & past[2]
+        if both.sum() < MIN_CONTACT_PX:
+            return None
+        ys, xs = np.nonzero(both)
+        pts = np.stack([xs, ys], 1).astype(np.float64)
+        centre = pts.mean(0)
+        dt = self.lag / self.fps
+        textured = both & past[3]
+        if textured.sum() < MIN_CONTACT_PX:
+            return None
+        obj = imprint_motion(past[0], imprint, textured, centre)
+        surface = (gel[ys, xs] - past[1][ys, xs]).astype(np.float64)  # each contact point of the gel, moved
+        weight = np.ones(len(pts))
+        gel_rigid = rigid_fit(pts, surface, weight, centre)
+        rel = (obj - gel_rigid) / dt
+        # stick: where the gel's surface keeps up with the object (the object's rigid motion there)
+        r = pts - centre
+        carried = np.stack([obj[0] - obj[2] * r[:, 1], obj[1] + obj[2] * r[:, 0]], 1)
+        stick = float((np.linalg.norm(carried - surface, axis=1) <= STICK_TOLERANCE_PX).mean())
+        speed = float(np.sqrt(rel[0] ** 2 + rel[1] ** 2 + rel[2] ** 2 * (r**2).sum(1).mean()))
+        return rel[0], rel[1], rel[2], stick, speed
+
+    def _reading(self, motion, gel, contact) -> GelMotion:
+        if motion is None:
+            self._recent.clear()
         else:
-            self._pos, self._ok = self._follow.step(self._gray, self._pos, self._ok, gray)
-            self._gray, ref = gray, self._follow.ref
-            xy = self._pos / 2.0
-            shading = _sample(_background(image, self._kernel), xy) - _sample(self._ref_bg, xy)
-            weight = np.where(self._ok, np.maximum(np.linalg.norm(shading, axis=1) / 255.0 - SHADING_FLOOR, 0.0), 0.0)
-        return _motion(ref * self.scale, weight, (self._pos - ref) * self.scale, self._velocity, self.unit, stamp)
+            self._recent.append(motion)
+        length = self._scale * (1.0 if self.mm_per_pixel is None else self.mm_per_pixel)
+        ys, xs = np.nonzero(contact)
+        share = float(contact.mean())
+        if len(xs) >= MIN_CONTACT_PX:
+            pts = np.stack([xs, ys], 1).astype(np.float64)
+            d = gel[ys, xs].astype(np.float64)
+            centre = pts.mean(0)
+            mean = d.mean(0)
+            grad, *_ = np.linalg.lstsq(pts - centre, d - mean, rcond=None)
+            divergence, curl = float(grad[0, 0] + grad[1, 1]), float(grad[0, 1] - grad[1, 0])
+        else:
+            mean, divergence, curl = np.zeros(2), 0.0, 0.0
+        shear = ((float(mean[0] * length), float(mean[1] * length)), divergence, curl, share)
+        if not self._recent:
+            return GelMotion(None, None, None, None, *shear, self.unit)
+        # a causal median over the last frames: one frame's bad fit does not make a slip
+        tx, ty, omega, stick, speed = np.median(np.asarray(self._recent), axis=0)
+        return GelMotion(
+            (float(tx * length), float(ty * length)),
+            float(omega),
+            float(stick),
+            float(speed * length),
+            *shear,
+            self.unit,
+        )
 
 
 class CloudMotionStream:
     """The same for a marker sensor: :meth:`push` takes an ``(M, 3)`` cloud in mm (gel frame, rest
-    surface at z = 0, indentation negative); the first cloud's ``x, y`` are the material coordinates."""
+    surface at z = 0, indentation negative); the first cloud's ``x, y`` are the material coordinates.
+
+    A marker sensor shows no texture of the object, only its footprint (the indentation) and the gel's
+    surface (the markers). The footprint's centroid over the gel's *material* moves when the object
+    slides, and when it rolls; Coulomb friction tells the two apart: a sliding object drags the gel's
+    surface along its motion (the contact's mean shear points with it), a rolling one does not. So the
+    translation is the footprint's motion over the material where the contact's shear agrees with it
+    in direction (cosine at least :data:`COULOMB_COSINE`) and exceeds :data:`SHEAR_FLOOR_MM`, else
+    zero (stick, or rolling without sliding); ``omega`` the rate at which the footprint's long axis
+    turns over the material (zero for a round footprint, which shows no turn); ``stick`` the share of
+    contact markers that move with the object (within :data:`STICK_TOLERANCE_MM_S`)."""
 
     unit = "mm"
 
     def __init__(self, fps: float, window_s: float = WINDOW_S, floor_mm: float = INDENT_FLOOR_MM):
+        self.fps = float(fps)
         self._velocity = VelocityWindow(fps, window_s)
+        self._turn = VelocityWindow(fps, window_s)
         self.floor_mm = float(floor_mm)
         self.reset()
 
     def reset(self) -> None:
         self._material: np.ndarray | None = None
+        self._last: np.ndarray | None = None
+        self._angle: float | None = None
         self._velocity.reset()
+        self._turn.reset()
 
     def push(self, cloud: np.ndarray, stamp: float | None = None) -> GelMotion:
         cloud = np.asarray(cloud, np.float64)
         if self._material is None:
             self._material = cloud[:, :2].copy()
+        last, self._last = self._last, cloud[:, :2].copy()
         weight = np.maximum(-cloud[:, 2] - self.floor_mm, 0.0)
-        return _motion(self._material, weight, cloud[:, :2] - self._material, self._velocity, self.unit, stamp)
+        displacement = cloud[:, :2] - self._material
+        seen = footprint(self._material, weight, displacement)
+        if seen is None:
+            self._velocity.push(None, stamp)
+            self._turn.push(None, stamp)
+            self._angle = None
+            return GelMotion(None, None, None, None, (0.0, 0.0), 0.0, 0.0, 0.0, self.unit)
+        centroid, mean, divergence, curl, contact = seen
+        shear = ((float(mean[0]), float(mean[1])), divergence, curl, contact)
+        v = self._velocity.push(centroid, stamp)
+        w = self._turn.push(self._axis_angle(weight, centroid), stamp)
+        if v is None or last is None:
+            return GelMotion(None, None, None, None, *shear, self.unit)
+        v = np.asarray(v)
+        speed, drag = float(np.linalg.norm(v)), float(np.linalg.norm(mean))
+        sliding = drag > SHEAR_FLOOR_MM and speed > 0 and float(v @ mean) >= COULOMB_COSINE * speed * drag
+        translation = v if sliding else np.zeros(2)
+        omega = float(w[0]) if (w is not None and sliding) else 0.0
+        touched = weight > 0
+        marker_v = (cloud[touched, :2] - last[touched]) * self.fps
+        gel_v = marker_v.mean(0)  # the contact's surface velocity; the object moves at it plus its slip
+        moves_with = np.linalg.norm(marker_v - (gel_v + translation), axis=1) <= STICK_TOLERANCE_MM_S
+        r2 = float(((self._material[touched] - centroid) ** 2).sum(1).mean())
+        speed = float(np.sqrt(translation @ translation + omega**2 * r2))
+        return GelMotion(
+            (float(translation[0]), float(translation[1])), omega, float(moves_with.mean()), speed, *shear, self.unit
+        )
 
-
-def _motion(material, weight, displacement, velocity: VelocityWindow, unit: str, stamp: float | None) -> GelMotion:
-    seen = footprint(material, weight, displacement)
-    if seen is None:
-        velocity.push(None, stamp)
-        return GelMotion(None, None, None, (0.0, 0.0), 0.0, 0.0, 0.0, unit)
-    centroid, mean, divergence, curl, contact = seen
-    v = velocity.push(centroid, stamp)
-    return GelMotion(v, None if v is None else 0.0, None if v is None else 1.0, (float(mean[0]), float(mean[1])), divergence, curl, contact, unit)
+    def _axis_angle(self, weight: np.ndarray, centroid: np.ndarray):
+        """The footprint's long axis over the material (rad, unwrapped, as a 1-vector for the slope
+        window), None for a footprint too round to have one."""
+        touched = weight > 0
+        w = weight[touched] / weight[touched].sum()
+        r = self._material[touched] - centroid
+        cov = (r * w[:, None]).T @ r
+        evals, evecs = np.linalg.eigh(cov)
+        if evals[1] < ROUND_RATIO * max(evals[0], 1e-12):
+            self._angle = None
+            return None
+        a = float(np.arctan2(evecs[1, 1], evecs[0, 1]))
+        if self._angle is not None:  # an axis has no sign: keep the angle continuous mod pi
+            a = self._angle + (a - self._angle + np.pi / 2) % np.pi - np.pi / 2
+        self._angle = a
+        return np.array([a, 0.0])
 
 
 def motion_stream(sensor, frame: np.ndarray, startup: int = 0):
