@@ -72,6 +72,12 @@ MIN_CONTACT_PX = 30
 #: Seconds between the two frames a motion is measured over (at least one frame), and how long the
 #: readings' causal median runs.
 LAG_S, SMOOTH_S = 0.07, 0.07
+#: The fits read every this many working pixels along each axis.
+STRIDE = 2
+#: Seconds a contact must have lasted before its motion is read (a forming footprint's imprint moves).
+SETTLE_S = 0.1
+#: Grey levels per working px: the imprint gradient that weighs as much as the prior of no motion.
+PRIOR_GRADIENT = 0.3
 #: Gauss-Newton steps of the imprint's rigid fit per pyramid level.
 ITERATIONS = 4
 #: Working px over the lag by which the gel may lag the object's motion and still stick.
@@ -197,11 +203,21 @@ def rigid_fit(points: np.ndarray, flow: np.ndarray, weight: np.ndarray, centre: 
         return np.zeros(3)
 
 
-def imprint_motion(before: np.ndarray, after: np.ndarray, mask: np.ndarray, centre: np.ndarray) -> np.ndarray:
+def _points(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rows and columns of ``mask`` on a grid of every :data:`STRIDE`-th pixel: neighbouring pixels
+    of a working frame say nearly the same, a quarter of them cost a quarter."""
+    ys, xs = np.nonzero(mask[::STRIDE, ::STRIDE])
+    return ys * STRIDE, xs * STRIDE
+
+
+def imprint_motion(
+    before: np.ndarray, after: np.ndarray, mask: np.ndarray, centre: np.ndarray, prior_gradient: float = 0.0
+) -> np.ndarray:
     """``(tx, ty, omega)``: the rigid motion (px, rad; about ``centre``, in px) that carries the imprint
     ``before`` onto ``after`` (float32 images of one size) over ``mask``: direct Gauss-Newton on the
     brightness (Lucas-Kanade with a rigid model; a coarse level first), so texture weighs itself in
-    and featureless parts of the contact say nothing."""
+    and featureless parts of the contact say nothing. ``prior_gradient`` (grey levels per px): a prior
+    of no motion as strong as an imprint with that gradient everywhere (0: none)."""
     ys, xs = np.nonzero(mask)
     y0, y1 = max(ys.min() - 4, 0), min(ys.max() + 5, mask.shape[0])
     x0, x1 = max(xs.min() - 4, 0), min(xs.max() + 5, mask.shape[1])
@@ -214,21 +230,26 @@ def imprint_motion(before: np.ndarray, after: np.ndarray, mask: np.ndarray, cent
     for ia, ib, im, s in levels:
         if im is None:
             im = cv2.resize(m.astype(np.uint8), (ia.shape[1], ia.shape[0]), interpolation=cv2.INTER_NEAREST) > 0
-        yy, xx = np.nonzero(im)
+        yy, xx = np.nonzero(im) if s < 1 else _points(im)
         if len(xx) < 6:
             continue
         gx = cv2.Sobel(ia, cv2.CV_32F, 1, 0, ksize=3)[yy, xx] / 8.0
         gy = cv2.Sobel(ia, cv2.CV_32F, 0, 1, ksize=3)[yy, xx] / 8.0
-        rx, ry = xx - c[0] * s, yy - c[1] * s
-        jac = np.stack([gx, gy, gy * rx - gx * ry], 1).astype(np.float64)
-        hess = jac.T @ jac + 1e-6 * np.eye(3)
+        rx, ry = (xx - c[0] * s).astype(np.float32), (yy - c[1] * s).astype(np.float32)
+        jac = np.stack([gx, gy, gy * rx - gx * ry], 1)
+        # a prior of no motion, as strong as an imprint whose gradient is PRIOR_GRADIENT everywhere:
+        # a faint or featureless imprint, whose fit noise would read as slip, reads as little motion
+        lever = float(np.mean(rx * rx + ry * ry)) + 1.0
+        prior = prior_gradient**2 * len(xx) * np.diag([1.0, 1.0, lever])
+        hess = (jac.T @ jac).astype(np.float64) + prior
         base = ia[yy, xx]
         for _ in range(ITERATIONS):
-            cos, sin = np.cos(p[2]), np.sin(p[2])
-            mx = (cos * rx - sin * ry + c[0] * s + p[0] * s).astype(np.float32)
-            my = (sin * rx + cos * ry + c[1] * s + p[1] * s).astype(np.float32)
+            cos, sin = np.float32(np.cos(p[2])), np.float32(np.sin(p[2]))
+            mx = cos * rx - sin * ry + np.float32(c[0] * s + p[0] * s)
+            my = sin * rx + cos * ry + np.float32(c[1] * s + p[1] * s)
             warped = cv2.remap(ib, mx[:, None], my[:, None], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-            step = -np.linalg.solve(hess, jac.T @ (warped[:, 0] - base))
+            grad = (jac.T @ (warped[:, 0] - base)).astype(np.float64) + prior @ (p * np.array([s, s, 1.0]))
+            step = -np.linalg.solve(hess, grad)
             p += step / np.array([s, s, 1.0])
             if np.abs(step).max() < 1e-3:
                 break
@@ -252,10 +273,14 @@ class GelMotionStream:
         lag_s: float = LAG_S,
         smooth_s: float = SMOOTH_S,
         contact_floor: float = CONTACT_FLOOR,
+        settle_s: float = SETTLE_S,
+        prior_gradient: float = PRIOR_GRADIENT,
     ):
         self.fps, self.startup = float(fps), int(startup)
         self.lag = max(1, int(round(lag_s * self.fps)))
         self.smooth = max(1, int(round(smooth_s * self.fps)) + 1)
+        self.settle = int(round(settle_s * self.fps))
+        self.prior_gradient = float(prior_gradient)
         self.contact_floor = float(contact_floor)
         self.mm_per_pixel = mm_per_pixel
         self.unit = "px" if mm_per_pixel is None else "mm"
@@ -267,6 +292,7 @@ class GelMotionStream:
         self._pushed = 0
         self._past: deque = deque(maxlen=self.lag)  # (imprint, gel displacement, contact) of the last frames
         self._recent: deque = deque(maxlen=self.smooth)  # the last instant (tx, ty, omega, stick, speed)
+        self._touching = 0  # frames the contact has lasted
 
     def _small(self, frame: np.ndarray):
         """The working-size markers (uint8, bright on dark) and marker-free shading ``(h, w, C)`` float32."""
@@ -304,16 +330,20 @@ class GelMotionStream:
                 return None
         markers, shading = self._small(frame)
         ref_markers, ref_shading = self._ref
-        change = shading - ref_shading
+        change = cv2.subtract(shading, ref_shading)
+        channels = change.shape[-1]
         # contact: the shading changed (summed over colours); the imprint fitted: its mean over colours
-        contact = cv2.blur(np.abs(change).sum(-1), (5, 5)) > self.contact_floor
-        imprint = np.ascontiguousarray(change.mean(-1))
+        summed = cv2.transform(cv2.absdiff(shading, ref_shading), np.ones((1, channels), np.float32))
+        contact = cv2.blur(summed, (5, 5)).reshape(summed.shape[:2]) > self.contact_floor
+        imprint = cv2.transform(change, np.full((1, channels), 1.0 / channels, np.float32)).reshape(summed.shape[:2])
         gel = self._flow.calc(ref_markers, markers, None)  # where each reference point of the gel went
         # where the closing filled a marker the shading is made up, and moves with the gel: not imprint
         seen = cv2.dilate(markers, self._dot) <= MARKER_LEVEL
         past = self._past[0] if len(self._past) == self.lag else None
         self._past.append((imprint, gel, contact, seen))
-        motion = self._slip(imprint, gel, contact, past)
+        self._touching = self._touching + 1 if np.count_nonzero(contact) >= MIN_CONTACT_PX else 0
+        # a footprint still forming moves its imprint without any sliding: judged once it has settled
+        motion = self._slip(imprint, gel, contact, past) if self._touching > self.settle else None
         return self._reading(motion, gel, contact)
 
     def _slip(self, imprint, gel, contact, past):
@@ -322,16 +352,14 @@ class GelMotionStream:
         if past is None:
             return None
         both = contact & past[2]
-        if both.sum() < MIN_CONTACT_PX:
+        ys, xs = _points(both)
+        textured = both & past[3]
+        if len(xs) * STRIDE**2 < MIN_CONTACT_PX or np.count_nonzero(textured) < MIN_CONTACT_PX:
             return None
-        ys, xs = np.nonzero(both)
         pts = np.stack([xs, ys], 1).astype(np.float64)
         centre = pts.mean(0)
         dt = self.lag / self.fps
-        textured = both & past[3]
-        if textured.sum() < MIN_CONTACT_PX:
-            return None
-        obj = imprint_motion(past[0], imprint, textured, centre)
+        obj = imprint_motion(past[0], imprint, textured, centre, self.prior_gradient)
         surface = (gel[ys, xs] - past[1][ys, xs]).astype(np.float64)  # each contact point of the gel, moved
         weight = np.ones(len(pts))
         gel_rigid = rigid_fit(pts, surface, weight, centre)
@@ -349,14 +377,18 @@ class GelMotionStream:
         else:
             self._recent.append(motion)
         length = self._scale * (1.0 if self.mm_per_pixel is None else self.mm_per_pixel)
-        ys, xs = np.nonzero(contact)
-        share = float(contact.mean())
-        if len(xs) >= MIN_CONTACT_PX:
-            pts = np.stack([xs, ys], 1).astype(np.float64)
+        ys, xs = _points(contact)
+        share = float(np.count_nonzero(contact)) / contact.size
+        if len(xs) * STRIDE**2 >= MIN_CONTACT_PX:
+            r = np.stack([xs, ys], 1).astype(np.float64)
+            r -= r.mean(0)
             d = gel[ys, xs].astype(np.float64)
-            centre = pts.mean(0)
             mean = d.mean(0)
-            grad, *_ = np.linalg.lstsq(pts - centre, d - mean, rcond=None)
+            moments = r.T @ r
+            if abs(np.linalg.det(moments)) > 1e-9:
+                grad = np.linalg.solve(moments, r.T @ (d - mean))  # grad[j, i] = d d_i / d x_j
+            else:  # a contact along a line: no gradient across it
+                grad = np.zeros((2, 2))
             divergence, curl = float(grad[0, 0] + grad[1, 1]), float(grad[0, 1] - grad[1, 0])
         else:
             mean, divergence, curl = np.zeros(2), 0.0, 0.0
@@ -427,7 +459,14 @@ class CloudMotionStream:
         v = np.asarray(v)
         speed, drag = float(np.linalg.norm(v)), float(np.linalg.norm(mean))
         sliding = drag > SHEAR_FLOOR_MM and speed > 0 and float(v @ mean) >= COULOMB_COSINE * speed * drag
-        translation = v if sliding else np.zeros(2)
+        if sliding:
+            # friction drags the gel along the slide: the shear gives the direction; the footprint is
+            # seen to move only across a contact longer than the gel (the slide's projection on its
+            # motion), so its speed over the cosine between the two is the slide's
+            along = mean / drag
+            translation = along * speed / max(float(v @ along) / speed, COULOMB_COSINE)
+        else:
+            translation = np.zeros(2)
         omega = float(w[0]) if (w is not None and sliding) else 0.0
         touched = weight > 0
         marker_v = (cloud[touched, :2] - last[touched]) * self.fps
