@@ -16,11 +16,15 @@ In: each image topic best effort, volatile, keep last :data:`QUEUE_DEPTH`. Out, 
 ``/slipsense/reading`` (a JSON reading per judged frame pair, the record of ``slipsense watch
 --jsonl``); the same reading in standard types for a controller that parses no JSON, every judged
 frame pair: ``/slipsense/alarm`` (``std_msgs/Bool``), ``/slipsense/probability`` (``std_msgs/Float32``,
-NaN while the detector has no answer) and ``/slipsense/slip_velocity`` (``geometry_msgs/Vector3Stamped``
-per finger in m/s, ``frame_id`` ``finger_<k>`` for the k-th topic, the frame's stamp; only while that
-finger touches and only for a sensor that states its pixel size); and ``/slipsense/status`` (transient local, every second: every frame pair
-judged or left out, by cause: :meth:`ReadingLoop.status`). The detector runs on its own clock from the
-header stamps. Faults are logged in one line each and the node keeps running.
+NaN while the detector has no answer) and ``/slipsense/slip_velocity`` (``geometry_msgs/TwistStamped``
+per finger: ``twist.linear.x/y`` the reading's ``translation`` in m/s, ``twist.angular.z`` its ``omega``
+in rad/s, the rest 0; ``frame_id`` ``finger_<k>`` for the k-th topic, the frame's stamp; only while that
+finger touches, and only for a sensor that states its pixel size: a twist of a px/s sensor would have
+no linear part in m/s, and a zero or NaN there would read as a velocity, so its omega is on
+``/slipsense/reading`` alone, as every sensor's stick share and speed are); and ``/slipsense/status``
+(transient local, every second: every frame pair judged or left out, by cause: :meth:`ReadingLoop.status`).
+The detector runs on its own clock from the header stamps. Faults are logged in one line each and the
+node keeps running.
 """
 
 from __future__ import annotations
@@ -312,12 +316,16 @@ class ReadingLoop:
         )
 
 
-def velocities_m_s(record: dict) -> list[tuple[float, float] | None]:
-    """Each finger's slip velocity of a reading in m/s (ROS's unit), None where not known; nothing
-    for a reading in px/s (the sensor states no pixel size) or without markers."""
+def twists(record: dict) -> list[tuple[tuple[float, float], float] | None]:
+    """Each finger's slip of a reading as ROS states a twist: ``((vx, vy) in m/s, omega in rad/s)``,
+    None for a finger without contact; nothing for a reading in px/s (the sensor states no pixel
+    size) or without markers."""
     if record.get("slip_velocity_unit") != "mm/s":
         return []
-    return [None if v is None else (v[0] * 1e-3, v[1] * 1e-3) for v in record["slip_velocity"]]
+    return [
+        None if s is None else ((s["translation"][0] * 1e-3, s["translation"][1] * 1e-3), s["omega"])
+        for s in record["slip"]
+    ]
 
 
 def _number(node: Any, name: str, default: float) -> float:
@@ -339,7 +347,7 @@ def main(argv: Sequence[str] | None = None, overrides: dict[str, Any] | None = N
     from rclpy.parameter import Parameter
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import CompressedImage, Image
-    from geometry_msgs.msg import Vector3Stamped
+    from geometry_msgs.msg import TwistStamped
     from std_msgs.msg import Bool, Float32, String
 
     rclpy.init(args=list(argv) if argv is not None else sys.argv)
@@ -379,7 +387,7 @@ def main(argv: Sequence[str] | None = None, overrides: dict[str, Any] | None = N
     readings = node.create_publisher(String, READING_TOPIC, out_qos)
     alarms = node.create_publisher(Bool, ALARM_TOPIC, out_qos)
     probabilities = node.create_publisher(Float32, PROBABILITY_TOPIC, out_qos)
-    velocities = node.create_publisher(Vector3Stamped, VELOCITY_TOPIC, out_qos)
+    slips = node.create_publisher(TwistStamped, VELOCITY_TOPIC, out_qos)
     latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
     statuses = node.create_publisher(String, STATUS_TOPIC, latched)
     best_effort = dict(reliability=ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.VOLATILE)
@@ -390,13 +398,13 @@ def main(argv: Sequence[str] | None = None, overrides: dict[str, Any] | None = N
         alarms.publish(Bool(data=bool(alarm)))
         p = record["probability"]
         probabilities.publish(Float32(data=float("nan") if p is None else float(p)))
-        for k, v in enumerate(velocities_m_s(record)):
-            if v is not None:
-                msg = Vector3Stamped()
+        for k, twist in enumerate(twists(record)):
+            if twist is not None:
+                msg = TwistStamped()
                 msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp, 1_000_000_000)
                 msg.header.frame_id = f"finger_{k}"
-                msg.vector.x, msg.vector.y = v
-                velocities.publish(msg)
+                (msg.twist.linear.x, msg.twist.linear.y), msg.twist.angular.z = twist
+                slips.publish(msg)
 
     loop = ReadingLoop(detector, topics, msgtype, publish, log, tolerance_s=tolerance or None, max_lag_s=max_lag)
     told: list[Any] = [None]

@@ -20,7 +20,7 @@ import pytest
 from conftest import needs_data
 from slipsense.paths import gelsight_recordings
 from slipsense.ros_node import ALARM_TOPIC, CAUSES, PROBABILITY_TOPIC, READING_TOPIC, STATUS_TOPIC, VELOCITY_TOPIC
-from slipsense.ros_node import ReadingLoop, StampPairer
+from slipsense.ros_node import ReadingLoop, StampPairer, twists
 from slipsense.streaming.detector import SlipDetector
 
 RUN = gelsight_recordings() / "blue_mug" / "exp_num_9"  # it slips, and the shipped detector warns
@@ -31,6 +31,13 @@ def test_frames_are_paired_by_stamp_and_the_unpaired_are_counted():
     assert p.add(0, 0, "a0") == [] and p.add(1, 3_000_000, "b0") == [(0, ["a0", "b0"])]
     assert p.add(0, 40_000_000, "a1") == [] and p.add(0, 80_000_000, "a2") == []  # the right sensor is late
     assert p.add(1, 81_000_000, "b2") == [(80_000_000, ["a2", "b2"])] and p.unpaired == [1, 0]
+
+
+def test_a_twist_per_finger_in_contact_in_si_units_and_none_for_a_sensor_in_px():
+    slip = [{"translation": [12.5, -4.0], "omega": 0.35, "stick": 0.2}, None]
+    assert twists({"slip": slip, "slip_velocity_unit": "mm/s"}) == [((0.0125, -0.004), 0.35), None]
+    assert twists({"slip": slip, "slip_velocity_unit": "px/s"}) == []  # no linear velocity in m/s to give
+    assert twists({"slip": None, "slip_velocity_unit": None}) == []  # a gel without markers
 
 
 def _msg(stamp_ns, img, encoding="bgr8"):
@@ -225,7 +232,7 @@ def test_the_node_reads_what_watch_reads_frame_for_frame(tmp_path):
     rclpy = pytest.importorskip("rclpy", reason='the ROS extra is not installed (pip install "slipsense[ros]")')
     from rclpy.qos import QoSProfile
     from sensor_msgs.msg import Image
-    from geometry_msgs.msg import Vector3Stamped
+    from geometry_msgs.msg import TwistStamped
     from std_msgs.msg import Bool, Float32, String
 
     from slipsense.recordings.video import read_video
@@ -248,9 +255,10 @@ def test_the_node_reads_what_watch_reads_frame_for_frame(tmp_path):
         me.create_subscription(String, READING_TOPIC, lambda m: readings.append(json.loads(m.data)), 500)
         me.create_subscription(Bool, ALARM_TOPIC, lambda m: alarms.append(m.data), 500)
         me.create_subscription(Float32, PROBABILITY_TOPIC, lambda m: probabilities.append(m.data), 500)
-        me.create_subscription(Vector3Stamped, VELOCITY_TOPIC, lambda m: velocities.append(m), 1000)
+        me.create_subscription(TwistStamped, VELOCITY_TOPIC, lambda m: velocities.append(m), 1000)
         pubs = [me.create_publisher(Image, t, QoSProfile(depth=50)) for t in ("/left/image_raw", "/right/image_raw")]
         _wait_for_node(rclpy, me, pubs, node)
+        published_types = dict(me.get_topic_names_and_types())[VELOCITY_TOPIC]
         base, start = 1_700_000_000 * 10**9, time.monotonic()
         for k in range(len(videos[0])):
             sec, nsec = divmod(base + k * 40_000_000, 1_000_000_000)
@@ -277,17 +285,22 @@ def test_the_node_reads_what_watch_reads_frame_for_frame(tmp_path):
         if want["probability"] is not None:
             assert got["probability"] == pytest.approx(want["probability"], abs=1e-6)
     # the same reading in standard types: the alarm and the probability of every judged pair, and each
-    # finger's slip velocity in m/s where it touches (watch's mm/s), stamped with its frame
+    # finger's slip as a twist where it touches (watch's translation in mm/s as m/s, its omega in rad/s),
+    # stamped with its frame
     assert alarms == [r["alarm"] for r in reference]
     want_p = [np.nan if r["probability"] is None else r["probability"] for r in reference]
     np.testing.assert_allclose(probabilities, want_p, atol=1e-6)
-    assert all(r["slip_velocity_unit"] == "mm/s" and len(r["slip_velocity"]) == 2 for r in reference)
-    want_v = [(k, r["frame"], v) for r in reference for k, v in enumerate(r["slip_velocity"]) if v is not None]
-    got_v = [(int(m.header.frame_id[-1]), m.header.stamp.sec, m.header.stamp.nanosec, m.vector) for m in velocities]
+    assert published_types == ["geometry_msgs/msg/TwistStamped"]
+    assert all(r["slip_velocity_unit"] == "mm/s" and len(r["slip"]) == 2 for r in reference)
+    want_v = [(k, r["frame"], s) for r in reference for k, s in enumerate(r["slip"]) if s is not None]
+    got_v = [(int(m.header.frame_id[-1]), m.header.stamp.sec, m.header.stamp.nanosec, m.twist) for m in velocities]
     assert len(want_v) > 50 and len(got_v) == len(want_v)
-    for (k, frame, v), (gk, sec, nsec, vec) in zip(want_v, got_v):
+    for (k, frame, s), (gk, sec, nsec, twist) in zip(want_v, got_v):
         assert gk == k and (sec * 10**9 + nsec - 1_700_000_000 * 10**9) == frame * 40_000_000
-        assert (vec.x, vec.y, vec.z) == pytest.approx((v[0] * 1e-3, v[1] * 1e-3, 0.0), abs=1e-7)
+        (vx, vy), omega = s["translation"], s["omega"]
+        linear, angular = twist.linear, twist.angular
+        assert (linear.x, linear.y, linear.z) == pytest.approx((vx * 1e-3, vy * 1e-3, 0.0), abs=1e-9)
+        assert (angular.x, angular.y, angular.z) == pytest.approx((0.0, 0.0, omega), abs=1e-9)
     assert "25 frames/s (the header stamps)" in log and "alarm at" in log and "left out:" not in log, log
     assert "rosout" not in log, log  # the node stops cleanly on SIGTERM
     n = len(reference)

@@ -22,7 +22,8 @@ from slipsense.measures.promise import promise_text
 from slipsense.models import build
 from slipsense.resources import shipped_model, shipped_models
 from slipsense.streaming.detector import Reading, SlipDetector
-from slipsense.streaming.readings import reading_record
+from slipsense.sensors.gel_motion import GelMotion
+from slipsense.streaming.readings import JsonlWriter, reading_record
 from slipsense.watch import reading_line, watch_source
 from tests.conftest import REAL_RUN, needs_data, write_grasp_video
 
@@ -187,6 +188,27 @@ def test_readings_as_json_carry_what_the_detector_knows(run, tmp_path, cache):
     assert res.exit_code == 0, res.output
     records = [json.loads(line) for line in out.read_text().splitlines()]
     assert len(records) == 30 and all(r["per_sensor"] is None for r in records)
+
+
+def test_a_record_carries_each_fingers_slip_and_null_for_a_finger_without_contact(tmp_path):
+    touching = GelMotion((12.123456, -3.4), 0.35, 0.2, 13.5, (0.41, -0.1), 0.02, 0.01, 0.3, "mm")
+    untouched = GelMotion(None, None, None, None, (0.0, 0.0), 0.0, 0.0, 0.0, "mm")
+    reading = Reading(57, 0.91, None, True, (touching, untouched), "mm")
+    writer = JsonlWriter(tmp_path / "r.jsonl")
+    writer.write(reading_record(reading, 2.28, 0.31))
+    writer.close()
+    (record,) = [json.loads(line) for line in (tmp_path / "r.jsonl").read_text().splitlines()]
+    assert record["slip"] == [{"translation": [12.1235, -3.4], "omega": 0.35, "stick": 0.2, "speed": 13.5}, None]
+    assert record["slip_velocity_unit"] == "mm/s" and record["slip_omega_unit"] == "rad/s"
+    assert record["shear"][0]["contact"] == 0.3 and "slip_velocity" not in record  # no field copying another
+    # the Python reading says what the record says, in the same words
+    assert list(reading.slip) == record["slip"]
+    assert (reading.slip_velocity_unit, reading.slip_omega_unit) == ("mm/s", "rad/s")
+    assert "slip_velocity_unit='mm/s'" in repr(reading) and "gel_unit" not in repr(reading)
+    assert reading_record(Reading(0, None, None, False, (None, touching), "px"), 0.0, 0.1)["slip"][0] is None
+    assert Reading(0, None, None, False, (touching,), "px").slip_velocity_unit == "px/s"
+    plain = reading_record(Reading(0, 0.1, None, False), 0.0, 0.1)  # a gel without markers: nothing made up
+    assert [plain[k] for k in ("slip", "slip_velocity_unit", "slip_omega_unit", "shear")] == [None] * 4
 
 
 @needs_data

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from slipsense.sensors.gel_motion import GelMotion
 from slipsense.streaming.annotate import AnnotatedWriter, Annotator
 from slipsense.streaming.detector import Reading
 
@@ -178,3 +179,30 @@ def test_watch_out_gif_and_mp4_readable_by_others_one_frame_per_push(tmp_path, u
             cap = cv2.VideoCapture(str(out))
             assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == 20
             cap.release()
+
+
+def slip_drawn(translation, omega, stick) -> np.ndarray:
+    """Where one finger's slip is drawn (yellow) on a plain grey frame: a (240, 320) mask of its panel."""
+    speed = None if translation is None else float(np.hypot(*translation))
+    gel = GelMotion(translation, omega, stick, speed, (0.0, 0.0), 0.0, 0.0, 0.0 if stick is None else 0.5, "mm")
+    picture = Annotator(threshold=0.5, sensors=1).draw(
+        [np.full((240, 320, 3), 100, np.uint8)], Reading(0, None, None, False, (gel,), "mm")
+    )
+    panel = picture[28 : 28 + 240].astype(int)
+    return (panel[..., 0] < 80) & (panel[..., 1] > 180) & (panel[..., 2] > 180)
+
+
+def test_the_picture_shows_each_fingers_translation_turn_and_stick_share():
+    assert not slip_drawn(None, None, None).any()  # no contact: nothing drawn
+    above = slice(0, 120)  # the panel's upper half, where the arc starts (straight above the centre)
+    clockwise, anticlockwise = slip_drawn((0.0, 0.0), 0.5, 1.0), slip_drawn((0.0, 0.0), -0.5, 1.0)
+    # +omega turns +x towards +y: clockwise as drawn, from the top to the right; -omega to the left
+    assert clockwise[above, 165:].sum() > 50 and not clockwise[above, :155].any()
+    assert anticlockwise[above, :155].sum() > 50 and not anticlockwise[above, 165:].any()
+    faster = slip_drawn((0.0, 0.0), 1.0, 1.0)
+    assert faster[:200].sum() > 1.5 * clockwise[:200].sum()  # a longer sweep for a faster turn
+    sliding = slip_drawn((10.0, 0.0), 0.0, 1.0)
+    assert sliding[118:123, 165:].any() and not sliding[:100].any()  # an arrow to the right, no arc
+    # the stick share as a bar: its filled part (a row inside the bar's frame) grows with the share
+    filled = [slip_drawn((10.0, 0.0), 0.0, s)[240 - 27, 8:85].sum() for s in (0.0, 0.5, 1.0)]
+    assert filled[0] == 0 and 35 <= filled[1] <= 42 and filled[2] == 77

@@ -50,9 +50,9 @@ class Annotator:
             cloud = clouds[s] if s < len(clouds) else None
             p = None if reading.per_sensor is None else reading.per_sensor[s]
             panel = self._sensor_panel(frame, heat, cloud, s, p)
-            velocity = None if reading.slip_velocity is None else reading.slip_velocity[s]
-            if velocity is not None:
-                _draw_velocity(panel, velocity, reading.slip_velocity_unit)
+            slip = None if reading.slip is None else reading.slip[s]
+            if slip is not None:
+                _draw_slip(panel, slip, reading.slip_velocity_unit)
             panels.append(panel)
         top = np.concatenate(panels, axis=1)
         width = top.shape[1]
@@ -310,16 +310,54 @@ class AnnotatedWriter:
 
 #: Slip speeds drawn as an arrow half the panel long (faster ones are drawn that long too).
 _FULL_ARROW = {"mm/s": 20.0, "px/s": 400.0}
+#: Rotation rate (rad/s) drawn as an arc of half a turn (faster ones are drawn that far too).
+_FULL_TURN = 1.0
+_SLIP_COLOUR = (0, 255, 255)
 
 
-def _draw_velocity(panel: np.ndarray, velocity: tuple[float, float], unit: str | None) -> None:
-    """The slip velocity as an arrow from the panel's centre (its direction in the image; its length
-    the speed, half the panel at :data:`_FULL_ARROW`) and the speed in words, in place."""
+def _draw_slip(panel: np.ndarray, slip: dict, unit: str | None) -> None:
+    """One finger's slip (a reading's ``slip`` entry) over its panel, in place: the translation as an
+    arrow and the rotation as an arc about the panel's centre, the stick share as a bar, and along the
+    bottom in words the slip speed over the contact, the rotation and the stick share."""
     h, w = panel.shape[:2]
-    speed = math.hypot(*velocity)
-    if speed > 0:
-        length = 0.5 * min(h, w) * min(1.0, speed / _FULL_ARROW.get(unit or "", 20.0))
-        tip = (int(round(w / 2 + velocity[0] / speed * length)), int(round(h / 2 + velocity[1] / speed * length)))
-        cv2.arrowedLine(panel, (w // 2, h // 2), tip, (0, 255, 255), 2, cv2.LINE_AA, tipLength=0.25)
-    text = f"slip {speed:.1f} {unit or ''}"
-    cv2.putText(panel, text, (6, h - 8), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 255, 255), 1, cv2.LINE_AA)
+    centre, reach = (w // 2, h // 2), 0.5 * min(h, w)
+    _draw_translation(panel, slip["translation"], unit, centre, reach)
+    _draw_turn(panel, slip["omega"], centre, int(round(0.6 * reach)))
+    bar = (6, h - 30, 86, h - 24)
+    cv2.rectangle(panel, bar[:2], bar[2:], _SLIP_COLOUR, 1)
+    fill = bar[0] + int(round(slip["stick"] * (bar[2] - bar[0])))
+    if fill > bar[0]:
+        cv2.rectangle(panel, bar[:2], (fill, bar[3]), _SLIP_COLOUR, -1)
+    text = f"slip {slip['speed']:.1f} {unit or ''}  turn {slip['omega']:+.2f} rad/s  stick {slip['stick']:.0%}"
+    (tw, th), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, 0.45, 1)
+    cv2.rectangle(panel, (3, h - 11 - th), (9 + tw, h - 3), (40, 40, 40), -1)  # readable on a bright gel too
+    cv2.putText(panel, text, (6, h - 8), cv2.FONT_HERSHEY_SIMPLEX, 0.45, _SLIP_COLOUR, 1, cv2.LINE_AA)
+
+
+def _draw_translation(panel, translation, unit, centre, reach) -> None:
+    """An arrow from ``centre`` in the translation's direction in the image, ``reach`` long at
+    :data:`_FULL_ARROW`."""
+    size = math.hypot(*translation)
+    if size > 0:
+        length = reach * min(1.0, size / _FULL_ARROW.get(unit or "", 20.0))
+        tip = tuple(int(round(c + v / size * length)) for c, v in zip(centre, translation))
+        cv2.arrowedLine(panel, centre, tip, _SLIP_COLOUR, 2, cv2.LINE_AA, tipLength=0.25)
+
+
+def _draw_turn(panel, omega: float, centre, radius: int) -> None:
+    """An arc of ``radius`` about ``centre`` from straight above, swept the way the object turns
+    (positive omega turns +x towards +y: clockwise on screen, as OpenCV's angles run) and half a turn
+    at :data:`_FULL_TURN`, an arrowhead at its end."""
+    sweep = 180.0 * math.copysign(min(1.0, abs(omega) / _FULL_TURN), omega)
+    if abs(sweep) < 1.0:  # under a degree: no arc to see, the words say it
+        return
+    start, end = -90.0, -90.0 + sweep
+    cv2.ellipse(panel, centre, (radius, radius), 0.0, start, end, _SLIP_COLOUR, 2, cv2.LINE_AA)
+
+    def at(angle: float) -> tuple[int, int]:
+        a = math.radians(angle)
+        return int(round(centre[0] + radius * math.cos(a))), int(round(centre[1] + radius * math.sin(a)))
+
+    # the head along the arc's last stretch (at most 15 degrees), so that it points the way it turns
+    tail = end - math.copysign(min(abs(sweep), 15.0), sweep)
+    cv2.arrowedLine(panel, at(tail), at(end), _SLIP_COLOUR, 2, cv2.LINE_AA, tipLength=0.8)

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import functools
 import warnings
-from dataclasses import dataclass
+from dataclasses import InitVar, dataclass, field
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
@@ -59,8 +59,11 @@ class Reading:
     ``alarm``: the alarm rule (:mod:`slipsense.alarm`): ``probability >= threshold`` for ``debounce``
     steps in a row, held for ``hold`` seconds after (False while None);
     ``gel``: per sensor, what its gel's markers say (:class:`~slipsense.sensors.gel_motion.GelMotion`:
-    the slip velocity and the shear field; None for a sensor before its marker grid is found); None
-    where the sensor's gel has no markers (or the detector was made with ``gel_motion=False``).
+    the slip and the shear field; None for a sensor before its marker grid is found); None where the
+    sensor's gel has no markers (or the detector was made with ``gel_motion=False``);
+    ``length_unit``: the length unit of ``gel`` (``"mm"`` or ``"px"``, as :attr:`GelMotion.unit`),
+    given by the detector; the reading states it as :attr:`slip_velocity_unit`, the JSON record's
+    word and string.
     """
 
     index: int
@@ -68,19 +71,28 @@ class Reading:
     per_sensor: tuple[float, ...] | None
     alarm: bool
     gel: tuple[GelMotion | None, ...] | None = None
-    #: the length unit of ``gel`` (``"mm"`` or ``"px"``); None where ``gel`` is None
-    gel_unit: str | None = None
+    length_unit: InitVar[str | None] = None
+    #: the unit of each finger's ``translation``: ``"mm/s"`` where the sensor states its pixel size,
+    #: ``"px/s"`` otherwise; None where ``gel`` is None
+    slip_velocity_unit: str | None = field(init=False, default=None)
+
+    def __post_init__(self, length_unit: str | None) -> None:
+        # stored as the JSON record says it, so that the reading and the record name one unit one way
+        object.__setattr__(self, "slip_velocity_unit", None if length_unit is None else f"{length_unit}/s")
 
     @property
-    def slip_velocity(self) -> tuple[tuple[float, float] | None, ...] | None:
-        """Per sensor the object's slip velocity ``(vx, vy)`` in :attr:`slip_velocity_unit` (image
-        axes: x right, y down); None per sensor without contact; None where the gel has no markers."""
-        return None if self.gel is None else tuple(None if g is None else g.velocity for g in self.gel)
+    def slip(self) -> tuple[dict | None, ...] | None:
+        """Per sensor ``{"translation": [vx, vy], "omega": w, "stick": s, "speed": v}``
+        (:meth:`GelMotion.slip_dict`: the translation and the speed over the contact in
+        :attr:`slip_velocity_unit`, image axes x right, y down; omega in :attr:`slip_omega_unit`; the
+        share of the contact that sticks), None per sensor without contact; None where the gel has no
+        markers. The JSON record's ``slip``."""
+        return None if self.gel is None else tuple(None if g is None else g.slip_dict() for g in self.gel)
 
     @property
-    def slip_velocity_unit(self) -> str | None:
-        """``"mm/s"`` where the sensor states its pixel size, ``"px/s"`` otherwise; None without markers."""
-        return None if self.gel_unit is None else f"{self.gel_unit}/s"
+    def slip_omega_unit(self) -> str | None:
+        """``"rad/s"``, whatever the sensor (an angle needs no pixel size); None without markers."""
+        return None if self.gel is None else "rad/s"
 
 
 @dataclass

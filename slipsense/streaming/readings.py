@@ -4,7 +4,9 @@ a logger to consume.
 One record per pushed frame::
 
     {"frame": 57, "stamp": 1700000002.28, "probability": 0.91, "per_sensor": [0.91, 0.40],
-     "alarm": true, "latency_ms": 0.31, "slip_velocity": [[12.1, -3.4], null], "slip_velocity_unit": "mm/s",
+     "alarm": true, "latency_ms": 0.31,
+     "slip": [{"translation": [12.1, -3.4], "omega": 0.35, "stick": 0.2, "speed": 13.0}, null],
+     "slip_velocity_unit": "mm/s", "slip_omega_unit": "rad/s",
      "shear": [{"displacement": [0.41, -0.1], "divergence": 0.02, "curl": 0.01, "contact": 0.3}, null]}
 
 ``frame``: the frame's 0-based number in its source since the stream started, counting frames the
@@ -12,11 +14,15 @@ source had but that were never judged (a live camera's frames replaced while the
 a ROS 2 node's pairs left out), so a gap in ``frame`` is a loss; ``stamp``: when the frame was taken (s: a bag's
 header stamp, a live camera's capture clock, ``index / fps`` for a file); ``probability``: null while
 the detector has not seen enough frames; ``latency_ms``: time the detector took for this frame;
-``slip_velocity``: per sensor the object's velocity over the gel ``[vx, vy]`` (image axes: x right,
-y down) in ``slip_velocity_unit`` (``mm/s`` where the sensor states its pixel size, else ``px/s``),
-null for a sensor without contact; ``shear``: per sensor the shear field (mean displacement in the
-same length unit, divergence, curl, share of markers in contact; :mod:`slipsense.sensors.gel_motion`);
-all three null where the sensor's gel has no markers.
+``slip``: per sensor how the object moves against the gel (:class:`~slipsense.sensors.gel_motion.GelMotion`):
+``translation`` its in-plane velocity ``[vx, vy]`` (image axes: x right, y down) in
+``slip_velocity_unit`` (``mm/s`` where the sensor states its pixel size, else ``px/s``), ``omega`` its
+rotation rate about the contact's centre in ``slip_omega_unit`` (``rad/s``; positive from +x towards
++y), ``stick`` the share (0-1) of the contact where it still sticks, ``speed`` how fast it moves
+against the gel on average over the contact (translation and turn together, in
+``slip_velocity_unit``); null for a sensor without contact; ``shear``: per sensor the shear field (mean displacement in the translation's length unit,
+divergence, curl, share of markers in contact); ``slip``, its two units and ``shear`` all null where
+the sensor's gel has no markers.
 
 In a bag, the same record goes on a topic (``/slipsense/reading`` by default) as a ``std_msgs/msg/String``
 holding the JSON line: the very message the ROS 2 node (:mod:`slipsense.ros_node`) publishes on
@@ -56,9 +62,7 @@ def reading_record(reading, stamp: float, latency_ms: float, frame: int | None =
     def number(p):  # a NaN probability (it raises the alarm) has no JSON form: null, with the alarm on
         return None if p is None or math.isnan(p) else round(float(p), 6)
 
-    gel = getattr(reading, "gel", None)
-    velocity = None if gel is None else [None if g is None else g.velocity for g in gel]
-
+    gel = reading.gel
     return {
         "frame": int(reading.index if frame is None else frame),
         "stamp": float(stamp),
@@ -66,8 +70,9 @@ def reading_record(reading, stamp: float, latency_ms: float, frame: int | None =
         "per_sensor": None if reading.per_sensor is None else [number(p) for p in reading.per_sensor],
         "alarm": bool(reading.alarm),
         "latency_ms": round(float(latency_ms), 4),
-        "slip_velocity": None if gel is None else [None if v is None else [number(x) for x in v] for v in velocity],
-        "slip_velocity_unit": reading.slip_velocity_unit if gel is not None else None,
+        "slip": None if gel is None else list(reading.slip),
+        "slip_velocity_unit": reading.slip_velocity_unit,
+        "slip_omega_unit": reading.slip_omega_unit,
         "shear": None if gel is None else [None if g is None else g.to_dict() for g in gel],
     }
 
