@@ -241,7 +241,7 @@ def imprint_motion(
         # a faint or featureless imprint, whose fit noise would read as slip, reads as little motion
         lever = float(np.mean(rx * rx + ry * ry)) + 1.0
         prior = prior_gradient**2 * len(xx) * np.diag([1.0, 1.0, lever])
-        hess = (jac.T @ jac).astype(np.float64) + prior
+        hess = (jac.T @ jac).astype(np.float64) + prior + 1e-6 * np.eye(3)
         base = ia[yy, xx]
         for _ in range(ITERATIONS):
             cos, sin = np.float32(np.cos(p[2])), np.float32(np.sin(p[2]))
@@ -253,7 +253,7 @@ def imprint_motion(
             p += step / np.array([s, s, 1.0])
             if np.abs(step).max() < 1e-3:
                 break
-    return p
+    return p if np.all(np.isfinite(p)) else np.zeros(3)  # a degenerate fit says nothing
 
 
 class GelMotionStream:
