@@ -18,8 +18,8 @@ def velocity(
     data: Optional[Path] = typer.Option(None, help="shared data folder (default: $SLIPSENSE_DATA)"),
     sequences: int = typer.Option(8, help="simulated sequences per object and motion pattern (test seed)"),
 ):
-    """The slip velocity from the gel's markers, checked: simulated known velocities, gelsight-lift's
-    slipped against held grasps, the GelSight Mini's speed over time."""
+    """The object's motion against the gel, checked: simulated known velocities, gelsight-lift beside its
+    outside camera (objects left out), the GelSight Mini's held wiggles against its slips."""
     from studies.provenance import provenance
     from studies.velocity import markdown, velocity_study
 
@@ -28,8 +28,9 @@ def velocity(
     text = markdown(doc)
     write_text(
         out / "README.md",
-        f"# Slip velocity from the gel's markers\n\n`{command_line()}`\n\n{provenance()}\n\n"
-        f"What is measured: slipsense/sensors/gel_motion.py (the footprint's centroid over the gel's material).\n\n"
+        f"# The object's motion against the gel, checked\n\n`{command_line()}`\n\n{provenance()}\n\n"
+        f"What is measured: slipsense/sensors/gel_motion.py (camera-in-gel: the imprint's rigid motion less the "
+        f"gel surface's; marker clouds: the footprint over the material where friction drags the gel).\n\n"
         f"{text}\n",
     )
     typer.echo(text + f"\n-> {out}")

@@ -31,6 +31,7 @@ contact. How well it follows the object: ``python -m studies velocity`` (docs/ge
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass
 
@@ -78,8 +79,10 @@ STRIDE = 2
 SETTLE_S = 0.1
 #: Grey levels per working px: the imprint gradient that weighs as much as the prior of no motion.
 PRIOR_GRADIENT = 0.3
+#: About the most contact points a fit reads.
+MAX_POINTS = 500
 #: Gauss-Newton steps of the imprint's rigid fit per pyramid level.
-ITERATIONS = 4
+ITERATIONS = 3
 #: Working px over the lag by which the gel may lag the object's motion and still stick.
 STICK_TOLERANCE_PX = 0.35
 
@@ -203,11 +206,13 @@ def rigid_fit(points: np.ndarray, flow: np.ndarray, weight: np.ndarray, centre: 
         return np.zeros(3)
 
 
-def _points(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rows and columns of ``mask`` on a grid of every :data:`STRIDE`-th pixel: neighbouring pixels
-    of a working frame say nearly the same, a quarter of them cost a quarter."""
-    ys, xs = np.nonzero(mask[::STRIDE, ::STRIDE])
-    return ys * STRIDE, xs * STRIDE
+def _points(mask: np.ndarray, finest: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Rows and columns of ``mask`` on a grid of every ``finest``-th pixel (default :data:`STRIDE`), or coarser, so that at
+    most about :data:`MAX_POINTS` remain: neighbouring pixels of a working frame say nearly the same,
+    and a contact covering half the gel costs no more than one covering a tenth."""
+    stride = max(finest or STRIDE, math.ceil(math.sqrt(np.count_nonzero(mask) / MAX_POINTS)))
+    ys, xs = np.nonzero(mask[::stride, ::stride])
+    return ys * stride, xs * stride
 
 
 def imprint_motion(
@@ -230,7 +235,7 @@ def imprint_motion(
     for ia, ib, im, s in levels:
         if im is None:
             im = cv2.resize(m.astype(np.uint8), (ia.shape[1], ia.shape[0]), interpolation=cv2.INTER_NEAREST) > 0
-        yy, xx = np.nonzero(im) if s < 1 else _points(im)
+        yy, xx = _points(im, 1 if s < 1 else STRIDE)
         if len(xx) < 6:
             continue
         gx = cv2.Sobel(ia, cv2.CV_32F, 1, 0, ksize=3)[yy, xx] / 8.0
@@ -305,20 +310,22 @@ class GelMotionStream:
         closed = cv2.morphologyEx(small, cv2.MORPH_CLOSE, self._kernel)
         gray = lambda im: im if im.ndim == 2 else cv2.cvtColor(im, cv2.COLOR_BGR2GRAY)  # noqa: E731
         markers = cv2.subtract(gray(closed), gray(small))
-        shading = cv2.GaussianBlur(closed.astype(np.float32), (0, 0), IMPRINT_BLUR)
-        return markers, shading.reshape(markers.shape + (-1,))
+        return markers, closed.astype(np.float32).reshape(markers.shape + (-1,))
 
     def _start(self, frame: np.ndarray) -> bool:
+        # the markers are looked for at the working size: a third of the time at full size (the
+        # reference is one push of the stream, but on a 21-frame grasp it is its slowest)
         gray = _as_gray(frame, None)
-        blobs, diameter = _detect_scaled(gray, None, 12.0, 1)
+        small = cv2.resize(
+            gray, (WORK_WIDTH, max(8, round(gray.shape[0] * WORK_WIDTH / gray.shape[1]))), interpolation=cv2.INTER_AREA
+        )
+        blobs, diameter = _detect_scaled(small, None, 12.0, 1)
         if len(blobs.centres) < MIN_MARKERS:
             return False
-        size = _odd(max(3.0, 1.6 * diameter * WORK_WIDTH / frame.shape[1]))
+        size = _odd(max(3.0, 1.6 * diameter))
         self._kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
         self._dot = np.ones((3, 3), np.uint8)
         self._ref = self._small(frame)
-        h, w = self._ref[0].shape
-        self._grid = np.stack(np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32)), -1)
         return True
 
     def push(self, frame: np.ndarray, stamp: float | None = None) -> GelMotion | None:
@@ -336,6 +343,7 @@ class GelMotionStream:
         summed = cv2.transform(cv2.absdiff(shading, ref_shading), np.ones((1, channels), np.float32))
         contact = cv2.blur(summed, (5, 5)).reshape(summed.shape[:2]) > self.contact_floor
         imprint = cv2.transform(change, np.full((1, channels), 1.0 / channels, np.float32)).reshape(summed.shape[:2])
+        imprint = cv2.GaussianBlur(imprint, (0, 0), IMPRINT_BLUR)  # smooth enough for the fit to converge
         gel = self._flow.calc(ref_markers, markers, None)  # where each reference point of the gel went
         # where the closing filled a marker the shading is made up, and moves with the gel: not imprint
         seen = cv2.dilate(markers, self._dot) <= MARKER_LEVEL
@@ -354,7 +362,7 @@ class GelMotionStream:
         both = contact & past[2]
         ys, xs = _points(both)
         textured = both & past[3]
-        if len(xs) * STRIDE**2 < MIN_CONTACT_PX or np.count_nonzero(textured) < MIN_CONTACT_PX:
+        if np.count_nonzero(both) < MIN_CONTACT_PX or np.count_nonzero(textured) < MIN_CONTACT_PX:
             return None
         pts = np.stack([xs, ys], 1).astype(np.float64)
         centre = pts.mean(0)
@@ -379,7 +387,7 @@ class GelMotionStream:
         length = self._scale * (1.0 if self.mm_per_pixel is None else self.mm_per_pixel)
         ys, xs = _points(contact)
         share = float(np.count_nonzero(contact)) / contact.size
-        if len(xs) * STRIDE**2 >= MIN_CONTACT_PX:
+        if np.count_nonzero(contact) >= MIN_CONTACT_PX:
             r = np.stack([xs, ys], 1).astype(np.float64)
             r -= r.mean(0)
             d = gel[ys, xs].astype(np.float64)
