@@ -256,7 +256,7 @@ def imprint_motion(
             grad = (jac.T @ (warped[:, 0] - base)).astype(np.float64) + prior @ (p * np.array([s, s, 1.0]))
             step = -np.linalg.solve(hess, grad)
             p += step / np.array([s, s, 1.0])
-            if np.abs(step).max() < 1e-3:
+            if np.abs(step).max() < 1e-2:  # a hundredth of a px (or rad): well under the noise
                 break
     return p if np.all(np.isfinite(p)) else np.zeros(3)  # a degenerate fit says nothing
 
@@ -308,8 +308,8 @@ class GelMotionStream:
         # imprint, in colour where the lights are coloured (a GelSight's are); what it filled is the
         # markers alone, without the imprint, whose flow is the gel's surface
         closed = cv2.morphologyEx(small, cv2.MORPH_CLOSE, self._kernel)
-        gray = lambda im: im if im.ndim == 2 else cv2.cvtColor(im, cv2.COLOR_BGR2GRAY)  # noqa: E731
-        markers = cv2.subtract(gray(closed), gray(small))
+        filled = cv2.subtract(closed, small)  # the closing only raises pixels: no saturation
+        markers = filled if filled.ndim == 2 else cv2.cvtColor(filled, cv2.COLOR_BGR2GRAY)
         return markers, closed.astype(np.float32).reshape(markers.shape + (-1,))
 
     def _start(self, frame: np.ndarray) -> bool:
