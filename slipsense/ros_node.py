@@ -10,7 +10,7 @@ Install with ``pip install "slipsense[ros]"`` (no ROS installation needed). Para
 (negative, the default: the checkpoint's operating point), ``tolerance`` (seconds between the stamps
 of a pair; 0: half a frame period of the detector's sensor), ``max_lag`` (seconds: a pair this much
 older than the newest one waiting is skipped), ``threads`` (0: torch's) and ``gel_motion`` (false: no
-slip velocity followed, readings carry null, the push is a few milliseconds faster).
+slip followed, readings carry null, the push about a millisecond a finger faster).
 
 In: each image topic best effort, volatile, keep last :data:`QUEUE_DEPTH`. Out, reliable:
 ``/slipsense/reading`` (a JSON reading per judged frame pair, the record of ``slipsense watch

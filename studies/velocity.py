@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import math
+import multiprocessing
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
@@ -297,7 +298,8 @@ def mini_study(root: Path, out: Path, workers: int = 2) -> dict:
     labels = label_runs(recordings, progress=False)
     runs = by_run(recordings)
     paths = [str(r.path) for recs in runs.values() for r in recs]
-    with ProcessPoolExecutor(workers) as pool:
+    # spawned, not forked: OpenCV's threads of the sections before would deadlock a forked worker
+    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
         traces = dict(zip(paths, pool.map(_mini_trace, paths, chunksize=4)))
     last = int(round(LAST_S * GELSIGHT_MINI.fps))
     rows = []

@@ -13,8 +13,9 @@ from slipsense.errors import ConfigError, InputError
 GEL_MOTION = typer.Option(
     True,
     "--gel-motion/--no-gel-motion",
-    help="follow the gel's markers for each finger's slip velocity and shear field in every reading "
-    "(a few ms a frame; where the gel has none, readings carry null either way)",
+    help="follow each finger's gel for the object's motion against it (translation, turn, stick share) and "
+    "the shear field in every reading (about 1 ms a finger; where the gel has no markers, readings carry null "
+    "either way)",
 )
 THREADS_HELP = (
     "intra-op threads for torch and ONNX Runtime (default: torch's). Use 1 on a busy machine: the "

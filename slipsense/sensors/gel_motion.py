@@ -297,7 +297,7 @@ class GelMotionStream:
         self._pushed = 0
         self._past: deque = deque(maxlen=self.lag)  # (imprint, gel displacement, contact) of the last frames
         self._recent: deque = deque(maxlen=self.smooth)  # the last instant (tx, ty, omega, stick, speed)
-        self._touching = 0  # frames the contact has lasted
+        self._touching = 0  # frames in contact since the reset
 
     def _small(self, frame: np.ndarray):
         """The working-size markers (uint8, bright on dark) and marker-free shading ``(h, w, C)`` float32."""
@@ -349,7 +349,8 @@ class GelMotionStream:
         seen = cv2.dilate(markers, self._dot) <= MARKER_LEVEL
         past = self._past[0] if len(self._past) == self.lag else None
         self._past.append((imprint, gel, contact, seen))
-        self._touching = self._touching + 1 if np.count_nonzero(contact) >= MIN_CONTACT_PX else 0
+        # counted over the grasp, not in a row: a contact flickering at its floor is still one contact
+        self._touching += np.count_nonzero(contact) >= MIN_CONTACT_PX
         # a footprint still forming moves its imprint without any sliding: judged once it has settled
         motion = self._slip(imprint, gel, contact, past) if self._touching > self.settle else None
         return self._reading(motion, gel, contact)
@@ -362,12 +363,13 @@ class GelMotionStream:
         both = contact & past[2]
         ys, xs = _points(both)
         textured = both & past[3]
-        if np.count_nonzero(both) < MIN_CONTACT_PX or np.count_nonzero(textured) < MIN_CONTACT_PX:
+        if np.count_nonzero(both) < MIN_CONTACT_PX:
             return None
         pts = np.stack([xs, ys], 1).astype(np.float64)
         centre = pts.mean(0)
         dt = self.lag / self.fps
-        obj = imprint_motion(past[0], imprint, textured, centre, self.prior_gradient)
+        # an imprint with no texture seen (all of it under markers) shows no motion: the prior's answer
+        obj = imprint_motion(past[0], imprint, textured, centre, self.prior_gradient) if textured.any() else np.zeros(3)
         surface = (gel[ys, xs] - past[1][ys, xs]).astype(np.float64)  # each contact point of the gel, moved
         weight = np.ones(len(pts))
         gel_rigid = rigid_fit(pts, surface, weight, centre)
@@ -386,7 +388,8 @@ class GelMotionStream:
             self._recent.append(motion)
         length = self._scale * (1.0 if self.mm_per_pixel is None else self.mm_per_pixel)
         ys, xs = _points(contact)
-        share = float(np.count_nonzero(contact)) / contact.size
+        touched = np.count_nonzero(contact)
+        share = float(touched) / contact.size if touched >= MIN_CONTACT_PX else 0.0  # a speck is no contact
         if np.count_nonzero(contact) >= MIN_CONTACT_PX:
             r = np.stack([xs, ys], 1).astype(np.float64)
             r -= r.mean(0)
