@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from slipsense.sensors.marker_detection import _as_gray, _detect_scaled, _odd
+from slipsense.sensors.marker_detection import _as_gray, _blob_diameter, _detect, _odd
 
 #: Fewest markers in contact for a footprint.
 MIN_CONTACT = 3
@@ -62,6 +62,8 @@ ROUND_RATIO = 1.5
 #: Camera-in-gel frames are measured at this width (px): the shading and the gel's flow vary over
 #: several of these pixels on a GelSight Mini (320 px) and the lift's GelSight (640 px) alike.
 WORK_WIDTH = 160
+#: Marker diameter (working px) looked for first: a GelSight Mini's and the lift GelSight's are 4-6.
+MARKER_GUESS_PX = 5.0
 #: Blur (working px) of the marker-free shading: smooth enough for a rigid fit to converge.
 IMPRINT_BLUR = 1.0
 #: Change of the marker-free shading (grey levels) where the object touches the gel.
@@ -80,7 +82,7 @@ SETTLE_S = 0.1
 #: Grey levels per working px: the imprint gradient that weighs as much as the prior of no motion.
 PRIOR_GRADIENT = 0.3
 #: About the most contact points a fit reads.
-MAX_POINTS = 500
+MAX_POINTS = 300
 #: Gauss-Newton steps of the imprint's rigid fit per pyramid level.
 ITERATIONS = 3
 #: Working px over the lag by which the gel may lag the object's motion and still stick.
@@ -319,7 +321,11 @@ class GelMotionStream:
         small = cv2.resize(
             gray, (WORK_WIDTH, max(8, round(gray.shape[0] * WORK_WIDTH / gray.shape[1]))), interpolation=cv2.INTER_AREA
         )
-        blobs, diameter = _detect_scaled(small, None, 12.0, 1)
+        blobs = _detect(small, MARKER_GUESS_PX, 12.0, 1)
+        diameter = _blob_diameter(blobs) if len(blobs.areas) else MARKER_GUESS_PX
+        if abs(diameter - MARKER_GUESS_PX) > 0.3 * MARKER_GUESS_PX:  # markers of another size: once more at theirs
+            blobs = _detect(small, diameter, 12.0, 1)
+            diameter = _blob_diameter(blobs) if len(blobs.areas) else diameter
         if len(blobs.centres) < MIN_MARKERS:
             return False
         size = _odd(max(3.0, 1.6 * diameter))
