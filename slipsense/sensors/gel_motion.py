@@ -208,11 +208,11 @@ def rigid_fit(points: np.ndarray, flow: np.ndarray, weight: np.ndarray, centre: 
         return np.zeros(3)
 
 
-def _points(mask: np.ndarray, finest: int = 0) -> tuple[np.ndarray, np.ndarray]:
+def _points(mask: np.ndarray, finest: int = 0, most: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Rows and columns of ``mask`` on a grid of every ``finest``-th pixel (default :data:`STRIDE`), or coarser, so that at
     most about :data:`MAX_POINTS` remain: neighbouring pixels of a working frame say nearly the same,
     and a contact covering half the gel costs no more than one covering a tenth."""
-    stride = max(finest or STRIDE, math.ceil(math.sqrt(np.count_nonzero(mask) / MAX_POINTS)))
+    stride = max(finest or STRIDE, math.ceil(math.sqrt(np.count_nonzero(mask) / (most or MAX_POINTS))))
     ys, xs = np.nonzero(mask[::stride, ::stride])
     return ys * stride, xs * stride
 
@@ -237,7 +237,8 @@ def imprint_motion(
     for ia, ib, im, s in levels:
         if im is None:
             im = cv2.resize(m.astype(np.uint8), (ia.shape[1], ia.shape[0]), interpolation=cv2.INTER_NEAREST) > 0
-        yy, xx = _points(im, 1 if s < 1 else STRIDE)
+        # the coarse level only has to come near: a third of the points there
+        yy, xx = _points(im, 1, MAX_POINTS // 3) if s < 1 else _points(im, STRIDE)
         if len(xx) < 6:
             continue
         gx = cv2.Sobel(ia, cv2.CV_32F, 1, 0, ksize=3)[yy, xx] / 8.0
@@ -248,7 +249,7 @@ def imprint_motion(
         # a faint or featureless imprint, whose fit noise would read as slip, reads as little motion
         lever = float(np.mean(rx * rx + ry * ry)) + 1.0
         prior = prior_gradient**2 * len(xx) * np.diag([1.0, 1.0, lever])
-        hess = (jac.T @ jac).astype(np.float64) + prior + 1e-6 * np.eye(3)
+        inverse = np.linalg.inv((jac.T @ jac).astype(np.float64) + prior + 1e-6 * np.eye(3))  # fixed per level
         base = ia[yy, xx]
         for _ in range(ITERATIONS):
             cos, sin = np.float32(np.cos(p[2])), np.float32(np.sin(p[2]))
@@ -256,7 +257,7 @@ def imprint_motion(
             my = sin * rx + cos * ry + np.float32(c[1] * s + p[1] * s)
             warped = cv2.remap(ib, mx[:, None], my[:, None], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
             grad = (jac.T @ (warped[:, 0] - base)).astype(np.float64) + prior @ (p * np.array([s, s, 1.0]))
-            step = -np.linalg.solve(hess, grad)
+            step = -(inverse @ grad)
             p += step / np.array([s, s, 1.0])
             if np.abs(step).max() < 1e-2:  # a hundredth of a px (or rad): well under the noise
                 break
