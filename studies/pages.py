@@ -703,8 +703,7 @@ def slip_velocity(root: Path) -> str:
             f"95% under {a['p97.5']:.0f} degrees; stick share off by {k['mean_abs']:.2f} on average",
         ],
         [
-            "simulated, nothing sliding: readings below the slip floor "
-            f"({sim['slip_floor_mm_s']:g} mm/s)",
+            f"simulated, nothing sliding: readings below the slip floor ({sim['slip_floor_mm_s']:g} mm/s)",
             still,
         ],
         [
