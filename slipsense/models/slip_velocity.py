@@ -1,8 +1,9 @@
 """Slip velocity: slip as the object's footprint sliding over the gel's material.
 
-Beyond the papers; a physical detector for GelSight sensors whose gel carries markers, the same
-quantity the readings report (:mod:`slipsense.sensors.gel_motion`), computed here in a form that
-trains, judges and exports like every model. Per frame and sensor:
+Beyond the papers; a physical detector for GelSight sensors whose gel carries markers, in a form that
+trains, judges and exports like every model. It is the footprint's speed over the gel's material that
+the readings reported before they measured the object's motion against the gel
+(:mod:`slipsense.sensors.gel_motion`); it cannot see a turn. Per frame and sensor:
 
 * the gel's shading without its markers (a grey closing of ``close`` pixels) and, per ``patch`` x ``patch`` cell, how much it changed since the grasp's first frame,
   above ``floor`` (grey levels in [0, 1]): where the object presses the gel;
