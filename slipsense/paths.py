@@ -1,4 +1,5 @@
-"""Where the data lives: one setting, the ``SLIPSENSE_DATA`` environment variable."""
+"""Where the data lives: the ``SLIPSENSE_DATA`` environment variable, else a ``shared/data`` folder found
+beside the checkout or the working directory (:func:`data_candidates`)."""
 
 from __future__ import annotations
 
@@ -9,13 +10,34 @@ from pathlib import Path
 DATA_ENV = "SLIPSENSE_DATA"
 
 
-def data_root() -> Path:
-    """The data folder: ``$SLIPSENSE_DATA``, else ``../shared/data`` beside the checkout."""
+def data_candidates() -> list[Path]:
+    """Where the data folder is looked for, in order: ``$SLIPSENSE_DATA`` alone where it is set; else
+    ``shared/data`` beside the checkout the package runs from (an editable install or the source
+    tree), then ``shared/data`` in the working directory and beside it."""
     env = os.environ.get(DATA_ENV)
     if env:
-        return Path(env).expanduser()
+        return [Path(env).expanduser()]
     checkout = Path(__file__).resolve().parent.parent
-    return (checkout.parent / "shared" / "data").resolve()
+    found = [checkout.parent / "shared" / "data"] if (checkout / "pyproject.toml").is_file() else []
+    cwd = Path.cwd()
+    return [*found, cwd / "shared" / "data", cwd.parent / "shared" / "data"]
+
+
+def data_root() -> Path:
+    """The data folder: the first of :func:`data_candidates` that exists (the first of them where none
+    does, so that a message can name it)."""
+    candidates = data_candidates()
+    return next((c.resolve() for c in candidates if c.is_dir()), candidates[0].resolve())
+
+
+def missing_data_hint(path: str | Path) -> str:
+    """For a missing ``path``: how to point at the data where ``path`` lies in a data folder that does
+    not exist (the default one found nowhere); else nothing."""
+    root = data_root()
+    if root.is_dir() or not Path(path).resolve().is_relative_to(root):
+        return ""
+    looked = ", ".join(str(c) for c in data_candidates())
+    return f"; no data folder was found (looked in: {looked}): set {DATA_ENV} to the folder holding gelsight-slip/"
 
 
 def gelsight_recordings() -> Path:

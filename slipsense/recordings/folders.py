@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Iterable, Literal
 
 from ..errors import ConfigError, InputError
+from ..paths import missing_data_hint
 from ..sensors.spec import GELSIGHT_MINI, SensorSpec
 from .bags import bag_cameras
 from .frame_folders import find_frame_recordings, is_frame_layout
@@ -80,7 +81,7 @@ def find_recordings(
     check_on_error(on_error)
     root, tree = Path(root), tree or FolderTree()
     if not root.exists():
-        raise InputError(root, "recordings folder does not exist")
+        raise InputError(root, "recordings folder does not exist" + missing_data_hint(root))
     if not root.is_dir():
         raise InputError(root, "is not a folder (expected the recordings folder)")
     try:

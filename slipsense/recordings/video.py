@@ -30,6 +30,7 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 from ..errors import InputError  # noqa: E402
+from ..paths import missing_data_hint  # noqa: E402
 from ..sensors.spec import GELSIGHT_MINI  # noqa: E402
 from .frames import check_size, frame_files, is_frame_folder, probe_frames, read_frames  # noqa: E402
 
@@ -75,7 +76,7 @@ class VideoInfo:
 def _check_file(path: Path) -> None:
     """Refuse paths that are missing, not files, unreadable, empty or not a video container."""
     if not path.exists():
-        raise InputError(path, "video file does not exist")
+        raise InputError(path, "video file does not exist" + missing_data_hint(path))
     if not path.is_file():
         raise InputError(path, "is not a file (expected a video file, or a folder of frame images)")
     try:
