@@ -28,6 +28,7 @@ import numpy as np
 from slipsense.measures.slipped_or_held import roc_auc
 from slipsense.paths import data_root
 from slipsense.recordings.frame_folders import RESULT_SUFFIX, read_result_file
+from slipsense.sensors.gel_motion import rigid_fit as weighted_rigid_fit
 from slipsense.sensors.spec import GELSIGHT_LIFT
 
 FRAME_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp")
@@ -149,11 +150,9 @@ def rigid_fit(flow: np.ndarray, x: np.ndarray, y: np.ndarray) -> tuple[float, fl
     points' coordinates from their centre: flow = v + omega * (-y, x). Huber weights (:data:`HUBER_PX`) keep a few wrong
     vectors (background in the box, glare) from pulling the fit."""
     w = np.ones(len(x))
+    points = np.stack([x, y], 1)
     for _ in range(FIT_ROUNDS):
-        sw, swx, swy, swr = w.sum(), (w * x).sum(), (w * y).sum(), (w * (x * x + y * y)).sum()
-        a = np.array([[sw, 0.0, -swy], [0.0, sw, swx], [-swy, swx, swr]])
-        b = np.array([(w * flow[:, 0]).sum(), (w * flow[:, 1]).sum(), (w * (x * flow[:, 1] - y * flow[:, 0])).sum()])
-        vx, vy, om = np.linalg.solve(a, b)
+        vx, vy, om = weighted_rigid_fit(points, flow, w, (0.0, 0.0))
         r = np.hypot(flow[:, 0] - (vx - om * y), flow[:, 1] - (vy + om * x))
         w = np.minimum(1.0, HUBER_PX / np.maximum(r, 1e-9))
     return float(vx), float(vy), float(om)

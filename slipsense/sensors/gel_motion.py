@@ -89,6 +89,11 @@ ITERATIONS = 3
 STICK_TOLERANCE_PX = 0.35
 
 
+def _rounded(v) -> float:
+    """A reading's number as JSON carries it: four decimals."""
+    return round(float(v), 4)
+
+
 @dataclass(frozen=True)
 class GelMotion:
     """One finger's gel at one frame (see the module notes). Lengths in ``unit`` (``"mm"`` or ``"px"``).
@@ -114,7 +119,7 @@ class GelMotion:
 
     def to_dict(self) -> dict:
         """JSON-ready (rounded) form: what a reading's ``shear`` list holds per finger."""
-        r = lambda v: round(float(v), 4)  # noqa: E731
+        r = _rounded
         return {
             "displacement": [r(v) for v in self.displacement],
             "divergence": r(self.divergence),
@@ -127,7 +132,7 @@ class GelMotion:
         without contact."""
         if self.translation is None:
             return None
-        r = lambda v: round(float(v), 4)  # noqa: E731
+        r = _rounded
         return {
             "translation": [r(v) for v in self.translation],
             "omega": r(self.omega),
@@ -298,15 +303,19 @@ class GelMotionStream:
     def reset(self) -> None:
         self._ref = None
         self._pushed = 0
-        self._past: deque = deque(maxlen=self.lag)  # (imprint, gel displacement, contact) of the last frames
+        self._past: deque = deque(maxlen=self.lag)  # (imprint, gel displacement, contact, seen) of the last frames
         self._recent: deque = deque(maxlen=self.smooth)  # the last instant (tx, ty, omega, stick, speed)
         self._touching = 0  # frames in contact since the reset
 
+    def _working(self, image: np.ndarray) -> np.ndarray:
+        """``image`` at :data:`WORK_WIDTH` px wide (its aspect kept)."""
+        h, w = image.shape[:2]
+        self._scale = w / WORK_WIDTH  # frame px per working px
+        return cv2.resize(image, (WORK_WIDTH, max(8, int(round(h / self._scale)))), interpolation=cv2.INTER_AREA)
+
     def _small(self, frame: np.ndarray):
         """The working-size markers (uint8, bright on dark) and marker-free shading ``(h, w, C)`` float32."""
-        h, w = frame.shape[:2]
-        self._scale = w / WORK_WIDTH  # frame px per working px
-        small = cv2.resize(frame, (WORK_WIDTH, max(8, int(round(h / self._scale)))), interpolation=cv2.INTER_AREA)
+        small = self._working(frame)
         # the closing fills the dark markers: what is left is the shading, and in it the object's
         # imprint, in colour where the lights are coloured (a GelSight's are); what it filled is the
         # markers alone, without the imprint, whose flow is the gel's surface
@@ -318,10 +327,7 @@ class GelMotionStream:
     def _start(self, frame: np.ndarray) -> bool:
         # the markers are looked for at the working size: a third of the time at full size (the
         # reference is one push of the stream, but on a 21-frame grasp it is its slowest)
-        gray = _as_gray(frame, None)
-        small = cv2.resize(
-            gray, (WORK_WIDTH, max(8, round(gray.shape[0] * WORK_WIDTH / gray.shape[1]))), interpolation=cv2.INTER_AREA
-        )
+        small = self._working(_as_gray(frame, None))
         blobs = _detect(small, MARKER_GUESS_PX, 12.0, 1)
         diameter = _blob_diameter(blobs) if len(blobs.areas) else MARKER_GUESS_PX
         if abs(diameter - MARKER_GUESS_PX) > 0.3 * MARKER_GUESS_PX:  # markers of another size: once more at theirs
@@ -356,11 +362,12 @@ class GelMotionStream:
         seen = cv2.dilate(markers, self._dot) <= MARKER_LEVEL
         past = self._past[0] if len(self._past) == self.lag else None
         self._past.append((imprint, gel, contact, seen))
+        touched = np.count_nonzero(contact)
         # counted over the grasp, not in a row: a contact flickering at its floor is still one contact
-        self._touching += np.count_nonzero(contact) >= MIN_CONTACT_PX
+        self._touching += touched >= MIN_CONTACT_PX
         # a footprint still forming moves its imprint without any sliding: judged once it has settled
         motion = self._slip(imprint, gel, contact, past) if self._touching > self.settle else None
-        return self._reading(motion, gel, contact)
+        return self._reading(motion, gel, contact, touched)
 
     def _slip(self, imprint, gel, contact, past):
         """The instant ``(tx, ty, omega, stick, speed)`` in working px/s, rad/s: the imprint's rigid motion
@@ -368,18 +375,17 @@ class GelMotionStream:
         if past is None:
             return None
         both = contact & past[2]
-        ys, xs = _points(both)
-        textured = both & past[3]
         if np.count_nonzero(both) < MIN_CONTACT_PX:
             return None
+        ys, xs = _points(both)
+        textured = both & past[3]
         pts = np.stack([xs, ys], 1).astype(np.float64)
         centre = pts.mean(0)
         dt = self.lag / self.fps
         # an imprint with no texture seen (all of it under markers) shows no motion: the prior's answer
         obj = imprint_motion(past[0], imprint, textured, centre, self.prior_gradient) if textured.any() else np.zeros(3)
         surface = (gel[ys, xs] - past[1][ys, xs]).astype(np.float64)  # each contact point of the gel, moved
-        weight = np.ones(len(pts))
-        gel_rigid = rigid_fit(pts, surface, weight, centre)
+        gel_rigid = rigid_fit(pts, surface, np.ones(len(pts)), centre)
         rel = (obj - gel_rigid) / dt
         # stick: where the gel's surface keeps up with the object (the object's rigid motion there)
         r = pts - centre
@@ -388,16 +394,15 @@ class GelMotionStream:
         speed = float(np.sqrt(rel[0] ** 2 + rel[1] ** 2 + rel[2] ** 2 * (r**2).sum(1).mean()))
         return rel[0], rel[1], rel[2], stick, speed
 
-    def _reading(self, motion, gel, contact) -> GelMotion:
+    def _reading(self, motion, gel, contact, touched: int) -> GelMotion:
         if motion is None:
             self._recent.clear()
         else:
             self._recent.append(motion)
         length = self._scale * (1.0 if self.mm_per_pixel is None else self.mm_per_pixel)
-        ys, xs = _points(contact)
-        touched = np.count_nonzero(contact)
         share = float(touched) / contact.size if touched >= MIN_CONTACT_PX else 0.0  # a speck is no contact
-        if np.count_nonzero(contact) >= MIN_CONTACT_PX:
+        if touched >= MIN_CONTACT_PX:
+            ys, xs = _points(contact)
             r = np.stack([xs, ys], 1).astype(np.float64)
             r -= r.mean(0)
             d = gel[ys, xs].astype(np.float64)
