@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 
 from ..errors import InputError
-from .listing import FolderTree
+from .listing import FolderTree, link_problem
 
 #: Image files read as frames (case-insensitive).
 FRAME_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp")
@@ -50,7 +50,10 @@ def frame_files(folder: str | Path, tree: FolderTree | None = None) -> list[Path
 
 def is_frame_folder(path: str | Path) -> bool:
     path = Path(path)
-    return path.is_dir() and bool(frame_files(path))
+    try:
+        return path.is_dir() and bool(frame_files(path))
+    except PermissionError:  # cannot be looked into: the video checks word it as a file's problem
+        return False
 
 
 def source_stat(path: str | Path) -> tuple[int, int]:
@@ -71,7 +74,12 @@ def source_stat(path: str | Path) -> tuple[int, int]:
 
 
 def _checked_files(folder: Path, min_frames: int) -> list[Path]:
-    files = frame_files(folder)
+    tree = FolderTree()
+    files = frame_files(folder, tree)
+    broken = tree.broken(folder)  # from the one listing: a frame that is a link to nothing, or one that loops
+    for p in files:
+        if p.name in broken:
+            raise InputError(p, link_problem(p) or broken[p.name])
     if not files:
         raise InputError(folder, f"frame folder holds no image files ({', '.join(FRAME_SUFFIXES)})")
     numbers = [_LAST_NUMBER.search(p.stem) for p in files]
