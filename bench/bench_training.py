@@ -46,8 +46,7 @@ import torch.nn.functional as F
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 from slipsense.training import grasps as G  # noqa: E402
-from slipsense.training.grasp_detector import object_split  # noqa: E402
-from slipsense.measures import pergrasp  # noqa: E402
+from slipsense.training.grasp_detector import object_folds_of  # noqa: E402
 from slipsense.paths import gelsight_recordings  # noqa: E402
 from slipsense.models import build  # noqa: E402
 
@@ -305,7 +304,7 @@ def main(argv=None) -> int:
     size = tuple(cfg.model_config.get("image_size") or (30, 40))
     runs, _ = G.load_grasp_data(gelsight_recordings(), None, size, progress=False)
     usable = [r for r in runs if r.usable]
-    held = object_split(usable, 5, 0)[0]
+    held = object_folds_of(usable, 5, 0)[0]
     train = [r for r in usable if r.object not in held]
     grasp = grasp_throughput(train, cfg, args.seconds)
     model = build(cfg.model, **cfg.model_config).eval()
@@ -317,7 +316,7 @@ def main(argv=None) -> int:
     wall = walls([w for w in args.wall.split(",") if w], args.reference) if args.wall else []
     bound_grasp = gflops * 1e9 / (3 * 2 * macs)
     bound_clip = gflops * 1e9 / (3 * 2 * clip["macs_per_frame"])
-    epoch_frames = sum(r.n_frames - pergrasp.STARTUP for r in train)
+    epoch_frames = sum(r.n_frames - cfg.startup for r in train)  # the start-up frames it skips
     lines = [
         "# Training throughput, replay and wall times",
         "",

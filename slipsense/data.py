@@ -17,33 +17,25 @@ import numpy as np
 
 from slipsense.errors import ConfigError, InputError
 from slipsense.recordings.clips import ClipSpec, load_or_build_clips
-from slipsense.recordings.recording_set import Recordings
-from slipsense.recordings.labelling import label_runs
+from slipsense.recordings.splits import ObjectHoldOut
+from slipsense.recordings.recording_set import labelled_set
 from slipsense.sensors.marker_npz import load_marker_npz
-from slipsense.sensors.spec import GELSIGHT_MINI
 
 
 def gelsight_clips(recordings_dir, spec, on_error="raise", overrides=None, progress=True, sensor=None):
-    """Labelled clips of every video of a :class:`~slipsense.recordings.recording_set.Recordings` or its
-    folder ``recordings_dir`` (labels and clips are cached).
+    """Labelled clips of every video of a labelled set (:class:`~slipsense.recordings.recording_set.Labelled`,
+    as it is), or of a :class:`~slipsense.recordings.recording_set.Recordings` or its folder
+    ``recordings_dir``, labelled once here (labels and clips are cached).
 
     Returns ``(clipset, labels)``; ``spec`` is a :class:`~slipsense.recordings.clips.ClipSpec`;
-    ``sensor`` (default the GelSight Mini) names the folder layout.
+    ``sensor`` (None: the sensor the data states) names the folder layout.
     """
-    read = Recordings.of(recordings_dir, sensor or GELSIGHT_MINI, on_error)
-    recordings_dir = read.root
     # any frame size: clips are resized to the spec's size, as grasps and the live detector resize
-    recordings = read.checked(on_error)
-    if not recordings:
-        raise InputError(recordings_dir, "no usable recordings")
-    labels = label_runs(recordings, overrides=overrides, on_error=on_error, progress=progress)
-    recordings = [r for r in recordings if r.key in labels]  # runs skipped while labelling
-    if not recordings:
-        raise InputError(recordings_dir, "no usable recordings")
-    clips = load_or_build_clips(recordings, labels, spec, progress=progress)
+    data = labelled_set(recordings_dir, overrides, sensor, on_error, whole_runs=False, progress=progress)
+    clips = load_or_build_clips(list(data), data.labels, spec, progress=progress)
     if len(clips) == 0:
-        raise InputError(recordings_dir, "no clips could be made (no slip moments and no contact phases found)")
-    return clips, labels
+        raise InputError(data.root, "no clips could be made (no slip moments and no contact phases found)")
+    return clips, dict(data.labels)
 
 
 def clip_spec_from(info: dict[str, Any]):
@@ -64,19 +56,10 @@ def load_markers(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def split_groups(groups: np.ndarray, test_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """Split item indices so that no group (sequence, object) is on both sides.
+    """Split item indices so that no group (sequence, object) is on both sides: ``test_fraction`` of
+    the groups held out by :class:`~slipsense.recordings.splits.ObjectHoldOut`.
 
     Overlapping windows of one sequence share a group: splitting by window would leak test data
     into training.
     """
-    if not 0 < test_fraction < 1:
-        raise ConfigError("test fraction must be in (0, 1)")
-    uniq = np.unique(groups)
-    if len(uniq) < 2:
-        raise ConfigError(f"a split by group needs at least 2 groups, got {len(uniq)}: one side would be empty")
-    rng = np.random.default_rng(seed)
-    perm = rng.permutation(uniq)
-    n_test = min(max(1, int(round(len(uniq) * test_fraction))), len(uniq) - 1)  # neither side empty
-    test_groups = set(perm[:n_test].tolist())
-    is_test = np.array([g in test_groups for g in groups.tolist()])
-    return np.flatnonzero(~is_test), np.flatnonzero(is_test)
+    return next(ObjectHoldOut(test_fraction, seed).split(np.asarray(groups)))

@@ -9,20 +9,20 @@ object name, so a grouped split leaves whole objects out.
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
 
 from slipsense.atomic import write_with
-from slipsense.recordings.labelling import label_runs
 from slipsense.errors import InputError
 from slipsense.recordings.clips import ClipSpec, plan_windows
-from slipsense.recordings.folders import find_recordings, validate_recordings
+from slipsense.recordings.recording_set import Labelled, Recordings, labelled_set
 from slipsense.recordings.markers import layout_name, marker_clouds, track_recordings
 
 
 def real_marker_dataset(
-    recordings_dir: str | Path,
+    recordings_dir: "str | Path | Recordings | Labelled",
     frames: int = 12,
     n_markers: str | int = 32,
     horizon: int = 0,
@@ -32,7 +32,8 @@ def real_marker_dataset(
     progress: bool = True,
     overrides: str | Path | None = None,
 ) -> dict[str, np.ndarray]:
-    """Marker windows of every video under ``recordings_dir``.
+    """Marker windows of every video of a labelled set (as it is), or of a recordings set or its
+    folder ``recordings_dir``, labelled once here.
 
     Returns arrays ``x`` float32 ``(N, frames, n_markers, 3)`` — per marker x, y in mm from the
     image centre and the unitless intensity depth proxy —, ``y`` int64 ``(N,)`` (1 = onset of
@@ -45,9 +46,8 @@ def real_marker_dataset(
     """
     layout = layout_name(n_markers)
     spec = ClipSpec(frames=frames, horizon=horizon, wiggle_per_video=wiggle_per_video, seed=seed)
-    recs = validate_recordings(find_recordings(recordings_dir, on_error=on_error), on_error=on_error)
-    labels = label_runs(recs, overrides, on_error=on_error, progress=progress)
-    recs = [r for r in recs if r.key in labels]
+    data = labelled_set(recordings_dir, overrides, None, on_error, whole_runs=False, progress=progress)
+    recs, labels = list(data), data.labels
     tracks = track_recordings(recs, progress=progress)
     rows = []  # per window: its clouds, label, object, experiment, camera, first frame
     for rec, track in zip(recs, tracks):
@@ -58,10 +58,11 @@ def real_marker_dataset(
                 (cloud[w.start : w.end + 1], w.y, rec.object, rec.experiment, rec.camera, w.start) for w in windows
             ]
     if not rows:
-        raise InputError(recordings_dir, "no marker windows could be made")
+        raise InputError(data.root, "no marker windows could be made")
     xs, ys, groups, exps, cams, starts = zip(*rows)
     return {
         "marker_layout": np.asarray(layout),  # how the markers were taken: a replay takes them alike
+        "sensor": np.asarray(json.dumps(data.sensor.to_dict())),  # whose videos: their rate and size
         "x": np.stack(xs).astype(np.float32),
         "y": np.asarray(ys, np.int64),
         "groups": np.asarray(groups),

@@ -28,7 +28,8 @@ from slipsense.errors import ConfigError, InputError
 from slipsense.recordings.augment import AugmentConfig
 from slipsense.recordings.clips import ClipSpec, object_folds, split_by_clip, split_by_object
 from slipsense.recordings.markers import layout_name, marker_layout
-from slipsense.sensors.spec import BINOCULAR_MARKERS, GELSIGHT_MINI, fps_problem, sensor_named, sensor_of
+from slipsense.recordings.recording_set import Recordings
+from slipsense.sensors.spec import BINOCULAR_MARKERS, SensorSpec, fps_problem, sensor_named, sensor_of
 
 
 @dataclass
@@ -73,14 +74,14 @@ class VideoClips:
         if data.markers is not None:
             raise ConfigError(f"model {run.name!r} takes video clips: use --recordings, not --markers")
         root = Path(data.recordings) if data.recordings else gelsight_recordings()
-        given = {} if data.size is None else {"size": data.size}
+        named = sensor_named(data.sensor) if data.sensor else None
+        read = Recordings.open(root, named, data.on_error, stated=named)  # the sensor named, else the data's own
+        sensor = read.sensor
+        size = data.size or sensor.image_size  # clips at the sensor's frame size unless --size says otherwise
         spec = ClipSpec(
-            frames=data.frames, horizon=data.horizon, wiggle_per_video=data.wiggle_per_video, seed=run.seed, **given
+            frames=data.frames, horizon=data.horizon, wiggle_per_video=data.wiggle_per_video, seed=run.seed, size=size
         )
-        sensor = sensor_named(data.sensor) if data.sensor else GELSIGHT_MINI
-        clips, _ = gelsight_clips(
-            root, spec, on_error=data.on_error, overrides=data.overrides, progress=progress, sensor=sensor
-        )
+        clips, _ = gelsight_clips(read, spec, on_error=data.on_error, overrides=data.overrides, progress=progress)
         test_objects: list[str] = []
         if data.split == "all":  # a model to ship: every clip trains, nothing is held out
             tr, te = np.arange(len(clips)), np.zeros(0, np.int64)
@@ -272,15 +273,23 @@ def _check_marker_layout(path, x, model, info, checkpoint) -> None:
 
 
 def _marker_sensor(path, x: np.ndarray, layout: str | None) -> dict[str, Any]:
-    """The sensor of a marker file: the GelSight Mini for markers tracked in its videos (``layout``,
-    :func:`marker_file_layout`), else its frame rate (the file's ``fps``, else the binocular
-    sensor's) and marker count."""
-    if layout is not None:  # tracked in GelSight videos: their frame rate
-        return replace(GELSIGHT_MINI, output="markers", markers=int(x.shape[2])).to_dict()
+    """The sensor of a marker file: for markers tracked in videos (``layout``, :func:`marker_file_layout`)
+    the sensor of those videos (the file's ``sensor``, written by ``slipsense markers``), else its frame
+    rate (the file's ``fps``, else the binocular sensor's) and marker count."""
     fps = BINOCULAR_MARKERS.fps
     with np.load(path, allow_pickle=False) as z:
+        stated = str(z["sensor"]) if "sensor" in z.files and np.ndim(z["sensor"]) == 0 else None
         if "fps" in z.files and np.ndim(z["fps"]) == 0 and fps_problem(float(z["fps"])) is None:
             fps = float(z["fps"])
+    if layout is not None:  # tracked in videos: their sensor's rate
+        if stated is not None:
+            try:
+                videos = SensorSpec.from_dict(json.loads(stated))
+            except ValueError as exc:
+                raise InputError(path, f"its sensor is malformed ({exc})") from None
+        else:  # files written before the sensor was stored were all tracked in the study's recordings
+            videos = sensor_named("gelsight-mini")
+        return replace(videos, output="markers", markers=int(x.shape[2])).to_dict()
     return replace(BINOCULAR_MARKERS, name="markers", fps=fps, markers=int(x.shape[2])).to_dict()
 
 

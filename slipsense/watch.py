@@ -12,7 +12,7 @@ from typing import Any, Optional, Sequence
 
 from slipsense.alarm import shown_probability
 from slipsense.atomic import check_output_file
-from slipsense.checkpoint import load_model
+from slipsense.checkpoint import load_model, read_info
 from slipsense.errors import ConfigError, InputError
 from slipsense.measures.promise import promise_text
 from slipsense.models.base import window_geometry
@@ -21,10 +21,11 @@ from slipsense.recordings.frame_folders import camera_folders
 from slipsense.recordings.frames import frame_files
 from slipsense.recordings.video import probe_video
 from slipsense.resources import default_model_name, shipped_model
-from slipsense.sensors.spec import GELSIGHT_MINI, sensor_of
-from slipsense.streaming.annotate import AnnotatedWriter, Annotator
+from slipsense.sensors.spec import sensor_of
+from slipsense.streaming.annotate import AnnotatedWriter, Annotator, check_suffix
 from slipsense.streaming.capture import CaptureThread, PacedReader
-from slipsense.streaming.detector import SlipDetector, check_hold, check_settings, onnx_cache_dir, shipped_name
+from slipsense.streaming.detector import DEFAULT_CHECKPOINT, SlipDetector, check_hold, check_settings, onnx_cache_dir
+from slipsense.streaming.detector import shipped_name
 from slipsense.streaming.detector import stored_hold, stored_operating_point
 from slipsense.streaming.readings import BagWriter, JsonlWriter, reading_record
 from slipsense.streaming.sources import Source, capture_source, open_source
@@ -102,7 +103,7 @@ def watch_source(
         raise ConfigError(f"--max-frames must be 0 or more, got {max_frames}")
     if out is not None:
         check_output_file(out, "--out")
-        AnnotatedWriter(out)  # refuse a wrong suffix before any work
+        check_suffix(out)  # refuse a wrong suffix before any work
     if bag_out is not None and Path(bag_out).exists():
         raise InputError(bag_out, "exists; --bag-out writes a new bag folder")
     # the user's own settings are checked before any source is opened or checkpoint blamed
@@ -110,7 +111,9 @@ def watch_source(
     if hold is not None:
         check_hold(hold)
     if checkpoint is None:  # the shipped detectors read videos: one for one finger, one for both
-        src = _open(source, None, GELSIGHT_MINI, topics, tolerance, realtime, fps=fps)  # they take pictures
+        # the shipped detectors share one sensor (their checkpoints name it): its files and camera settings
+        shipped = sensor_of(read_info(DEFAULT_CHECKPOINT), DEFAULT_CHECKPOINT)
+        src = _open(source, None, shipped, topics, tolerance, realtime, fps=fps)
         try:
             ckpt = _shipped_for_source(source, src.sensors)
             model, info = load_model(ckpt)

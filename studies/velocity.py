@@ -30,7 +30,7 @@ from slipsense.atomic import write_text
 from slipsense.measures.slipped_or_held import roc_auc
 from slipsense.sensors import gel_motion
 from slipsense.sensors.gel_motion import CloudMotionStream, GelMotionStream
-from slipsense.sensors.spec import GELSIGHT_LIFT, GELSIGHT_MINI, STARTUP_FRAMES
+from slipsense.sensors.spec import GELSIGHT_LIFT, STARTUP_FRAMES
 from studies.stnet.sim_model import OBJECTS, SimConfig
 from studies.stnet.sim_sequence import simulate_sequence
 
@@ -271,7 +271,7 @@ def lift_study(root: Path) -> dict:
 # ---- (c) the GelSight Mini ------------------------------------------------------------------------
 
 
-def _mini_trace(path: str) -> np.ndarray:
+def _mini_trace(path: str, sensor) -> np.ndarray:
     """``(T, 2)``: one finger's speed (mm/s, NaN without a value) and stick share per frame."""
     import cv2
 
@@ -280,7 +280,7 @@ def _mini_trace(path: str) -> np.ndarray:
 
     cv2.setNumThreads(1)
     frames = read_video(path, expected_size=None)
-    stream = motion_stream(GELSIGHT_MINI, frames[0], STARTUP_FRAMES)
+    stream = motion_stream(sensor, frames[0], STARTUP_FRAMES)
     out = []
     for f in frames:
         m = stream.push(f)
@@ -290,18 +290,17 @@ def _mini_trace(path: str) -> np.ndarray:
 
 def mini_study(root: Path, out: Path, workers: int = 2) -> dict:
     """(c): per grasp, held wiggles against the slipped grasps' last second; a figure of two grasps."""
-    from slipsense.recordings.folders import find_recordings
-    from slipsense.recordings.labelling import label_runs
-    from slipsense.recordings.types import by_run
+    from functools import partial
 
-    recordings = find_recordings(root)
-    labels = label_runs(recordings, progress=False)
-    runs = by_run(recordings)
+    from slipsense.recordings.recording_set import Recordings
+
+    data = Recordings.open(root).labelled(whole_runs=False, progress=False)  # as the sensor the data states
+    labels, runs, fps = data.labels, data.runs(), data.sensor.fps
     paths = [str(r.path) for recs in runs.values() for r in recs]
     # spawned, not forked: OpenCV's threads of the sections before would deadlock a forked worker
     with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
-        traces = dict(zip(paths, pool.map(_mini_trace, paths, chunksize=4)))
-    last = int(round(LAST_S * GELSIGHT_MINI.fps))
+        traces = dict(zip(paths, pool.map(partial(_mini_trace, sensor=data.sensor), paths, chunksize=4)))
+    last = int(round(LAST_S * fps))
     rows = []
     for key, recs in sorted(runs.items()):
         label = labels[(recs[0].object, recs[0].experiment, recs[0].camera)]
@@ -324,7 +323,7 @@ def mini_study(root: Path, out: Path, workers: int = 2) -> dict:
         )
     y = np.array([r["slipped"] for r in rows])
     p = np.array([r["peak_mm_s"] for r in rows])
-    figure = _mini_figure(runs, labels, traces, out)
+    figure = _mini_figure(runs, labels, traces, fps, out)
     return {
         "runs": len(rows),
         "slipped": int(y.sum()),
@@ -336,7 +335,7 @@ def mini_study(root: Path, out: Path, workers: int = 2) -> dict:
     }
 
 
-def _mini_figure(runs, labels, traces, out: Path, slipped=("blue_mug", 9), held_object="blue_mug") -> dict:
+def _mini_figure(runs, labels, traces, fps: float, out: Path, slipped=("blue_mug", 9), held_object="blue_mug") -> dict:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -353,10 +352,10 @@ def _mini_figure(runs, labels, traces, out: Path, slipped=("blue_mug", 9), held_
     for ax, (what, recs) in zip(axes, picked.items()):
         for rec in recs:
             v = traces[str(rec.path)][:, 0]
-            ax.plot(np.arange(len(v)) / GELSIGHT_MINI.fps, v, label=rec.camera)
+            ax.plot(np.arange(len(v)) / fps, v, label=rec.camera)
         moment = labels[(recs[0].object, recs[0].experiment, recs[0].camera)].moment_of_slip
         if moment is not None:
-            ax.axvline(moment / GELSIGHT_MINI.fps, color="k", ls="--", label="contact lost")
+            ax.axvline(moment / fps, color="k", ls="--", label="contact lost")
         ax.set_title(f"{what}: {recs[0].object}, experiment {recs[0].experiment}")
         ax.set_ylabel("speed against the gel (mm/s)")
         ax.legend(loc="upper left")

@@ -509,18 +509,19 @@ def test_calibrate_says_so_and_what_to_do_next_when_it_catches_no_slip():
 @pytest.mark.parametrize(
     "sensor, problem",
     [
-        (None, "states no frame rate: state it in a sensor.json"),
+        (None, "no sensor is stated for it: put a sensor.json in it"),
         ({"name": "mine", "output": "video", "fps": 0}, "a frame rate must be 1 to 240 frames per second, got 0"),
         ({"name": "mine", "output": "video", "fps": 1000}, "a frame rate must be 1 to 240 frames per second"),
     ],
 )
 def test_frame_folders_without_a_usable_rate_are_refused_in_one_line(tmp_path, cache, sensor, problem):
-    """Frames in a folder carry no time: a recordings folder of them with no sensor.json, or one
-    stating a rate of 0 or 1,000 frames/s, is refused by evaluate, naming the file and the problem."""
+    """Frames in a folder carry no time: a recordings folder of them with no sensor.json (and no
+    --sensor), or one stating a rate of 0 or 1,000 frames/s, is refused by evaluate, naming the folder
+    or the file and the problem."""
     root = tmp_path / "mine"
     _grasp(root / "mug" / "exp_num_1", slipped=True, seed=1)
     if sensor is not None:
         (root / "sensor.json").write_text(json.dumps(sensor))
     res = runner.invoke(app, ["evaluate", "--recordings", str(root), "--no-progress"])
     line = _error(res)
-    assert problem in line and str(root / ("sensor.json" if sensor else "mug/exp_num_1")) in line
+    assert problem in line and str(root / "sensor.json" if sensor else root) in line

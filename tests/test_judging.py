@@ -178,7 +178,7 @@ def _fold(k: int, runs: list[RunTrace]) -> dict:
 
 def _report(tmp_path, alarm) -> dict:
     folds = [_fold(k, _with([_run(f"o{k}", False), _run(f"o{k}", True, moment=400)], alarm)) for k in range(2)]
-    head = {"train_config": {"model": "motionnet", "horizon": 50, "inner_folds": 2}, "folds": 2}
+    head = {"train_config": {"model": "motionnet", "horizon": 50, "inner_folds": 2}, "folds": 2, "sensor": {"fps": FPS}}
     head["data"] = {"runs": 4, "slip_with_moment": 2, "slip_without_moment": 0, "held": 2}
     return _write_report(tmp_path, head, folds, "test")
 

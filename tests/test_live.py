@@ -246,7 +246,7 @@ def test_settings_are_checked(vivit):
 
 def _run(prob, slipped, moment=None):
     prob = np.asarray(prob, float)
-    return RunTrace("o", 1, slipped, moment, len(prob), prob)
+    return RunTrace("o", 1, slipped, moment, len(prob), prob, fps=25.0)
 
 
 def test_early_warning_table_per_grasp():

@@ -26,9 +26,13 @@ def _model(name: str) -> SlipModel:
     return model
 
 
+#: What a checkpoint states for a model that fixes no frame size itself (ResNet3D): its training clips' size.
+INFO = {"data": {"clip_spec": {"size": [60, 80]}}}
+
+
 def _window_inputs(model: SlipModel, batch: int = 2, seed: int = 0):
     """(uint8 or float per-frame inputs (B, T, ...) for pushing, float model input (B, T, ...))."""
-    geo = window_geometry(model)
+    geo = window_geometry(model, INFO)
     rng = np.random.default_rng(seed)
     if geo["kind"] == "video":
         frames = rng.integers(0, 256, (batch, geo["frames"], *geo["image_size"], 3), dtype=np.uint8)
@@ -76,7 +80,7 @@ def test_contract_streaming_equals_full_forward(name):
         assert np.abs(requant - full).max() < 0.05  # only the uint8 rounding differs
         return
     per_frame, x = _window_inputs(model, batch=1)
-    det = SlipDetector(model)
+    det = SlipDetector(model, info=INFO)
     readings = [det.push(per_frame[0, t]) for t in range(per_frame.shape[1])]
     assert all(r.probability is None for r in readings[:-1])
     with torch.no_grad():
@@ -109,7 +113,7 @@ def test_contract_onnx_parity(name, tmp_path):
     from slipsense.streaming.export import export_onnx
 
     model = _model(name)
-    result = export_onnx(model, tmp_path / "m.onnx")
+    result = export_onnx(model, tmp_path / "m.onnx", info=INFO)
     assert result.max_abs_diff and max(result.max_abs_diff.values()) <= 1e-4
     if model.input_kind == "grasp":
         assert set(result.paths) == {"model", "frame", "step"}
@@ -126,7 +130,10 @@ def test_contract_onnx_stream_equals_torch_stream(name, tmp_path):
     """Every model streams on ONNX Runtime with the probabilities it gives on PyTorch."""
     model = _model(name)
     sensors = getattr(model, "sensors", 1) if model.input_kind == "grasp" else 1
-    dets = [SlipDetector(model, sensors=sensors, backend=b, onnx_dir=tmp_path / "onnx") for b in ("torch", "onnx")]
+    dets = [
+        SlipDetector(model, sensors=sensors, backend=b, onnx_dir=tmp_path / "onnx", info=INFO)
+        for b in ("torch", "onnx")
+    ]
     rng = np.random.default_rng(0)
     geo = dets[0].geometry
     if geo["kind"] == "markers":

@@ -79,12 +79,14 @@ def test_fit_learns_a_moving_stripe():
     cfg = GraspTrainConfig(**TINY, epochs=25)
     model, hist = fit_runs(runs, cfg, progress=False)
     assert len(hist) == 25 and hist[-1]["train_loss"] < hist[0]["train_loss"]
-    probs = predict_runs(model, runs)
+    probs = predict_runs(model, runs, cfg.startup)
     assert np.isnan(probs[0][:10]).all()
     slip_peak = np.mean([np.nanmax(p[40:51]) for p, r in zip(probs, runs) if r.slipped])
     calm_peak = np.mean([np.nanmax(p[:40]) for p, r in zip(probs, runs)])
     assert slip_peak > calm_peak
-    op = choose_operating_point(probs, [r.moment_of_slip for r in runs], horizon=cfg.horizon, startup=cfg.startup)
+    op = choose_operating_point(
+        probs, [r.moment_of_slip for r in runs], horizon=cfg.horizon, startup=cfg.startup, fps=25.0
+    )
     assert 0 < op["threshold"] < 1 and op["debounce"] >= 1
 
 

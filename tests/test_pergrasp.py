@@ -9,13 +9,17 @@ from slipsense.measures import operating_points
 from slipsense.recordings.contact import rest_mask
 
 
+#: the rate these traces are taken at: 2 s = 50 frames, 0.4 s = 10
+FPS = 25.0
+
+
 def _runs(rng, n_slip=6, n_held=6, n=200):
     moments = [int(m) for m in rng.integers(60, 180, n_slip)] + [None] * n_held
     return moments, [n] * len(moments)
 
 
 def _score(alarms, moments):
-    return pergrasp.summarise([pergrasp.grasp_outcome(a, m) for a, m in zip(alarms, moments)])
+    return pergrasp.summarise([pergrasp.grasp_outcome(a, m, 50, 10) for a, m in zip(alarms, moments)], FPS)
 
 
 def test_always_on_scores_badly():
@@ -48,14 +52,14 @@ def test_alarm_only_before_the_moment_scores_well():
 def test_outcome_boundaries_and_startup():
     a = np.zeros(100, bool)
     a[3] = True  # camera start-up: not scored
-    assert pergrasp.grasp_outcome(a, None).outcome == "clean"
+    assert pergrasp.grasp_outcome(a, None, 50, 10).outcome == "clean"
     a[:] = False
     a[20] = True
-    assert pergrasp.grasp_outcome(a, 70, horizon=50).outcome == "warned"  # exactly m - H
-    assert pergrasp.grasp_outcome(a, 71, horizon=50).outcome == "premature"
+    assert pergrasp.grasp_outcome(a, 70, horizon=50, startup=10).outcome == "warned"  # exactly m - H
+    assert pergrasp.grasp_outcome(a, 71, horizon=50, startup=10).outcome == "premature"
     b = np.zeros(100, bool)
     b[80] = True  # after the moment: too late
-    assert pergrasp.grasp_outcome(b, 70).outcome == "missed"
+    assert pergrasp.grasp_outcome(b, 70, 50, 10).outcome == "missed"
 
 
 def test_debounce_and_nan():
@@ -71,7 +75,7 @@ def test_rest_alarms_counted():
     assert rest[20] and not rest[50]
     a = np.zeros(100, bool)
     a[20] = True
-    assert pergrasp.grasp_outcome(a, None, rest=rest).rest_alarms == 1
+    assert pergrasp.grasp_outcome(a, None, 50, 10, rest=rest).rest_alarms == 1
 
 
 def test_operating_point_prefers_separating_threshold():
@@ -83,7 +87,7 @@ def test_operating_point_prefers_separating_threshold():
         if m is not None:
             p[m - 5 : m + 1] = 0.8
         probs.append(p)
-    op = operating_points.choose_operating_point(probs, moments)
+    op = operating_points.choose_operating_point(probs, moments, fps=FPS)
     assert 0.3 <= op["threshold"] < 0.8 and op["score_on_training_runs"] == pytest.approx(1.0)
 
 
@@ -106,29 +110,29 @@ def _peaks(slip_peak: float, held_peaks, n=200, moment=150):
 def test_at_most_k_percent_of_held_grasps_rule():
     held = [i / 20 for i in range(20)]  # 0 .. 0.95: the quietest held grasp never alarms above 0.95
     probs, moments = _peaks(0.97, held)
-    op = operating_points.choose_operating_point(probs, moments, max_held_alarm=0.05)
+    op = operating_points.choose_operating_point(probs, moments, max_held_alarm=0.05, fps=FPS)
     assert op["threshold"] == 0.97 and op["warned_rate_on_training_runs"] == 1.0
     assert op["false_positive_rate_on_training_runs"] == 0.0 and "5%" in op["rule"]
     # slips no louder than the held grasps: the rule keeps its promise and warns of nothing
     probs, moments = _peaks(0.5, held)
-    op = operating_points.choose_operating_point(probs, moments, max_held_alarm=0.05)
+    op = operating_points.choose_operating_point(probs, moments, max_held_alarm=0.05, fps=FPS)
     assert op["false_positive_rate_on_training_runs"] <= 0.05 and op["warned_rate_on_training_runs"] == 0.0
     # an always-on detector: no point is quiet enough, the quietest is taken (still 100%)
     on = [np.ones(200) for _ in moments]
-    op = operating_points.choose_operating_point(on, moments, max_held_alarm=0.05)
+    op = operating_points.choose_operating_point(on, moments, max_held_alarm=0.05, fps=FPS)
     assert op["false_positive_rate_on_training_runs"] == 1.0
     with pytest.raises(Exception, match="fraction"):
-        operating_points.choose_operating_point(probs, moments, max_held_alarm=5)
+        operating_points.choose_operating_point(probs, moments, max_held_alarm=5, fps=FPS)
 
 
 def test_bootstrap_intervals_hold_the_rates_and_trivial_detectors_have_none():
     probs, moments = _peaks(0.97, [i / 20 for i in range(20)])
-    rows = operating_points.table(probs, moments, [0.5, 0.97], intervals=500)
+    rows = operating_points.table(probs, moments, [0.5, 0.97], fps=FPS, intervals=500)
     for r in rows:
         assert r["warned_low"] <= r["warned_rate"] <= r["warned_high"]
         assert r["fp_low"] <= r["false_positive_rate"] <= r["fp_high"]
     assert rows[0]["false_positive_rate"] == 0.5 and rows[0]["fp_low"] < 0.5 < rows[0]["fp_high"]  # peaks 0.5 .. 0.95
-    on = operating_points.table([np.ones(200) for _ in moments], moments, [0.5], intervals=200)[0]
+    on = operating_points.table([np.ones(200) for _ in moments], moments, [0.5], fps=FPS, intervals=200)[0]
     assert on["fp_low"] == on["fp_high"] == 1.0 and on["warned_low"] == on["warned_high"] == 0.0
 
 

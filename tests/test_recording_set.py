@@ -7,6 +7,7 @@ import json
 import pickle
 
 import pytest
+from dataclasses import replace
 
 from slipsense.errors import InputError
 from slipsense.recordings.recording_set import Recordings
@@ -40,11 +41,11 @@ def test_a_frame_folder_set_states_its_sensor_and_rate_once(tmp_path, folder_ope
         data = Recordings.open(root, sensor=None)
         rates = {data.rate(r) for r in data.listed}
     assert folder_opens.count(root) == 1
-    assert data.frames and data.stated == GELSIGHT_LIFT and data.layout == GELSIGHT_LIFT
+    assert data.frames and data.stated == GELSIGHT_LIFT and data.sensor == GELSIGHT_LIFT
     assert rates == {(GELSIGHT_LIFT.fps, "the gelsight-lift layout")}
     (root / "sensor.json").write_text(json.dumps({"name": "my-gelsight", "output": "video", "fps": 12.5}))
     mine = Recordings.open(root)
-    assert mine.stated.name == "my-gelsight" and mine.layout == GELSIGHT_MINI  # the layout asked for
+    assert mine.stated.name == "my-gelsight" and mine.sensor.name == "my-gelsight"  # the sensor it states
     assert mine.rate(mine.listed[0]) == (12.5, str(root / "sensor.json"))
 
 
@@ -54,10 +55,14 @@ def test_frames_that_state_no_rate_are_refused_saying_how_to_state_it(tmp_path):
     root = tmp_path / "mine"
     for i, slipped in enumerate((True, False)):
         _grasp(root / "cup" / f"grasp_{i}", slipped, seed=i, n=6, size=(48, 64))
-    data = Recordings.open(root)
-    assert data.frames and data.stated is None
+    with pytest.raises(InputError, match=r"mine: no sensor is stated for it: put a sensor.json in it .* --sensor NAME"):
+        Recordings.open(root)  # no sensor is assumed
+    data = Recordings.open(root, GELSIGHT_MINI)  # read as a detector's sensor: its rate is not the data's
+    assert data.frames and data.stated is None and data.sensor == GELSIGHT_MINI
     with pytest.raises(InputError, match=r"states no frame rate: state it in a sensor.json"):
         data.rate(data.listed[0])
+    mine = Recordings.open(root, stated=replace(GELSIGHT_MINI, name="mine", fps=50.0))  # the user's --sensor
+    assert mine.rate(mine.listed[0])[0] == 50.0
     with pytest.raises(InputError, match="recordings folder does not exist"):
         Recordings.open(tmp_path / "nope")
 
@@ -90,8 +95,9 @@ def test_grasps_are_read_once_per_set(grasp_recordings, cache, monkeypatch):
     again, _ = grasps.load_grasp_data(data.without([]), progress=False)  # a fold of the same set
     assert len(reads) == 1 and [r.key for r in again] == [r.key for r in runs]
     assert again[0].gray is runs[0].gray  # the same frames, not read again
-    grasps.load_grasp_data(data, overrides=False, progress=False)  # other labels: read
+    grasps.load_grasp_data(data, overrides=False, progress=False)  # no hand labels here: the same labels, kept
+    assert len(reads) == 1
     grasps.load_grasp_data(data.without(["obj0"]), progress=False)  # other runs: read
-    assert len(reads) == 3
+    assert len(reads) == 2
     copy = pickle.loads(pickle.dumps(data))  # what a spawned worker receives: names, never frames
     assert copy._kept == {} and len(pickle.dumps(data)) < 100_000 and isinstance(runs[0].gray, np.ndarray)

@@ -123,8 +123,9 @@ def test_wrong_resolution(tmp_path):
     path = write_video(tmp_path / "small.avi", 10, size=(120, 160))
     for fn in (read_video, probe_video):
         with pytest.raises(InputError) as exc:
-            fn(path)
+            fn(path, expected_size=(240, 320))
         one_line(exc, path, "160x120", "expected 320x240")
+    assert read_video(path).shape == (10, 120, 160, 3)  # no size is assumed
     assert read_video(path, expected_size=None).shape == (10, 120, 160, 3)
     assert read_video(path, expected_size=(120, 160)).shape == (10, 120, 160, 3)
     assert probe_video(path, expected_size=None).width == 160
@@ -354,7 +355,7 @@ def test_validate_recordings(tmp_path):
     # Wrong size is a validation failure too.
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        assert validate_recordings(recs, on_error="skip") == []
+        assert validate_recordings(recs, on_error="skip", expected_size=(240, 320)) == []
     assert len(caught) == 4
 
 

@@ -45,7 +45,7 @@ def gel_frames(n: int, seed: int = 0, size=(240, 320)) -> list[np.ndarray]:
 
 def annotated(n: int) -> list[np.ndarray]:
     """What `watch` draws for a two-finger run of ``n`` frames (window filling, no slip, then alarm)."""
-    annot = Annotator(threshold=0.5, sensors=2)
+    annot = Annotator(threshold=0.5, sensors=2, fps=25)
     left, right = gel_frames(n, 1), gel_frames(n, 2)
     pictures = []
     for k in range(n):
@@ -86,7 +86,7 @@ def test_gif_has_a_frame_per_picture_and_shows_what_was_drawn(tmp_path):
 def test_gif_is_not_the_size_of_a_frame_each(tmp_path):
     """Only what changes between frames is written: much less than a full palette frame each."""
     pictures = annotated(40)
-    writer = AnnotatedWriter(tmp_path / "run.gif")
+    writer = AnnotatedWriter(tmp_path / "run.gif", fps=25)
     for p in pictures:
         writer.add(p)
     writer.close()
@@ -103,7 +103,7 @@ def test_gif_frames_of_few_colours_are_exact_through_moves_and_a_new_palette(tmp
         p[40:70, 5 + 4 * k : 35 + 4 * k] = (255, 255, 255)
         p[100:, : 8 * k] = (0, 0, 200)
         pictures.append(p)
-    writer = AnnotatedWriter(tmp_path / "moves.gif")
+    writer = AnnotatedWriter(tmp_path / "moves.gif", fps=25)
     for p in pictures:
         writer.add(p)
     writer.close()
@@ -121,7 +121,7 @@ def test_gif_follows_a_slow_change_of_the_whole_picture(tmp_path):
     base = np.stack([90 + 60 * xx / w, 110 + 40 * yy / h, 70 + 30 * (xx + yy) / (w + h)], axis=-1)
     rng = np.random.default_rng(0)
     pictures = [np.clip(base + 0.7 * t + rng.normal(0, 1, base.shape), 0, 255).astype(np.uint8) for t in range(40)]
-    writer = AnnotatedWriter(tmp_path / "ramp.gif")
+    writer = AnnotatedWriter(tmp_path / "ramp.gif", fps=25)
     for p in pictures:
         writer.add(p)
     writer.close()
@@ -135,7 +135,7 @@ def test_gif_follows_a_slow_change_of_the_whole_picture(tmp_path):
 def test_written_picture_has_the_mode_of_a_plain_open(tmp_path, umask, suffix, mask):
     umask(mask)
     out = tmp_path / f"run{suffix}"
-    writer = AnnotatedWriter(out)
+    writer = AnnotatedWriter(out, fps=25)
     for p in annotated(6):
         writer.add(p)
     writer.close()
@@ -147,7 +147,7 @@ def test_written_picture_has_the_mode_of_a_plain_open(tmp_path, umask, suffix, m
 
 @pytest.mark.parametrize("suffix", [".gif", ".mp4"])
 def test_aborted_picture_leaves_no_file(tmp_path, suffix):
-    writer = AnnotatedWriter(tmp_path / f"run{suffix}")
+    writer = AnnotatedWriter(tmp_path / f"run{suffix}", fps=25)
     for p in annotated(5):
         writer.add(p)
     writer.abort()
@@ -185,7 +185,7 @@ def slip_drawn(translation, omega, stick) -> np.ndarray:
     """Where one finger's slip is drawn (yellow) on a plain grey frame: a (240, 320) mask of its panel."""
     speed = None if translation is None else float(np.hypot(*translation))
     gel = GelMotion(translation, omega, stick, speed, (0.0, 0.0), 0.0, 0.0, 0.0 if stick is None else 0.5, "mm")
-    picture = Annotator(threshold=0.5, sensors=1).draw(
+    picture = Annotator(threshold=0.5, sensors=1, fps=25).draw(
         [np.full((240, 320, 3), 100, np.uint8)], Reading(0, None, None, False, (gel,), "mm")
     )
     panel = picture[28 : 28 + 240].astype(int)

@@ -50,6 +50,7 @@ from slipsense.measures.slipped_or_held import BASELINE_WORDS
 from slipsense.models import model_class
 from slipsense.progress import progress_bar
 from slipsense.recordings.recording_set import Recordings
+from slipsense.recordings.splits import ObjectFolds
 
 from .choice import (
     MARKER_GRASPS,
@@ -150,9 +151,8 @@ def adapt(
     names, not_tried = families(grasps)
     for reason in dict.fromkeys(not_tried.values()):  # families alike in why said once
         echo(f"  {', '.join(n for n, r in not_tried.items() if r == reason):16s} not tried: {reason}")
-    keys, objs = _keys(as_is), sorted(set(objects))  # the objects shuffled with ``seed``, in min(folds, n) folds
-    order = np.random.default_rng(seed).permutation(len(objs))
-    parts = [sorted(objs[i] for i in part) for part in np.array_split(order, min(folds, len(objs)))]
+    # the folds training cuts with the same seed; never more folds than objects (each fold tests one at least)
+    keys, parts = _keys(as_is), ObjectFolds(min(folds, len(set(objects))), seed).test_objects(objects)
     for name in names:
         train = lambda held, k, name=name: _train(data, out / "folds" / name / f"fold{k}", name, seed + k, held)  # noqa: E731
         s, a, j = _out_of_fold(keys, parts, train, data, f"{name}, one fold at a time", progress)

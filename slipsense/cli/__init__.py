@@ -25,26 +25,26 @@ def label(
     csv: Path = typer.Option(..., help="output CSV, one row per video"),
     overrides: Optional[Path] = typer.Option(None, help="CSV of hand labels that replace automatic ones"),
     on_error: str = typer.Option("raise", help="raise: stop at a bad video; skip: warn and leave it out"),
+    sensor: Optional[str] = typer.Option(
+        None, help="the registered sensor the recordings were taken with, where they state none (no sensor.json)"
+    ),
     progress: bool = typer.Option(True, help="progress bars on long work (--no-progress: none)"),
 ):
     """Find the moment of slip in every video and write it as CSV."""
-    from slipsense.recordings.labelling import label_runs
-    from slipsense.recordings.folders import validate_recordings
     from slipsense.recordings.recording_set import Recordings
     from slipsense.recordings.label_csv import read_overrides_csv, write_labels_csv
-    from slipsense.sensors.spec import GELSIGHT_MINI
+    from slipsense.sensors.spec import sensor_named
     from slipsense.atomic import check_output_file
     from slipsense.paths import gelsight_recordings
 
     check_output_file(csv, "--csv")
-    data = Recordings.open(recordings or gelsight_recordings(), on_error=on_error)
-    sensor = data.stated or GELSIGHT_MINI  # frame folders state their own size
-    recs = validate_recordings(data.listed, on_error, sensor.image_size)
+    stated = sensor_named(sensor) if sensor is not None else None
+    data = Recordings.open(recordings or gelsight_recordings(), on_error=on_error, stated=stated)
     if overrides:
         read_overrides_csv(overrides)  # a malformed file is refused before any video is decoded
-    # the path, not the parsed rows: label_recordings reads it against the recordings, so an error
-    # names the file and line
-    labels = label_runs(recs, overrides=overrides, on_error=on_error, progress=progress)
+    # the path, not the parsed rows: labelling reads it against the recordings, so an error names the file and line
+    # the frame size the data's sensor states (its sensor.json, its layout's or the one named)
+    labels = data.labelled(overrides, whole_runs=False, progress=progress, expected_size=data.sensor.image_size).labels
     write_labels_csv(labels, csv)
     n_slip = sum(1 for l in labels.values() if l.moment_of_slip is not None)
     typer.echo(f"{len(labels)} videos labelled ({n_slip} with a moment of slip) -> {csv}")

@@ -37,6 +37,9 @@ def register(app: typer.Typer) -> None:
             "raise", help="raise: stop at a video that cannot be read; skip: warn, leave its grasp out, judge the rest"
         ),
         overrides: Optional[Path] = typer.Option(None, help="CSV of hand labels for --recordings"),
+        sensor: Optional[str] = typer.Option(
+            None, help="the registered sensor --recordings were taken with, where they state none (no sensor.json)"
+        ),
         progress: bool = typer.Option(True, help="show progress bars on stderr"),
         dtype: str = typer.Option(
             "float32", help="inference numerics: float32, bfloat16 (STNet/TemNet) or int8 weights"
@@ -57,6 +60,10 @@ def register(app: typer.Typer) -> None:
         check_output_file(png, "--png")
         options = dict(split=split_file, markers=markers, json_out=json_out, png=png, noise_std=noise_std)
         options.update(on_error=on_error, overrides=overrides, progress=progress, dtype=dtype, per_grasp=per_grasp)
+        if sensor is not None:
+            from slipsense.sensors.spec import sensor_named
+
+            options["sensor"] = sensor_named(sensor)
         metrics = evaluate_checkpoint(checkpoint, recordings, echo=lambda line: typer.echo(line, err=True), **options)
         typer.echo("\n".join(summary_lines(metrics)))
         if json_out is not None:

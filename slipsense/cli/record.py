@@ -39,15 +39,20 @@ def register(app: typer.Typer) -> None:
         out: Path = typer.Option(..., help="recordings folder: <out>/<object>/exp_num_<N>/camera_<i>.avi"),
         object_name: str = typer.Option(..., "--object", help="the object grasped (names its folder)"),
         by_contact: bool = typer.Option(False, help="start and stop each grasp when the gels are touched and let go"),
+        sensor: Optional[str] = typer.Option(
+            None, help="the registered sensor recorded (default: the shipped detectors' sensor, the GelSight Mini)"
+        ),
         fps: Optional[float] = typer.Option(
-            None, help="frame rate asked of the cameras (default: the GelSight Mini's 25), or of a folder of frames"
+            None, help="frame rate asked of the cameras (default: the sensor's), or of a folder of frames"
         ),
         max_grasps: Optional[int] = typer.Option(None, help="stop after this many grasps"),
     ):
         """Record grasps: Enter starts and stops a grasp, s + Enter marks it slipped, q + Enter quits
         (--by-contact: the gels start and stop it). Every command then reads the folder."""
+        from slipsense.checkpoint import read_info
         from slipsense.errors import ConfigError
-        from slipsense.sensors.spec import GELSIGHT_MINI
+        from slipsense.resources import shipped_model
+        from slipsense.sensors.spec import sensor_named, sensor_of
         from slipsense.streaming.clock import check_fps
         from slipsense.streaming.record import check_object_name, record as run
         from slipsense.streaming.sources import open_source
@@ -55,10 +60,12 @@ def register(app: typer.Typer) -> None:
         check_object_name(object_name)
         if max_grasps is not None and max_grasps < 1:
             raise ConfigError(f"--max-grasps must be 1 or more, got {max_grasps}")
-        camera = GELSIGHT_MINI.fps if fps is None else check_fps(fps, "--fps")
+        # recorded for the shipped detectors unless told otherwise: their checkpoint names their sensor
+        spec = sensor_named(sensor) if sensor is not None else sensor_of(read_info(shipped_model()), shipped_model())
+        camera = spec.fps if fps is None else check_fps(fps, "--fps")
         live = all(part.strip().isdigit() for part in source.split(","))
         src = open_source(
-            source, None, fps=None if live else fps, camera_fps=camera, capture_format=GELSIGHT_MINI.capture_format
+            source, None, fps=None if live else fps, camera_fps=camera, capture_format=spec.capture_format
         )
         # a recorded run standing in for the cameras keeps its label: its slip.txt marks every grasp cut from it
         folder = Path(source) if Path(source).is_dir() else Path(source).parent

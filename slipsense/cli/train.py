@@ -107,6 +107,9 @@ def register(app: typer.Typer) -> None:
         device: Optional[str] = typer.Option(None, help="clip models: auto (default), cpu, cuda, cuda:1, ..."),
         resume: bool = typer.Option(False, help="continue a killed training from OUT (same weights as unkilled)"),
         overrides: Optional[Path] = typer.Option(None, help="CSV of hand labels replacing automatic moments of slip"),
+        sensor: Optional[str] = typer.Option(
+            None, help="the registered sensor --recordings were taken with, where they state none (data.sensor)"
+        ),
         on_error: Optional[str] = typer.Option(
             None, help="raise (default): stop at a bad recording; skip: warn, name it and leave it out"
         ),
@@ -124,7 +127,7 @@ def register(app: typer.Typer) -> None:
 
         data = dict(size=list(parse_hw(size)) if size else None, recordings=recordings, markers=markers, frames=frames)
         data.update(horizon=horizon, split=split, test_objects=test_objects, fold=fold, folds=folds, augment=augment)
-        data.update(on_error=on_error, overrides=overrides)
+        data.update(on_error=on_error, overrides=overrides, sensor=sensor)
         training = dict(epochs=epochs, batch_size=batch_size, lr=lr, device=device, seed=seed, inner_folds=inner_folds)
         options = {"model": {"name": model, "preset": preset}, "data": data, "train": training}
         # defaults < --config < options < --set; a bare --set KEY=VALUE goes to the model section, and

@@ -54,8 +54,9 @@ def _grasps(
     png=None,
     noise_std: float = 0.0,
     per_grasp: bool = True,
+    sensor=None,
 ) -> dict[str, Any]:
-    """A grasp detector per grasp; the JSON holds every measure and each run's outcome (``png``,
+    """A grasp detector per grasp (``sensor``: the recordings' where they state none); the JSON holds every measure and each run's outcome (``png``,
     ``noise_std`` and ``per_grasp`` are for clip models and not used)."""
     if split is not None or markers is not None:
         raise InputError(
@@ -66,7 +67,9 @@ def _grasps(
     if dtype != "float32":
         raise ConfigError(f"a grasp detector is evaluated in float32 (--dtype {dtype} is for clip and marker models)")
 
-    ev = judge(checkpoint, recordings, overrides=overrides, progress=progress, on_error=on_error, loaded=loaded)
+    ev = judge(
+        checkpoint, recordings, overrides=overrides, progress=progress, on_error=on_error, loaded=loaded, sensor=sensor
+    )
     if checkpoint is None:
         checkpoint = ev.checkpoint
         echo(f"evaluating the shipped detector {Path(checkpoint).stem}")

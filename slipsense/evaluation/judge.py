@@ -25,42 +25,46 @@ from slipsense.measures.baselines import NAMES, SIZE, frame_scores
 from slipsense.recordings.clips import ClipSpec, plan_windows
 from slipsense.recordings.folders import camera_counts
 from slipsense.recordings.frame_cache import video_products
-from slipsense.recordings.labelling import label_runs
-from slipsense.recordings.recording_set import Recordings
+from slipsense.recordings.recording_set import Labelled, Recordings
 from slipsense.recordings.video import probe_video
 from slipsense.resources import shipped_model
-from slipsense.sensors.spec import GELSIGHT_MINI, SensorSpec, sensor_of
+from slipsense.sensors.spec import SensorSpec, sensor_of
 from slipsense.streaming.detector import SlipDetector, shipped_name
 
 
-def recordings_folder(recordings: str | Path | Recordings | None) -> Path:
+def recordings_folder(recordings: str | Path | Recordings | Labelled | None) -> Path:
     """The folder of ``recordings`` (a set's own root), default the shared GelSight recordings."""
-    if isinstance(recordings, Recordings):
+    if isinstance(recordings, (Recordings, Labelled)):
         return recordings.root
     return Path(recordings) if recordings is not None else gelsight_recordings()
 
 
 def recordings_set(
-    recordings: str | Path | Recordings | None, sensor: SensorSpec = GELSIGHT_MINI, on_error: str = "raise"
+    recordings: str | Path | Recordings | Labelled | None,
+    sensor: SensorSpec | None = None,
+    on_error: str = "raise",
+    stated: SensorSpec | None = None,
 ) -> Recordings:
-    """``recordings`` as a :class:`~slipsense.recordings.recording_set.Recordings` read with ``sensor``'s
-    layout: a given set as it is (nothing listed again), a folder scanned once (default: the shared
-    GelSight recordings)."""
-    return Recordings.of(
-        recordings if isinstance(recordings, Recordings) else recordings_folder(recordings), sensor, on_error
-    )
+    """``recordings`` as a :class:`~slipsense.recordings.recording_set.Recordings` read as ``sensor``
+    (None: the sensor the data states, or ``stated``, its user's): a given set as it is (nothing listed
+    again), a folder scanned once (default: the shared GelSight recordings)."""
+    given = isinstance(recordings, (Recordings, Labelled))
+    return Recordings.of(recordings if given else recordings_folder(recordings), sensor, on_error, stated=stated)
 
 
 def shipped_for(recordings: str | Path | Recordings | None) -> Path:
     """The shipped detector for a set of recordings (:func:`~slipsense.streaming.detector.shipped_name`):
     the one of its sensor where one is shipped (the frame size its ``sensor.json`` or layout states,
     else its first recording's), for one finger where its grasps have one camera each."""
+    if isinstance(recordings, Labelled):
+        recordings = recordings.recordings
     if not isinstance(recordings, Recordings):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # the evaluation that follows reports them
             recordings = recordings_set(recordings, on_error="skip")
     found, sensor = recordings.listed, recordings.stated
-    size = sensor.image_size if sensor is not None else None
+    # frames carry no size of their own beyond their files; a video's container states its own
+    size = sensor.image_size if sensor is not None and recordings.frames else None
     for rec in found if size is None else ():  # the first video that reads (the evaluation reports the others)
         try:
             info = probe_video(rec.path, expected_size=None)
@@ -85,7 +89,7 @@ class Evaluation:
     runs: list[Any]
     threshold: float
     debounce: int
-    horizon: int = pergrasp.HORIZON
+    horizon: int  # frames at the detector's rate (judge() takes seconds)
     labels: dict | None = None  # {(object, experiment, camera): VideoLabel} of the replayed videos
     recordings: Recordings | None = None  # the replayed recordings (their frames feed the baselines)
     startup: int = pergrasp.STARTUP  # leading frames never scored (0 for grasps labelled as a whole)
@@ -201,13 +205,14 @@ def judge(
     recordings: str | Path | Recordings | None = None,
     *,
     overrides: str | Path | None | bool = None,
-    horizon: int = pergrasp.HORIZON,
+    horizon: float = pergrasp.HORIZON_S,
     threshold: float | None = None,
     debounce: int | None = None,
     progress: bool = True,
     objects: Sequence[str] | None = None,
     on_error: str = "raise",
     loaded: tuple[Any, Mapping[str, Any]] | None = None,
+    sensor: SensorSpec | None = None,
 ) -> Evaluation:
     """Replay every run of a recordings folder through a detector, both sensors from the first frame.
 
@@ -217,55 +222,54 @@ def judge(
             here); default: the shared GelSight recordings.
         overrides: None (default) = the shipped hand labels for runs of the shared recordings
             (:mod:`~slipsense.recordings.labelling`; True says the same); False = none; else a CSV.
-        horizon: frames before the moment of slip in which an alarm counts as a warning in time.
+        horizon: seconds before the moment of slip in which an alarm counts as a warning in time.
         threshold, debounce: default: the checkpoint's operating point.
         objects: only the runs of these objects (default: every run).
         on_error: ``"raise"`` (default) or ``"skip"`` (leave out bad videos with a warning).
         loaded: ``(model, info)`` of ``checkpoint`` where the caller loaded it already.
+        sensor: the sensor the recordings were taken with, where they state none (a user's ``--sensor``:
+            a frame folder's rate, the shipped detector's choice); None: the data's own statement.
 
     The checkpoint is opened once and the folder scanned once. A model trained on a fixed number of
     sensors (the grasp detectors) sees that many cameras per run (one: each camera is a grasp of its
     own); a clip model sees every camera of a run at once and alarms on either.
     """
     root, scanned = recordings_folder(recordings), None
-    if checkpoint is None:  # the folder says which shipped detector: scanned as the study laid it out
-        scanned = recordings_set(recordings, GELSIGHT_MINI, on_error)
+    if checkpoint is None:  # the folder says which shipped detector: read as the sensor it states
+        scanned = recordings_set(recordings, None, on_error, stated=sensor)
     path = Path(checkpoint) if checkpoint is not None else shipped_for(scanned)
     model, info = loaded if loaded is not None else load_model(path)
-    sensor = sensor_of(info, path)
-    read = recordings_set(scanned or recordings, sensor, on_error)  # the detector's file layout, one listing
     calibrated = ((info.get("operating_point") or {}).get("calibrated") or {}).get("objects") or ()
     # another data set's objects are stored as <folder>/<object> (data.also): they count by their own name
     trained_on = {o.rsplit("/", 1)[-1] for o in ((info.get("data") or {}).get("objects")) or ()} | set(calibrated)
-    recs = read.checked(on_error)
     sensors = info["model_config"].get("sensors")
-    if sensors != 1:  # a run replayed with all its cameras is left out whole where one was skipped
-        recs = read.complete_runs(recs)
-    if objects is not None:
-        recs = [r for r in recs if r.object in set(objects)]
-    if not recs:
-        raise InputError(root, "no recording left to judge (every one was skipped)")
+    if isinstance(recordings, Labelled):  # labelled by the caller: judged as it is
+        data = recordings if objects is None else recordings.only(objects)
+    else:  # the detector's file layout, one listing; a run replayed with all its cameras is left out whole where one was skipped
+        read = recordings_set(scanned or recordings, sensor_of(info, path), on_error, stated=sensor)
+        read = read if objects is None else read.subset(objects)
+        if not read.listed:
+            raise InputError(root, "no recording left to judge (none of the objects asked for)")
+        data = read.labelled(overrides, whole_runs=sensors != 1, progress=progress, on_error=on_error)
     if not sensors:  # a clip model: every camera of a run at once
-        counts = camera_counts(recs)
+        counts = camera_counts(data)
         if len(counts) != 1:
             raise InputError(root, f"runs hold different numbers of camera videos ({counts}); a replay needs the same")
         sensors = counts[0]
     detector = SlipDetector.from_checkpoint(
         path, sensors=sensors, threshold=threshold, debounce=debounce, backend="torch", loaded=(model, info)
     )
-    seen = sorted(trained_on & {r.object for r in recs})
+    seen = sorted(trained_on & set(data.objects))
     if seen:
         warnings.warn(
             f"the detector was trained or calibrated on {len(seen)} of these objects ({', '.join(seen[:5])}"
             f"{', ...' if len(seen) > 5 else ''}): their runs do not measure objects it never saw",
             stacklevel=2,
         )
-
-    labels = label_runs(recs, overrides, on_error=on_error, progress=progress)
-    recs = [r for r in recs if r.key in labels]  # left out by on_error="skip"
-    replayed = read.only(recs)
+    recs, labels, replayed = list(data), dict(data.labels), data.recordings
     runs = replay_recordings(detector, replayed, labels, progress=progress, keep_without_moment=True)
-    startup = 0 if recs and all(r.per_grasp for r in recs) else pergrasp.STARTUP
+    startup = 0 if recs and all(r.per_grasp for r in recs) else pergrasp.startup_frames(detector.sensor.fps)
+    horizon = pergrasp.horizon_frames(detector.sensor.fps, horizon)  # the measures count the detector's frames
     return Evaluation(
         runs, detector.threshold, detector.debounce, horizon, labels, replayed, startup, detector.hold, path
     )

@@ -94,6 +94,7 @@ def evaluate_clip_checkpoint(
     progress: bool = True,
     dtype: str = "float32",
     per_grasp: bool = True,
+    sensor=None,
 ) -> dict[str, Any]:
     """Score a clip or marker model's checkpoint per clip on one data source (the data it reads:
     ``model.clip_reader``, :mod:`slipsense.readers`).
@@ -110,6 +111,8 @@ def evaluate_clip_checkpoint(
     """
     if not isinstance(noise_std, (int, float)) or not math.isfinite(noise_std) or noise_std < 0:
         raise ConfigError(f"--noise-std must be a finite number >= 0, got {noise_std!r}")
+    if sensor is not None:  # clips are cut at the checkpoint's own size and carry no time
+        raise ConfigError("--sensor is for grasp detectors, which replay whole runs at the recordings' rate")
     sources = [s for s in (recordings, split, markers) if s is not None]
     if len(sources) != 1:
         raise ConfigError("give exactly one of --recordings, --split-file or --markers")

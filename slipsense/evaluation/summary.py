@@ -23,7 +23,6 @@ from slipsense.measures import measure_lines
 from slipsense.measures.pergrasp import early_warning_lines
 from slipsense.measures.registry import pct as _pct
 from slipsense.measures.registry import plural as _plural
-from slipsense.sensors.spec import GELSIGHT_MINI
 
 
 def alarm_rule(threshold: float, debounce: int) -> str:
@@ -47,7 +46,7 @@ def rate_lines(rate: Mapping[str, Any] | None) -> list[str]:
     return [f"Frame rate: read at {read}; the detector runs at {model:g} frames/s{tail}."]
 
 
-def _grasp_detector_lines(m: Mapping[str, Any], fps: float) -> list[str]:
+def _grasp_detector_lines(m: Mapping[str, Any], fps: float | None) -> list[str]:
     """The runs and the alarm rule, then every registered measure's sentences (:mod:`slipsense.measures`)."""
     d = m["grasp_measure"]["detector"]
     return [
@@ -59,7 +58,7 @@ def _grasp_detector_lines(m: Mapping[str, Any], fps: float) -> list[str]:
     ]
 
 
-def _clip_model_lines(m: Mapping[str, Any], fps: float) -> list[str]:
+def _clip_model_lines(m: Mapping[str, Any], fps: float | None) -> list[str]:
     (tn, fp), (fn, tp) = m["confusion"]
     n, slip, wiggle = m["n_clips"], m["n_slip"], m["n_wiggle"]
     lines = [f"{n} clips: {slip} ending just before a slip, {wiggle} from grasps that held (no-slip)."]
@@ -97,11 +96,12 @@ def summary_lines(metrics: Mapping[str, Any], fps: float | None = None) -> list[
             (``per_grasp``, ``grasp_measure``, ``clips``, ``threshold``, ``debounce``, ``horizon``) or a clip
             or marker model's (``accuracy``, ``confusion``, ``n_clips``, ... and ``per_grasp`` where its
             runs were replayed).
-        fps: frames per second, to state the warning window in seconds (default: the GelSight Mini's).
+        fps: frames per second, to state the warning window in seconds (default: the detector's rate
+            the result records; where it records none, the window is stated in frames only).
     """
     if fps is None:  # the horizon counts frames of the detector's clock
         rate = metrics.get("frame_rate") or (metrics.get("per_grasp") or {}).get("frame_rate") or {}
-        fps = rate.get("detector") or GELSIGHT_MINI.fps
+        fps = rate.get("detector") or None
     if "grasp_measure" in metrics:
         return _grasp_detector_lines(metrics, fps)
     return _clip_model_lines(metrics, fps)

@@ -10,8 +10,7 @@ import numpy as np
 from slipsense.alarm import HOLD_S, debounce
 from slipsense.errors import ConfigError
 from slipsense.measures.pergrasp import bootstrap_rates, grasp_outcome, summarise
-from slipsense.measures.registry import HORIZON, STARTUP
-from slipsense.sensors.spec import GELSIGHT_MINI
+from slipsense.measures.registry import horizon_frames, startup_frames
 
 
 #: Thresholds an operating point is chosen among: class-balanced training inflates probabilities,
@@ -24,15 +23,20 @@ def table(
     moments: Sequence[int | None],
     thresholds: Sequence[float],
     debounces: Sequence[int] = (1,),
-    horizon: int = HORIZON,
-    startup: int = STARTUP,
+    horizon: int | None = None,
+    startup: int | None = None,
     rests: Sequence[np.ndarray | None] | None = None,
-    fps: float = GELSIGHT_MINI.fps,
+    *,
+    fps: float,
     intervals: int = 0,
 ) -> list[dict[str, Any]]:
     """One row (``threshold``, ``debounce``, :func:`summarise`) per (threshold, debounce) over runs given as
-    probability traces; with ``intervals`` bootstrap draws, also ``warned_low``/``warned_high`` and
-    ``fp_low``/``fp_high``: 95% intervals over runs (:func:`bootstrap_rates`, the same draws for every row)."""
+    probability traces taken at ``fps`` frames/s; ``horizon`` and ``startup`` in frames at that rate (None:
+    :data:`~slipsense.measures.registry.HORIZON_S` and ``STARTUP_S`` at it). With ``intervals`` bootstrap
+    draws, also ``warned_low``/``warned_high`` and ``fp_low``/``fp_high``: 95% intervals over runs
+    (:func:`bootstrap_rates`, the same draws for every row)."""
+    horizon = horizon_frames(fps) if horizon is None else horizon
+    startup = startup_frames(fps) if startup is None else startup
     rests = rests if rests is not None else [None] * len(probabilities)
     rows = []
     for k in debounces:
@@ -58,12 +62,16 @@ def choose_operating_point(
     moments: Sequence[int | None],
     thresholds: Sequence[float] | None = None,
     debounces: Sequence[int] = (1, 2, 3, 5),
-    horizon: int = HORIZON,
-    startup: int = STARTUP,
+    horizon: int | None = None,
+    startup: int | None = None,
     max_held_alarm: float | None = None,
+    *,
+    fps: float,
 ) -> dict[str, Any]:
     """The (threshold, debounce) to alarm at, chosen on these runs. Call it on training runs only
     (out-of-fold predictions of inner folds): choosing it on test runs is tuning on the test set.
+    ``fps``: the rate the traces were taken at; ``horizon``, ``startup``: frames at it (None: the
+    seconds of :data:`~slipsense.measures.registry.HORIZON_S` and ``STARTUP_S`` at it).
 
     ``max_held_alarm`` None: the best :func:`summarise` score (warned rate minus false-positive
     rate; ties: the shortest debounce, then the middle of the tying thresholds, for a margin on both
@@ -74,7 +82,9 @@ def choose_operating_point(
     """
     if thresholds is None:
         thresholds = THRESHOLDS if max_held_alarm is None else tuple(sorted(set(THRESHOLDS) | set(FINE_TAIL)))
-    rows = table(probabilities, moments, thresholds, debounces, horizon, startup)
+    horizon = horizon_frames(fps) if horizon is None else horizon
+    startup = startup_frames(fps) if startup is None else startup
+    rows = table(probabilities, moments, thresholds, debounces, horizon, startup, fps=fps)
     if max_held_alarm is None:
         top = max(round(r["score"], 9) for r in rows)
         tied = [r for r in rows if round(r["score"], 9) == top]
@@ -95,4 +105,5 @@ def choose_operating_point(
     best = tied[(len(tied) - 1) // 2]
     point = {"threshold": best["threshold"], "debounce": best["debounce"], "hold_s": HOLD_S}
     on_training_runs = {f"{k}_on_training_runs": best[k] for k in ("score", "warned_rate", "false_positive_rate")}
-    return {**point, "horizon": horizon, "startup": startup, "rule": rule, **on_training_runs}
+    times = {"horizon_s": horizon / fps, "startup_s": startup / fps}  # what the frame counts stand for
+    return {**point, "horizon": horizon, "startup": startup, **times, "rule": rule, **on_training_runs}

@@ -2,7 +2,9 @@
 
 A detector is replayed over whole runs from the first frame, exactly as it would run live, and each
 run gets one outcome. With ``m`` the moment of slip (last frame before contact is lost), ``H`` the
-warning horizon in frames and ``S`` the camera start-up frames (not the scene, never scored):
+warning horizon and ``S`` the camera start-up (not the scene, never scored), both given in seconds
+(:data:`~slipsense.measures.registry.HORIZON_S`, :data:`~slipsense.measures.registry.STARTUP_S`) and
+counted here in frames at the run's rate:
 
 * a run that slipped is **warned in time** when its first alarm in ``S..m`` falls in ``m-H..m``
   (lead = ``m - first alarm`` frames), **premature** when that first alarm comes before ``m-H``
@@ -25,9 +27,15 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from slipsense.alarm import debounce  # the alarm rule every outcome is judged by
-from slipsense.sensors.spec import GELSIGHT_MINI
+from slipsense.errors import ConfigError
 from slipsense.measures.promise import wilson
-from slipsense.measures.registry import HORIZON, STARTUP, Judged, plural, register
+from slipsense.measures.registry import Judged, horizon_frames, plural, register, startup_frames
+from slipsense.measures.registry import HORIZON_S, STARTUP_S  # noqa: F401  (the times, beside their measure)
+
+#: Frame counts (2 s and 0.4 s at 25 frames/s) kept only for the training settings that still state
+#: their horizon and start-up in frames; everything judged takes seconds at its own rate.
+HORIZON = 50
+STARTUP = 10
 
 
 @dataclass(frozen=True)
@@ -46,8 +54,8 @@ class GraspOutcome:
 def grasp_outcome(
     alarm: np.ndarray,
     moment: int | None,
-    horizon: int = HORIZON,
-    startup: int = STARTUP,
+    horizon: int,
+    startup: int,
     rest: np.ndarray | None = None,
 ) -> GraspOutcome:
     """Score one run.
@@ -55,8 +63,9 @@ def grasp_outcome(
     Args:
         alarm: ``(N,)`` bool, the detector's alarm at every frame of the recording.
         moment: the moment of slip, or None for a run that held.
-        horizon: frames before the moment in which a first alarm is a warning in time.
-        startup: leading frames not scored.
+        horizon: frames before the moment in which a first alarm is a warning in time
+            (:func:`~slipsense.measures.registry.horizon_frames` at the alarm's rate).
+        startup: leading frames not scored (:func:`~slipsense.measures.registry.startup_frames`).
         rest: optional ``(N,)`` bool, True where no sensor is touched (:func:`slipsense.recordings.contact.rest_mask`).
     """
     a = np.asarray(alarm, dtype=bool)
@@ -82,8 +91,8 @@ def trace_outcome(
     debounce_frames: int,
     moment: int | None,
     slipped: bool,
-    horizon: int = HORIZON,
-    startup: int = STARTUP,
+    horizon: int,
+    startup: int,
     rest: np.ndarray | None = None,
 ) -> GraspOutcome:
     """:func:`grasp_outcome` of a ``(N,)`` P(slip) trace alarming at ``threshold`` for ``debounce_frames``
@@ -110,26 +119,41 @@ class RunTrace:
     probability: np.ndarray  # (N,) combined; NaN where the detector gives no answer yet
     rest: np.ndarray | None = field(default=None, repr=False)  # (N,) bool: no sensor touched
     cameras: tuple[str, ...] = ()  # the cameras replayed: one for a one-finger detector, else all
-    fps: float = 25.0  # the rate the run's frames were taken at
-    model_fps: float = 25.0  # the rate the detector runs at (its sensor's)
+    fps: float | None = None  # the rate the run's frames were taken at (required)
+    model_fps: float | None = None  # the rate the detector runs at (its sensor's; None: the run's)
     fps_from: str = ""  # where the run's rate was read (sensor.json, the video's stated rate, ...)
 
+    def __post_init__(self) -> None:
+        # a rate left out would be a guess, and every time (the horizon, the leads) is read with it
+        if self.fps is None:
+            raise ConfigError(f"run {self.object} {self.experiment}: the rate its frames were taken at (fps) is needed")
+        if self.model_fps is None:
+            self.model_fps = self.fps
+
     def outcome(
-        self, threshold: float, debounce: int = 1, horizon: int = HORIZON, startup: int = STARTUP
+        self, threshold: float, debounce: int = 1, horizon: int | None = None, startup: int | None = None
     ) -> GraspOutcome:
-        """The run's verdict; ``horizon`` and ``startup`` count frames at the detector's rate (50 and 10
-        at 25 frames/s: 2 s and 0.4 s), so a run taken at another rate is judged over the same time."""
+        """The run's verdict; ``horizon`` and ``startup`` count frames at the detector's rate (None:
+        :data:`~slipsense.measures.registry.HORIZON_S` and ``STARTUP_S`` at that rate), so a run taken
+        at another rate is judged over the same time."""
+        horizon = horizon_frames(self.model_fps) if horizon is None else horizon
+        startup = startup_frames(self.model_fps) if startup is None else startup
         scale = self.fps / self.model_fps
         h, s = (horizon, startup) if scale == 1 else (max(1, round(horizon * scale)), round(startup * scale))
         return trace_outcome(self.probability, threshold, debounce, self.moment_of_slip, self.slipped, h, s, self.rest)
 
 
-def summarise(outcomes: Sequence[GraspOutcome], fps: float = GELSIGHT_MINI.fps) -> dict[str, Any]:
+def summarise(outcomes: Sequence[GraspOutcome], fps: float | Sequence[float]) -> dict[str, Any]:
     """Pool run outcomes into one row (without threshold/debounce). ``score`` = warned rate minus
-    false-positive rate: 1 for a perfect detector, 0 for one that never alarms, -1 for one always on."""
+    false-positive rate: 1 for a perfect detector, 0 for one that never alarms, -1 for one always on.
+    ``fps``: the rate the outcomes' frames count at (one for all, or one per outcome): the leads in
+    milliseconds are read with it."""
+    rates = np.broadcast_to(np.asarray(fps, dtype=float), (len(outcomes),))
     slip = [o for o in outcomes if o.outcome in ("warned", "premature", "missed")]
     held = [o for o in outcomes if o.outcome in ("false_positive", "clean")]
-    leads = np.array([o.lead for o in slip if o.outcome == "warned"], dtype=float)
+    warned_at = [(o.lead, f) for o, f in zip(outcomes, rates) if o.outcome == "warned"]
+    leads = np.array([lead for lead, _ in warned_at], dtype=float)
+    lead_ms = np.array([1000.0 * lead / f for lead, f in warned_at], dtype=float)
     warned = int(leads.size)
     fp = sum(o.outcome == "false_positive" for o in held)
     med = float(np.median(leads)) if leads.size else math.nan
@@ -142,7 +166,7 @@ def summarise(outcomes: Sequence[GraspOutcome], fps: float = GELSIGHT_MINI.fps) 
         "missed": sum(o.outcome == "missed" for o in slip),
         "warned_rate": warned_rate,
         "median_lead_frames": med,
-        "median_lead_ms": med * 1000.0 / fps,
+        "median_lead_ms": float(np.median(lead_ms)) if lead_ms.size else math.nan,
         "held_runs": len(held),
         "false_positive_grasps": int(fp),
         "false_positive_rate": fp_rate,
@@ -211,4 +235,8 @@ def per_grasp(judged: Judged) -> dict[str, Any]:
     (:func:`summarise`), and ``slips_without_moment``: the slipped runs whose moment of slip was not
     found, counted in neither ``slip_runs`` nor ``held_runs``."""
     outcomes = [r.outcome(th, k, judged.horizon, judged.startup) for r, (th, k, _) in zip(judged.runs, judged.points)]
-    return {**summarise(outcomes), "slips_without_moment": sum(o.outcome == "slip_without_moment" for o in outcomes)}
+    rates = [r.fps for r in judged.runs]  # a run's lead counts frames at the rate it was taken at
+    return {
+        **summarise(outcomes, rates),
+        "slips_without_moment": sum(o.outcome == "slip_without_moment" for o in outcomes),
+    }

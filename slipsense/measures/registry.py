@@ -8,10 +8,31 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from slipsense.sensors.spec import STARTUP_FRAMES as STARTUP
+from slipsense.errors import ConfigError
 
-#: Default warning horizon: 50 frames = 2 s at 25 frames/s.
-HORIZON = 50
+#: The warning horizon: a first alarm at most this long before the moment of slip is in time.
+HORIZON_S = 2.0
+#: The camera's start-up transient at the head of every stream (frame 0 differs from the scene): never scored.
+STARTUP_S = 0.4
+
+
+def to_frames(seconds: float, fps: float) -> int:
+    """``seconds`` as a whole number of frames at ``fps`` frames/s (the nearest): 2 s is 50 frames at
+    25 frames/s, 100 at 50 frames/s."""
+    return int(round(float(seconds) * float(fps)))
+
+
+def horizon_frames(fps: float, seconds: float = HORIZON_S) -> int:
+    """The warning horizon in frames at ``fps`` (at least one: a horizon of no frame warns of nothing);
+    ConfigError for a horizon that is no positive time."""
+    if isinstance(seconds, bool) or not isinstance(seconds, (int, float)) or not 0 < seconds < math.inf:
+        raise ConfigError(f"the warning horizon must be a positive number of seconds, got {seconds!r}")
+    return max(1, to_frames(seconds, fps))
+
+
+def startup_frames(fps: float, seconds: float = STARTUP_S) -> int:
+    """The start-up frames at ``fps`` that are never scored."""
+    return to_frames(seconds, fps)
 
 
 @dataclass
@@ -22,15 +43,16 @@ class Judged:
         runs: one :class:`~slipsense.measures.pergrasp.RunTrace` per grasp (P(slip) per frame).
         points: per run ``(threshold, debounce frames, hold seconds)``: one for all runs of an
             evaluation, each fold's own where folds are pooled.
-        horizon, startup: frames at the detector's rate (a warning in time; never scored).
+        horizon, startup: frames at the detector's rate (a warning in time; never scored): from
+            :data:`HORIZON_S` and :data:`STARTUP_S` at that rate (:func:`horizon_frames`, :func:`startup_frames`).
         baselines: ``{name: (runs,) scores}`` of the non-learned baselines, where the frames were read.
         clips: ``(p, y)`` of the papers' short clips cut from these runs, where their labels were there.
     """
 
     runs: Sequence[Any]  # RunTrace
     points: Sequence[tuple[float, int, float]]
-    horizon: int = HORIZON
-    startup: int = STARTUP
+    horizon: int
+    startup: int
     baselines: Mapping[str, np.ndarray] | None = None
     clips: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)
 

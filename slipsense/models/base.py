@@ -40,7 +40,6 @@ from slipsense.errors import ConfigError, InputError
 from slipsense.models.streams import WindowStream
 from slipsense.readers import MARKER_CLIPS, VIDEO_CLIPS, ClipReader
 from slipsense.recordings.markers import layout_name, marker_clouds, marker_layout, marker_sequences, track_markers
-from slipsense.sensors.spec import GELSIGHT_MINI
 
 _REGISTRY: dict[str, type] = {}
 
@@ -287,7 +286,9 @@ class VideoModel(SlipModel):
 
     def window_geometry(self, spec: Mapping[str, Any]) -> dict[str, Any]:
         frames = getattr(self, "frames", None) or spec.get("frames") or DEFAULT_FRAMES
-        size = getattr(self, "image_size", None) or spec.get("size") or GELSIGHT_MINI.image_size
+        size = getattr(self, "image_size", None) or spec.get("size")
+        if not size:  # a model that states no frame size has no window to cut
+            raise ConfigError(f"{type(self).__name__} states no frame size (image_size) and its clip spec none")
         return {"kind": "video", "frames": int(frames), "image_size": (int(size[0]), int(size[1]))}
 
 
@@ -427,12 +428,16 @@ def window_geometry(model: nn.Module, info: Mapping[str, Any] | None = None) -> 
     """What one pushed frame must look like for ``model``: ``{"kind", "frames", "image_size" | "markers"}``.
 
     ``frames`` and ``image_size`` come from the model where it fixes them (ViViT, STNet), else from
-    the checkpoint's training clip spec (``info["data"]["clip_spec"]``), else the defaults.
+    the checkpoint's training clip spec (``info["data"]["clip_spec"]``), else (the size) from its
+    sensor; a frame size stated nowhere is a ConfigError.
     """
     if not isinstance(model, SlipModel):
         raise ConfigError(f"{type(model).__name__} is not a slipsense model (subclass slipsense.models.base)")
     data = (info or {}).get("data")
-    spec = (data.get("clip_spec") if isinstance(data, Mapping) else None) or {}
+    spec = dict((data.get("clip_spec") if isinstance(data, Mapping) else None) or {})
+    sensor = (info or {}).get("sensor")
+    if not spec.get("size") and isinstance(sensor, Mapping) and sensor.get("image_size"):
+        spec["size"] = sensor["image_size"]  # no clip size stated: the frames of the sensor it was trained on
     return model.window_geometry(spec)
 
 

@@ -14,7 +14,8 @@ import torch
 from slipsense.errors import ConfigError, InputError
 from slipsense.models.runners import make_runner
 from slipsense.models.streams import StreamBase, check_image, check_video_stream
-from slipsense.recordings.contact import STARTUP_FRAMES as STARTUP
+from slipsense.sensors.spec import sensor_of
+from slipsense.measures.registry import startup_frames
 from slipsense.recordings.video import gray_frames
 
 
@@ -41,7 +42,9 @@ class GraspStream(StreamBase):
         if dtype != "float32":
             raise ConfigError(f"{model.model_name} streams in float32 only")
         self.gray_size = tuple(model.image_size)
-        self.startup = int(((info or {}).get("operating_point") or {}).get("startup", STARTUP))
+        stated = ((info or {}).get("operating_point") or {}).get("startup")
+        # a checkpoint that states no start-up skips its sensor's start-up time, counted at its rate
+        self.startup = int(stated) if stated is not None else startup_frames(sensor_of(info).fps)
         self.geometry = {**model.window_geometry({}), "startup": self.startup}
         self._run, self.tmpdir = make_runner(model, self.geometry, backend, dtype, onnx_dir)
         self.reset()

@@ -28,11 +28,11 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from .. import paths
-from ..sensors.spec import GELSIGHT_MINI
 from ..cache import Entry, key
 from ..errors import ConfigError, InputError
 from .folders import SkippedInputWarning
 from .frames import source_stat
+from .splits import ObjectFolds, ObjectHoldOut
 from .types import Recording, VideoLabel
 from .video import read_video, resize
 
@@ -58,14 +58,15 @@ class ClipSpec:
             >= 0 (0: the clip ends right before the moment of slip).
         wiggle_per_video: wiggle windows drawn from each video of a run that did not slip, >= 0.
         size: output frame size ``(height, width)`` in pixels; frames of another size are resized
-            (``cv2.INTER_AREA``, the right filter for shrinking, e.g. to (120, 160)).
+            (``cv2.INTER_AREA``, the right filter for shrinking, e.g. to (120, 160)). None: not stated
+            (windows are planned, but no clip is cut: the size comes from the data's sensor or the user).
         seed: seed of the wiggle-window draw.
     """
 
     frames: int = 5
     horizon: int = 0
     wiggle_per_video: int = 2
-    size: tuple[int, int] = GELSIGHT_MINI.image_size
+    size: tuple[int, int] | None = None
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -78,14 +79,17 @@ class ClipSpec:
         if not _is_int(self.wiggle_per_video) or self.wiggle_per_video < 0:
             raise ConfigError(f"wiggle_per_video must be an integer >= 0, got {self.wiggle_per_video!r}")
         size = self.size
-        if not (isinstance(size, (tuple, list)) and len(size) == 2 and all(_is_int(v) and v > 0 for v in size)):
+        if size is not None and not (
+            isinstance(size, (tuple, list)) and len(size) == 2 and all(_is_int(v) and v > 0 for v in size)
+        ):
             raise ConfigError(f"clip size must be (height, width) positive integers, got {size!r}")
         if not _is_int(self.seed):
             raise ConfigError(f"clip seed must be an integer, got {self.seed!r}")
         # Plain ints and a tuple keep the spec hashable and its JSON (cache key) stable.
         for name in ("frames", "horizon", "wiggle_per_video", "seed"):
             object.__setattr__(self, name, int(getattr(self, name)))
-        object.__setattr__(self, "size", (int(size[0]), int(size[1])))
+        if size is not None:
+            object.__setattr__(self, "size", (int(size[0]), int(size[1])))
 
 
 @dataclass(frozen=True)
@@ -248,6 +252,10 @@ def build_clips(
     Videos left without clips (slip too early, contact phase too short, no moment of slip)
     are reported with a :class:`~slipsense.recordings.folders.SkippedInputWarning`.
     """
+    if spec.size is None:
+        raise ConfigError(
+            "a clip's frame size is not stated: give the clip spec a size (the data's sensor's, or --size)"
+        )
     plans = _plans(recordings, labels, spec, warn=True)
     n_clips = sum(len(w) for _, _, w in plans)
     h, w = spec.size
@@ -384,23 +392,13 @@ def load_or_build_clips(
 def split_by_clip(clips: ClipSet, test_fraction: float = 0.1, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Random clip-level split (the paper's protocol; objects and runs occur on both sides).
 
-    Each class is split in the same proportion.
+    Each class is split in the same proportion: :class:`~slipsense.recordings.splits.ObjectHoldOut`
+    with every clip its own group and the class as the stratum (a class of one clip stays in training).
 
     Returns:
         ``(train_idx, test_idx)``: sorted int64 index arrays into ``clips``, disjoint, covering all.
     """
-    if not (isinstance(test_fraction, (int, float)) and 0.0 < test_fraction < 1.0):
-        raise ConfigError(f"test_fraction must be in (0, 1), got {test_fraction!r}")
-    rng = np.random.default_rng(seed)
-    is_test = np.zeros(len(clips), dtype=bool)
-    for c in np.unique(clips.y):
-        members = np.flatnonzero(clips.y == c)
-        n = len(members)
-        n_test = int(round(test_fraction * n))
-        if n >= 2:
-            n_test = min(max(n_test, 1), n - 1)  # keep every class on both sides when possible
-        is_test[rng.permutation(members)[:n_test]] = True
-    return np.flatnonzero(~is_test).astype(np.int64), np.flatnonzero(is_test).astype(np.int64)
+    return next(ObjectHoldOut(test_fraction, seed).split(np.arange(len(clips)), clips.y))
 
 
 def split_by_object(clips: ClipSet, test_objects: Iterable[str]) -> tuple[np.ndarray, np.ndarray]:
@@ -423,7 +421,8 @@ def split_by_object(clips: ClipSet, test_objects: Iterable[str]) -> tuple[np.nda
 
 
 def object_folds(objects: Iterable[str], n_folds: int = 5, seed: int = 0) -> list[list[str]]:
-    """Partition object names into ``n_folds`` folds for leave-objects-out cross-validation.
+    """Object names in ``n_folds`` folds for leave-objects-out cross-validation: the test objects of
+    :class:`~slipsense.recordings.splits.ObjectFolds`'s folds, in fold order.
 
     Deterministic for a given set of names and seed (order and duplicates in ``objects`` do not
     matter); fold sizes differ by at most one.
@@ -431,8 +430,4 @@ def object_folds(objects: Iterable[str], n_folds: int = 5, seed: int = 0) -> lis
     Returns:
         ``n_folds`` sorted lists of names; every name is in exactly one.
     """
-    names = sorted(set(objects))
-    if not _is_int(n_folds) or not 2 <= n_folds <= len(names):
-        raise ConfigError(f"n_folds must be an integer in 2..{len(names)} (the number of objects), got {n_folds!r}")
-    order = np.random.default_rng(seed).permutation(len(names))
-    return [sorted(names[j] for j in order[k::n_folds]) for k in range(n_folds)]
+    return ObjectFolds(n_folds, seed).test_objects(objects)

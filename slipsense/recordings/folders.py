@@ -13,21 +13,38 @@ import re
 import warnings
 from collections import Counter
 from pathlib import Path
-from typing import Iterable, Literal
+from typing import Iterable, Literal, NamedTuple
 
 from ..errors import ConfigError, InputError
 from ..paths import missing_data_hint
-from ..sensors.spec import GELSIGHT_MINI, SensorSpec
+from ..sensors.spec import SENSORS, STUDY_LAYOUT, SensorSpec
 from .bags import bag_cameras
-from .frame_folders import find_frame_recordings, is_frame_layout
-from .listing import FolderTree
+from .frame_folders import data_sensor, find_frame_recordings, is_frame_layout
+from .listing import FolderError, FolderTree
 from .types import Recording
 from .video import probe_video
 
 OnError = Literal["raise", "skip"]
 
 #: Camera videos are named ``camera_<anything>.avi``; the stem becomes ``Recording.camera``.
-CAMERA_GLOB = GELSIGHT_MINI.camera_glob
+CAMERA_GLOB = STUDY_LAYOUT["camera_glob"]
+
+
+def state_sensor(option: str = "--sensor NAME") -> str:
+    """What to do where no sensor can be found for a recordings folder, in words for its error;
+    ``option``: how the command at hand names a registered sensor."""
+    example = '{"name": "my-gelsight", "output": "video", "fps": 25}'
+    return f"no sensor is stated for it: put a sensor.json in it ({example}) or name a registered one with {option}"
+
+
+class Layout(NamedTuple):
+    """How a sensor's camera videos are laid out in a recordings folder (:data:`STUDY_LAYOUT`'s keys),
+    and the rate a ROS 2 bag's frames are written at (None: a bag cannot be read)."""
+
+    experiment_pattern: str
+    camera_glob: str
+    slip_marker: str
+    fps: float | None
 
 
 class SkippedInputWarning(UserWarning):
@@ -52,7 +69,7 @@ def report(path: Path | str | None, problem: str, on_error: str) -> None:
 
 
 def find_recordings(
-    root: str | Path, on_error: OnError = "raise", sensor: SensorSpec = GELSIGHT_MINI, tree: FolderTree | None = None
+    root: str | Path, on_error: OnError = "raise", sensor: SensorSpec | None = None, tree: FolderTree | None = None
 ) -> list[Recording]:
     """List every camera video under ``root``, sorted by (object, experiment, camera); or, where
     ``root`` holds grasps as folders of frames, every grasp folder
@@ -61,7 +78,9 @@ def find_recordings(
     Args:
         root: folder holding one sub-folder per object, e.g. ``config.gelsight_recordings()``.
         sensor: whose folder layout to read (its ``experiment_pattern``, ``camera_glob`` and
-            ``slip_marker``; the GelSight study's by default, as the names below say).
+            ``slip_marker``); None: the sensor the folder states (:func:`stated_sensor`). A sensor
+            without a layout of its own is read with :data:`~slipsense.sensors.spec.STUDY_LAYOUT`
+            (the names below).
         on_error: ``"raise"`` or ``"skip"`` for problems inside object folders: an experiment
             folder whose name does not match ``exp_num_<N>``, one without ``camera_*.avi``
             videos, an object folder without experiments, two folders naming the same experiment.
@@ -94,8 +113,8 @@ def find_recordings(
     if is_frame_layout(root, tree):
         found = find_frame_recordings(root, lambda path, problem: report(path, problem, on_error), tree)
     else:
-        sensor = _video_layout(sensor)
-        listed = (r for obj in objects for r in _object_recordings(obj, on_error, sensor, tree))
+        layout = _video_layout(sensor or stated_sensor(root, tree))
+        listed = (r for obj in objects for r in _object_recordings(obj, on_error, layout, tree))
         found = sorted(listed, key=lambda r: r.key)
     if not found:
         raise InputError(root, "no usable recordings found")
@@ -109,17 +128,57 @@ _LAYOUTS = (
 )
 
 
-def _video_layout(sensor: SensorSpec) -> SensorSpec:
-    """The sensor whose folder layout a scan of videos reads: a sensor of frame folders (a detector
-    calibrated to one) reads videos as the study laid them out."""
-    return sensor if sensor.experiment_pattern and sensor.camera_glob and sensor.slip_marker else GELSIGHT_MINI
+def _has_layout(sensor: SensorSpec | None) -> bool:
+    return sensor is not None and bool(sensor.experiment_pattern and sensor.camera_glob and sensor.slip_marker)
+
+
+def _video_layout(sensor: SensorSpec | None) -> Layout:
+    """The layout a scan of videos reads: the sensor's own; for a sensor of frame folders (a detector
+    calibrated to one), or none, the study's (:data:`~slipsense.sensors.spec.STUDY_LAYOUT`)."""
+    if _has_layout(sensor):
+        return Layout(sensor.experiment_pattern, sensor.camera_glob, sensor.slip_marker, sensor.fps)
+    return Layout(**STUDY_LAYOUT, fps=sensor.fps if sensor is not None else None)
+
+
+def layout_sensor(root: str | Path, tree: FolderTree | None = None) -> SensorSpec | None:
+    """The registered sensor whose video layout ``root`` holds: an object folder with an experiment
+    folder named as the sensor names them, holding its camera videos (or a ROS 2 bag). None where no
+    registered sensor's layout is found, or where two different ones are (which one is then stated)."""
+    root, tree = Path(root), tree or FolderTree()
+    found: dict[tuple, SensorSpec] = {}
+    for sensor in filter(_has_layout, SENSORS.values()):
+        layout = _video_layout(sensor)
+        if layout[:3] not in found and _holds_layout(root, layout, tree):
+            found[layout[:3]] = sensor
+    return next(iter(found.values())) if len(found) == 1 else None
+
+
+def _holds_layout(root: Path, layout: Layout, tree: FolderTree) -> bool:
+    pattern = re.compile(layout.experiment_pattern)
+    try:
+        for obj in tree.dirs(root):
+            for exp in tree.dirs(obj):
+                if pattern.match(exp.name) and (
+                    tree.files(exp, layout.camera_glob) or tree.is_file(exp / "metadata.yaml")
+                ):
+                    return True
+    except OSError:  # an unreadable folder: the scan names it
+        return False
+    return False
+
+
+def stated_sensor(root: str | Path, tree: FolderTree | None = None) -> SensorSpec | None:
+    """The sensor a recordings folder states: its ``sensor.json`` or a registered layout (the
+    ``gelsight-lift`` data's ``*_result.dat`` files, a registered sensor's videos: :func:`layout_sensor`);
+    None where it states none."""
+    tree = tree or FolderTree()
+    return data_sensor(root, tree) or layout_sensor(root, tree)
 
 
 def reads_alike(root: str | Path, a: SensorSpec, b: SensorSpec, tree: FolderTree | None = None) -> bool:
     """Whether :func:`find_recordings` of ``root`` finds the same recordings with sensor ``a`` as with
     ``b``: grasps as frame folders whatever the sensor, videos where both read the same folder layout."""
-    layouts = [(s.experiment_pattern, s.camera_glob, s.slip_marker) for s in map(_video_layout, (a, b))]
-    return layouts[0] == layouts[1] or is_frame_layout(root, tree)
+    return _video_layout(a)[:3] == _video_layout(b)[:3] or is_frame_layout(root, tree)
 
 
 def camera_counts(recordings: Iterable[Recording]) -> list[int]:
@@ -134,17 +193,18 @@ def _hint(pattern: str) -> str:
     return pattern.lstrip("^").rstrip("$").replace(r"(\d+)", "<N>")
 
 
-def _object_recordings(obj_dir: Path, on_error: str, sensor: SensorSpec, tree: FolderTree) -> list[Recording]:
-    experiment_re = re.compile(sensor.experiment_pattern)
-    camera_glob, slip_marker = sensor.camera_glob, sensor.slip_marker
+def _object_recordings(obj_dir: Path, on_error: str, layout: Layout, tree: FolderTree) -> list[Recording]:
+    experiment_re = re.compile(layout.experiment_pattern)
+    camera_glob, slip_marker = layout.camera_glob, layout.slip_marker
     camera_prefix = camera_glob.split("*")[0].lower()
     try:
         exp_dirs = tree.dirs(obj_dir)
-    except PermissionError:
-        report(obj_dir, "object folder is not readable (permission denied)", on_error)
+    except FolderError as exc:  # unreadable, or a link that loops or points nowhere
+        why = "object folder is not readable (permission denied)" if isinstance(exc, PermissionError) else exc.problem
+        report(obj_dir, why, on_error)
         return []
     if not exp_dirs:
-        report(obj_dir, f"object folder holds no {_hint(sensor.experiment_pattern)} experiment folders", on_error)
+        report(obj_dir, f"object folder holds no {_hint(layout.experiment_pattern)} experiment folders", on_error)
         return []
     out: list[Recording] = []
     seen: dict[int, Path] = {}
@@ -155,7 +215,7 @@ def _object_recordings(obj_dir: Path, on_error: str, sensor: SensorSpec, tree: F
             if not named and not tree.entries(exp_dir):  # no layout to go by: say what a grasp folder holds
                 report(exp_dir, f"grasp folder is empty (expected {_LAYOUTS})", on_error)
             else:
-                report(exp_dir, f"folder name does not match {_hint(sensor.experiment_pattern)}", on_error)
+                report(exp_dir, f"folder name does not match {_hint(layout.experiment_pattern)}", on_error)
             continue
         number = int(m.group(1))
         if number in seen:
@@ -164,12 +224,18 @@ def _object_recordings(obj_dir: Path, on_error: str, sensor: SensorSpec, tree: F
             continue
         try:
             cameras = tree.files(exp_dir, camera_glob)
-        except PermissionError:
-            report(exp_dir, "experiment folder is not readable (permission denied)", on_error)
+        except FolderError as exc:
+            perm = isinstance(exc, PermissionError)
+            report(exp_dir, "experiment folder is not readable (permission denied)" if perm else exc.problem, on_error)
             continue
         if not cameras and tree.is_file(exp_dir / "metadata.yaml"):  # a ROS 2 bag as the experiment
+            if layout.fps is None:
+                report(
+                    exp_dir, f"a ROS 2 bag is written into videos at its sensor's rate, and {state_sensor()}", on_error
+                )
+                continue
             try:
-                cameras = bag_cameras(exp_dir, sensor.fps)
+                cameras = bag_cameras(exp_dir, layout.fps)
             except InputError as exc:
                 report(exp_dir, exc.problem, on_error)
                 continue
@@ -194,7 +260,7 @@ def _object_recordings(obj_dir: Path, on_error: str, sensor: SensorSpec, tree: F
 def validate_recordings(
     recordings: Iterable[Recording],
     on_error: OnError = "raise",
-    expected_size: tuple[int, int] | None = GELSIGHT_MINI.image_size,
+    expected_size: tuple[int, int] | None = None,
     probed: dict | None = None,
 ) -> list[Recording]:
     """The ``recordings`` (from :func:`find_recordings`) whose videos pass a probe

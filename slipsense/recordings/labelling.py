@@ -16,6 +16,7 @@ from ..progress import progress_bar
 from ..resources import shipped_overrides
 from .folders import SkippedInputWarning, check_on_error
 from .frame_cache import prefetch
+from .frames import source_stat
 from .label_csv import Overrides, apply_overrides, read_overrides_csv
 from .labels import LABEL_PRODUCTS, label_recordings
 from .types import by_run
@@ -34,6 +35,17 @@ def shipped_overrides_for(recordings):
     rows = read_overrides_csv(shipped_overrides())
     keep = {k: v for k, v in rows.items() if k[:2] in present and (k[2] is None or k[2] in present[k[:2]])}
     return Overrides(keep, rows.path, rows.lines) if keep else None
+
+
+def overrides_key(overrides) -> object:
+    """What names a labels' overrides argument where labelled sets are kept: a CSV by its path, size
+    and modification time (an edited CSV labels again), anything else by its repr."""
+    if isinstance(overrides, (str, Path)):
+        try:
+            return (str(Path(overrides).resolve()), *source_stat(overrides))
+        except OSError:  # reading it names the problem
+            return str(overrides)
+    return repr(overrides)
 
 
 def label_runs(recordings, overrides=None, on_error: str = "raise", progress: bool = True):

@@ -61,7 +61,6 @@ from .video import read_video
 from .marker_cache import read_track, track_entry
 from ..sensors.marker_detection import detect_markers, order_markers  # noqa: F401 (re-exported)
 from ..sensors.marker_tracking import DEFAULT_MM_PER_PX, MarkerTrack, track_markers
-from ..sensors.spec import GELSIGHT_MINI
 
 
 def select_markers(track: MarkerTrack, n_markers: int) -> np.ndarray:
@@ -171,7 +170,7 @@ def track_recording(
     path: str | Path,
     reference_index: int | None = None,
     *,
-    expected_size: tuple[int, int] | None = GELSIGHT_MINI.image_size,
+    expected_size: tuple[int, int] | None = None,
     **track_kwargs: Any,
 ) -> MarkerTrack:
     """Decode a video (:func:`slipsense.recordings.video.read_video`) and track its markers.
@@ -189,7 +188,7 @@ def track_recordings(
     *,
     cache_dir: str | Path | None = None,
     progress: bool = True,
-    expected_size: tuple[int, int] | None = GELSIGHT_MINI.image_size,
+    expected_size: tuple[int, int] | None = None,
     **track_kwargs: Any,
 ) -> list[MarkerTrack]:
     """Track many recordings, caching each result as ``.npz``.

@@ -31,8 +31,8 @@ import numpy as np  # noqa: E402
 
 from ..errors import InputError  # noqa: E402
 from ..paths import missing_data_hint  # noqa: E402
-from ..sensors.spec import GELSIGHT_MINI  # noqa: E402
 from .frames import check_size, frame_files, is_frame_folder, probe_frames, read_frames  # noqa: E402
+from .listing import link_problem  # noqa: E402
 
 #: Largest accepted gap between the frame count the container states and the frames decoded.
 TRUNCATION_TOLERANCE = 1
@@ -75,8 +75,12 @@ class VideoInfo:
 
 def _check_file(path: Path) -> None:
     """Refuse paths that are missing, not files, unreadable, empty or not a video container."""
-    if not path.exists():
-        raise InputError(path, "video file does not exist" + missing_data_hint(path))
+    try:
+        missing = not path.exists()  # False for a link that loops or points nowhere, too
+    except PermissionError:  # a folder on the way that may not be searched
+        raise InputError(path, "video file is not readable (permission denied)") from None
+    if missing:
+        raise InputError(path, link_problem(path) or "video file does not exist" + missing_data_hint(path))
     if not path.is_file():
         raise InputError(path, "is not a file (expected a video file, or a folder of frame images)")
     try:
@@ -165,7 +169,7 @@ def _check_args(expected_size: tuple[int, int] | None, min_frames: int) -> None:
 
 def read_video(
     path: str | Path,
-    expected_size: tuple[int, int] | None = GELSIGHT_MINI.image_size,
+    expected_size: tuple[int, int] | None = None,
     min_frames: int = 2,
 ) -> np.ndarray:
     """Decode a whole video into memory.
@@ -296,7 +300,7 @@ def frame_count(path: str | Path) -> int | None:
 
 def probe_video(
     path: str | Path,
-    expected_size: tuple[int, int] | None = GELSIGHT_MINI.image_size,
+    expected_size: tuple[int, int] | None = None,
     min_frames: int = 2,
 ) -> VideoInfo:
     """Check a video cheaply, without decoding it all.

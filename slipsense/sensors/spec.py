@@ -128,16 +128,19 @@ class SensorSpec:
         )
 
 
-#: Two GelSight Mini sensors on the fingers of a Franka Panda: the ViViT study's recordings
-#: (``<object>/exp_num_<N>/camera_0.avi`` and ``camera_2.avi``, ``slip.txt`` when it slipped).
+#: The ViViT study's file layout of camera videos (``<object>/exp_num_<N>/camera_0.avi`` and
+#: ``camera_2.avi``, ``slip.txt`` when it slipped): a sensor of videos that states no layout of its own
+#: is listed with it.
+STUDY_LAYOUT = {"experiment_pattern": r"^exp_num_(\d+)$", "camera_glob": "camera_*.avi", "slip_marker": "slip.txt"}
+
+#: Two GelSight Mini sensors on the fingers of a Franka Panda: the ViViT study's recordings, in
+#: :data:`STUDY_LAYOUT`.
 GELSIGHT_MINI = SensorSpec(
     name="gelsight-mini",
     output="video",
     fps=25.0,
     image_size=(240, 320),
-    camera_glob="camera_*.avi",
-    experiment_pattern=r"^exp_num_(\d+)$",
-    slip_marker="slip.txt",
+    **STUDY_LAYOUT,
     capture_format="MJPG",
     gel_markers=True,
     # the GelSight Mini's sensing area, 18.6 x 14.3 mm (GelSight Inc., GelSight Mini datasheet), over
@@ -191,5 +194,6 @@ def sensor_of(info: Mapping[str, Any] | None, path: Any = None) -> SensorSpec:
         raise InputError(path, f"checkpoint sensor spec is malformed ({exc})") from None
 
 
-__all__ = ["BINOCULAR_MARKERS", "GELSIGHT_LIFT", "GELSIGHT_MINI", "MAX_FPS", "MIN_FPS", "SENSORS", "SensorSpec"]
+__all__ = ["BINOCULAR_MARKERS", "GELSIGHT_LIFT", "GELSIGHT_MINI", "MAX_FPS", "MIN_FPS", "SENSORS", "STUDY_LAYOUT"]
+__all__ += ["SensorSpec"]
 __all__ += ["check_fps", "fps_problem", "register_sensor", "sensor_named", "sensor_of"]

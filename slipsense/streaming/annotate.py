@@ -15,7 +15,7 @@ from PIL import Image
 from slipsense.alarm import shown_probability
 from slipsense.atomic import atomic_path, write_with
 from slipsense.errors import InputError
-from slipsense.streaming.detector import FPS, Reading
+from slipsense.streaming.detector import Reading
 
 #: Seconds of probability history the trace panel shows.
 TRACE_SECONDS = 6.0
@@ -28,7 +28,7 @@ class Annotator:
     ``panel_height``: pixel height each sensor frame is drawn at.
     """
 
-    def __init__(self, threshold: float, sensors: int, fps: float = FPS, panel_height: int = 240):
+    def __init__(self, threshold: float, sensors: int, fps: float, panel_height: int = 240):
         self.threshold, self.sensors, self.fps, self.panel_height = threshold, sensors, fps, panel_height
         self.history: collections.deque[float] = collections.deque(maxlen=int(TRACE_SECONDS * fps))
 
@@ -242,6 +242,14 @@ class _Aborted(Exception):
     """Thrown into :func:`atomic_path` to drop its temporary file."""
 
 
+def check_suffix(path: str | Path) -> str:
+    """The kind of annotated output ``path`` asks for (its suffix); InputError for one not written."""
+    suffix = Path(path).suffix.lower()
+    if suffix not in (".gif", ".mp4", ".avi"):
+        raise InputError(Path(path), "output must end in .gif, .mp4 or .avi")
+    return suffix
+
+
 class AnnotatedWriter:
     """Collects annotated BGR pictures and writes them as a GIF (Pillow) or a video (OpenCV), atomically,
     with the mode a plain ``open()`` gives (0666 less the umask).
@@ -251,12 +259,10 @@ class AnnotatedWriter:
     ``.mp4`` (mp4v) / ``.avi`` (MJPG): streamed to a temporary file, renamed on :meth:`close`.
     """
 
-    def __init__(self, path: str | Path, fps: float = FPS):
+    def __init__(self, path: str | Path, fps: float):
         self.path = Path(path)
         self.fps = fps
-        suffix = self.path.suffix.lower()
-        if suffix not in (".gif", ".mp4", ".avi"):
-            raise InputError(self.path, "output must end in .gif, .mp4 or .avi")
+        suffix = check_suffix(self.path)
         self.kind = suffix
         self._gif = _GifFrames() if suffix == ".gif" else None
         self._writer = None

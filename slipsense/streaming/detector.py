@@ -35,11 +35,9 @@ from slipsense.models.base import SlipModel, window_geometry
 from slipsense.models.runners import check_backend, onnx_cache_dir, resolve_backend
 from slipsense.resources import default_model_name, shipped_model, shipped_models
 from slipsense.sensors.gel_motion import GelMotion, motion_stream
-from slipsense.sensors.spec import GELSIGHT_MINI, sensor_of
+from slipsense.sensors.spec import sensor_of
 from slipsense.streaming.clock import ModelClock, resample
 
-#: Frame rate of the GelSight recordings (frames per second): converts frames to milliseconds.
-FPS = GELSIGHT_MINI.fps
 #: The shipped default detector (package data: :mod:`slipsense.resources`).
 DEFAULT_CHECKPOINT = shipped_model()
 COMBINE = ("max", "mean")
@@ -498,5 +496,5 @@ def check_settings(threshold: Any, sensors: Any, combine: str | None, backend: s
     check_backend(backend, dtype)
 
 
-__all__ = ["DEFAULT_CHECKPOINT", "FPS", "Reading", "SlipDetector", "Trace", "combine_probabilities", "onnx_cache_dir"]
+__all__ = ["DEFAULT_CHECKPOINT", "Reading", "SlipDetector", "Trace", "combine_probabilities", "onnx_cache_dir"]
 __all__ += ["shipped_name", "window_geometry", "stored_operating_point", "stored_hold", "check_hold"]

@@ -28,11 +28,11 @@ from slipsense.plots import plot_tradeoff
 from slipsense.measures import MEASURES, cell, measure_all, measure_lines, pergrasp, ranked, ranked_columns
 from slipsense.measures import operating_points
 from slipsense.measures.clips import clip_metrics, scores
-from slipsense.sensors.spec import GELSIGHT_MINI
 from slipsense.parallel import run_jobs
 from slipsense.recordings.runs import GraspRun, runs_summary
 from slipsense.training.grasp_detector import (
     pooled_runs,
+    sensor_rate,
     chosen_part,
     finish_training,
     fit_job,
@@ -40,20 +40,21 @@ from slipsense.training.grasp_detector import (
     inner_traces,
     job_weight,
     judged_indices,
-    object_split,
+    object_folds_of,
     plan_training,
     traces_json,
 )
 from slipsense.training.grasps import GraspTrainConfig
 
 
-def pool_folds(folds: Sequence[dict[str, Any]], runs: Sequence[pergrasp.RunTrace]) -> dict[str, Any]:
+def pool_folds(folds: Sequence[dict[str, Any]], runs: Sequence[pergrasp.RunTrace], fps: float) -> dict[str, Any]:
     """Pool the folds: per-grasp outcomes and clip decisions, each fold at its own operating point; and,
-    for the trade-off curve, every fold's held-out runs (:func:`pooled_runs`) at shared thresholds."""
+    for the trade-off curve, every fold's held-out runs (:func:`pooled_runs`, taken at ``fps``) at shared
+    thresholds."""
     outcomes = [
         pergrasp.GraspOutcome(r["outcome"], r["first_alarm"], r["lead"], 0.0, 0) for f in folds for r in f["runs"]
     ]
-    per_grasp = pergrasp.summarise(outcomes)
+    per_grasp = pergrasp.summarise(outcomes, fps)
     per_grasp["runs_alarming_at_rest"] = sum(f["per_grasp"]["runs_alarming_at_rest"] for f in folds)
     per_grasp["held_alarm_fraction"] = float(np.mean([f["per_grasp"]["held_alarm_fraction"] for f in folds]))
     per_grasp["intervals"] = pergrasp.bootstrap_rates([o.outcome for o in outcomes])
@@ -68,7 +69,7 @@ def pool_folds(folds: Sequence[dict[str, Any]], runs: Sequence[pergrasp.RunTrace
         "clips_at_half": clip_metrics(p_all, y, 0.5),
         "operating_points": [f["operating_point"] for f in folds],
         "curve": operating_points.table(
-            traces, moments, operating_points.THRESHOLDS, (debounce,), rests=rests, intervals=2000
+            traces, moments, operating_points.THRESHOLDS, (debounce,), rests=rests, fps=fps, intervals=2000
         ),
     }
 
@@ -122,15 +123,17 @@ def run_folds(
 
     Every training of the folds not yet done (each fold's detector and its inner folds') goes to
     one pool of ``workers`` processes (default one per core, :mod:`slipsense.parallel`); a fold is
-    written as soon as its trainings are finished."""
+    written as soon as its trainings are finished. ``meta`` names the runs' ``sensor``: every time
+    judged (the warning horizon, the leads) is read at its rate."""
     out = Path(out)
+    fps = sensor_rate(meta, "the cross-validation's data")
     usable = [r for r in runs if r.usable]
     if any(r.whole and not r.extra for r in usable):
         raise ConfigError(
             "these grasps are labelled as a whole (no moment of slip): their leave-objects-out figures are "
             "`python -m studies grasp adaptation --recordings DIR` (slipped against held, intervals over objects)"
         )
-    split = object_split(usable, folds, cfg.folds_seed)
+    split = object_folds_of(usable, folds, cfg.folds_seed)
     key = _config_key(cfg, folds, usable)
     done: dict[int, dict[str, Any]] = {}
     for k in range(len(split)):
@@ -149,7 +152,7 @@ def run_folds(
         if len(results[k]) < len(plans[k]):
             return
         ordered = [results[k][i] for i in sorted(results[k])]
-        _, history, op, probs = finish_training(usable, plans[k], ordered, cfg)
+        _, history, op, probs = finish_training(usable, plans[k], ordered, cfg, fps=fps)
         jobs_kept, results_kept = chosen_part(plans[k], ordered, op)  # of the settings train.choose kept
         test = [usable[i] for i in plans[k][0].predict]
         inner = [usable[i] for i in judged_indices(usable, jobs_kept)] if len(jobs_kept) > 1 else []
@@ -159,7 +162,7 @@ def run_folds(
             "objects": sorted(split[k]),
             "operating_point": op,
             "history": history,
-            **held_out_result(test, probs, op, labels, cfg.horizon),
+            **held_out_result(test, probs, op, labels, cfg.horizon, fps),
             # what chose the operating point, kept so another rule can be chosen on it later
             "inner": traces_json(inner, inner_traces(usable, jobs_kept, results_kept) if inner else []),
             "seconds": round(time.perf_counter() - t0, 1),  # since the pool started: folds share it
@@ -192,10 +195,10 @@ def run_folds(
 def _write_report(out: Path, head: dict[str, Any], folds: list[dict[str, Any]], title: str) -> dict[str, Any]:
     """``head`` with the ``folds`` pooled, written into ``out`` as folds.json, README.md and
     tradeoff.png; returns the report."""
-    fps = float((head.get("sensor") or {}).get("fps") or GELSIGHT_MINI.fps)
+    fps = sensor_rate(head, "the cross-validation's data")
     horizon = head["train_config"]["horizon"]
     judged = pooled_runs(folds, fps, horizon)
-    pooled = {**pool_folds(folds, judged.runs), **measure_all(judged, pooled_measures())}
+    pooled = {**pool_folds(folds, judged.runs, fps), **measure_all(judged, pooled_measures())}
     report = {
         **head,
         "pooled": {k: v for k, v in pooled.items() if k != "curve"},
@@ -277,7 +280,7 @@ def summary_markdown(report: dict[str, Any]) -> str:
     """The report as a short Markdown page: per-grasp and clip tables, per fold and pooled."""
     g, c = report["pooled"]["per_grasp"], report["pooled"]["clips"]
     cfg, d = report["train_config"], report["data"]
-    fps = float((report.get("sensor") or {}).get("fps") or GELSIGHT_MINI.fps)
+    fps = sensor_rate(report, "the cross-validation report")
     pooled = {k: v for k, v in report["pooled"].items() if k in pooled_measures()}
     others = measure_lines(pooled, {"horizon": cfg["horizon"], "fps": fps})
     one = "One finger: each camera of a run is a grasp of its own (a run's two cameras count twice)."
@@ -288,7 +291,7 @@ def summary_markdown(report: dict[str, Any]) -> str:
         f"Command: `{report.get('command', 'slipsense train --cross-validate')}`",
         "",
         f"Runs: {d['runs']}: {d['slip_with_moment']} slips with a moment of slip, {d['slip_without_moment']} slips "
-        f"without one (left out; for the shared recordings reports/labels says why), {d['held']} that held. Horizon {cfg['horizon']} frames (2 s at 25 frames/s); operating point "
+        f"without one (left out; for the shared recordings reports/labels says why), {d['held']} that held. Horizon {cfg['horizon']} frames ({cfg['horizon'] / fps:g} s at {fps:g} frames/s); operating point "
         f"chosen per fold on its training objects only ({cfg['inner_folds']} inner folds; 0 = on the training "
         f"runs themselves; rule: {_rule(report)}).",
         *([also.format(d["also_runs"])] if d.get("also_runs") else []),

@@ -13,7 +13,7 @@ import json
 import math
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 from safetensors.torch import load_file
@@ -25,6 +25,7 @@ from slipsense.errors import ConfigError
 from slipsense.measures import Judged, measure_all, pergrasp, ranked
 from slipsense.measures import promise
 from slipsense.measures import operating_points
+from slipsense.measures.registry import startup_frames
 from slipsense.evaluation.calibrate import calibrated_threshold
 from slipsense.evaluation.judge import clip_scores
 from slipsense.measures.clips import clip_metrics
@@ -32,17 +33,17 @@ from slipsense.recordings.contact import rest_mask
 from slipsense.measures.slipped_or_held import peak_alarm_score, roc_auc
 from slipsense.models import build
 from slipsense.parallel import run_jobs
-from slipsense.recordings.clips import object_folds
 from slipsense.recordings.runs import GraspRun
-from slipsense.sensors.spec import GELSIGHT_MINI
+from slipsense.recordings.splits import ObjectFolds
 from slipsense.training.distributed import setup
 from slipsense.training.grasps import GraspTrainConfig, candidates, fit_runs, predict_runs, with_settings
 
 
-def object_split(runs: Sequence[GraspRun], folds: int, seed: int = 0) -> list[list[str]]:
-    """Objects of ``runs`` in ``folds`` folds (:func:`slipsense.recordings.clips.object_folds`); another
-    data set's grasps (``extra``) are never held out."""
-    return object_folds({r.object for r in runs if not r.extra}, folds, seed)
+def object_folds_of(runs: Sequence[GraspRun], folds: int, seed: int = 0) -> list[list[str]]:
+    """The objects each of ``folds`` folds of ``runs`` holds out
+    (:meth:`slipsense.recordings.splits.ObjectFolds.test_objects`); another data set's grasps
+    (``extra``) are never held out."""
+    return ObjectFolds(folds, seed).test_objects(r.object for r in runs if not r.extra)
 
 
 @dataclass(frozen=True)
@@ -97,7 +98,7 @@ def plan_training(runs: Sequence[GraspRun], held: Sequence[str], cfg: GraspTrain
         return tuple(i for i, o in zip(ids, on) if not o), tuple(i for i, o in zip(ids, on) if o)
 
     train, tested = split([i for i, r in enumerate(runs) if r.usable], set(held))
-    inner = object_split([runs[i] for i in train], cfg.inner_folds, cfg.folds_seed) if cfg.inner_folds else []
+    inner = object_folds_of([runs[i] for i in train], cfg.inner_folds, cfg.folds_seed) if cfg.inner_folds else []
     if not all(any(_teaches_slip(runs[i]) for i in split(train, objects)[0]) for objects in inner):
         # an inner fold would train on no slip (its objects hold every slip of the training runs):
         # the operating point is chosen on the training runs themselves, and says so
@@ -116,9 +117,11 @@ def _teaches_slip(run: GraspRun) -> bool:
     return run.slipped and (run.moment_of_slip is not None or run.whole)
 
 
-def finish_training(runs: Sequence[GraspRun], jobs: Sequence[FitJob], results: Sequence[dict], cfg: GraspTrainConfig):
+def finish_training(
+    runs: Sequence[GraspRun], jobs: Sequence[FitJob], results: Sequence[dict], cfg: GraspTrainConfig, *, fps: float
+):
     """From a finished :func:`plan_training`: ``(model in eval mode, history, operating point,
-    P(slip) traces of the held-out runs)``. The operating point is chosen on the inner folds'
+    P(slip) traces of the held-out runs)``; ``fps``: the rate the runs were taken at. The operating point is chosen on the inner folds'
     out-of-fold traces (or, with ``inner_folds=0``, on the model's own traces of its training runs).
     Of several candidates (``cfg.choose``) the one whose operating point scores best on those
     traces is returned (ties: the better ROC AUC of the grasps' peaks); its operating point names
@@ -132,7 +135,7 @@ def finish_training(runs: Sequence[GraspRun], jobs: Sequence[FitJob], results: S
         judged = [runs[i] for i in judged_indices(runs, js)]
         inner = len(js) > 1  # the plan's inner folds (none where one would train on no slip)
         probs = inner_traces(runs, js, rs) if inner else rs[0]["judged"]
-        op = _chosen_operating_point(probs, judged, c, inner)
+        op = _chosen_operating_point(probs, judged, c, inner, fps)
         rank = (op.get("score_on_training_runs", 0.0), _peak_auc(probs, judged, c.startup))
         tried.append({"settings": settings, "score": rank[0], "roc_auc": rank[1]})
         if best is None or rank > best[0]:
@@ -191,8 +194,10 @@ def train_with_operating_point(
     state_dir=None,
     out=None,
     info: dict | None = None,
+    *,
+    fps: float,
 ):
-    """Train a detector on the runs of every object but ``held`` and choose its operating point on
+    """Train a detector on the runs of every object but ``held`` (taken at ``fps``) and choose its operating point on
     those runs only (:func:`plan_training` on ``workers`` processes); returns :func:`finish_training`'s
     ``(model, history, operating point, held-out traces)``. ``state_dir``: each training keeps its
     resume state there (``job<k>.state``) and continues from one it finds (:func:`fit_runs`).
@@ -216,7 +221,7 @@ def train_with_operating_point(
         desc=cfg.model,
         longest_first=True,  # the detector's result is wanted with all the others: none is written early
     )
-    return finish_training(runs, jobs, results, cfg)
+    return finish_training(runs, jobs, results, cfg, fps=fps)
 
 
 def held_alarm_of(probs: Sequence[np.ndarray], runs: Sequence[GraspRun], op: dict, cfg: GraspTrainConfig) -> dict:
@@ -227,7 +232,7 @@ def held_alarm_of(probs: Sequence[np.ndarray], runs: Sequence[GraspRun], op: dic
 
 
 def _chosen_operating_point(
-    probs: Sequence[np.ndarray], runs: Sequence[GraspRun], cfg: GraspTrainConfig, inner: bool
+    probs: Sequence[np.ndarray], runs: Sequence[GraspRun], cfg: GraspTrainConfig, inner: bool, fps: float
 ) -> dict:
     """The threshold and debounce that best separate ``runs``' slips from their held grasps, and on what.
     Runs labelled as a whole (no moment to warn before) are judged per grasp: the threshold just above
@@ -247,11 +252,12 @@ def _chosen_operating_point(
             "debounce": 1,
             "hold_s": HOLD_S,
             **at,
+            **{f"{k}_s": v / fps for k, v in at.items()},  # what the frame counts stand for
             "rule": f"at most {100 * budget:g}% of held grasps alarming (grasps labelled as a whole)",
         }
     else:
         moments = [r.moment_of_slip for r in runs]
-        op = operating_points.choose_operating_point(probs, moments, **at, max_held_alarm=cfg.max_held_alarm)
+        op = operating_points.choose_operating_point(probs, moments, **at, max_held_alarm=cfg.max_held_alarm, fps=fps)
     if inner:
         op["chosen_on"] = f"{cfg.inner_folds} inner folds of the training objects"
     elif cfg.inner_folds:
@@ -269,7 +275,9 @@ def _checkpoint_info(cfg: GraspTrainConfig, runs: Sequence[GraspRun], data: dict
     """What a detector's checkpoints carry besides the weights; ``trained``: its ``operating_point`` and ``history``."""
     data = dict(data)
     tree = data.pop("config", None)  # the whole configuration tree, where every checkpoint keeps it
-    sensor = data.pop("sensor", None) or GELSIGHT_MINI.to_dict()  # the sensor whose recordings it read
+    sensor = data.pop("sensor", None)  # the sensor whose recordings it read: every time it reports is at its rate
+    if not sensor:
+        raise ConfigError("the training data names no sensor: its frame rate is needed (data.sensor or sensor.json)")
     return {
         "train_config": cfg.to_dict(),
         "sensor": sensor,
@@ -321,12 +329,14 @@ def train_detector(
         )
     data = {**(data or {}), "held_out_objects": sorted(held)}
     card = _checkpoint_info(cfg, train, data)
-    model, history, op, probs = train_with_operating_point(runs, held, cfg, workers, progress, state_dir, out, card)
+    fps = sensor_rate(card, "the training data")
+    model, history, op, probs = train_with_operating_point(
+        runs, held, cfg, workers, progress, state_dir, out, card, fps=fps
+    )
     result = {"checkpoint": str(out / "detector.safetensors"), "operating_point": op, "history": history}
     if held:
         test = [r for r in usable if r.object in set(held)]
-        judged = held_out_result(test, probs, op, labels, cfg.horizon)
-        fps = float(((data or {}).get("sensor") or {}).get("fps") or GELSIGHT_MINI.fps)
+        judged = held_out_result(test, probs, op, labels, cfg.horizon, fps)
         # every registered measure that ranks, on the held-out runs (as the fold tables show them)
         measures = ranked(measure_all(pooled_runs([{**judged, "operating_point": op}], fps, cfg.horizon)))
         result.update({**{k: judged[k] for k in ("per_grasp", "clips")}, "measures": measures})
@@ -362,9 +372,19 @@ def stored_trace(run: dict[str, Any]) -> np.ndarray:
     return np.array([np.nan if v is None else v for v in run["probability"]], dtype=np.float64)
 
 
+def sensor_rate(doc: Mapping[str, Any] | None, what: str) -> float:
+    """The frame rate of the sensor ``doc`` (a checkpoint's info, a report's head) records; ConfigError
+    where it names none (a rate assumed would put every time it reports on another clock)."""
+    fps = ((doc or {}).get("sensor") or {}).get("fps")
+    if not fps:
+        raise ConfigError(f"{what} names no sensor with a frame rate: its times cannot be read without one")
+    return float(fps)
+
+
 def pooled_runs(folds: Sequence[dict[str, Any]], fps: float, horizon: int) -> Judged:
     """Every fold's held-out runs as the measures take them, each at its fold's operating point
-    (``fps``: the rate the runs were read at, the detector's)."""
+    (``fps``: the rate the runs were read at, the detector's; ``horizon``: frames at it; the start-up
+    is each fold's operating point's, else :data:`~slipsense.measures.registry.STARTUP_S` at ``fps``)."""
     runs, points = [], []
     for f in folds:
         op = f["operating_point"]
@@ -374,15 +394,19 @@ def pooled_runs(folds: Sequence[dict[str, Any]], fps: float, horizon: int) -> Ju
             at = (r["object"], r["experiment"], r["slipped"], r["moment_of_slip"], len(p), p, rest, tuple(r["cameras"]))
             runs.append(pergrasp.RunTrace(*at, fps, fps))
             points.append((op["threshold"], op["debounce"], op.get("hold_s", 0.0)))
-    startup = int(folds[0]["operating_point"].get("startup", pergrasp.STARTUP)) if folds else pergrasp.STARTUP
+    default = startup_frames(fps)
+    startup = int(folds[0]["operating_point"].get("startup", default)) if folds else default
     return Judged(runs, points, horizon, startup)
 
 
-def held_out_result(runs: Sequence[GraspRun], probs, op: dict[str, Any], labels: dict, horizon: int) -> dict:
-    """The held-out ``runs`` judged from their P(slip) traces at ``op`` (from its ``startup``): the per-grasp
+def held_out_result(
+    runs: Sequence[GraspRun], probs, op: dict[str, Any], labels: dict, horizon: int, fps: float
+) -> dict:
+    """The held-out ``runs`` (taken at ``fps``; ``horizon`` in frames at it) judged from their P(slip)
+    traces at ``op`` (from its ``startup``, else :data:`~slipsense.measures.registry.STARTUP_S`): the per-grasp
     summary and clip metrics, and what pooling folds needs: each run's outcome (a slip labelled as a whole is
     ``slip_without_moment``, neither slip nor held), frames at rest and trace, the clips' probabilities and labels."""
-    startup = int(op.get("startup", pergrasp.STARTUP))
+    startup = int(op.get("startup", startup_frames(fps)))
     th, k = op["threshold"], op["debounce"]
     rests = [rest_mask(r.contact) for r in runs]
     outs = [
@@ -391,7 +415,7 @@ def held_out_result(runs: Sequence[GraspRun], probs, op: dict[str, Any], labels:
     ]
     p, y = clip_scores(runs, probs, labels)
     return {
-        "per_grasp": pergrasp.summarise(outs),
+        "per_grasp": pergrasp.summarise(outs, fps),
         "clips": clip_metrics(p, y, th),
         "clip_probability": [round(float(v), 5) for v in p],
         "clip_label": [int(v) for v in y],

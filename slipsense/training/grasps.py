@@ -22,7 +22,6 @@ import itertools
 import json
 import math
 import warnings
-from pathlib import Path
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any, Callable, Sequence
 
@@ -33,17 +32,14 @@ import torch.nn.functional as F
 
 from slipsense.checkpoint import load_model, read_info
 from slipsense.paths import portable_path, resolve_path
-from slipsense.recordings.labelling import label_runs
-from slipsense.errors import ConfigError, InputError, SlipsenseError
+from slipsense.errors import ConfigError, SlipsenseError
 from slipsense.measures import pergrasp
 from slipsense.models import build
 from slipsense.models.base import RecordingsShape
 from slipsense.recordings.folders import camera_counts
-from slipsense.recordings.frames import source_stat
-from slipsense.recordings.recording_set import Recordings
+from slipsense.recordings.recording_set import Labelled, Recordings, labelled_set
 from slipsense.recordings.runs import GraspRun, load_runs
 from slipsense.config_tree import DEFAULT_MODEL, typed
-from slipsense.sensors.spec import GELSIGHT_MINI
 from slipsense.streaming.clock import resample, slower_camera_frames
 from slipsense.training.trainer import LoopSettings, Step, Task, train
 
@@ -409,9 +405,9 @@ def _predict_items(model, items) -> list[np.ndarray]:
 
 
 @torch.no_grad()
-def predict_runs(model, runs: Sequence[GraspRun], startup: int = pergrasp.STARTUP) -> list[np.ndarray]:
+def predict_runs(model, runs: Sequence[GraspRun], startup: int) -> list[np.ndarray]:
     """P(slip) at every frame of every run, as a replay from the first frame gives it; NaN during
-    the ``startup`` frames (the detector does not answer there). The model's own stream replays them
+    the ``startup`` frames at the runs' rate (the detector does not answer there). The model's own stream replays them
     (:meth:`~slipsense.models.base.SlipModel.stream`): the numbers the live detector gives."""
     stream = model.stream(info={"operating_point": {"startup": startup}})
     return [stream.replay_cached(r.gray)[:, 0] for r in runs]
@@ -459,34 +455,22 @@ def load_grasp_data(
     progress: bool = True,
     sensor=None,
 ) -> tuple[list[GraspRun], dict]:
-    """Labelled whole runs of a :class:`~slipsense.recordings.recording_set.Recordings` or its folder
-    (``(runs, labels)``), labels with overrides; ``sensor`` (a :class:`~slipsense.sensors.spec.SensorSpec`,
-    default the GelSight Mini) names the folder layout. Read once per set (:meth:`Recordings.kept`):
-    every training that asks for the same runs shares their frames, so nothing writes into them."""
-    read = Recordings.of(recordings, sensor or GELSIGHT_MINI, on_error)
-    what = ("grasp runs", _overrides_key(overrides), tuple(image_size), on_error)
-    runs, labels = read.kept(what, lambda: _read_grasp_data(read, overrides, image_size, on_error, progress))
-    return list(runs), dict(labels)
+    """Labelled whole runs (``(runs, labels)``) of a labelled set
+    (:class:`~slipsense.recordings.recording_set.Labelled`, taken as it is), or of a
+    :class:`~slipsense.recordings.recording_set.Recordings` or its folder, labelled once here with
+    ``overrides`` and read as ``sensor`` (None: the sensor the data states). Read once per set
+    (:meth:`Recordings.kept`): every training that asks for the same runs shares their frames, so
+    nothing writes into them."""
+    data = labelled_set(recordings, overrides, sensor, on_error, progress=progress)
+    size = tuple(image_size)
+    labels = tuple((k, repr(v)) for k, v in sorted(data.labels.items()))  # other labels: other runs
+    runs = data.recordings.kept(("grasp runs", size, labels), lambda: _read_grasp_data(data, size, progress))
+    return list(runs), dict(data.labels)
 
 
-def _overrides_key(overrides) -> Any:
-    """What names a labels' overrides argument: a CSV by its path, size and modification time."""
-    if isinstance(overrides, (str, Path)):
-        try:
-            return (str(Path(overrides).resolve()), *source_stat(overrides))
-        except OSError:  # reading it names the problem
-            return str(overrides)
-    return repr(overrides)
-
-
-def _read_grasp_data(read: Recordings, overrides, image_size, on_error: str, progress: bool):
-    recs = read.checked(on_error)
-    if not recs:
-        raise InputError(read.root, "no usable recordings")
-    labels = label_runs(recs, overrides, on_error=on_error, progress=progress)
-    recs = [r for r in recs if r.key in labels]  # runs left out by on_error="skip"
-    sensors = cameras_per_grasp(recs)
-    return load_runs(recs, labels, image_size, sensors=sensors, progress=progress), labels
+def _read_grasp_data(data: Labelled, image_size, progress: bool):
+    recs = list(data)
+    return load_runs(recs, data.labels, image_size, sensors=cameras_per_grasp(recs), progress=progress)
 
 
 def cameras_per_grasp(recordings) -> int:
@@ -504,7 +488,7 @@ def recordings_shape(recordings, sensor=None, on_error: str = "raise") -> Record
     try:
         with warnings.catch_warnings():  # what on_error="skip" leaves out is said when the data is read
             warnings.simplefilter("ignore")
-            found = Recordings.of(recordings, sensor or GELSIGHT_MINI, on_error).listed
+            found = Recordings.of(recordings, sensor, on_error).listed
     except SlipsenseError:
         return None
     return RecordingsShape(cameras_per_grasp(found), all(r.per_grasp for r in found)) if found else None

@@ -45,6 +45,10 @@ def choose_on_training_runs(
     runs = [r for r in ev.runs if not (r.slipped and r.moment_of_slip is None)]
     if not any(r.moment_of_slip is not None for r in runs):
         raise ConfigError("the training runs hold no slip with a known moment: no operating point can be chosen")
-    op = operating_points.choose_operating_point([r.probability for r in runs], [r.moment_of_slip for r in runs])
+    rates = sorted({r.fps for r in runs})
+    if len(rates) > 1:  # one horizon in frames would stand for different times
+        raise ConfigError(f"the training runs were taken at different rates ({rates} frames/s): choose on one rate")
+    traces, moments = [r.probability for r in runs], [r.moment_of_slip for r in runs]
+    op = operating_points.choose_operating_point(traces, moments, fps=rates[0])
     op["chosen_on"] = f"the {len(runs)} training runs themselves, replayed per grasp (optimistic)"
     return op

@@ -32,7 +32,7 @@ from slipsense.config_tree import dump_tree
 from slipsense.training.clips import run_training
 from slipsense.training.settings import RunConfig, recordings_read, recordings_sensor
 from slipsense.training.folds import pool, run_folds
-from slipsense.training.grasp_detector import object_split, train_detector
+from slipsense.training.grasp_detector import object_folds_of, train_detector
 from slipsense.training.grasps import load_grasp_data, recordings_shape
 
 
@@ -131,7 +131,7 @@ def fit_grasps(
     runs, labels, data = grasp_data(run, progress)
     held = list(run.data.test_objects)
     if run.data.fold is not None:
-        split = object_split([r for r in runs if r.usable], run.data.folds, run.train.folds_seed)
+        split = object_folds_of([r for r in runs if r.usable], run.data.folds, run.train.folds_seed)
         if not 0 <= run.data.fold < len(split):
             raise ConfigError(f"--fold must be in 0..{len(split) - 1}, got {run.data.fold}")
         held = split[run.data.fold]
@@ -166,8 +166,8 @@ def grasp_data(run: RunConfig, progress: bool = True):
     if d.also is not None:
         if d.also.resolve() == root.resolve():
             raise ConfigError(f"data.also ({d.also}) is the training recordings themselves")
-        also = Recordings.open(d.also, None, d.on_error)  # read with the sensor it states, else the Mini's
-        extra, _ = load_grasp_data(also, None, image_size, d.on_error, progress, sensor=also.layout)
+        also = Recordings.open(d.also, None, d.on_error)  # read as the sensor it states
+        extra, _ = load_grasp_data(also, None, image_size, d.on_error, progress, sensor=also.sensor)
         model.check_cameras([r.gray.shape[0] for r in extra], f"data.also ({d.also})")
         runs = runs + [dataclasses.replace(r, object=f"{d.also.name}/{r.object}", extra=True) for r in extra]
     if sensors == 1:  # a one-finger detector: each camera of a run is a grasp of its own

@@ -22,13 +22,13 @@ from typing import Any, Mapping
 
 from slipsense.paths import gelsight_recordings, portable_path, resolve_path
 from slipsense.datasets import check_marker_copies
-from slipsense.errors import ConfigError, SlipsenseError
+from slipsense.errors import ConfigError, InputError, SlipsenseError
 from slipsense.models import available, model_class, settings_of
 from slipsense.models.base import RecordingsShape
-from slipsense.recordings.frame_folders import data_sensor
+from slipsense.recordings.folders import state_sensor, stated_sensor
 from slipsense.recordings.recording_set import Recordings
 from slipsense.config_tree import DEFAULT_MODEL, SECTIONS, check_keys, check_seed, to_plain
-from slipsense.sensors.spec import GELSIGHT_MINI, SensorSpec, sensor_named
+from slipsense.sensors.spec import SensorSpec, sensor_named
 from slipsense.training.clips import TrainConfig, paper_settings
 from slipsense.training.grasps import GraspTrainConfig, make_config, recordings_shape
 
@@ -53,7 +53,7 @@ class DataConfig:
     marker_copies: int = 4  # with augment, marker windows: itself and copies-1 mirrored, shifted copies
     on_error: str = "raise"  # or "skip": a bad recording is named and left out
     overrides: Path | bool | None = None  # CSV of hand labels; None: the shipped ones; False: none
-    sensor: str | None = None  # a registered sensor's name; None: the GelSight Mini (grasps: the data's own)
+    sensor: str | None = None  # the registered sensor the recordings were taken with; None: the one they state
     also: Path | None = None  # grasp detectors: another data set's recordings, trained on alongside
     # the recordings as read already where the caller holds them (``recordings`` is then their folder):
     # not a setting, never stored; training lists nothing again
@@ -88,18 +88,22 @@ def recordings_root(data: DataConfig) -> Path:
 
 def recordings_sensor(data: DataConfig) -> SensorSpec:
     """The sensor a grasp detector's recordings are read with: ``data.sensor`` by name, else the
-    data's own (a frame-folder set's ``sensor.json`` or layout), else the GelSight Mini."""
+    data's own (its ``sensor.json`` or a registered layout); InputError saying how to state one where
+    neither names one."""
     if data.sensor:
         return sensor_named(data.sensor)
-    stated = data.read.stated if data.read is not None else data_sensor(recordings_root(data))
-    return stated or GELSIGHT_MINI
+    root = recordings_root(data)
+    stated = data.read.stated if data.read is not None else stated_sensor(root)
+    if stated is None:
+        raise InputError(root, state_sensor())
+    return stated
 
 
 def recordings_read(data: DataConfig) -> Recordings:
     """The run's recordings read with its sensor's layout (:func:`recordings_sensor`): the set it was
     given, else its folder scanned once."""
     named = sensor_named(data.sensor) if data.sensor else None
-    return Recordings.of(data.read or recordings_root(data), named, data.on_error)
+    return Recordings.of(data.read or recordings_root(data), named, data.on_error, stated=named)
 
 
 def read_once(data: DataConfig) -> DataConfig:

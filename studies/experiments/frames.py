@@ -8,7 +8,7 @@ from typing import Any, Sequence
 
 from studies.experiments.report import Report
 from studies.experiments.settings import Settings
-from studies.experiments.source import FPS, DataSource, clip_spec, held_out_objects, object_split
+from studies.experiments.source import DataSource, clip_spec, held_out_objects, object_split
 from studies.experiments.training import clip_datasets, epoch_axis, train_model, train_seconds, video_info
 
 DEFAULT_FRAMES_LIST = (5, 4, 3, 2)
@@ -70,7 +70,7 @@ def run_frames(
         rows.append(
             {
                 "frames": t,
-                "clip_ms": 1000 * t / FPS,
+                "clip_ms": 1000 * t / source.fps,
                 "epochs": len(history),
                 "train_accuracy": last["train_accuracy"],
                 "test_accuracy": last.get("val_accuracy"),

@@ -8,7 +8,7 @@ from typing import Any, Sequence
 
 from studies.experiments.report import Report
 from studies.experiments.settings import Settings
-from studies.experiments.source import FPS, DataSource, clip_spec, held_out_objects, object_split
+from studies.experiments.source import DataSource, clip_spec, held_out_objects, object_split
 from studies.experiments.training import clip_datasets, metric_cols, score, train_model, train_seconds, video_info
 
 DEFAULT_HORIZONS = (0, 2, 5, 10)
@@ -42,7 +42,7 @@ def run_horizon(settings: Settings, source=None, horizons: Sequence[int] = DEFAU
         rows.append(
             {
                 "horizon_frames": int(h),
-                "horizon_ms": 1000 * h / FPS,
+                "horizon_ms": 1000 * h / source.fps,
                 **{k: m[k] for k in metric_cols()},
                 "n_train": len(tr),
                 "n_test": m["n_clips"],

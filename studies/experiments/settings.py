@@ -33,7 +33,7 @@ EXPERIMENTS: tuple[str, ...] = (
     "all-models",
 )
 
-FULL_SIZE = GELSIGHT_MINI.image_size
+FULL_SIZE = GELSIGHT_MINI.image_size  # the paper's setting: clips at its sensor's full frames
 FULL_PATCH = (40, 40)
 QUICK_SIZE = (120, 160)
 QUICK_PATCH = (20, 20)

@@ -3,7 +3,7 @@
 Video experiments use the GelSight recordings, labelled and cut as ``slipsense train`` does
 (:func:`slipsense.recordings.labelling.label_runs`, cached clips), with the shipped hand-label overrides
 (:func:`default_overrides`) when present. Held-out objects are fixed for every condition of an
-experiment: fold ``fold`` of ``folds`` object folds (:func:`slipsense.recordings.clips.object_folds`,
+experiment: fold ``fold`` of ``folds`` object folds (:class:`slipsense.recordings.splits.ObjectFolds`,
 seeded by ``data_seed``) of the objects that give clips at 5 frames, horizon 0 — the same objects
 ``slipsense train --fold 0`` holds out (with its default ``--seed 0``, which seeds its folds).
 ``data_seed`` also seeds the wiggle windows and the random clip split; ``seed`` seeds model
@@ -22,10 +22,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from slipsense.errors import ConfigError, InputError
-from slipsense.sensors.spec import GELSIGHT_MINI
 from studies.experiments.settings import Settings
-
-FPS = GELSIGHT_MINI.fps
 
 
 def default_overrides() -> Path | None:
@@ -62,8 +59,7 @@ class DataSource:
         self.overrides = default_overrides() if overrides == "default" else (Path(overrides) if overrides else None)
         self.on_error = on_error
         self.progress = progress
-        self._labels = None
-        self._recs = None
+        self._labelled = None
         self._set = None
 
     def describe(self) -> dict[str, Any]:
@@ -83,16 +79,24 @@ class DataSource:
             self._set = Recordings.open(self.root, on_error=self.on_error)
         return self._set
 
-    def recordings(self):
-        """The validated recordings (listed and probed once)."""
-        if self._recs is None:
-            from slipsense.recordings.folders import validate_recordings
+    def labelled(self):
+        """The recordings as one labelled set (:meth:`Recordings.labelled`: probed, labelled as
+        ``slipsense train`` labels them, with the label cache and the hand labels; with
+        ``on_error="skip"`` a run that cannot be labelled is left out with a warning), made once."""
+        if self._labelled is None:
+            self._labelled = self.recordings_set().labelled(
+                self.label_overrides(), whole_runs=False, progress=self.progress
+            )
+        return self._labelled
 
-            recs = validate_recordings(self.recordings_set().listed, on_error=self.on_error)  # the Mini's frame size
-            if not recs:
-                raise InputError(self.root, "no usable recordings")
-            self._recs = recs
-        return self._recs
+    @property
+    def fps(self) -> float:
+        """The frame rate of the sensor the recordings state (what a clip's frames last)."""
+        return self.labelled().sensor.fps
+
+    def recordings(self):
+        """The labelled recordings (listed, probed and labelled once)."""
+        return list(self.labelled())
 
     def label_overrides(self):
         """The hand labels, as :func:`slipsense.recordings.labelling.label_runs` takes them. A user's file is passed as
@@ -104,24 +108,15 @@ class DataSource:
         return None if self.overrides == default_overrides() else self.overrides
 
     def labels(self):
-        """``{key: VideoLabel}`` of the recordings, labelled as ``slipsense train`` labels them
-        (:func:`slipsense.recordings.labelling.label_runs`: label cache, hand labels applied; with ``on_error="skip"``
-        a run that cannot be labelled is left out with a warning)."""
-        if self._labels is None:
-            from slipsense.recordings.labelling import label_runs
-
-            self._labels = label_runs(
-                self.recordings(), overrides=self.label_overrides(), on_error=self.on_error, progress=self.progress
-            )
-        return self._labels
+        """``{key: VideoLabel}`` of the recordings (:meth:`labelled`)."""
+        return dict(self.labelled().labels)
 
     def clips(self, spec):
         """Labelled clips (ClipSet) cut with ``spec`` (cached on disk, as ``slipsense train`` caches them)."""
         from slipsense.recordings.clips import load_or_build_clips
 
-        labels = self.labels()
-        recordings = [r for r in self.recordings() if r.key in labels]  # runs skipped while labelling
-        clips = load_or_build_clips(recordings, labels, spec, progress=self.progress)
+        data = self.labelled()
+        clips = load_or_build_clips(list(data), data.labels, spec, progress=self.progress)
         if len(clips) == 0:
             raise InputError(self.root, "no clips could be made (no slip moments and no contact phases found)")
         return clips
@@ -146,7 +141,7 @@ class DataSource:
         from slipsense.marker_sequences import real_marker_dataset
 
         arrays = real_marker_dataset(
-            self.root,
+            self.labelled(),
             frames=frames,
             n_markers=n_markers,
             horizon=horizon,
@@ -164,9 +159,8 @@ class DataSource:
         one :class:`~slipsense.evaluation.replay.RunTrace` per run (slips without a moment left out)."""
         from slipsense.evaluation.replay import replay_recordings
 
-        labels, keep = self.labels(), set(objects)
-        recs = [r for r in self.recordings() if r.object in keep and r.key in labels]
-        return replay_recordings(detector, self.recordings_set().only(recs), labels, progress=self.progress)
+        data = self.labelled().only(objects)
+        return replay_recordings(detector, data.recordings, data.labels, progress=self.progress)
 
 
 def clip_spec(settings: Settings, frames: int = 5, horizon: int = 0, size: tuple[int, int] | None = None):
@@ -184,7 +178,7 @@ def clip_spec(settings: Settings, frames: int = 5, horizon: int = 0, size: tuple
 def held_out_objects(source, settings: Settings) -> list[str]:
     """The fixed held-out objects: ``settings.test_objects``, else fold ``fold`` of the objects that
     give clips at 5 frames / horizon 0 (what ``slipsense train --fold`` holds out)."""
-    from slipsense.recordings.clips import object_folds
+    from slipsense.recordings.splits import ObjectFolds
 
     objects = source.objects(clip_spec(settings))
     if settings.test_objects:
@@ -194,7 +188,7 @@ def held_out_objects(source, settings: Settings) -> list[str]:
         return sorted(settings.test_objects)
     if len(objects) < settings.folds:
         raise ConfigError(f"{len(objects)} objects cannot make {settings.folds} folds; lower --folds")
-    return object_folds(objects, n_folds=settings.folds, seed=settings.data_seed)[settings.fold]
+    return ObjectFolds(settings.folds, settings.data_seed).test_objects(objects)[settings.fold]
 
 
 def object_split(clips, test_objects: Sequence[str]) -> tuple[np.ndarray, np.ndarray, list[str]]:

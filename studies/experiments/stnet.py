@@ -8,6 +8,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from slipsense.errors import ConfigError
+from slipsense.recordings.splits import ObjectHoldOut
 from studies.experiments.report import Report
 from studies.experiments.settings import Settings
 from studies.experiments.source import DataSource, held_out_objects
@@ -33,22 +34,16 @@ def simulated_dataset(
     cfg = SimConfig(seed=settings.data_seed, n_sequences=n, **(overrides or {}))
     ds = make_dataset(cfg, progress=settings.progress)
     groups = np.asarray(ds.groups)
-    rng = np.random.default_rng(settings.data_seed)
-    test_groups: list[int] = []
-    for p in np.unique(ds.pattern):
-        members = np.unique(groups[ds.pattern == p])
-        k = int(round(test_fraction * len(members)))
-        k = min(max(k, 1), len(members) - 1) if len(members) >= 2 else 0
-        test_groups += rng.permutation(members)[:k].tolist()
-    is_test = np.isin(groups, test_groups)
+    # each pattern's sequences held out on their own (the pattern as the stratum), as the clips' split does
+    tr, te = next(ObjectHoldOut(test_fraction, settings.data_seed).split(groups, ds.pattern))
     sim_info = {
         "n_sequences": n,
         "seed": settings.data_seed,
         "test_fraction": test_fraction,
-        "n_test_sequences": len(test_groups),
+        "n_test_sequences": len(np.unique(groups[te])),
         **(overrides or {}),
     }
-    return ds, np.flatnonzero(~is_test), np.flatnonzero(is_test), sim_info
+    return ds, tr, te, sim_info
 
 
 def _where_it_looks(model, x, y, te, rest, rep, label: str, n: int = 256) -> dict[str, float]:
@@ -78,11 +73,12 @@ def _per_grasp(model, info, source, train_objects: Sequence[str], test_objects: 
 
     det = SlipDetector(model.eval(), sensors=2, info=info)
     fit_runs = source.replay(det, train_objects)
+    fps = fit_runs[0].fps if fit_runs else det.sensor.fps  # the traces count the recordings' frames
     op = operating_points.choose_operating_point(
-        [r.probability for r in fit_runs], [r.moment_of_slip for r in fit_runs]
+        [r.probability for r in fit_runs], [r.moment_of_slip for r in fit_runs], fps=fps
     )
     runs = source.replay(det, test_objects)
-    s = pergrasp.summarise([r.outcome(op["threshold"], op["debounce"]) for r in runs])
+    s = pergrasp.summarise([r.outcome(op["threshold"], op["debounce"]) for r in runs], [r.fps for r in runs])
     return {
         "grasp_threshold": f"{op['threshold']:g} x{op['debounce']}",
         "warned_in_time": f"{s['warned']}/{s['slip_runs']}",

@@ -128,7 +128,10 @@ def adaptation_study(
     op = info["operating_point"]
     from slipsense.paths import resolve_path
 
-    recordings = resolve_path(recordings)
+    from slipsense.recordings.recording_set import Recordings
+
+    recordings = Recordings.open(resolve_path(recordings))  # read once, as the sensor its data states
+    fps = recordings.sensor.fps
     runs, _ = load_grasp_data(recordings, None, tuple(model.image_size), progress=progress)
     slipped = np.array([r.slipped for r in runs], bool)
     objects = np.array([r.object for r in runs])
@@ -189,7 +192,7 @@ def adaptation_study(
                 )
                 mine = objects == o
                 _, _, op, probs = train_with_operating_point(
-                    train + [r for r in grasps if r.object == o], [o], cfg, workers=workers
+                    train + [r for r in grasps if r.object == o], [o], cfg, workers=workers, fps=fps
                 )
                 scores[mine] = [slipped_or_held.peak_alarm_score(p, 1, 0) for p in probs]
                 alarmed[mine] = scores[mine] >= op["threshold"]
@@ -247,7 +250,7 @@ def adaptation_study(
     m["operating_point"] = m["leave_objects_out"]
     rows.append(m)
     return {
-        "recordings": Path(recordings).name,
+        "recordings": recordings.root.name,
         "grasps": len(runs),
         "objects": names,
         "epochs": epochs,

@@ -22,8 +22,8 @@ from pathlib import Path
 import numpy as np
 
 from slipsense.errors import InputError
-from slipsense.training.grasp_detector import stored_trace
-from slipsense.measures import pergrasp
+from slipsense.measures.registry import horizon_frames
+from slipsense.training.grasp_detector import sensor_rate, stored_trace
 from slipsense.measures.pergrasp import STARTUP
 
 DEBOUNCES = (1, 2, 3, 5)
@@ -39,7 +39,8 @@ def held_out_traces(report: Path):
     files = sorted(report.glob("fold[0-9]*.json"))
     if not files or len(files) != summary.get("folds", len(files)):
         raise InputError(report, "its fold files (per-run traces) are missing: rerun its `grasp folds` command")
-    horizon = summary.get("train_config", {}).get("horizon", pergrasp.HORIZON)
+    # the report's own horizon (frames at its sensor's rate), else the horizon's seconds at that rate
+    horizon = summary.get("train_config", {}).get("horizon") or horizon_frames(sensor_rate(summary, str(report)))
     probabilities, moments, folds = [], [], []
     for k, path in enumerate(files):
         for run in json.loads(path.read_text())["runs"]:

@@ -55,7 +55,7 @@ def early_warning(
         DEFAULT_THRESHOLDS,
         help="comma-separated alarm thresholds (the checkpoint's own operating point is always added)",
     ),
-    horizon: int = typer.Option(50, help="frames before the moment of slip in which a first alarm is in time"),
+    horizon: float = typer.Option(2.0, help="seconds before the moment of slip in which a first alarm is in time"),
     debounce: Optional[int] = typer.Option(
         None, help="frames in a row above the threshold before an alarm (default: the checkpoint's)"
     ),

@@ -26,7 +26,8 @@ from slipsense.recordings.labelling import label_runs
 from slipsense.recordings.recording_set import Recordings
 from slipsense.recordings.label_csv import LABEL_COLUMNS, Key, _open_csv, _parse_int
 from slipsense.recordings.types import VideoLabel
-from slipsense.sensors.spec import GELSIGHT_MINI, check_fps, sensor_of
+from slipsense.measures.registry import HORIZON_S, STARTUP_S, horizon_frames, startup_frames
+from slipsense.sensors.spec import check_fps, sensor_of
 from slipsense.streaming.detector import SlipDetector
 from slipsense.watch import checkpoint_or_shipped
 
@@ -104,15 +105,18 @@ def early_warning_table(
     runs: Sequence[RunTrace],
     thresholds: Sequence[float],
     debounce: int = 1,
-    horizon: int = pergrasp.HORIZON,
-    fps: float = GELSIGHT_MINI.fps,
+    horizon: int | None = None,
+    fps: float | None = None,
 ) -> list[dict[str, Any]]:
-    """One row (:data:`EARLY_WARNING_COLUMNS`) per threshold, pooled over ``runs``."""
+    """One row (:data:`EARLY_WARNING_COLUMNS`) per threshold, pooled over ``runs``; ``horizon``: frames
+    at the detector's rate (None: :data:`~slipsense.measures.registry.HORIZON_S` at it); ``fps``: the rate
+    the leads count at (None: each run's own)."""
+    rates = fps if fps is not None else [r.fps for r in runs]
     return [
         {
             "threshold": float(th),
             "debounce": int(debounce),
-            **pergrasp.summarise([r.outcome(th, debounce, horizon) for r in runs], fps),
+            **pergrasp.summarise([r.outcome(th, debounce, horizon) for r in runs], rates),
         }
         for th in thresholds
     ]
@@ -123,8 +127,8 @@ def write_early_warning(
     thresholds: Sequence[float],
     out_dir: str | Path,
     debounce: int = 1,
-    horizon: int = pergrasp.HORIZON,
-    fps: float = GELSIGHT_MINI.fps,
+    horizon: int | None = None,
+    fps: float | None = None,
     meta: Mapping[str, Any] | None = None,
 ) -> dict[str, Path]:
     """Write ``early_warning.csv``, ``early_warning.json`` (table, definitions, every run's outcome
@@ -132,6 +136,9 @@ def write_early_warning(
     that held yet alarmed, one point per threshold) into ``out_dir``."""
     out_dir = Path(out_dir)
     rows = early_warning_table(runs, thresholds, debounce, horizon, fps)
+    model_fps = runs[0].model_fps if runs else None  # the horizon and start-up count the detector's frames
+    if horizon is None and model_fps:
+        horizon = horizon_frames(model_fps)
     buf = io.StringIO()
     writer = csv.DictWriter(buf, fieldnames=EARLY_WARNING_COLUMNS, lineterminator="\n")
     writer.writeheader()
@@ -145,10 +152,12 @@ def write_early_warning(
     atomic.write_text(paths["csv"], buf.getvalue())
     doc = {
         **(dict(meta) if meta else {}),
-        "fps": fps,
+        "fps": fps if fps is not None else (runs[0].fps if runs else None),
         "horizon_frames": horizon,
+        "horizon_s": horizon / model_fps if horizon is not None and model_fps else None,
         "debounce": debounce,
-        "startup_frames": pergrasp.STARTUP,
+        "startup_frames": startup_frames(model_fps) if model_fps else None,
+        "startup_s": STARTUP_S,
         "thresholds": [float(t) for t in thresholds],
         "definitions": {
             "warned": "slip run whose first alarm after the start-up falls in moment-horizon..moment",
@@ -195,7 +204,7 @@ def run_early_warning(
     on_error: str = "raise",
     progress: bool = True,
     dtype: str = "float32",
-    horizon: int = 50,
+    horizon: float = HORIZON_S,
     debounce: Optional[int] = None,
     overrides: Optional[Path] = None,
 ) -> str:
@@ -205,8 +214,8 @@ def run_early_warning(
         raise ConfigError(f"--limit must be a positive integer, got {limit}")
     if fps is not None:
         check_fps(fps, "--fps")
-    if isinstance(horizon, bool) or not isinstance(horizon, int) or not 1 <= horizon <= 100_000:
-        raise ConfigError(f"--horizon must be a whole number of frames >= 1, got {horizon!r}")
+    if isinstance(horizon, bool) or not isinstance(horizon, (int, float)) or not 0 < horizon <= 3600:
+        raise ConfigError(f"--horizon must be a time in seconds, above 0 and at most 3600, got {horizon!r}")
     check_output_dir(out, "--out")
     root = Path(recordings) if recordings else gelsight_recordings()
     if checkpoint is None:
@@ -250,12 +259,13 @@ def run_early_warning(
         "sensors": det.sensors,
         "operating_point": {"threshold": det.threshold, "debounce": det.debounce},
     }
-    fps = fps or det.sensor.fps
+    seconds, horizon = horizon, horizon_frames(det.sensor.fps, horizon)  # the detector's frames
     paths = write_early_warning(runs, ths, out, debounce=det.debounce, horizon=horizon, fps=fps, meta=meta)
     rows = early_warning_table(runs, ths, det.debounce, horizon, fps)
     slips = sum(r.slipped for r in runs)
     lines = [
-        f"{slips} slip runs, {len(runs) - slips} runs that held; horizon {horizon} frames, debounce {det.debounce}",
+        f"{slips} slip runs, {len(runs) - slips} runs that held; horizon {seconds:g} s ({horizon} frames at "
+        f"{det.sensor.fps:g} frames/s), debounce {det.debounce}",
         "threshold  warned in time  premature  missed  median lead (ms)  false-positive grasps  alarm at rest",
     ]
     for row in rows:

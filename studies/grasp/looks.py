@@ -85,13 +85,13 @@ def _replayed(det: SlipDetector, recs: list, labels: dict, looks: dict, progress
         rest = rest_mask(np.stack([video_products(r.path, ["contact"])["contact"] for r in cams]))
         for name, change in looks.items():
             trace = det.replay(*[v if change is None else change(v) for v in videos])
-            run = RunTrace(obj, exp, slipped, moment, len(videos[0]), trace.probability, rest)
+            run = RunTrace(obj, exp, slipped, moment, len(videos[0]), trace.probability, rest, fps=det.sensor.fps)
             outcomes[name].append(run.outcome(det.threshold, det.debounce))
     return outcomes
 
 
-def _row(name: str, outs: list) -> dict[str, Any]:
-    s = pergrasp.summarise(outs)
+def _row(name: str, outs: list, fps: float) -> dict[str, Any]:
+    s = pergrasp.summarise(outs, fps)
     row = {"look": name, **{k: s[k] for k in ("slip_runs", "warned", "premature", "held_runs")}}
     row["false_positive_grasps"] = s["false_positive_grasps"]
     return row
@@ -107,7 +107,7 @@ def looks_study(recordings: Path, checkpoint: Path, progress: bool = True) -> di
         "checkpoint": Path(checkpoint).name,
         "recordings": portable_path(recordings),
         "operating_point": {"threshold": det.threshold, "debounce": det.debounce},
-        "rows": [_row(name, outs) for name, outs in outcomes.items()],
+        "rows": [_row(name, outs, det.sensor.fps) for name, outs in outcomes.items()],
     }
 
 
@@ -117,7 +117,9 @@ def looks_folds_study(recordings: Path, detectors: Path, progress: bool = True) 
     recs = find_recordings(recordings, on_error="skip")
     labels = label_runs(recs, progress=progress)
     pooled: dict[str, list] = {name: [] for name in LOOKS}
+    fps = None  # the folds' detectors share their sensor's rate (each replay runs on its clock)
     for _, held, det in fold_detectors(detectors):
+        fps = det.sensor.fps
         mine = [r for r in recs if r.object in held]
         for name, outs in _replayed(det, mine, labels, LOOKS, progress).items():
             pooled[name].extend(outs)
@@ -125,7 +127,7 @@ def looks_folds_study(recordings: Path, detectors: Path, progress: bool = True) 
         "checkpoint": f"the folds of {portable_path(detectors)}, each on its held-out objects",
         "trained_by": trained_by_command(detectors),
         "recordings": portable_path(recordings),
-        "rows": [_row(name, outs) for name, outs in pooled.items()],
+        "rows": [_row(name, outs, fps) for name, outs in pooled.items()],
     }
 
 

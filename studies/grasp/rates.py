@@ -114,13 +114,15 @@ def _replayed(det: SlipDetector, recs: list, labels: dict, rng_for, modes=("cloc
             rest = rest_mask(contact[:, idx])
             for mode in modes:
                 trace = det.replay_cached(gray[:, idx], stamps=stamps if mode == "clock" else None)
-                run = RunTrace(obj, exp, slipped, sub_moment, len(idx), trace.probability, rest, (), cond.fps)
+                run = RunTrace(
+                    obj, exp, slipped, sub_moment, len(idx), trace.probability, rest, (), cond.fps, det.sensor.fps
+                )
                 outcomes[cond.name][mode].append(run.outcome(det.threshold, det.debounce))
     return outcomes
 
 
-def _counts(outs: list) -> dict[str, Any]:
-    s = pergrasp.summarise(outs)
+def _counts(outs: list, fps: float) -> dict[str, Any]:
+    s = pergrasp.summarise(outs, fps)
     row = {k: s[k] for k in ("slip_runs", "warned", "premature", "missed", "held_runs", "false_positive_grasps")}
     row["warned_interval"] = promise.wilson(row["warned"], row["slip_runs"])
     row["false_positive_interval"] = promise.wilson(row["false_positive_grasps"], row["held_runs"])
@@ -136,7 +138,7 @@ def rates_study(recordings: Path, checkpoint: Path, seed: int = 0, progress: boo
     rng = np.random.default_rng(seed)
     outcomes = _replayed(det, recs, labels, lambda o, e: rng, progress=progress)
     det.close()
-    rows = [{"condition": c.name, **{m: _counts(o) for m, o in outcomes[c.name].items()}} for c in CONDITIONS]
+    rows = [{"condition": c.name, **{m: _counts(o, c.fps) for m, o in outcomes[c.name].items()}} for c in CONDITIONS]
     return {
         "checkpoint": Path(checkpoint).name,
         "recordings": portable_path(recordings),
@@ -168,7 +170,7 @@ def folds_study(
             for cond in CONDITIONS:
                 pooled[cond.name].setdefault(name, []).extend(outs[cond.name]["clock"])
             folds.append({"model": name, "fold": fold.name, "objects": held, "threshold": det.threshold})
-    rows = [{"condition": c.name, **{m: _counts(o) for m, o in pooled[c.name].items()}} for c in CONDITIONS]
+    rows = [{"condition": c.name, **{m: _counts(o, c.fps) for m, o in pooled[c.name].items()}} for c in CONDITIONS]
     trained_by = [trained_by_command(root) for root in (detectors, baselines) if root is not None]
     return {
         "recordings": portable_path(recordings),

@@ -12,15 +12,17 @@ import numpy as np
 
 from slipsense.errors import ConfigError, InputError
 from slipsense.measures.clips import clip_metrics
-from slipsense.training.grasp_detector import stored_trace
+from slipsense.measures.registry import startup_frames
+from slipsense.training.grasp_detector import sensor_rate, stored_trace
 from slipsense.measures import pergrasp
 from slipsense.measures import promise
 from slipsense.measures import operating_points
 from slipsense.training.folds import _echo_fold, _pct, _rule, _write_report
 
 
-def fold_at(fold: dict[str, Any], op: dict[str, Any], horizon: int) -> dict[str, Any]:
-    """A fold written by :func:`slipsense.training.folds.run_folds` scored again at another operating point ``op``, from
+def fold_at(fold: dict[str, Any], op: dict[str, Any], horizon: int, fps: float) -> dict[str, Any]:
+    """A fold written by :func:`slipsense.training.folds.run_folds` (its runs taken at ``fps``; ``horizon`` in
+    frames at it) scored again at another operating point ``op``, from
     the held-out traces and clip probabilities it keeps (6 decimals; fold files written before kept 4,
     where a threshold near 0.9999 can decide differently than the full-precision trace would)."""
     runs, outs = [], []
@@ -28,7 +30,7 @@ def fold_at(fold: dict[str, Any], op: dict[str, Any], horizon: int) -> dict[str,
         p = stored_trace(r)
         rest = np.zeros(len(p), dtype=bool)
         rest[r["rest"]] = True
-        startup = int(op.get("startup", pergrasp.STARTUP))
+        startup = int(op.get("startup", startup_frames(fps)))
         o = pergrasp.trace_outcome(
             p, op["threshold"], op["debounce"], r["moment_of_slip"], bool(r.get("slipped")), horizon, startup, rest
         )
@@ -39,7 +41,7 @@ def fold_at(fold: dict[str, Any], op: dict[str, Any], horizon: int) -> dict[str,
     return {
         **fold,
         "operating_point": op,
-        "per_grasp": pergrasp.summarise(outs),
+        "per_grasp": pergrasp.summarise(outs, fps),
         "clips": clip_metrics(p, y, op["threshold"]),
         "runs": runs,
     }
@@ -57,6 +59,7 @@ def rechoose(src, out, max_held_alarm: float | None, command: str = "", echo=pri
     except (OSError, ValueError) as exc:
         raise InputError(src / "folds.json", f"is not a folds report ({exc})") from None
     cfg = {**report["train_config"], "max_held_alarm": max_held_alarm}
+    fps = sensor_rate(report, f"{src / 'folds.json'}")
     folds, keys = [], set()
     for k in range(int(report["folds"])):
         path = src / f"fold{k}.json"
@@ -68,10 +71,14 @@ def rechoose(src, out, max_held_alarm: float | None, command: str = "", echo=pri
             )
         probs = [stored_trace(r) for r in fold["inner"]]
         op = operating_points.choose_operating_point(
-            probs, [r["moment_of_slip"] for r in fold["inner"]], horizon=cfg["horizon"], max_held_alarm=max_held_alarm
+            probs,
+            [r["moment_of_slip"] for r in fold["inner"]],
+            horizon=cfg["horizon"],
+            max_held_alarm=max_held_alarm,
+            fps=fps,
         )
         op["chosen_on"] = f"{cfg['inner_folds']} inner folds of the training objects (kept traces)"
-        folds.append(fold_at(fold, op, cfg["horizon"]))
+        folds.append(fold_at(fold, op, cfg["horizon"], fps))
         _echo_fold(echo, k, fold["objects"], folds[-1])
     head = {
         **{k: v for k, v in report.items() if k not in ("pooled", "curve", "per_fold")},

@@ -35,6 +35,8 @@ class MemorySource:
     clip rules (a slip clip ends ``horizon`` frames before the frame preceding the moment of slip).
     """
 
+    fps = 25.0  # the rate its made-up recordings state
+
     def __init__(self, objects=OBJECTS):
         self.objects_ = list(objects)
         self.calls: list = []
@@ -112,7 +114,7 @@ class MemorySource:
                 if moment:
                     clouds[:, 25:] += 1.0
                 p = detector.replay(*clouds).probability
-                runs.append(RunTrace(obj, exp, moment is not None, moment, 40, p))
+                runs.append(RunTrace(obj, exp, moment is not None, moment, 40, p, fps=detector.sensor.fps))
         return runs
 
 
