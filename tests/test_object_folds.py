@@ -263,3 +263,28 @@ def test_adapt_judges_on_the_splitters_folds(calls, monkeypatch, tmp_path, cache
     assert parts == ObjectFolds(5, 3).test_objects(objects)
     assert sorted(len(p) for p in parts) == [1, 1, 1, 1, 2]
     assert (type(calls[-1][0]), calls[-1][1]) == (ObjectFolds, objects)
+
+
+def test_adapt_does_not_reuse_a_fold_s_detector_that_saw_its_held_out_objects(tmp_path, monkeypatch):
+    """An output folder made with other folds (adapt once cut contiguous chunks) holds detectors trained
+    on objects the new fold holds out: they are trained again, not judged on what they saw."""
+    from types import SimpleNamespace
+
+    from slipsense.adapt import making
+
+    out = tmp_path / "fold0"
+    out.mkdir()
+    (out / "detector.safetensors").write_bytes(b"")
+    trained = {"objects": ["a", "b"]}
+    monkeypatch.setattr(making, "read_info", lambda path: {"data": trained})
+    calls = []
+
+    def fake_fit(data, to, **kw):
+        calls.append(kw["held_out"])
+        return SimpleNamespace(checkpoint=to / "detector.safetensors")
+
+    monkeypatch.setattr(making, "fit", fake_fit)
+    monkeypatch.setattr(making, "model_class", lambda name: SimpleNamespace(adapt_settings={}))
+    assert making._train(None, out, "motionnet", 0, ["c"]) == out / "detector.safetensors" and calls == []
+    making._train(None, out, "motionnet", 0, ["b"])  # it saw b: trained again
+    assert calls == [["b"]] and not out.exists()  # its folder cleared before the new training

@@ -27,12 +27,16 @@ def _train(data: Recordings, out: Path, name: str, seed: int, held_out: Sequence
     """Family ``name`` trained on ``data``'s grasps but ``held_out``'s into ``out``, with ``settings``
     where given, else with its own recipe, its operating point chosen on :data:`INNER_FOLDS` inner folds
     (over a recipe that chooses it on the grasps themselves), then the family's own ``adapt_settings``.
-    The detector a finished training left in ``out`` is kept; a half-done one's folder is cleared."""
+    The detector a finished training left in ``out`` is kept where it never saw ``held_out``; a half-done
+    one's folder, or one trained on a held-out object, is cleared."""
     done = out / "detector.safetensors"
     if done.is_file():
-        return done
+        trained = {o.rsplit("/", 1)[-1] for o in (read_info(done).get("data") or {}).get("objects") or ()}
+        if not trained & set(held_out):
+            return done
+        # a fold cut otherwise before (adapt once cut contiguous chunks): it saw the objects it would be judged on
     if out.exists():
-        shutil.rmtree(out)  # a training killed half-way: its folder holds no checkpoint yet
+        shutil.rmtree(out)  # a training killed half-way (its folder holds no checkpoint yet), or another fold's
     settings = settings or {"inner_folds": INNER_FOLDS, **model_class(name).adapt_settings}
     return fit(data, out, model=name, held_out=list(held_out), seed=seed, progress=False, **settings).checkpoint
 
