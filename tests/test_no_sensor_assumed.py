@@ -24,7 +24,6 @@ REPO = Path(__file__).resolve().parents[1]
 #: of a shipped GelSight Mini detector or the registry's public export.
 NAMES_THE_MINI = {
     "slipsense/__init__.py": "the registry's public name, exported",
-    "studies/experiments/settings.py": "the ViViT paper's setting: clips at its GelSight Mini's full frame size",
 }
 
 

@@ -19,7 +19,6 @@ from pathlib import Path
 from typing import Any, Iterable
 
 from slipsense.errors import ConfigError
-from slipsense.sensors.spec import GELSIGHT_MINI
 
 #: Experiment names, in report order.
 EXPERIMENTS: tuple[str, ...] = (
@@ -33,7 +32,7 @@ EXPERIMENTS: tuple[str, ...] = (
     "all-models",
 )
 
-FULL_SIZE = GELSIGHT_MINI.image_size  # the paper's setting: clips at its sensor's full frames
+FULL_SIZE = (240, 320)  # the paper's clips: its frames whole, as ViViT's default image_size is
 FULL_PATCH = (40, 40)
 QUICK_SIZE = (120, 160)
 QUICK_PATCH = (20, 20)
