@@ -70,7 +70,7 @@ def fit(
             non-learned baseline), or a clip model (``"vivit"``, ``"resnet3d50"``, ...).
         held_out: objects kept out of training and scored at the end (per grasp for a grasp detector).
         overrides: None (default) = the shipped hand labels for runs of the shared recordings
-            (:mod:`~slipsense.recordings.labelling`; True says the same); False = none; else a CSV.
+            (:mod:`~slipsense.recordings.labels`; True says the same); False = none; else a CSV.
         settings: the model's settings (e.g. ``width=8``) and training settings (e.g. ``epochs=5``),
             each by its name (:meth:`~slipsense.training.settings.RunConfig.from_tree` sorts them).
     """

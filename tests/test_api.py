@@ -141,7 +141,7 @@ def test_shipped_overrides_apply_to_the_shared_recordings_only(tmp_path):
     """One data path: every command labels through data.label_runs, which gives runs of the shared
     recordings the shipped hand labels unless told otherwise."""
     from slipsense.paths import gelsight_recordings
-    from slipsense.recordings.labelling import shipped_overrides_for
+    from slipsense.recordings.labels import shipped_overrides_for
     from slipsense.recordings.types import Recording
 
     def rec(root, obj, exp, cam):

@@ -93,7 +93,7 @@ def test_marker_model_replays_a_real_run_from_its_tracked_markers(cache, one_thr
 
     from slipsense.evaluation.replay import replay_recordings
     from slipsense.models import build
-    from slipsense.recordings.labelling import label_runs
+    from slipsense.recordings.labels import label_runs
     from slipsense.recordings.recording_set import Recordings
     from slipsense.recordings.markers import marker_sequences, track_recording
     from slipsense.streaming.detector import SlipDetector

@@ -221,7 +221,7 @@ def judge(
         recordings: a :class:`~slipsense.recordings.recording_set.Recordings` or its folder (read once
             here); default: the shared GelSight recordings.
         overrides: None (default) = the shipped hand labels for runs of the shared recordings
-            (:mod:`~slipsense.recordings.labelling`; True says the same); False = none; else a CSV.
+            (:mod:`~slipsense.recordings.labels`; True says the same); False = none; else a CSV.
         horizon: seconds before the moment of slip in which an alarm counts as a warning in time.
         threshold, debounce: default: the checkpoint's operating point.
         objects: only the runs of these objects (default: every run).

@@ -42,7 +42,7 @@ def replay_recordings(
         recordings: the :class:`~slipsense.recordings.recording_set.Recordings` to replay (each run's
             rate read from it).
         labels: ``{(object, experiment, camera): VideoLabel}``
-            (:func:`slipsense.recordings.labelling.label_runs`).
+            (:func:`slipsense.recordings.labels.label_runs`).
         limit: replay at most this many runs (in sorted order).
         keep_without_moment: replay slipped runs without a moment of slip too (grasps labelled as a
             whole, judged by :mod:`slipsense.measures.slipped_or_held`); by default they are left out

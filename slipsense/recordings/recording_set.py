@@ -35,7 +35,7 @@ from .folders import (
 )
 from .frame_folders import is_frame_layout
 from .frames import check_size
-from .labelling import label_runs, overrides_key
+from .labels import label_runs, overrides_key
 from .listing import FolderTree
 from .types import Recording, by_run
 from .video import probe_video
@@ -226,7 +226,7 @@ class Recordings:
     ) -> Labelled:
         """The set as judging and training take it, made once for its life (:meth:`kept`): the
         recordings that pass a probe (:meth:`checked`), without the runs that lost a camera where
-        ``whole_runs``, each run labelled (:func:`~slipsense.recordings.labelling.label_runs`;
+        ``whole_runs``, each run labelled (:func:`~slipsense.recordings.labels.label_runs`;
         ``overrides`` as it takes them), the runs that could not be labelled left out. InputError where
         nothing is left. ``expected_size`` ``(h, w)``: frames of another size are refused (None: any)."""
         on_error = on_error or self.on_error

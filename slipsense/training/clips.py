@@ -227,7 +227,7 @@ def fit(
 
 def _store_operating_point(out: Path, split_info: dict[str, Any], overrides, progress: bool) -> None:
     """Choose the alarm operating point on the training objects' runs (labels: ``overrides``, as
-    :func:`slipsense.recordings.labelling.label_runs` takes them) and write it into the run's checkpoints
+    :func:`slipsense.recordings.labels.label_runs` takes them) and write it into the run's checkpoints
     (:mod:`slipsense.training.operating_point`)."""
     root = resolve_path(split_info["recordings"])
     held = set(split_info.get("test_objects") or ())

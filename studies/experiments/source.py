@@ -1,7 +1,7 @@
 """Where the experiments' data come from: :class:`DataSource` and the held-out objects.
 
 Video experiments use the GelSight recordings, labelled and cut as ``slipsense train`` does
-(:func:`slipsense.recordings.labelling.label_runs`, cached clips), with the shipped hand-label overrides
+(:func:`slipsense.recordings.labels.label_runs`, cached clips), with the shipped hand-label overrides
 (:func:`default_overrides`) when present. Held-out objects are fixed for every condition of an
 experiment: fold ``fold`` of ``folds`` object folds (:class:`slipsense.recordings.splits.ObjectFolds`,
 seeded by ``data_seed``) of the objects that give clips at 5 frames, horizon 0 — the same objects
@@ -99,10 +99,10 @@ class DataSource:
         return list(self.labelled())
 
     def label_overrides(self):
-        """The hand labels, as :func:`slipsense.recordings.labelling.label_runs` takes them. A user's file is passed as
+        """The hand labels, as :func:`slipsense.recordings.labels.label_runs` takes them. A user's file is passed as
         its path (read against the recordings: it must fit them exactly, errors name its line); the
         shipped file is None, which label_runs turns into its rows for the runs of the shared
-        recordings (:func:`slipsense.recordings.labelling.shipped_overrides_for`)."""
+        recordings (:func:`slipsense.recordings.labels.shipped_overrides_for`)."""
         if self.overrides is None:
             return False  # --no-overrides: automatic labels only, not even the shipped ones
         return None if self.overrides == default_overrides() else self.overrides

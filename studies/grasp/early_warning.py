@@ -22,7 +22,7 @@ from slipsense.evaluation.replay import RunTrace, replay_recordings
 from slipsense.plots import plot_tradeoff
 from slipsense.measures import pergrasp
 from slipsense.recordings.folders import camera_counts
-from slipsense.recordings.labelling import label_runs
+from slipsense.recordings.labels import label_runs
 from slipsense.recordings.recording_set import Recordings
 from slipsense.recordings.label_csv import LABEL_COLUMNS, Key, _open_csv, _parse_int
 from slipsense.recordings.types import VideoLabel

@@ -14,7 +14,7 @@ import numpy as np
 
 from slipsense import atomic
 from slipsense.paths import portable_path
-from slipsense.recordings.labelling import label_runs
+from slipsense.recordings.labels import label_runs
 from slipsense.errors import InputError
 from slipsense.evaluation.replay import RunTrace
 from slipsense.measures import pergrasp

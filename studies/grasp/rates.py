@@ -21,7 +21,7 @@ import numpy as np
 from slipsense import atomic
 from slipsense.checkpoint import read_info
 from slipsense.paths import portable_path
-from slipsense.recordings.labelling import label_runs
+from slipsense.recordings.labels import label_runs
 from slipsense.evaluation.judge import judge
 from slipsense.evaluation.replay import RunTrace
 from slipsense.measures import pergrasp

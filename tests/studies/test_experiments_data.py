@@ -1,5 +1,5 @@
 """The experiments' data door (studies.experiments.source.DataSource) on made-up recordings: labels come
-through slipsense.recordings.labelling.label_runs, the path ``slipsense train`` uses (hand labels, --on-error skip)."""
+through slipsense.recordings.labels.label_runs, the path ``slipsense train`` uses (hand labels, --on-error skip)."""
 
 from __future__ import annotations
 
