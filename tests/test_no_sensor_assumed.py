@@ -82,7 +82,7 @@ def test_a_sensor_the_user_names_is_the_data_s(tmp_path, cache, monkeypatch):
     res = runner.invoke(app, ["label", "--recordings", str(root), "--csv", csv, "--sensor", tiny.name])
     assert res.exit_code == 0, res.output
     data = Recordings.open(root, stated=tiny)
-    assert data.sensor == tiny and data.rate(data.listed[0]) == (50.0, "the tiny-gelsight layout")
+    assert data.sensor == tiny and data.rate(data.listed[0]) == (50.0, "the tiny-gelsight sensor (--sensor)")
 
 
 def test_the_sensor_comes_from_the_data(tmp_path, grasp_recordings):

@@ -60,6 +60,7 @@ class Recordings:
             neither did (a detector's own sensor then applies).
         sensor: the one sensor the set is read as: the one asked for (a detector's), else the stated one.
         on_error: ``"raise"`` or ``"skip"`` for what a scan, probe or read finds wrong.
+        named: the stated sensor is its user's (``--sensor``), not the data's own statement.
     """
 
     root: Path
@@ -68,6 +69,7 @@ class Recordings:
     stated: SensorSpec | None
     sensor: SensorSpec
     on_error: str = "raise"
+    named: bool = False
     tree: FolderTree = field(default_factory=FolderTree, repr=False, compare=False)
     _probed: dict = field(default_factory=dict, repr=False, compare=False)
     _kept: dict = field(default_factory=dict, repr=False, compare=False)
@@ -88,11 +90,12 @@ class Recordings:
         the data's). No sensor is ever assumed: where none is found, an InputError says how to state one."""
         check_on_error(on_error)
         root, tree = Path(root), FolderTree()
-        stated = stated or stated_sensor(root, tree)
+        named, stated = stated is not None, stated or stated_sensor(root, tree)
         listed = find_recordings(root, on_error=on_error, sensor=sensor or stated, tree=tree)
         if (sensor or stated) is None:
             raise InputError(root, state_sensor())
-        return cls(root, tuple(listed), is_frame_layout(root, tree), stated, sensor or stated, on_error, tree)
+        frames = is_frame_layout(root, tree)
+        return cls(root, tuple(listed), frames, stated, sensor or stated, on_error, named, tree)
 
     @classmethod
     def of(
@@ -109,7 +112,7 @@ class Recordings:
         if isinstance(recordings, Labelled):
             recordings = recordings.recordings
         if isinstance(recordings, Recordings):
-            given = recordings if stated is None else replace(recordings, stated=stated)
+            given = recordings if stated is None else replace(recordings, stated=stated, named=True)
             return given.read_with(sensor or given.sensor)
         return cls.open(recordings, sensor, on_error, stated=stated)
 
@@ -258,8 +261,10 @@ class Recordings:
         if self.stated is None:  # a detector's rate is its training's, not the data's
             raise InputError(recording.path, f"a folder of frames states no frame rate: {STATE_FPS}")
         where = self.root / "sensor.json"
-        stated = self.tree.is_file(where)
-        return check_fps(self.stated.fps, str(where)), str(where) if stated else f"the {self.stated.name} layout"
+        fps = check_fps(self.stated.fps, str(where))
+        if self.named:
+            return fps, f"the {self.stated.name} sensor (--sensor)"
+        return fps, str(where) if self.tree.is_file(where) else f"the {self.stated.name} layout"
 
 
 @dataclass(frozen=True)
