@@ -22,7 +22,6 @@ from slipsense.evaluation.replay import RunTrace, replay_recordings
 from slipsense.plots import plot_tradeoff
 from slipsense.measures import pergrasp
 from slipsense.recordings.folders import camera_counts
-from slipsense.recordings.labels import label_runs
 from slipsense.recordings.recording_set import Recordings
 from slipsense.recordings.label_csv import LABEL_COLUMNS, Key, _open_csv, _parse_int
 from slipsense.recordings.types import VideoLabel
@@ -236,7 +235,7 @@ def run_early_warning(
     else:
         first = sorted({(r.object, r.experiment) for r in recs})[:limit] if limit is not None else None
         todo = [r for r in recs if first is None or (r.object, r.experiment) in first]
-        lab = label_runs(todo, overrides, progress=progress)
+        lab = data.only(todo).labelled(overrides, whole_runs=False, progress=progress).labels
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # a checkpoint without a threshold: the table covers thresholds anyway
         fixed = info["model_config"].get("sensors")  # a model trained on so many fingers
