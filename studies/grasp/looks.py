@@ -14,12 +14,11 @@ import numpy as np
 
 from slipsense import atomic
 from slipsense.paths import portable_path
-from slipsense.recordings.labels import label_runs
 from slipsense.errors import InputError
 from slipsense.evaluation.replay import RunTrace
 from slipsense.measures import pergrasp
 from slipsense.recordings.contact import STARTUP_FRAMES, rest_mask
-from slipsense.recordings.folders import find_recordings
+from slipsense.recordings.recording_set import Recordings
 from slipsense.recordings.frame_cache import video_products
 from slipsense.recordings.video import read_video
 from slipsense.sensors.marker_detection import detect_markers
@@ -100,8 +99,8 @@ def _row(name: str, outs: list, fps: float) -> dict[str, Any]:
 def looks_study(recordings: Path, checkpoint: Path, progress: bool = True) -> dict[str, Any]:
     """Per-grasp outcomes of ``checkpoint`` on every run of ``recordings`` under each look."""
     det = SlipDetector.from_checkpoint(checkpoint, backend="torch")
-    recs = find_recordings(recordings, on_error="skip")
-    outcomes = _replayed(det, recs, label_runs(recs, progress=progress), LOOKS, progress)
+    data = Recordings.open(recordings, on_error="skip").labelled(whole_runs=False, progress=progress)
+    outcomes = _replayed(det, list(data), dict(data.labels), LOOKS, progress)
     det.close()
     return {
         "checkpoint": Path(checkpoint).name,
@@ -114,8 +113,8 @@ def looks_study(recordings: Path, checkpoint: Path, progress: bool = True) -> di
 def looks_folds_study(recordings: Path, detectors: Path, progress: bool = True) -> dict[str, Any]:
     """Leave objects out: each fold's detector (``<detectors>/fold<k>/``, ``slipsense train --fold k``)
     on its held-out objects (``held_out.json``) under each look, pooled over the folds."""
-    recs = find_recordings(recordings, on_error="skip")
-    labels = label_runs(recs, progress=progress)
+    data = Recordings.open(recordings, on_error="skip").labelled(whole_runs=False, progress=progress)
+    recs, labels = list(data), dict(data.labels)
     pooled: dict[str, list] = {name: [] for name in LOOKS}
     fps = None  # the folds' detectors share their sensor's rate (each replay runs on its clock)
     for _, held, det in fold_detectors(detectors):

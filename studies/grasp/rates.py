@@ -21,14 +21,13 @@ import numpy as np
 from slipsense import atomic
 from slipsense.checkpoint import read_info
 from slipsense.paths import portable_path
-from slipsense.recordings.labels import label_runs
 from slipsense.evaluation.judge import judge
 from slipsense.evaluation.replay import RunTrace
 from slipsense.measures import pergrasp
 from slipsense.measures import promise
 from slipsense.progress import progress_bar
 from slipsense.recordings.contact import rest_mask
-from slipsense.recordings.folders import find_recordings
+from slipsense.recordings.recording_set import Recordings
 from slipsense.recordings.frame_cache import video_products
 from slipsense.recordings.types import by_run
 from slipsense.streaming.clock import slower_camera_frames
@@ -133,8 +132,8 @@ def rates_study(recordings: Path, checkpoint: Path, seed: int = 0, progress: boo
     """Per-grasp outcomes of ``checkpoint`` on every run of ``recordings`` under each condition, on the
     detector's clock and without it."""
     det = SlipDetector.from_checkpoint(checkpoint, backend="torch")
-    recs = find_recordings(recordings, on_error="skip")
-    labels = label_runs(recs, progress=progress)
+    data = Recordings.open(recordings, on_error="skip").labelled(whole_runs=False, progress=progress)
+    recs, labels = list(data), dict(data.labels)
     rng = np.random.default_rng(seed)
     outcomes = _replayed(det, recs, labels, lambda o, e: rng, progress=progress)
     det.close()
@@ -155,8 +154,8 @@ def folds_study(
     ``slipsense train --fold k``) replays only its held-out objects (``held_out.json``) under each
     condition on its clock, at its own operating point; the outcomes are pooled over folds. The
     non-learned baseline's folds (``baselines``, e.g. ``motion-energy``) the same way beside it."""
-    recs = find_recordings(recordings, on_error="skip")
-    labels = label_runs(recs, progress=progress)
+    data = Recordings.open(recordings, on_error="skip").labelled(whole_runs=False, progress=progress)
+    recs, labels = list(data), dict(data.labels)
 
     def rng_for(obj: str, exp: int) -> np.random.Generator:  # the same frames dropped for every model
         return np.random.default_rng([seed, zlib.crc32(obj.encode()), exp])
