@@ -51,3 +51,16 @@ def test_a_run_without_a_rate_or_a_horizon_without_a_time_is_refused():
     for bad in (0, -1.0, float("nan"), float("inf"), True):
         with pytest.raises(ConfigError, match="seconds"):
             horizon_frames(25.0, bad)
+
+
+def test_a_grasp_detector_trains_its_warning_window_in_seconds():
+    """The training recipe's horizon and start-up are 2 s and 0.4 s at the recordings' sensor's rate."""
+    from slipsense.models import model_class
+    from slipsense.models.base import RecordingsShape
+
+    motionnet = model_class("motionnet")
+    at50 = motionnet.training_defaults(RecordingsShape(cameras=2, per_grasp=False, fps=50.0))
+    at25 = motionnet.training_defaults(RecordingsShape(cameras=2, per_grasp=False, fps=25.0))
+    assert (at50["horizon"], at50["startup"]) == (100, 20) and (at25["horizon"], at25["startup"]) == (50, 10)
+    whole = motionnet.training_defaults(RecordingsShape(cameras=1, per_grasp=True, fps=30.0))
+    assert whole["horizon"] == 60 and whole["startup"] == 0  # labelled as a whole: no camera start-up

@@ -37,6 +37,7 @@ import torch
 from torch import Tensor, nn
 
 from slipsense.errors import ConfigError, InputError
+from slipsense.measures.registry import horizon_frames, startup_frames
 from slipsense.models.streams import WindowStream
 from slipsense.readers import MARKER_CLIPS, VIDEO_CLIPS, ClipReader
 from slipsense.recordings.markers import layout_name, marker_clouds, marker_layout, marker_sequences, track_markers
@@ -356,13 +357,18 @@ class GraspModel(SlipModel):
     def training_defaults(cls, data: "RecordingsShape | None", init: bool = False) -> dict[str, Any]:
         """Its :attr:`recipe`, then what the grasps imply: ``model.sensors``, the cameras per grasp of
         the recordings where that is not the model's own default (1: each camera a grasp of its own),
-        and ``startup`` 0 for grasps labelled as a whole (cut from a stream: no camera start-up to
-        skip). From a checkpoint (``init``) the model keeps its settings: start-up only."""
+        the warning ``horizon`` and the ``startup`` (2 s and 0.4 s: :data:`~slipsense.measures.registry.HORIZON_S`)
+        in frames at the recordings' sensor's rate, and ``startup`` 0 for grasps labelled as a whole (cut
+        from a stream: no camera start-up to skip). From a checkpoint (``init``) the model keeps its
+        settings: horizon and start-up only."""
         out = super().training_defaults(data, init)
         if data is None:
             return out
         if not init and "sensors" in settings_of(cls) and data.cameras != setting_default(cls, "sensors"):
             out["model.sensors"] = data.cameras
+        if data.fps is not None:  # the warning window and the start-up are times: frames at the sensor's rate
+            out.setdefault("horizon", horizon_frames(data.fps))
+            out.setdefault("startup", startup_frames(data.fps))
         if data.per_grasp:
             out["startup"] = 0
         return out
@@ -445,11 +451,13 @@ def window_geometry(model: nn.Module, info: Mapping[str, Any] | None = None) -> 
 class RecordingsShape:
     """What a training knows of its recordings before decoding them
     (:meth:`SlipModel.training_defaults`): the cameras per grasp (1: frame folders of one finger,
-    or one camera per run; 2: both fingers) and whether every grasp is labelled as a whole
-    (slipped or held, cut from a stream: no camera start-up in it)."""
+    or one camera per run; 2: both fingers), whether every grasp is labelled as a whole
+    (slipped or held, cut from a stream: no camera start-up in it) and the frame rate of the sensor
+    they are read as (the detector's clock; None: not known here)."""
 
     cameras: int
     per_grasp: bool
+    fps: float | None = None
 
 
 def setting_default(cls: type, key: str) -> Any:

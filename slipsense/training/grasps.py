@@ -488,7 +488,10 @@ def recordings_shape(recordings, sensor=None, on_error: str = "raise") -> Record
     try:
         with warnings.catch_warnings():  # what on_error="skip" leaves out is said when the data is read
             warnings.simplefilter("ignore")
-            found = Recordings.of(recordings, sensor, on_error).listed
+            read = Recordings.of(recordings, sensor, on_error)
     except SlipsenseError:
         return None
-    return RecordingsShape(cameras_per_grasp(found), all(r.per_grasp for r in found)) if found else None
+    found = read.listed
+    return (
+        RecordingsShape(cameras_per_grasp(found), all(r.per_grasp for r in found), read.sensor.fps) if found else None
+    )
