@@ -29,6 +29,7 @@ from .folders import (
     check_on_error,
     find_recordings,
     reads_alike,
+    report,
     state_sensor,
     stated_sensor,
     validate_recordings,
@@ -194,9 +195,7 @@ class Recordings:
             try:
                 check_size(r.path, info.height, info.width, expected_size)
             except InputError as exc:
-                if on_error == "raise":
-                    raise
-                warnings.warn(f"{exc}; skipped", SkippedInputWarning, stacklevel=3)
+                report(exc.path, exc.problem, on_error)  # raised, or warned and left out
                 continue
             kept.append(r)
         return kept
