@@ -114,15 +114,6 @@ VIDEO_LINKS = {
 }
 
 
-@pytest.mark.parametrize("case", VIDEO_LINKS)
-def test_a_bad_video_link_is_one_line(tmp_path, cache, case):
-    make, words = VIDEO_LINKS[case]
-    bad = make(_video_root(tmp_path / "rec"))
-    result, csv = _label(tmp_path / "rec", tmp_path)
-    _one_error(result, bad, words)
-    assert not csv.exists()
-
-
 def test_evaluate_names_a_video_link_that_loops(tmp_path, cache):
     bad = _video_loop(_video_root(tmp_path / "rec"))
     result = runner.invoke(app, ["evaluate", "--recordings", str(tmp_path / "rec"), "--no-progress"])
@@ -194,10 +185,15 @@ FRAME_LINKS = {
 }
 
 
-@pytest.mark.parametrize("case", FRAME_LINKS)
-def test_a_bad_frame_link_is_one_line(tmp_path, cache, case):
-    make, words = FRAME_LINKS[case]
-    bad = make(_frame_root(tmp_path / "rec"))
+#: Every bad link, in a video layout and in frame folders: (the layout's maker, the link's maker, the words).
+BAD_LINKS = {f"video {k}": (_video_root, *v) for k, v in VIDEO_LINKS.items()}
+BAD_LINKS |= {f"frames {k}": (_frame_root, *v) for k, v in FRAME_LINKS.items()}
+
+
+@pytest.mark.parametrize("case", BAD_LINKS)
+def test_a_bad_link_is_one_line(tmp_path, cache, case):
+    root, make, words = BAD_LINKS[case]
+    bad = make(root(tmp_path / "rec"))
     result, csv = _label(tmp_path / "rec", tmp_path)
     _one_error(result, bad, words)
     assert not csv.exists()
